@@ -1,0 +1,2 @@
+//! The `ttball` command-line tool.
+fn main() {}
