@@ -1,0 +1,320 @@
+//! Flight of a spinning ball: the spin-parameter aerodynamic model of Isomura, Hayakawa, Asai and
+//! Ariizumi (seed 004, eq. 1-3 and Table 3), with the corrections of physics.md "Flight":
+//!
+//! ```text
+//! dp/dt = v
+//! dv/dt = -g e_z - (C_D(Sp) rho S_b / m) |v| v + (C_M(Sp) rho V_b / m) (w x v)
+//! dw/dt = -lambda w                      (lambda = configured spin decay, default 0)
+//! S_b = pi r^2 / 2,  V_b = 4/3 pi r^3,  Sp = r |w x v| / |v|^2
+//! ```
+//!
+//! C_D and C_M are polynomials in Sp, evaluated at Sp clamped to [0, Sp_max] (the fit covers
+//! 0.1 < Sp < 2.0 and 0.5 < |v| < 10 m/s). [`FlightModel::jacobian`] is the exact derivative of
+//! this field, including the dependence of C_D and C_M on Sp (zero beyond the clamp).
+
+use nalgebra::{Matrix3, SMatrix, Vector3};
+
+use super::state::{SPIN, StateVector, VELOCITY};
+use crate::config::Config;
+
+/// A polynomial sum_i c_i x^i with its coefficients lowest order first.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Polynomial {
+    coefficients: Vec<f64>,
+}
+
+impl Polynomial {
+    /// A polynomial from its coefficients, lowest order first.
+    pub fn new(coefficients: &[f64]) -> Self {
+        Self {
+            coefficients: coefficients.to_vec(),
+        }
+    }
+
+    /// The value and the first derivative at `x` (Horner's scheme).
+    pub fn value_and_slope(&self, x: f64) -> (f64, f64) {
+        let mut value = 0.0;
+        let mut slope = 0.0;
+        for &c in self.coefficients.iter().rev() {
+            slope = slope * x + value;
+            value = value * x + c;
+        }
+        (value, slope)
+    }
+
+    /// The value at `x`.
+    pub fn value(&self, x: f64) -> f64 {
+        self.value_and_slope(x).0
+    }
+}
+
+/// The aerodynamic state of the ball at one instant, for reporting and tests.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct AeroForces {
+    /// Spin parameter Sp = r |w x v| / |v|^2 before clamping [-].
+    pub spin_parameter: f64,
+    /// True when Sp exceeded Sp_max and the coefficients were evaluated at Sp_max.
+    pub clamped: bool,
+    /// Drag coefficient C_D at the (clamped) spin parameter [-].
+    pub drag_coefficient: f64,
+    /// Magnus coefficient C_M at the (clamped) spin parameter [-].
+    pub magnus_coefficient: f64,
+    /// Drag acceleration [m/s^2].
+    pub drag: Vector3<f64>,
+    /// Magnus acceleration [m/s^2].
+    pub magnus: Vector3<f64>,
+}
+
+/// The Jacobian of the flight field d(dx/dt)/dx, kept in its block structure
+/// `[[0, I, 0], [0, dv_dv, dv_dw], [0, 0, -lambda I]]` so products cost a fraction of a 9x9 product.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FlightJacobian {
+    /// d(acceleration)/d(velocity) [1/s].
+    pub dv_dv: Matrix3<f64>,
+    /// d(acceleration)/d(spin) [m/s / rad].
+    pub dv_dw: Matrix3<f64>,
+    /// Spin decay rate lambda [1/s]: d(dw/dt)/dw = -lambda I.
+    pub spin_decay: f64,
+}
+
+impl FlightJacobian {
+    /// The product `A m` for any matrix with 9 rows (a state vector or a state-transition matrix).
+    pub fn apply<const C: usize>(&self, m: &SMatrix<f64, 9, C>) -> SMatrix<f64, 9, C> {
+        let mut out = SMatrix::<f64, 9, C>::zeros();
+        let mv = m.fixed_rows::<3>(VELOCITY);
+        let mw = m.fixed_rows::<3>(SPIN);
+        out.fixed_rows_mut::<3>(0).copy_from(&mv);
+        out.fixed_rows_mut::<3>(VELOCITY)
+            .copy_from(&(self.dv_dv * mv + self.dv_dw * mw));
+        out.fixed_rows_mut::<3>(SPIN)
+            .copy_from(&(mw * -self.spin_decay));
+        out
+    }
+
+    /// The full 9x9 matrix.
+    pub fn to_matrix(&self) -> SMatrix<f64, 9, 9> {
+        self.apply(&SMatrix::<f64, 9, 9>::identity())
+    }
+}
+
+/// Below this |v|^2 [m^2/s^2] or |w x v| the spin parameter is taken as 0 (no direction defined).
+const TINY: f64 = 1e-18;
+
+/// The flight model: constants of the ball and the air folded into two factors.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FlightModel {
+    gravity: f64,
+    radius: f64,
+    drag_factor: f64,
+    magnus_factor: f64,
+    drag: Polynomial,
+    magnus: Polynomial,
+    spin_parameter_max: f64,
+    spin_decay: f64,
+}
+
+impl FlightModel {
+    /// The model with the configured ball, air and aerodynamic coefficients.
+    pub fn new(config: &Config) -> Self {
+        let r = config.ball.radius;
+        let m = config.ball.mass;
+        let rho = config.air.density;
+        let cross_section = 0.5 * std::f64::consts::PI * r * r;
+        let volume = 4.0 / 3.0 * std::f64::consts::PI * r * r * r;
+        Self {
+            gravity: config.gravity,
+            radius: r,
+            drag_factor: rho * cross_section / m,
+            magnus_factor: rho * volume / m,
+            drag: Polynomial::new(&config.aero.drag_coefficients),
+            magnus: Polynomial::new(&config.aero.magnus_coefficients),
+            spin_parameter_max: config.aero.spin_parameter_max,
+            spin_decay: config.aero.spin_decay_rate,
+        }
+    }
+
+    /// rho S_b / m [1/m]: multiplied by C_D |v| v it gives the drag acceleration.
+    pub fn drag_factor(&self) -> f64 {
+        self.drag_factor
+    }
+
+    /// rho V_b / m [-]: multiplied by C_M (w x v) it gives the Magnus acceleration.
+    pub fn magnus_factor(&self) -> f64 {
+        self.magnus_factor
+    }
+
+    /// Ball radius [m].
+    pub fn radius(&self) -> f64 {
+        self.radius
+    }
+
+    /// C_D(Sp), with Sp clamped to [0, Sp_max].
+    pub fn drag_coefficient(&self, spin_parameter: f64) -> f64 {
+        self.drag
+            .value(spin_parameter.clamp(0.0, self.spin_parameter_max))
+    }
+
+    /// C_M(Sp), with Sp clamped to [0, Sp_max].
+    pub fn magnus_coefficient(&self, spin_parameter: f64) -> f64 {
+        self.magnus
+            .value(spin_parameter.clamp(0.0, self.spin_parameter_max))
+    }
+
+    /// Spin parameter Sp = r |w x v| / |v|^2 (0 for a ball at rest).
+    pub fn spin_parameter(&self, velocity: &Vector3<f64>, spin: &Vector3<f64>) -> f64 {
+        let speed_sq = velocity.norm_squared();
+        if speed_sq < TINY {
+            return 0.0;
+        }
+        self.radius * spin.cross(velocity).norm() / speed_sq
+    }
+
+    /// Drag and Magnus accelerations at one velocity and spin.
+    pub fn forces(&self, velocity: &Vector3<f64>, spin: &Vector3<f64>) -> AeroForces {
+        let sp = self.spin_parameter(velocity, spin);
+        let cd = self.drag_coefficient(sp);
+        let cm = self.magnus_coefficient(sp);
+        AeroForces {
+            spin_parameter: sp,
+            clamped: sp > self.spin_parameter_max,
+            drag_coefficient: cd,
+            magnus_coefficient: cm,
+            drag: -self.drag_factor * cd * velocity.norm() * velocity,
+            magnus: self.magnus_factor * cm * spin.cross(velocity),
+        }
+    }
+
+    /// The time derivative of the state, dx/dt.
+    pub fn derivative(&self, x: &StateVector) -> StateVector {
+        let v = x.fixed_rows::<3>(VELOCITY).into_owned();
+        let w = x.fixed_rows::<3>(SPIN).into_owned();
+        let f = self.forces(&v, &w);
+        let accel = f.drag + f.magnus - Vector3::new(0.0, 0.0, self.gravity);
+        let mut dx = StateVector::zeros();
+        dx.fixed_rows_mut::<3>(0).copy_from(&v);
+        dx.fixed_rows_mut::<3>(VELOCITY).copy_from(&accel);
+        dx.fixed_rows_mut::<3>(SPIN)
+            .copy_from(&(w * -self.spin_decay));
+        dx
+    }
+
+    /// The Jacobian of [`Self::derivative`] with respect to the state.
+    pub fn jacobian(&self, x: &StateVector) -> FlightJacobian {
+        let v = x.fixed_rows::<3>(VELOCITY).into_owned();
+        let w = x.fixed_rows::<3>(SPIN).into_owned();
+        let speed_sq = v.norm_squared();
+        let speed = speed_sq.sqrt();
+        let c = w.cross(&v);
+        let c_norm = c.norm();
+
+        // Sp and its gradients; zero where Sp is clamped or undefined.
+        let (sp, dsp_dv, dsp_dw) = if speed_sq < TINY || c_norm < TINY {
+            (0.0, Vector3::zeros(), Vector3::zeros())
+        } else {
+            let sp = self.radius * c_norm / speed_sq;
+            let c_hat = c / c_norm;
+            if sp > self.spin_parameter_max {
+                (sp, Vector3::zeros(), Vector3::zeros())
+            } else {
+                let dsp_dv = (self.radius * c_hat.cross(&w) - 2.0 * sp * v) / speed_sq;
+                let dsp_dw = self.radius * v.cross(&c_hat) / speed_sq;
+                (sp, dsp_dv, dsp_dw)
+            }
+        };
+        let sp_eval = sp.clamp(0.0, self.spin_parameter_max);
+        let (cd, dcd) = self.drag.value_and_slope(sp_eval);
+        let (cm, dcm) = self.magnus.value_and_slope(sp_eval);
+
+        // Drag: -k_D C_D |v| v.
+        let speed_v = speed * v;
+        let d_speed_v = if speed < TINY {
+            Matrix3::zeros()
+        } else {
+            Matrix3::identity() * speed + v * v.transpose() / speed
+        };
+        let drag_dv = -self.drag_factor * (dcd * speed_v * dsp_dv.transpose() + cd * d_speed_v);
+        let drag_dw = -self.drag_factor * dcd * speed_v * dsp_dw.transpose();
+        // Magnus: k_M C_M (w x v);  d(w x v)/dv = [w]x,  d(w x v)/dw = -[v]x.
+        let magnus_dv = self.magnus_factor * (dcm * c * dsp_dv.transpose() + cm * w.cross_matrix());
+        let magnus_dw = self.magnus_factor * (dcm * c * dsp_dw.transpose() - cm * v.cross_matrix());
+
+        FlightJacobian {
+            dv_dv: drag_dv + magnus_dv,
+            dv_dw: drag_dw + magnus_dw,
+            spin_decay: self.spin_decay,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use approx::assert_relative_eq;
+
+    fn model() -> FlightModel {
+        FlightModel::new(&Config::default())
+    }
+
+    #[test]
+    fn polynomial_value_and_slope() {
+        let p = Polynomial::new(&[1.0, -2.0, 3.0]);
+        let (v, s) = p.value_and_slope(2.0);
+        assert_relative_eq!(v, 1.0 - 4.0 + 12.0);
+        assert_relative_eq!(s, -2.0 + 12.0);
+    }
+
+    /// physics.md lists these values of the seed 004 Table 3 polynomials.
+    #[test]
+    fn coefficients_match_physics_md() {
+        let m = model();
+        let cases_cd = [(0.1, 0.4034), (1.0, 0.6526)];
+        for (sp, cd) in cases_cd {
+            assert_relative_eq!(m.drag_coefficient(sp), cd, epsilon = 5e-5);
+        }
+        let cases_cm = [(0.1, 0.6520), (0.5, 0.2844), (1.0, 0.1824), (2.0, 0.1072)];
+        for (sp, cm) in cases_cm {
+            assert_relative_eq!(m.magnus_coefficient(sp), cm, epsilon = 5e-5);
+        }
+        // Clamped beyond Sp_max.
+        assert_eq!(m.magnus_coefficient(3.5), m.magnus_coefficient(2.0));
+        assert_eq!(m.drag_coefficient(-1.0), m.drag_coefficient(0.0));
+    }
+
+    #[test]
+    fn factors_match_physics_md() {
+        let m = model();
+        assert_relative_eq!(m.drag_factor(), 0.27925, epsilon = 5e-6);
+        assert_relative_eq!(m.magnus_factor(), 0.014893, epsilon = 5e-7);
+    }
+
+    /// physics.md worked example: v = (-8, 0, 1) m/s, w = (0, -300, 0) rad/s.
+    #[test]
+    fn worked_drag_and_magnus_example() {
+        let f = model().forces(
+            &Vector3::new(-8.0, 0.0, 1.0),
+            &Vector3::new(0.0, -300.0, 0.0),
+        );
+        assert_relative_eq!(f.spin_parameter, 0.744, epsilon = 5e-4);
+        assert_relative_eq!(f.drag, Vector3::new(10.70, 0.0, -1.34), epsilon = 5e-3);
+        assert_relative_eq!(f.magnus, Vector3::new(-0.95, 0.0, -7.57), epsilon = 5e-3);
+        assert!(!f.clamped);
+    }
+
+    /// Topspin on a ball moving toward -x is w along -y, and the Magnus force then points down.
+    #[test]
+    fn topspin_pushes_down_backspin_lifts() {
+        let v = Vector3::new(-6.0, 0.0, 0.0);
+        let top = model().forces(&v, &Vector3::new(0.0, -150.0, 0.0));
+        let back = model().forces(&v, &Vector3::new(0.0, 150.0, 0.0));
+        assert!(top.magnus.z < -1.0);
+        assert!(back.magnus.z > 1.0);
+    }
+
+    #[test]
+    fn ball_at_rest_has_no_aero_force() {
+        let f = model().forces(&Vector3::zeros(), &Vector3::new(10.0, 0.0, 0.0));
+        assert_eq!(f.spin_parameter, 0.0);
+        assert_eq!(f.drag, Vector3::zeros());
+        assert_eq!(f.magnus, Vector3::zeros());
+    }
+}

@@ -1,0 +1,571 @@
+//! Event-aware propagation of the ball state: fixed-step RK4 on the flight model
+//! ([`super::aero`]), with the state-transition matrix propagated through the same RK4 stages (so
+//! it is the exact derivative of the discrete map), and events found inside a step at their exact
+//! time by root-finding on the RK4 map itself:
+//!
+//! - table contact: ball centre at z = r moving down, inside the table outline -> bounce
+//!   ([`super::bounce`]);
+//! - net: the centre crosses x = 0; a hit when the ball overlaps the net (0 < z + r and
+//!   z - r < net height) within the posts (|y| < width / 2 + overhang), else a crossing with its
+//!   clearance;
+//! - floor: the centre at z = r - table height;
+//! - a plane x = const (the robot's hitting plane).
+//!
+//! The time of an event depends on the state it was predicted from; its gradient (from
+//! g(x(tau)) = 0) enters the Jacobian of every later state, as in the saltation matrix of a hybrid
+//! system. Times are seconds relative to the caller's own origin.
+
+use super::aero::FlightModel;
+use super::bounce::{BounceRegime, TableBounce};
+use super::state::{BallState, StateMatrix, StateRow, StateVector, VELOCITY};
+use crate::config::Config;
+
+/// d(state)/d(initial state) and d(time)/d(initial state) of a [`Cursor`].
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Tangent {
+    /// State-transition matrix: d(current state)/d(initial state).
+    pub transition: StateMatrix,
+    /// d(current time)/d(initial state) [s per state unit]; non-zero only at an event, whose time
+    /// moves with the initial state.
+    pub time_gradient: StateRow,
+}
+
+impl Tangent {
+    fn identity() -> Self {
+        Self {
+            transition: StateMatrix::identity(),
+            time_gradient: StateRow::zeros(),
+        }
+    }
+}
+
+/// Where a propagation stands: the time, the state and optionally its sensitivities.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Cursor {
+    /// Time [s] on the caller's axis.
+    pub t: f64,
+    /// State at `t`.
+    pub state: StateVector,
+    /// Sensitivities to the initial state, when asked for.
+    pub tangent: Option<Tangent>,
+}
+
+impl Cursor {
+    /// A cursor at time `t` that propagates the state only.
+    pub fn new(t: f64, state: &BallState) -> Self {
+        Self {
+            t,
+            state: state.to_vector(),
+            tangent: None,
+        }
+    }
+
+    /// A cursor at time `t` that also propagates the state-transition matrix (starting at I).
+    pub fn with_jacobian(t: f64, state: &BallState) -> Self {
+        Self {
+            tangent: Some(Tangent::identity()),
+            ..Self::new(t, state)
+        }
+    }
+
+    /// The state as a [`BallState`].
+    pub fn ball(&self) -> BallState {
+        BallState::from_vector(&self.state)
+    }
+}
+
+/// Which events a propagation looks for, besides the table bounce (always on).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Watch {
+    /// Stop at a net hit and report net crossings.
+    pub net: bool,
+    /// Stop when the ball reaches the floor.
+    pub floor: bool,
+    /// Report crossings of the plane x = this value [m].
+    pub plane_x: Option<f64>,
+}
+
+impl Watch {
+    /// Table, net and floor; no plane.
+    pub const FLIGHT: Self = Self {
+        net: true,
+        floor: true,
+        plane_x: None,
+    };
+    /// Table bounces only (the filter's process model: it must not stop at a net or the floor).
+    pub const BOUNCES: Self = Self {
+        net: false,
+        floor: false,
+        plane_x: None,
+    };
+}
+
+/// What happened at an event.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum EventKind {
+    /// The ball bounced on the table.
+    TableBounce {
+        /// Sliding or rolling impact.
+        regime: BounceRegime,
+    },
+    /// The ball centre crossed the net plane x = 0.
+    Net {
+        /// Height of the ball's bottom over the net top [m]; negative below it.
+        clearance: f64,
+        /// True when the ball hit the net (the propagation stops there).
+        hit: bool,
+    },
+    /// The ball reached the floor (the propagation stops there).
+    Floor,
+    /// The ball centre crossed the watched plane x = const.
+    Plane {
+        /// The plane's x [m].
+        x: f64,
+    },
+}
+
+impl EventKind {
+    /// True when the propagation cannot go on after this event.
+    pub fn is_terminal(&self) -> bool {
+        matches!(self, Self::Floor | Self::Net { hit: true, .. })
+    }
+}
+
+/// Sensitivities of an event to the initial state.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct EventSensitivity {
+    /// d(state just before the event)/d(initial state), the event time moving with it.
+    pub before: StateMatrix,
+    /// d(state just after the event)/d(initial state).
+    pub after: StateMatrix,
+    /// d(event time)/d(initial state) [s per state unit].
+    pub time_gradient: StateRow,
+}
+
+/// One event of a propagation.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Event {
+    /// What happened.
+    pub kind: EventKind,
+    /// When [s], on the caller's time axis.
+    pub t: f64,
+    /// State just before.
+    pub before: StateVector,
+    /// State just after (equal to `before` except at a bounce).
+    pub after: StateVector,
+    /// Sensitivities, when the cursor carries a tangent.
+    pub sensitivity: Option<EventSensitivity>,
+}
+
+/// Whether an observer wants the propagation to go on.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Flow {
+    /// Go on.
+    Continue,
+    /// Stop now.
+    Stop,
+}
+
+/// Receives events and grid steps as a propagation runs. Both default to doing nothing.
+pub trait Observer {
+    /// Called at every event, after the state change.
+    fn on_event(&mut self, _event: &Event) -> Flow {
+        Flow::Continue
+    }
+    /// Called at every step of the grid.
+    fn on_step(&mut self, _cursor: &Cursor) -> Flow {
+        Flow::Continue
+    }
+}
+
+impl Observer for () {}
+
+/// How a propagation ended.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Outcome {
+    /// The requested duration was covered.
+    Reached,
+    /// The observer asked to stop.
+    Stopped,
+    /// A terminal event (net hit, floor) ended the flight.
+    Terminated(EventKind),
+}
+
+/// One step of RK4 with its sensitivities.
+struct TangentStep {
+    state: StateVector,
+    /// d(state after the step)/d(initial state), at a fixed step size.
+    transition: StateMatrix,
+    /// d(state after the step)/d(step size).
+    rate: StateVector,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Surface {
+    Table,
+    Net,
+    Floor,
+    Plane(f64),
+}
+
+impl Surface {
+    /// The state component the surface's event function depends on (x or z).
+    fn axis(&self) -> usize {
+        match self {
+            Self::Table | Self::Floor => 2,
+            Self::Net | Self::Plane(_) => 0,
+        }
+    }
+}
+
+/// Largest number of root-finding iterations for one event time.
+const MAX_ROOT_ITERATIONS: usize = 100;
+
+/// The propagator: flight model, table bounce, table geometry and the largest RK4 step.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Propagator {
+    flight: FlightModel,
+    bounce: TableBounce,
+    radius: f64,
+    half_length: f64,
+    half_width: f64,
+    net_height: f64,
+    net_half_span: f64,
+    floor_z: f64,
+    max_step: f64,
+}
+
+impl Propagator {
+    /// The propagator of the configured physics, with `prediction.step` as its largest step.
+    pub fn new(config: &Config) -> Self {
+        Self::with_step(config, config.prediction.step)
+    }
+
+    /// The propagator of the configured physics with another largest step [s].
+    pub fn with_step(config: &Config, max_step: f64) -> Self {
+        Self {
+            flight: FlightModel::new(config),
+            bounce: TableBounce::new(config),
+            radius: config.ball.radius,
+            half_length: 0.5 * config.table.length,
+            half_width: 0.5 * config.table.width,
+            net_height: config.table.net_height,
+            net_half_span: 0.5 * config.table.width + config.table.net_overhang,
+            floor_z: -config.table.height,
+            max_step,
+        }
+    }
+
+    /// The flight model.
+    pub fn flight(&self) -> &FlightModel {
+        &self.flight
+    }
+
+    /// The table-bounce model.
+    pub fn bounce(&self) -> &TableBounce {
+        &self.bounce
+    }
+
+    /// The largest RK4 step [s].
+    pub fn max_step(&self) -> f64 {
+        self.max_step
+    }
+
+    /// Advances `cursor` by `duration` seconds on a uniform grid of steps no longer than the
+    /// largest step, handling every event on the way. The observer sees each event and each grid
+    /// step. A ball that starts touching the table (0 < z <= r, inside the outline) while moving
+    /// down bounces at once.
+    pub fn advance(
+        &self,
+        cursor: &mut Cursor,
+        duration: f64,
+        watch: Watch,
+        observer: &mut impl Observer,
+    ) -> Outcome {
+        if !(duration > 0.0) {
+            return Outcome::Reached;
+        }
+        let z = cursor.state[2];
+        if z > 0.0
+            && z <= self.radius
+            && cursor.state[VELOCITY + 2] < 0.0
+            && self.over_table(&cursor.state)
+        {
+            let event = self.table_bounce(cursor);
+            if observer.on_event(&event) == Flow::Stop {
+                return Outcome::Stopped;
+            }
+        }
+        let steps = (duration / self.max_step).ceil().max(1.0);
+        let h = duration / steps;
+        let t_start = cursor.t;
+        let count = steps as u64;
+        for k in 1..=count {
+            let target = if k == count {
+                t_start + duration
+            } else {
+                t_start + k as f64 * h
+            };
+            if let Some(outcome) = self.step_to(cursor, target, watch, observer) {
+                return outcome;
+            }
+            if observer.on_step(cursor) == Flow::Stop {
+                return Outcome::Stopped;
+            }
+        }
+        Outcome::Reached
+    }
+
+    /// Moves the cursor to the fixed time `target`, stopping at the events on the way.
+    fn step_to(
+        &self,
+        cursor: &mut Cursor,
+        target: f64,
+        watch: Watch,
+        observer: &mut impl Observer,
+    ) -> Option<Outcome> {
+        loop {
+            let h = target - cursor.t;
+            if h <= 0.0 {
+                cursor.t = target;
+                return None;
+            }
+            let start = cursor.state;
+            let end = self.rk4(&start, h);
+            let Some((surface, tau)) = self.first_event(&start, &end, h, watch) else {
+                self.take_step(cursor, h, None);
+                cursor.t = target;
+                return None;
+            };
+            let axis = surface.axis();
+            self.take_step(cursor, tau, Some(axis));
+            cursor.t += tau;
+            let event = match surface {
+                Surface::Table => {
+                    cursor.state[axis] = self.radius;
+                    self.table_bounce(cursor)
+                }
+                Surface::Net => {
+                    cursor.state[axis] = 0.0;
+                    let z = cursor.state[2];
+                    let clearance = z - self.radius - self.net_height;
+                    let hit = clearance < 0.0
+                        && z + self.radius > 0.0
+                        && cursor.state[1].abs() < self.net_half_span;
+                    self.passing_event(cursor, EventKind::Net { clearance, hit })
+                }
+                Surface::Floor => {
+                    cursor.state[axis] = self.radius + self.floor_z;
+                    self.passing_event(cursor, EventKind::Floor)
+                }
+                Surface::Plane(x) => {
+                    cursor.state[axis] = x;
+                    self.passing_event(cursor, EventKind::Plane { x })
+                }
+            };
+            if event.kind.is_terminal() {
+                observer.on_event(&event);
+                return Some(Outcome::Terminated(event.kind));
+            }
+            if observer.on_event(&event) == Flow::Stop {
+                return Some(Outcome::Stopped);
+            }
+        }
+    }
+
+    /// An event that leaves the state unchanged.
+    fn passing_event(&self, cursor: &Cursor, kind: EventKind) -> Event {
+        Event {
+            kind,
+            t: cursor.t,
+            before: cursor.state,
+            after: cursor.state,
+            sensitivity: cursor.tangent.map(|t| EventSensitivity {
+                before: t.transition,
+                after: t.transition,
+                time_gradient: t.time_gradient,
+            }),
+        }
+    }
+
+    /// Applies a table bounce to the cursor's state (and tangent) and describes it.
+    fn table_bounce(&self, cursor: &mut Cursor) -> Event {
+        let before = cursor.state;
+        let bounce = self.bounce.apply(&before);
+        cursor.state = bounce.state;
+        let sensitivity = cursor.tangent.as_mut().map(|tangent| {
+            let transition_before = tangent.transition;
+            tangent.transition = bounce.jacobian * transition_before;
+            EventSensitivity {
+                before: transition_before,
+                after: tangent.transition,
+                time_gradient: tangent.time_gradient,
+            }
+        });
+        Event {
+            kind: EventKind::TableBounce {
+                regime: bounce.regime,
+            },
+            t: cursor.t,
+            before,
+            after: bounce.state,
+            sensitivity,
+        }
+    }
+
+    /// True when the ball centre is over the playing surface.
+    fn over_table(&self, x: &StateVector) -> bool {
+        x[0].abs() <= self.half_length && x[1].abs() <= self.half_width
+    }
+
+    /// The earliest event inside a step from `start` to `end` (step size `h`), with its offset
+    /// from the step's start.
+    fn first_event(
+        &self,
+        start: &StateVector,
+        end: &StateVector,
+        h: f64,
+        watch: Watch,
+    ) -> Option<(Surface, f64)> {
+        let surfaces = [
+            Some(Surface::Table),
+            watch.net.then_some(Surface::Net),
+            watch.floor.then_some(Surface::Floor),
+            watch.plane_x.map(Surface::Plane),
+        ];
+        let mut first: Option<(Surface, f64)> = None;
+        for surface in surfaces.into_iter().flatten() {
+            let g0 = self.event_function(surface, start);
+            let g1 = self.event_function(surface, end);
+            let downward_only = matches!(surface, Surface::Table | Surface::Floor);
+            let crossed = (g0 > 0.0 && g1 <= 0.0) || (!downward_only && g0 < 0.0 && g1 >= 0.0);
+            if !crossed {
+                continue;
+            }
+            let tau = self.event_time(surface, start, h, g0, g1);
+            if first.is_some_and(|(_, earliest)| earliest <= tau) {
+                continue;
+            }
+            if surface == Surface::Table && !self.over_table(&self.rk4(start, tau)) {
+                continue;
+            }
+            first = Some((surface, tau));
+        }
+        first
+    }
+
+    /// The signed distance of the state from a surface, zero at the event [m].
+    fn event_function(&self, surface: Surface, x: &StateVector) -> f64 {
+        match surface {
+            Surface::Table => x[2] - self.radius,
+            Surface::Floor => x[2] - self.radius - self.floor_z,
+            Surface::Net => x[0],
+            Surface::Plane(c) => x[0] - c,
+        }
+    }
+
+    /// The offset tau in (0, h] where the RK4 map from `start` reaches the surface (Illinois
+    /// variant of regula falsi, to machine precision).
+    fn event_time(&self, surface: Surface, start: &StateVector, h: f64, g0: f64, g1: f64) -> f64 {
+        let (mut a, mut fa, mut b, mut fb) = (0.0, g0, h, g1);
+        if fb == 0.0 {
+            return b;
+        }
+        let mut last_side = 0i8;
+        for _ in 0..MAX_ROOT_ITERATIONS {
+            let c = ((a * fb - b * fa) / (fb - fa)).clamp(a, b);
+            let fc = self.event_function(surface, &self.rk4(start, c));
+            if fc == 0.0 || c <= a || c >= b {
+                return c;
+            }
+            if (fc > 0.0) == (fb > 0.0) {
+                b = c;
+                fb = fc;
+                if last_side == -1 {
+                    fa *= 0.5;
+                }
+                last_side = -1;
+            } else {
+                a = c;
+                fa = fc;
+                if last_side == 1 {
+                    fb *= 0.5;
+                }
+                last_side = 1;
+            }
+            if b - a <= f64::EPSILON * h {
+                break;
+            }
+        }
+        if fa.abs() < fb.abs() { a } else { b }
+    }
+
+    /// Moves the cursor's state (and tangent) by one RK4 step of size `h`. With `event_axis`, the
+    /// step ends on a surface whose event function is that state component: the step size then
+    /// depends on the initial state, and the tangent's time gradient is updated from it.
+    fn take_step(&self, cursor: &mut Cursor, h: f64, event_axis: Option<usize>) {
+        let Some(tangent) = cursor.tangent.as_mut() else {
+            cursor.state = self.rk4(&cursor.state, h);
+            return;
+        };
+        let step = self.rk4_tangent(&cursor.state, h, &tangent.transition);
+        cursor.state = step.state;
+        match event_axis {
+            None => {
+                // The step ends at a fixed time: h = target - t moves with -time_gradient.
+                tangent.transition = step.transition - step.rate * tangent.time_gradient;
+                tangent.time_gradient = StateRow::zeros();
+            }
+            Some(axis) => {
+                // g(x(tau)) = 0 fixes tau: dtau = -dg/dx0 / dg/dtau.
+                let dtau = -step.transition.row(axis) / step.rate[axis];
+                tangent.transition = step.transition + step.rate * dtau;
+                tangent.time_gradient += dtau;
+            }
+        }
+    }
+
+    /// One classical RK4 step of size `h`.
+    pub fn rk4(&self, x: &StateVector, h: f64) -> StateVector {
+        let f = &self.flight;
+        let k1 = f.derivative(x);
+        let k2 = f.derivative(&(x + k1 * (0.5 * h)));
+        let k3 = f.derivative(&(x + k2 * (0.5 * h)));
+        let k4 = f.derivative(&(x + k3 * h));
+        x + (k1 + (k2 + k3) * 2.0 + k4) * (h / 6.0)
+    }
+
+    /// One RK4 step with the exact derivatives of the discrete map with respect to the initial
+    /// state (pre-multiplied into `transition`) and to the step size.
+    fn rk4_tangent(&self, x: &StateVector, h: f64, transition: &StateMatrix) -> TangentStep {
+        let f = &self.flight;
+        let half = 0.5 * h;
+        let k1 = f.derivative(x);
+        let a1 = f.jacobian(x);
+        let x2 = x + k1 * half;
+        let k2 = f.derivative(&x2);
+        let a2 = f.jacobian(&x2);
+        let x3 = x + k2 * half;
+        let k3 = f.derivative(&x3);
+        let a3 = f.jacobian(&x3);
+        let x4 = x + k3 * h;
+        let k4 = f.derivative(&x4);
+        let a4 = f.jacobian(&x4);
+        let slope = (k1 + (k2 + k3) * 2.0 + k4) / 6.0;
+
+        let p1 = a1.apply(transition);
+        let p2 = a2.apply(&(transition + p1 * half));
+        let p3 = a3.apply(&(transition + p2 * half));
+        let p4 = a4.apply(&(transition + p3 * h));
+
+        let d2 = a2.apply(&(k1 * 0.5));
+        let d3 = a3.apply(&(k2 * 0.5 + d2 * half));
+        let d4 = a4.apply(&(k3 + d3 * h));
+
+        TangentStep {
+            state: x + slope * h,
+            transition: transition + (p1 + (p2 + p3) * 2.0 + p4) * (h / 6.0),
+            rate: slope + ((d2 + d3) * 2.0 + d4) * (h / 6.0),
+        }
+    }
+}
