@@ -273,7 +273,7 @@ impl Propagator {
 
     /// Advances `cursor` by `duration` seconds on a uniform grid of steps no longer than the
     /// largest step, handling every event on the way. The observer sees each event and each grid
-    /// step. A ball that starts touching the table (0 < z <= r, inside the outline) while moving
+    /// step. A non-positive or non-finite duration does nothing. A ball that starts touching the table (0 < z <= r, inside the outline) while moving
     /// down bounces at once.
     pub fn advance(
         &self,
@@ -282,7 +282,7 @@ impl Propagator {
         watch: Watch,
         observer: &mut impl Observer,
     ) -> Outcome {
-        if !(duration > 0.0) {
+        if !duration.is_finite() || duration <= 0.0 {
             return Outcome::Reached;
         }
         let z = cursor.state[2];

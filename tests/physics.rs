@@ -1,0 +1,479 @@
+//! Physics core against physics.md's numbers and against invariants: Jacobians vs central finite
+//! differences (relative 1e-6), exact event times, energy and slip at a bounce, RK4 order,
+//! spin effects on a flight, determinism.
+
+use nalgebra::{SMatrix, Vector3};
+use ttball::config::Config;
+use ttball::physics::{
+    BallState, BounceRegime, Cursor, EventKind, FlightModel, Observer, Outcome, PredictOptions,
+    Propagator, StateMatrix, StateVector, TableBounce, TrajectoryEnd, Watch, predict,
+    propagate::Event,
+};
+
+/// A small deterministic generator (SplitMix64) so every run checks the same states.
+struct Rng(u64);
+
+impl Rng {
+    fn next_u64(&mut self) -> u64 {
+        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        z ^ (z >> 31)
+    }
+    fn uniform(&mut self, lo: f64, hi: f64) -> f64 {
+        lo + (hi - lo) * (self.next_u64() >> 11) as f64 / (1u64 << 53) as f64
+    }
+    fn vector(&mut self, magnitude_lo: f64, magnitude_hi: f64) -> Vector3<f64> {
+        loop {
+            let d = Vector3::new(
+                self.uniform(-1.0, 1.0),
+                self.uniform(-1.0, 1.0),
+                self.uniform(-1.0, 1.0),
+            );
+            let n = d.norm();
+            if n > 0.1 && n <= 1.0 {
+                return d / n * self.uniform(magnitude_lo, magnitude_hi);
+            }
+        }
+    }
+}
+
+/// Central finite-difference Jacobian of `f` at `x`, with a step relative to each component.
+fn finite_difference<const R: usize>(
+    x: &StateVector,
+    f: impl Fn(&StateVector) -> SMatrix<f64, R, 1>,
+) -> SMatrix<f64, R, 9> {
+    let mut jac = SMatrix::<f64, R, 9>::zeros();
+    for j in 0..9 {
+        let h = 1e-6 * x[j].abs().max(1.0);
+        let mut plus = *x;
+        let mut minus = *x;
+        plus[j] += h;
+        minus[j] -= h;
+        jac.set_column(j, &((f(&plus) - f(&minus)) / (2.0 * h)));
+    }
+    jac
+}
+
+/// Largest column-wise relative error of `analytic` against `numeric`; a column's scale is its
+/// own norm, floored at 1e-3 of the whole matrix so all-zero columns compare absolutely.
+fn relative_error<const R: usize>(
+    analytic: &SMatrix<f64, R, 9>,
+    numeric: &SMatrix<f64, R, 9>,
+) -> f64 {
+    let floor = 1e-3 * numeric.norm().max(1e-12);
+    (0..9)
+        .map(|j| {
+            (analytic.column(j) - numeric.column(j)).norm() / numeric.column(j).norm().max(floor)
+        })
+        .fold(0.0, f64::max)
+}
+
+fn state(p: [f64; 3], v: [f64; 3], w: [f64; 3]) -> BallState {
+    BallState::new(p.into(), v.into(), w.into())
+}
+
+/// A config whose air exerts no force: flights are parabolas known in closed form.
+fn vacuum() -> Config {
+    let mut config = Config::default();
+    config.aero.drag_coefficients = vec![0.0];
+    config.aero.magnus_coefficients = vec![0.0];
+    config
+}
+
+#[test]
+fn flight_jacobian_matches_finite_differences_including_high_spin_parameter() {
+    let model = FlightModel::new(&Config::default());
+    let mut rng = Rng(7);
+    let (mut checked, mut clamped, mut high) = (0, 0, 0);
+    while checked < 400 {
+        let v = rng.vector(0.5, 15.0);
+        let w = rng.vector(0.0, 700.0);
+        let sp = model.spin_parameter(&v, &w);
+        // Skip the kinks: the clamp at Sp_max and Sp = 0.
+        if (sp - 2.0).abs() < 1e-2 || sp < 1e-3 {
+            continue;
+        }
+        let x = state(rng.vector(0.0, 2.0).into(), v.into(), w.into()).to_vector();
+        let analytic = model.jacobian(&x).to_matrix();
+        let numeric = finite_difference(&x, |x| model.derivative(x));
+        let err = relative_error(&analytic, &numeric);
+        assert!(err < 1e-6, "relative error {err:e} at Sp = {sp}, x = {x}");
+        checked += 1;
+        clamped += usize::from(sp > 2.0);
+        high += usize::from(sp > 1.0 && sp < 2.0);
+    }
+    assert!(
+        clamped > 50 && high > 30,
+        "coverage: {clamped} clamped, {high} with 1 < Sp < 2"
+    );
+}
+
+#[test]
+fn flight_jacobian_with_spin_decay_matches_finite_differences() {
+    let mut config = Config::default();
+    config.aero.spin_decay_rate = 0.7;
+    let model = FlightModel::new(&config);
+    let x = state([0.0, 0.0, 0.3], [-7.0, 0.5, 1.2], [10.0, -200.0, 40.0]).to_vector();
+    let err = relative_error(
+        &model.jacobian(&x).to_matrix(),
+        &finite_difference(&x, |x| model.derivative(x)),
+    );
+    assert!(err < 1e-6, "relative error {err:e}");
+    assert_eq!(model.derivative(&x)[7], 0.7 * 200.0);
+}
+
+#[test]
+fn bounce_jacobian_matches_finite_differences_sliding_and_rolling() {
+    let config = Config::default();
+    let bounce = TableBounce::new(&config);
+    let mut rng = Rng(11);
+    let (mut sliding, mut rolling) = (0, 0);
+    while sliding + rolling < 400 {
+        let v = Vector3::new(
+            rng.uniform(-9.0, 9.0),
+            rng.uniform(-3.0, 3.0),
+            rng.uniform(-8.0, -0.5),
+        );
+        let w = rng.vector(0.0, 500.0);
+        let x = state(
+            [rng.uniform(-1.3, 1.3), rng.uniform(-0.7, 0.7), 0.02],
+            v.into(),
+            w.into(),
+        )
+        .to_vector();
+        let u = bounce.slip(&x);
+        let alpha = config.table.friction * (1.0 + config.table.restitution) * v.z.abs() / u.norm();
+        if (alpha - 0.4).abs() < 1e-3 {
+            continue;
+        }
+        let b = bounce.apply(&x);
+        let numeric = finite_difference(&x, |x| bounce.apply(x).state);
+        let err = relative_error(&b.jacobian, &numeric);
+        assert!(err < 1e-6, "relative error {err:e} ({:?}) at {x}", b.regime);
+        match b.regime {
+            BounceRegime::Sliding => sliding += 1,
+            BounceRegime::Rolling => rolling += 1,
+        }
+    }
+    assert!(
+        sliding > 50 && rolling > 50,
+        "coverage: {sliding} sliding, {rolling} rolling"
+    );
+}
+
+#[test]
+fn bounce_never_adds_energy_and_rolling_leaves_no_slip() {
+    let config = Config::default();
+    let bounce = TableBounce::new(&config);
+    let (m, r) = (config.ball.mass, config.ball.radius);
+    let mut rng = Rng(13);
+    let mut rolled = 0;
+    for _ in 0..2000 {
+        let v = Vector3::new(
+            rng.uniform(-12.0, 12.0),
+            rng.uniform(-4.0, 4.0),
+            rng.uniform(-9.0, -0.1),
+        );
+        let before = state([0.0, 0.0, r], v.into(), rng.vector(0.0, 800.0).into());
+        let b = bounce.apply(&before.to_vector());
+        let after = BallState::from_vector(&b.state);
+        let (e0, e1) = (before.kinetic_energy(m, r), after.kinetic_energy(m, r));
+        assert!(
+            e1 <= e0 * (1.0 + 1e-12),
+            "energy rose from {e0} to {e1} ({:?})",
+            b.regime
+        );
+        if b.regime == BounceRegime::Rolling {
+            assert!(bounce.slip(&b.state).norm() < 1e-9 * (1.0 + v.norm()));
+            rolled += 1;
+        }
+        // Sliding never reverses the slip: friction only brakes it.
+        if b.regime == BounceRegime::Sliding {
+            assert!(bounce.slip(&b.state).dot(&bounce.slip(&before.to_vector())) > 0.0);
+        }
+    }
+    assert!(rolled > 100);
+}
+
+/// Final state of a propagation of `x` over `duration`, and the events on the way.
+fn run(
+    propagator: &Propagator,
+    x: &StateVector,
+    duration: f64,
+    watch: Watch,
+) -> (Cursor, Vec<Event>) {
+    struct Keep(Vec<Event>);
+    impl Observer for Keep {
+        fn on_event(&mut self, event: &Event) -> ttball::physics::Flow {
+            self.0.push(*event);
+            ttball::physics::Flow::Continue
+        }
+    }
+    let mut cursor = Cursor::with_jacobian(0.0, &BallState::from_vector(x));
+    let mut keep = Keep(Vec::new());
+    let outcome = propagator.advance(&mut cursor, duration, watch, &mut keep);
+    assert_eq!(outcome, Outcome::Reached);
+    (cursor, keep.0)
+}
+
+/// The state-transition matrix through flights with sliding and rolling bounces (including the
+/// sensitivity of the contact time) and through a plane crossing, against finite differences of
+/// the propagation itself.
+#[test]
+fn propagation_jacobian_matches_finite_differences_through_bounces() {
+    let config = Config::default();
+    let propagator = Propagator::new(&config);
+    let watch = Watch {
+        plane_x: Some(-1.6),
+        ..Watch::FLIGHT
+    };
+    let shots = [
+        // Flat drive over the net: slides through the bounce, crosses the hitting plane.
+        state([1.3, 0.0, 0.30], [-4.5, 0.0, 1.6], [0.0, 0.0, 0.0]),
+        // Backspin with sidespin: slides through two bounces.
+        state([1.2, -0.2, 0.25], [-4.0, 0.3, 1.5], [0.0, 120.0, -30.0]),
+        // Slow, steep ball with topspin: rolls out of two bounces.
+        state([-0.2, 0.0, 0.45], [-1.0, 0.1, -1.0], [0.0, -60.0, 0.0]),
+        // High spin parameter (Sp about 1.2): rolls, crosses the hitting plane.
+        state([-0.1, 0.0, 0.35], [-3.0, 0.0, 1.0], [0.0, -200.0, 30.0]),
+    ];
+    let mut regimes = Vec::new();
+    for shot in shots {
+        let x0 = shot.to_vector();
+        let (end, events) = run(&propagator, &x0, 0.9, watch);
+        regimes.extend(events.iter().filter_map(|e| match e.kind {
+            EventKind::TableBounce { regime } => Some(regime),
+            _ => None,
+        }));
+        // One pair of perturbed runs per component serves every finite-difference Jacobian.
+        let perturbed: Vec<_> = (0..9)
+            .map(|j| {
+                let h = 1e-6 * x0[j].abs().max(1.0);
+                let (mut plus, mut minus) = (x0, x0);
+                plus[j] += h;
+                minus[j] -= h;
+                (
+                    h,
+                    run(&propagator, &plus, 0.9, watch),
+                    run(&propagator, &minus, 0.9, watch),
+                )
+            })
+            .collect();
+        let numeric = |value: &dyn Fn(&(Cursor, Vec<Event>)) -> StateVector| {
+            StateMatrix::from_fn(|i, j| {
+                let (h, plus, minus) = &perturbed[j];
+                (value(plus)[i] - value(minus)[i]) / (2.0 * h)
+            })
+        };
+        let transition = end.tangent.expect("tangent").transition;
+        let err = relative_error(&transition, &numeric(&|r| r.0.state));
+        assert!(err < 1e-6, "relative error {err:e} for {shot:?}");
+
+        // Each event's time gradient and state sensitivity.
+        assert!(!events.is_empty());
+        for (i, event) in events.iter().enumerate() {
+            let s = event.sensitivity.expect("sensitivity");
+            let times = numeric(&|r| StateVector::from_element(r.1[i].t));
+            let err_t = relative_error(&s.time_gradient, &times.fixed_rows::<1>(0).into_owned());
+            assert!(
+                err_t < 1e-6,
+                "event {i} time gradient error {err_t:e} for {shot:?}"
+            );
+            let err_after = relative_error(&s.after, &numeric(&|r| r.1[i].after));
+            assert!(
+                err_after < 1e-6,
+                "event {i} state error {err_after:e} for {shot:?}"
+            );
+        }
+    }
+    assert!(regimes.contains(&BounceRegime::Sliding) && regimes.contains(&BounceRegime::Rolling));
+}
+
+#[test]
+fn contact_and_plane_times_are_exact_not_rounded_to_the_step() {
+    let config = vacuum();
+    let g = config.gravity;
+    let r = config.ball.radius;
+    let propagator = Propagator::with_step(&config, 0.004);
+    let start = state([0.9, 0.1, 0.5], [-2.0, 0.0, 0.0], [0.0, 0.0, 0.0]);
+    let trajectory = predict(
+        &propagator,
+        &start,
+        &PredictOptions {
+            horizon: 1.5,
+            sample_interval: 0.01,
+            plane_x: None,
+            stop_at_plane: false,
+        },
+    );
+    let contact = trajectory.bounces().next().expect("bounce");
+    let expected = (2.0 * (0.5 - r) / g).sqrt();
+    assert!(
+        (contact.t - expected).abs() < 1e-12,
+        "contact at {} vs {expected}",
+        contact.t
+    );
+    assert!(
+        (contact.t / 0.004).fract() > 0.01,
+        "the contact time is not on the step grid"
+    );
+    assert!((contact.before[2] - r).abs() < 1e-15);
+    assert!((contact.after[5] - 0.9 * (expected * g)).abs() < 1e-9);
+
+    // A plane crossing in free flight (x is linear in time in a vacuum).
+    let high = state([-1.0, 0.0, 1.0], [-2.0, 0.0, 0.0], [0.0, 0.0, 0.0]);
+    let to_plane = predict(
+        &propagator,
+        &high,
+        &PredictOptions {
+            horizon: 1.0,
+            sample_interval: 0.01,
+            plane_x: Some(-1.6),
+            stop_at_plane: true,
+        },
+    );
+    let crossing = to_plane.plane_crossing().expect("plane");
+    assert!((crossing.t - 0.3).abs() < 1e-12, "plane at {}", crossing.t);
+    assert_eq!(to_plane.end, TrajectoryEnd::Plane);
+    assert_eq!(to_plane.samples.last().map(|s| s.t), Some(crossing.t));
+}
+
+#[test]
+fn rk4_error_falls_sixteen_fold_when_the_step_halves() {
+    let config = Config::default();
+    // High above the floor, away from the table: a pure flight with drag and Magnus.
+    let start = state([3.0, 0.0, 3.0], [-9.0, 1.0, 3.0], [50.0, -250.0, 30.0]).to_vector();
+    let duration = 0.8;
+    let end = |h: f64| {
+        let propagator = Propagator::with_step(&config, h);
+        let mut cursor = Cursor::new(0.0, &BallState::from_vector(&start));
+        assert_eq!(
+            propagator.advance(&mut cursor, duration, Watch::FLIGHT, &mut ()),
+            Outcome::Reached
+        );
+        cursor.state
+    };
+    let reference = end(1e-4);
+    let errors: Vec<f64> = [0.1, 0.05, 0.025]
+        .iter()
+        .map(|&h| (end(h) - reference).norm())
+        .collect();
+    for pair in errors.windows(2) {
+        let ratio = pair[0] / pair[1];
+        assert!(
+            (13.0..19.0).contains(&ratio),
+            "error ratio {ratio} ({errors:?})"
+        );
+    }
+    // At the default step the integration error is far below any camera's noise.
+    let at_default = (end(Config::default().prediction.step) - reference).norm();
+    assert!(at_default < 1e-8, "error at the default step {at_default}");
+}
+
+/// Same launch, three spins: topspin dips and bounces first, backspin floats and bounces last.
+#[test]
+fn topspin_dips_and_backspin_floats() {
+    let propagator = Propagator::new(&Config::default());
+    let options = PredictOptions {
+        horizon: 1.0,
+        sample_interval: 0.01,
+        plane_x: None,
+        stop_at_plane: false,
+    };
+    let flight = |wy: f64| {
+        predict(
+            &propagator,
+            &state([1.3, 0.0, 0.30], [-4.5, 0.0, 1.6], [0.0, wy, 0.0]),
+            &options,
+        )
+    };
+    let (top, flat, back) = (flight(-150.0), flight(0.0), flight(150.0));
+    let height_at = |t: &ttball::physics::Trajectory, k: usize| t.samples[k].state.position.z;
+    assert!(height_at(&top, 15) < height_at(&flat, 15) - 0.02);
+    assert!(height_at(&back, 15) > height_at(&flat, 15) + 0.02);
+    let first = |t: &ttball::physics::Trajectory| *t.bounces().next().expect("bounce");
+    let (bt, bf, bb) = (first(&top), first(&flat), first(&back));
+    assert!(
+        bt.t < bf.t && bf.t < bb.t,
+        "bounce times {} {} {}",
+        bt.t,
+        bf.t,
+        bb.t
+    );
+    // Moving toward -x, a later bounce lies further along -x.
+    assert!(bt.before[0] > bf.before[0] && bf.before[0] > bb.before[0]);
+    // The table's friction turns backspin into less backspin and speeds a topspin ball up less.
+    assert!(bb.after[7] < bb.before[7]);
+}
+
+#[test]
+fn net_hit_floor_and_table_edge() {
+    let propagator = Propagator::new(&Config::default());
+    let options = PredictOptions {
+        horizon: 2.0,
+        sample_interval: 0.01,
+        plane_x: None,
+        stop_at_plane: false,
+    };
+    // Low, flat ball into the net.
+    let into_net = predict(
+        &propagator,
+        &state([1.0, 0.0, 0.10], [-6.0, 0.0, 0.0], [0.0; 3]),
+        &options,
+    );
+    assert_eq!(into_net.end, TrajectoryEnd::Net);
+    let last = into_net.events.last().expect("net event");
+    assert!(matches!(last.kind, EventKind::Net { hit: true, clearance } if clearance < 0.0));
+    assert!(last.before[0].abs() < 1e-15);
+    // Beside the table: no bounce, then the floor.
+    let beside = predict(
+        &propagator,
+        &state([0.5, 1.2, 0.3], [-1.0, 0.0, 0.0], [0.0; 3]),
+        &options,
+    );
+    assert_eq!(beside.end, TrajectoryEnd::Floor);
+    assert_eq!(beside.bounces().count(), 0);
+    let floor = beside.events.last().expect("floor event");
+    assert!((floor.before[2] - (0.02 - 0.76)).abs() < 1e-12);
+    // Over the net with room to spare: a crossing with its clearance.
+    let over = predict(
+        &propagator,
+        &state([1.0, 0.0, 0.35], [-6.0, 0.0, 0.5], [0.0; 3]),
+        &options,
+    );
+    let crossing = over
+        .events
+        .iter()
+        .find_map(|e| match e.kind {
+            EventKind::Net { clearance, hit } => Some((clearance, hit)),
+            _ => None,
+        })
+        .expect("net crossing");
+    assert!(!crossing.1 && crossing.0 > 0.1, "{crossing:?}");
+}
+
+#[test]
+fn a_ball_touching_the_table_while_falling_bounces_at_once() {
+    let propagator = Propagator::new(&Config::default());
+    let mut cursor = Cursor::new(0.0, &state([0.5, 0.0, 0.019], [-3.0, 0.0, -2.0], [0.0; 3]));
+    propagator.advance(&mut cursor, 0.01, Watch::BOUNCES, &mut ());
+    assert!(cursor.state[5] > 1.0, "the ball goes up after the bounce");
+}
+
+#[test]
+fn predictions_are_deterministic() {
+    let propagator = Propagator::new(&Config::default());
+    let options = PredictOptions {
+        horizon: 1.2,
+        sample_interval: 0.005,
+        plane_x: Some(-1.6),
+        stop_at_plane: false,
+    };
+    let shot = state([1.2, 0.3, 0.25], [-6.5, -0.8, 1.5], [30.0, -180.0, 60.0]);
+    let a = predict(&propagator, &shot, &options);
+    let b = predict(&propagator, &shot, &options);
+    assert_eq!(a, b);
+    assert!(a.samples.len() > 100);
+}
