@@ -261,7 +261,7 @@ fn propagation_jacobian_matches_finite_differences_through_bounces() {
                 )
             })
             .collect();
-        let numeric = |value: &dyn Fn(&(Cursor, Vec<Event>)) -> StateVector| {
+        let numeric = |value: &dyn Fn(&Run) -> StateVector| {
             StateMatrix::from_fn(|i, j| {
                 let (h, plus, minus) = &perturbed[j];
                 (value(plus)[i] - value(minus)[i]) / (2.0 * h)
