@@ -3,9 +3,12 @@
 //! The crate is a pure core (no I/O, no clock, no ROS or MCAP types) and thin adapters around it:
 //! - [`physics`]: flight (spin-parameter aerodynamic model), table bounce, event-aware propagation.
 //! - [`config`]: every physical constant and tuning value, with defaults and range checks.
-//! - `msgs` (feature `interface`): serde mirrors of the ROS 2 interfaces in `msgs/`.
+//! - `msgs` (feature `interface`): serde mirrors of the ROS 2 interfaces in `msgs/` (package
+//!   `ttball_msgs`) for ros2-client and MCAP, in wire (field) order.
 //!
 //! Units are SI everywhere (m, s, kg, rad/s) in the `table` frame described in the README.
 
 pub mod config;
+#[cfg(feature = "interface")]
+pub mod msgs;
 pub mod physics;

@@ -1,0 +1,81 @@
+//! Services of `ttball_msgs` (`msgs/srv/*.srv`): one request and one response struct each, field
+//! for field in the same order.
+//!
+//! All quantities are in the `table` frame, SI units.
+
+use serde::{Deserialize, Serialize};
+
+use super::msg::{BallState, PredictedTrajectory};
+use crate::msgs::geometry_msgs::{Point, Vector3};
+
+/// Request of `ttball_msgs/srv/PredictTrajectory`: predict the flight of a tracked ball, or of a
+/// given initial state, over a horizon.
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+pub struct PredictTrajectoryRequest {
+    /// Track to predict from; 0 = use `initial`.
+    pub track_id: u32,
+    /// Initial state, used only when `track_id` is 0.
+    pub initial: BallState,
+    /// How far ahead to predict [s].
+    pub horizon: f64,
+    /// Sample interval of the returned trajectory [s].
+    pub dt: f64,
+}
+
+/// Response of `ttball_msgs/srv/PredictTrajectory`.
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+pub struct PredictTrajectoryResponse {
+    /// True when `trajectory` holds a prediction.
+    pub success: bool,
+    /// Why not, when `success` is false; empty otherwise.
+    pub message: String,
+    /// The predicted flight, sampled every `dt` up to `horizon`.
+    pub trajectory: PredictedTrajectory,
+}
+
+/// Request of `ttball_msgs/srv/PredictRebound`: predict the ball's rebound from the racket for a
+/// planned stroke.
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+pub struct PredictReboundRequest {
+    /// Ball centre at impact [m].
+    pub ball_position: Point,
+    /// Ball velocity just before impact [m/s].
+    pub ball_velocity: Vector3,
+    /// Ball angular velocity just before impact [rad/s].
+    pub ball_spin: Vector3,
+    /// Velocity of the racket's impact point [m/s].
+    pub racket_velocity: Vector3,
+    /// Unit normal of the hitting face, pointing toward the ball (dimensionless).
+    pub racket_normal: Vector3,
+    /// Impact point distance from the racket's centre of gravity along its long axis [m].
+    pub impact_offset: f64,
+}
+
+/// Response of `ttball_msgs/srv/PredictRebound`.
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+pub struct PredictReboundResponse {
+    /// True when the other fields hold a prediction.
+    pub success: bool,
+    /// Why not, when `success` is false; empty otherwise.
+    pub message: String,
+    /// Ball velocity just after impact [m/s].
+    pub ball_velocity: Vector3,
+    /// Ball angular velocity just after impact [rad/s].
+    pub ball_spin: Vector3,
+    /// Normal rebound ratio of ball and racket at the impact point (dimensionless).
+    pub rebound_power_coefficient: f64,
+    /// Ball-racket contact time [s].
+    pub contact_time: f64,
+    /// Mean normal contact force [N].
+    pub mean_force: f64,
+    /// Peak normal contact force (half-sine pulse) [N].
+    pub peak_force: f64,
+    /// Reduced mass of the racket at the impact point [kg].
+    pub reduced_mass: f64,
+    /// Peak force transmitted to the grip / robot wrist [N].
+    pub wrist_force: f64,
+    /// True when the returned ball lands on the opponent's half.
+    pub lands_on_table: bool,
+    /// Ball centre at that landing [m]; valid only when `lands_on_table`.
+    pub landing_position: Point,
+}
