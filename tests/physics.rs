@@ -197,13 +197,11 @@ fn bounce_never_adds_energy_and_rolling_leaves_no_slip() {
     assert!(rolled > 100);
 }
 
+/// The end of a propagation and the events on the way.
+type Run = (Cursor, Vec<Event>);
+
 /// Final state of a propagation of `x` over `duration`, and the events on the way.
-fn run(
-    propagator: &Propagator,
-    x: &StateVector,
-    duration: f64,
-    watch: Watch,
-) -> (Cursor, Vec<Event>) {
+fn run(propagator: &Propagator, x: &StateVector, duration: f64, watch: Watch) -> Run {
     struct Keep(Vec<Event>);
     impl Observer for Keep {
         fn on_event(&mut self, event: &Event) -> ttball::physics::Flow {
