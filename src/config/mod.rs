@@ -1,10 +1,20 @@
 //! Configuration: every physical constant and tuning value of ttball, with its unit and source.
 //!
-//! These are plain data structs (no I/O). The shipped `config/ttball.yaml` is the same defaults as a
-//! ROS 2 parameters file; a test checks that the two agree. Loading from YAML with `-p` overrides
-//! lives in [`yaml`] (feature `interface`).
+//! These are plain data structs (no I/O) with their defaults; [`Config::validate`] checks every
+//! range. The shipped `config/ttball.yaml` is the same defaults as a ROS 2 parameters file, with
+//! the unit and source of every key; a test checks that the two agree. Loading from YAML with `-p`
+//! overrides lives in `yaml` (feature `interface`).
+//!
+//! Every parameter is a ROS 2 parameter type (bool, integer, double, string or an array of one of
+//! those), so the node can declare each dotted key (`table.restitution`) as a ROS 2 parameter.
 
 use serde::{Deserialize, Serialize};
+
+mod validate;
+#[cfg(feature = "interface")]
+pub mod yaml;
+
+pub use validate::{ConfigError, Violation};
 
 /// The ball (ITTF 40+ ball by default; physics.md "Frames, units, time").
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -107,7 +117,63 @@ impl Default for TableParams {
 /// Standard gravity [m/s^2].
 pub const STANDARD_GRAVITY: f64 = 9.80665;
 
-/// Numerical settings of the flight propagator.
+/// The seed racket of Kawazoe & Suzuki (seed 000; physics.md "Racket impact").
+///
+/// Used by the racket-impact model: the reduced mass of the racket at the impact point,
+/// M_r = I_G M_R / (I_G + M_R b^2), and the force transmitted to the grip.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RacketParams {
+    /// Racket mass M_R including both rubbers [kg]. Seed racket: 171 g (rubbers 79.5 g).
+    pub mass: f64,
+    /// Distance from the grip end to the racket's centre of gravity [m]. Seed racket: 147 mm.
+    pub center_of_gravity_from_grip_end: f64,
+    /// Moment of inertia I_G about the centre of gravity, for rotation in the plane of the long
+    /// axis and the face normal [kg m^2]. Seed racket: 2.51 g m^2; the transcription says "about
+    /// the grip", but only the centre-of-gravity reading reproduces the paper's 78.1 g reduced
+    /// mass at b = 0.132 m (physics.md).
+    pub inertia_about_center_of_gravity: f64,
+    /// Moment of inertia about the racket's long axis [kg m^2]. Seed racket: 0.26 g m^2.
+    pub inertia_about_long_axis: f64,
+    /// Area of the hitting face [m^2]. Seed racket: 185 cm^2.
+    pub face_area: f64,
+    /// Thickness of the rubber's sponge layer [m]. Seed racket: 1.9 mm; 0 for a pimpled
+    /// rubber without sponge.
+    pub sponge_thickness: f64,
+}
+
+impl Default for RacketParams {
+    fn default() -> Self {
+        Self {
+            mass: 0.171,
+            center_of_gravity_from_grip_end: 0.147,
+            inertia_about_center_of_gravity: 2.51e-3,
+            inertia_about_long_axis: 0.26e-3,
+            face_area: 0.0185,
+            sponge_thickness: 0.0019,
+        }
+    }
+}
+
+/// What holds the racket (Kawazoe & Suzuki, seed 000 eq. 5-6; seed 001 eq. 23-26).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ArmParams {
+    /// Equivalent mass M_H of the arm or robot wrist, lumped at the grip [kg]. Human arm: about
+    /// 1.0 kg (0.97 kg for a 60 kg, 170 cm player, seed 000). A robot sets its wrist's effective
+    /// mass at the grip; a large value approximates a rigidly held racket, a small one a free racket.
+    pub equivalent_mass: f64,
+}
+
+impl Default for ArmParams {
+    fn default() -> Self {
+        Self {
+            equivalent_mass: 1.0,
+        }
+    }
+}
+
+/// Numerical settings of the flight propagator and of the published trajectory.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct PredictionParams {
@@ -115,6 +181,11 @@ pub struct PredictionParams {
     pub step: f64,
     /// How far ahead predictions look [s].
     pub horizon: f64,
+    /// Largest publishing rate of the predicted trajectory on `topics.trajectory` [Hz]; the
+    /// trajectory is recomputed at most this often, not for every detection.
+    pub trajectory_rate: f64,
+    /// Time between two samples of the published trajectory [s]; horizon / trajectory_dt samples.
+    pub trajectory_dt: f64,
 }
 
 impl Default for PredictionParams {
@@ -122,6 +193,241 @@ impl Default for PredictionParams {
         Self {
             step: 0.002,
             horizon: 1.5,
+            trajectory_rate: 50.0,
+            trajectory_dt: 0.01,
+        }
+    }
+}
+
+/// Where the robot hits the ball.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct InterceptParams {
+    /// The robot's hitting plane is x = plane_x in the table frame [m]. Default: 0.23 m behind the
+    /// robot's baseline (x = -1.37 m), where an incoming ball has bounced and is near its apex.
+    pub plane_x: f64,
+}
+
+impl Default for InterceptParams {
+    fn default() -> Self {
+        Self { plane_x: -1.6 }
+    }
+}
+
+/// Measurement noise and latency of one kind of camera source.
+///
+/// The EKF uses these sigmas for a detection whose own covariance is all zero (isotropic,
+/// uncorrelated noise R = sigma^2 I per measured block).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SourceParams {
+    /// Standard deviation of one position measurement, per axis [m].
+    pub position_sigma: f64,
+    /// Standard deviation of one spin measurement, per axis [rad/s]; 0 means the source does not
+    /// measure spin, and spin values in its detections are ignored.
+    pub spin_sigma: f64,
+    /// Nominal latency from exposure to the detection's arrival [s]; the simulator delays the
+    /// detections of this source by it.
+    pub latency: f64,
+}
+
+/// Measurement noise per camera source (physics.md "Cameras in the seed setup").
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SourcesParams {
+    /// The 150 fps camera that sees the whole table; position only.
+    pub wide_150fps: SourceParams,
+    /// The 900 fps camera with a narrow view; measures spin from marks on the ball.
+    pub highspeed_900fps: SourceParams,
+    /// Detections whose source is not one of the above.
+    pub unknown: SourceParams,
+}
+
+impl Default for SourcesParams {
+    fn default() -> Self {
+        Self {
+            // Stereo triangulation of a 40 mm ball over the whole table: a few mm. Latency about
+            // one frame period (6.7 ms) plus detection.
+            wide_150fps: SourceParams {
+                position_sigma: 0.003,
+                spin_sigma: 0.0,
+                latency: 0.008,
+            },
+            // Narrow view, so finer pixels; spin from the marks on the ball.
+            highspeed_900fps: SourceParams {
+                position_sigma: 0.0015,
+                spin_sigma: 15.0,
+                latency: 0.004,
+            },
+            // Conservative: worse than either known camera.
+            unknown: SourceParams {
+                position_sigma: 0.005,
+                spin_sigma: 30.0,
+                latency: 0.008,
+            },
+        }
+    }
+}
+
+/// The extended Kalman filter: state (position, velocity, spin), 9 components.
+///
+/// Process noise over a step dt, per axis (white-acceleration model plus spin random walk):
+/// Q_pp = q_a dt^3 / 3, Q_pv = q_a dt^2 / 2, Q_vv = q_a dt, Q_ww = q_w dt.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct EkfParams {
+    /// Power spectral density q_a of the white acceleration noise [m^2/s^3]; covers the error of
+    /// the fitted C_D and C_M (about 10-20 % of a 10 m/s^2 aerodynamic acceleration). Tuning value.
+    pub acceleration_noise_density: f64,
+    /// Power spectral density q_w of the spin random walk [(rad/s)^2/s]; the model keeps spin
+    /// constant in flight, this lets the estimate drift by 20 rad/s per sqrt(s). Tuning value.
+    pub spin_noise_density: f64,
+    /// Number of detections fitted by least squares to start a track [-]; at least 3 (position
+    /// and velocity need 2, a third checks them), 4 tolerates one poor detection.
+    pub init_detections: u32,
+    /// The detections of the initialisation must lie within this time span [s]; over longer
+    /// spans drag bends the flight away from the fitted parabola.
+    pub init_max_span: f64,
+    /// Prior standard deviation of the spin at initialisation, per axis, about zero [rad/s];
+    /// covers rally spins up to about 300 rad/s at 2 sigma.
+    pub spin_prior_sigma: f64,
+    /// Detections with a confidence below this are ignored [-] in [0, 1]; 0 accepts all.
+    pub min_confidence: f64,
+}
+
+impl Default for EkfParams {
+    fn default() -> Self {
+        Self {
+            acceleration_noise_density: 4.0,
+            spin_noise_density: 400.0,
+            init_detections: 4,
+            init_max_span: 0.1,
+            spin_prior_sigma: 150.0,
+            min_confidence: 0.0,
+        }
+    }
+}
+
+/// Outlier rejection: Mahalanobis gating of each detection against the predicted measurement.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct GatingParams {
+    /// Probability that a correct detection passes the gate [-]; the threshold on the squared
+    /// Mahalanobis distance is the chi-square quantile of this probability for the measurement's
+    /// dimension. 0.9973 is the "3 sigma" probability.
+    pub probability: f64,
+    /// After this many detections in a row fail the gate the track is restarted from new
+    /// detections [-]; the ball has left the model (e.g. an unseen racket hit).
+    pub max_consecutive_rejections: u32,
+}
+
+impl Default for GatingParams {
+    fn default() -> Self {
+        Self {
+            probability: 0.9973,
+            max_consecutive_rejections: 5,
+        }
+    }
+}
+
+/// Track life cycle and out-of-order handling.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TrackingParams {
+    /// A gap between detections longer than this starts a new track [s] (15 frames at 150 fps).
+    pub timeout: f64,
+    /// Out-of-order detections older than this behind the newest fused one are dropped and
+    /// counted [s]; newer ones are fused by rolling the filter back. Covers the latency difference
+    /// of the two cameras (8 ms vs 4 ms) with margin.
+    pub rollback_window: f64,
+    /// The state is reported as COASTING when no detection was fused for this long [s]
+    /// (3 frames at 150 fps).
+    pub coast_after: f64,
+}
+
+impl Default for TrackingParams {
+    fn default() -> Self {
+        Self {
+            timeout: 0.1,
+            rollback_window: 0.030,
+            coast_after: 0.02,
+        }
+    }
+}
+
+/// The ROS 2 node.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct NodeParams {
+    /// Node name (letters, digits, underscores; not starting with a digit).
+    pub name: String,
+    /// Node namespace: empty (the root namespace) or an absolute namespace such as "/robot1".
+    pub namespace: String,
+    /// Capacity of the bounded detection queue between DDS and the estimator [detections]; when
+    /// full, the oldest detection is dropped and counted. 256 is about 0.25 s of both cameras
+    /// (150 + 900 detections per second).
+    pub queue_capacity: u32,
+}
+
+impl Default for NodeParams {
+    fn default() -> Self {
+        Self {
+            name: "ttball".to_owned(),
+            namespace: String::new(),
+            queue_capacity: 256,
+        }
+    }
+}
+
+/// ROS 2 topic names (absolute).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TopicsParams {
+    /// Input: ball detections from the cameras.
+    pub detections: String,
+    /// Output: the estimated ball state (position, velocity, spin, covariance, status).
+    pub state: String,
+    /// Output: the predicted crossing of the hitting plane `intercept.plane_x`.
+    pub intercept: String,
+    /// Output: the predicted trajectory, sampled every `prediction.trajectory_dt`.
+    pub trajectory: String,
+    /// Output: RViz markers of the state and prediction.
+    pub markers: String,
+    /// Output: diagnostic_msgs status (rates, latencies, drop counters); the ROS convention.
+    pub diagnostics: String,
+    /// Input (simulation and replay): the true ball state, for error statistics.
+    pub truth: String,
+}
+
+impl Default for TopicsParams {
+    fn default() -> Self {
+        Self {
+            detections: "/ball/detections".to_owned(),
+            state: "/ball/state".to_owned(),
+            intercept: "/ball/intercept".to_owned(),
+            trajectory: "/ball/trajectory".to_owned(),
+            markers: "/ball/markers".to_owned(),
+            diagnostics: "/diagnostics".to_owned(),
+            truth: "/ball/truth".to_owned(),
+        }
+    }
+}
+
+/// Quality of service of the ROS 2 topics (keep-last history depths; REP 2003).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct QosParams {
+    /// History depth of the detections subscription (best effort, volatile) [messages].
+    pub detections_depth: u32,
+    /// History depth of every output publisher (reliable) [messages].
+    pub outputs_depth: u32,
+}
+
+impl Default for QosParams {
+    fn default() -> Self {
+        Self {
+            detections_depth: 10,
+            outputs_depth: 10,
         }
     }
 }
@@ -140,10 +446,28 @@ pub struct Config {
     pub aero: AeroParams,
     /// Table geometry and bounce.
     pub table: TableParams,
-    /// Flight propagation settings.
+    /// The racket (impact model).
+    pub racket: RacketParams,
+    /// The arm or robot wrist holding the racket.
+    pub arm: ArmParams,
+    /// Flight propagation and trajectory publishing.
     pub prediction: PredictionParams,
-    // CONFIG-HELPER: further sections (racket, arm, ekf, sources, gating, tracking, intercept,
-    // topics, qos, node) are added here.
+    /// The robot's hitting plane.
+    pub intercept: InterceptParams,
+    /// Measurement noise per camera source.
+    pub sources: SourcesParams,
+    /// The extended Kalman filter.
+    pub ekf: EkfParams,
+    /// Outlier gating.
+    pub gating: GatingParams,
+    /// Track life cycle and out-of-order detections.
+    pub tracking: TrackingParams,
+    /// The ROS 2 node.
+    pub node: NodeParams,
+    /// ROS 2 topic names.
+    pub topics: TopicsParams,
+    /// ROS 2 quality of service.
+    pub qos: QosParams,
 }
 
 impl Default for Config {
@@ -154,7 +478,17 @@ impl Default for Config {
             air: AirParams::default(),
             aero: AeroParams::default(),
             table: TableParams::default(),
+            racket: RacketParams::default(),
+            arm: ArmParams::default(),
             prediction: PredictionParams::default(),
+            intercept: InterceptParams::default(),
+            sources: SourcesParams::default(),
+            ekf: EkfParams::default(),
+            gating: GatingParams::default(),
+            tracking: TrackingParams::default(),
+            node: NodeParams::default(),
+            topics: TopicsParams::default(),
+            qos: QosParams::default(),
         }
     }
 }

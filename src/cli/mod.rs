@@ -1,0 +1,107 @@
+//! The command-line interface: the [`Command`] enum, one file per subcommand, and the arguments
+//! shared between commands ([`ConfigArgs`]). Commands are thin adapters around the library.
+
+pub mod config_cmd;
+
+use std::io::Write;
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+use anyhow::Context;
+use clap::{Args, Parser, Subcommand};
+use ttball::config::Config;
+use ttball::config::yaml::{self, LoadError};
+
+/// Exit code of a command whose configuration is invalid (and of `config check` on a bad file).
+pub const EXIT_BAD_CONFIG: u8 = 2;
+/// Exit code of any other failure.
+pub const EXIT_FAILURE: u8 = 1;
+
+/// `ttball`: the command line.
+#[derive(Debug, Parser)]
+#[command(
+    name = "ttball",
+    version,
+    about = "ttball: a real-time table-tennis ball-state estimator for robots.\n\
+             Estimates position, velocity and spin from camera detections; predicts bounces and hits.",
+    after_help = "Every command that reads the configuration takes `--config FILE` (a ROS 2 \
+                  parameters file, see config/ttball.yaml) and `-p NAME:=VALUE` overrides.\n\
+                  Exit codes: 0 success, 1 failure, 2 invalid configuration or usage.\n\n\
+                  Run `ttball <COMMAND> --help` for a command's options and examples."
+)]
+pub struct Cli {
+    /// What to do.
+    #[command(subcommand)]
+    pub command: Command,
+}
+
+/// The subcommands; each lives in its own file and is run by [`Command::run`].
+#[derive(Debug, Subcommand)]
+pub enum Command {
+    /// Print the effective configuration, or check a configuration file.
+    #[command(subcommand)]
+    Config(config_cmd::ConfigCommand),
+}
+
+impl Command {
+    /// Runs the command; `Ok` carries the exit code of a command that ran to its end.
+    pub fn run(self) -> anyhow::Result<ExitCode> {
+        match self {
+            Self::Config(command) => command.run(),
+        }
+    }
+}
+
+/// The configuration arguments, flattened into every command that reads the configuration.
+#[derive(Debug, Clone, Default, Args)]
+pub struct ConfigArgs {
+    /// ROS 2 parameters file with the configuration (`ttball: ros__parameters: ...`); it may set
+    /// any subset of the parameters, the others keep their defaults (config/ttball.yaml).
+    #[arg(long, value_name = "FILE")]
+    pub config: Option<PathBuf>,
+
+    /// Parameter overrides.
+    #[command(flatten)]
+    pub overrides: Overrides,
+}
+
+impl ConfigArgs {
+    /// The loaded and validated configuration: defaults, then `--config`, then each `-p`.
+    pub fn load(&self) -> Result<Config, LoadError> {
+        yaml::load(self.config.as_deref(), &self.overrides.params)
+    }
+}
+
+/// `-p NAME:=VALUE` overrides, ROS style.
+#[derive(Debug, Clone, Default, Args)]
+pub struct Overrides {
+    /// Set one parameter, ROS style, after the file: a dotted name, `:=`, and a YAML value
+    /// (`-p intercept.plane_x:=-1.45`, `-p topics.state:=/robot/ball_state`,
+    /// `-p aero.drag_coefficients:=[0.37, 0.36, -0.07]`). Repeatable; the last one of a name wins.
+    #[arg(short = 'p', long = "param", value_name = "NAME:=VALUE")]
+    pub params: Vec<String>,
+}
+
+/// The exit code for a failed command: [`EXIT_BAD_CONFIG`] when the configuration could not be
+/// loaded, [`EXIT_FAILURE`] otherwise.
+pub fn exit_code_for(err: &anyhow::Error) -> ExitCode {
+    let bad_config = err.chain().any(|cause| {
+        cause
+            .downcast_ref::<LoadError>()
+            .is_some_and(|e| !matches!(e, LoadError::Internal { .. }))
+    });
+    ExitCode::from(if bad_config {
+        EXIT_BAD_CONFIG
+    } else {
+        EXIT_FAILURE
+    })
+}
+
+/// Writes `text` to standard output; a closed pipe (`ttball ... | head`) is not an error.
+pub fn write_stdout(text: &str) -> anyhow::Result<()> {
+    let mut out = std::io::stdout().lock();
+    match out.write_all(text.as_bytes()).and_then(|()| out.flush()) {
+        Err(e) if e.kind() == std::io::ErrorKind::BrokenPipe => Ok(()),
+        other => other.context("cannot write to standard output"),
+    }
+}

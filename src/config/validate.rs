@@ -1,0 +1,686 @@
+//! Range checks of the configuration: [`Config::validate`] reports every value that makes no
+//! physical or numerical sense, each with its dotted key, the value and the allowed range in words.
+//!
+//! Upper bounds are generous: they exist to catch a value given in the wrong unit (a ball radius
+//! of 20 meant as millimetres), not to second-guess an unusual setup.
+
+use thiserror::Error;
+
+use super::{Config, SourceParams};
+
+/// One configuration value outside its allowed range. `key` is the dotted parameter name, as in
+/// the ROS 2 parameters file (`table.restitution`, `aero.drag_coefficients[2]`).
+#[derive(Debug, Clone, PartialEq, Error)]
+pub enum Violation {
+    /// A real value is NaN or infinite; never valid.
+    #[error("`{key}` = {value} is not a finite number: NaN and infinity are never valid")]
+    NotFinite {
+        /// Dotted key of the value.
+        key: String,
+        /// The offending value.
+        value: f64,
+    },
+    /// A real value is outside its range.
+    #[error("`{key}` = {value} is out of range: it must be {allowed}")]
+    OutOfRange {
+        /// Dotted key of the value.
+        key: String,
+        /// The offending value (in the key's unit).
+        value: f64,
+        /// The allowed range, in words.
+        allowed: &'static str,
+    },
+    /// A count (integer) is outside its range.
+    #[error("`{key}` = {value} is out of range: it must be {allowed}")]
+    CountOutOfRange {
+        /// Dotted key of the value.
+        key: String,
+        /// The offending count.
+        value: u64,
+        /// The allowed range, in words.
+        allowed: &'static str,
+    },
+    /// A list that needs at least one element is empty.
+    #[error("`{key}` is an empty list: it must hold at least one {element}")]
+    EmptyList {
+        /// Dotted key of the list.
+        key: String,
+        /// What one element of the list is.
+        element: &'static str,
+    },
+    /// A ROS 2 name (topic, node name, namespace) is malformed.
+    #[error("`{key}` = {value:?} is not a valid {kind}: {reason}")]
+    BadName {
+        /// Dotted key of the name.
+        key: String,
+        /// The offending name.
+        value: String,
+        /// What the name names ("topic name", "node name", "namespace").
+        kind: &'static str,
+        /// What is wrong with it, and what is expected.
+        reason: &'static str,
+    },
+    /// A value exceeds another value that bounds it.
+    #[error("`{key}` = {value} must not exceed `{limit_key}` = {limit}: {reason}")]
+    Exceeds {
+        /// Dotted key of the value.
+        key: String,
+        /// The offending value.
+        value: f64,
+        /// Dotted key of the bounding value.
+        limit_key: String,
+        /// The bounding value.
+        limit: f64,
+        /// Why the one must not exceed the other.
+        reason: &'static str,
+    },
+}
+
+impl Violation {
+    /// The dotted key of the offending value (with an `[index]` suffix for a list element).
+    pub fn key(&self) -> &str {
+        match self {
+            Self::NotFinite { key, .. }
+            | Self::OutOfRange { key, .. }
+            | Self::CountOutOfRange { key, .. }
+            | Self::EmptyList { key, .. }
+            | Self::BadName { key, .. }
+            | Self::Exceeds { key, .. } => key,
+        }
+    }
+}
+
+/// Errors of the configuration's core layer.
+#[derive(Debug, Clone, PartialEq, Error)]
+pub enum ConfigError {
+    /// One or more values are out of range; all of them are listed.
+    #[error("invalid configuration:{}", bullet_list(.violations))]
+    Invalid {
+        /// Every violation found, in the order of the configuration's keys.
+        violations: Vec<Violation>,
+    },
+}
+
+fn bullet_list(violations: &[Violation]) -> String {
+    violations.iter().map(|v| format!("\n  - {v}")).collect()
+}
+
+/// Collects violations.
+#[derive(Default)]
+struct Checker {
+    violations: Vec<Violation>,
+}
+
+impl Checker {
+    fn real(&mut self, key: &str, value: f64, ok: impl Fn(f64) -> bool, allowed: &'static str) {
+        if !value.is_finite() {
+            self.violations.push(Violation::NotFinite {
+                key: key.to_owned(),
+                value,
+            });
+        } else if !ok(value) {
+            self.violations.push(Violation::OutOfRange {
+                key: key.to_owned(),
+                value,
+                allowed,
+            });
+        }
+    }
+
+    fn positive(&mut self, key: &str, value: f64) {
+        self.real(key, value, |v| v > 0.0, "greater than 0");
+    }
+
+    fn non_negative(&mut self, key: &str, value: f64) {
+        self.real(key, value, |v| v >= 0.0, "0 or greater");
+    }
+
+    fn count(&mut self, key: &str, value: u32, min: u32, allowed: &'static str) {
+        if value < min {
+            self.violations.push(Violation::CountOutOfRange {
+                key: key.to_owned(),
+                value: u64::from(value),
+                allowed,
+            });
+        }
+    }
+
+    fn polynomial(&mut self, key: &str, coefficients: &[f64]) {
+        if coefficients.is_empty() {
+            self.violations.push(Violation::EmptyList {
+                key: key.to_owned(),
+                element: "polynomial coefficient (lowest order first)",
+            });
+        }
+        for (i, &c) in coefficients.iter().enumerate() {
+            self.real(&format!("{key}[{i}]"), c, |_| true, "a finite number");
+        }
+    }
+
+    /// `value <= limit`, checked only when neither value was already reported (no cascades).
+    fn at_most(
+        &mut self,
+        key: &str,
+        value: f64,
+        limit_key: &str,
+        limit: f64,
+        reason: &'static str,
+    ) {
+        let reported = self
+            .violations
+            .iter()
+            .any(|v| v.key() == key || v.key() == limit_key);
+        if !reported && value > limit {
+            self.violations.push(Violation::Exceeds {
+                key: key.to_owned(),
+                value,
+                limit_key: limit_key.to_owned(),
+                limit,
+                reason,
+            });
+        }
+    }
+
+    fn name(&mut self, key: &str, value: &str, kind: &'static str, problem: Option<&'static str>) {
+        if let Some(reason) = problem {
+            self.violations.push(Violation::BadName {
+                key: key.to_owned(),
+                value: value.to_owned(),
+                kind,
+                reason,
+            });
+        }
+    }
+
+    fn source(&mut self, key: &str, source: &SourceParams) {
+        self.real(
+            &format!("{key}.position_sigma"),
+            source.position_sigma,
+            |v| v > 0.0 && v <= 1.0,
+            "greater than 0 and at most 1 (metres)",
+        );
+        self.real(
+            &format!("{key}.spin_sigma"),
+            source.spin_sigma,
+            |v| (0.0..=1000.0).contains(&v),
+            "between 0 (spin not measured) and 1000 (rad/s)",
+        );
+        self.real(
+            &format!("{key}.latency"),
+            source.latency,
+            |v| (0.0..=1.0).contains(&v),
+            "between 0 and 1 (seconds)",
+        );
+    }
+}
+
+/// Checks one token-based ROS 2 name: tokens of letters, digits and underscores, not starting
+/// with a digit, separated by single slashes.
+fn token_problem(tokens: &str) -> Option<&'static str> {
+    for token in tokens.split('/') {
+        if token.is_empty() {
+            return Some("it must not contain \"//\" or end with '/'");
+        }
+        if !token.chars().all(|c| c.is_ascii_alphanumeric() || c == '_') {
+            return Some("use only letters, digits, '_' and '/'");
+        }
+        if token.starts_with(|c: char| c.is_ascii_digit()) {
+            return Some("no part between slashes may start with a digit");
+        }
+    }
+    None
+}
+
+/// Why `name` is not a valid absolute ROS 2 topic name, if it is not.
+fn topic_problem(name: &str) -> Option<&'static str> {
+    if name.is_empty() {
+        return Some("it must not be empty; give an absolute name such as \"/ball/state\"");
+    }
+    match name.strip_prefix('/') {
+        None => Some("it must be absolute (start with '/'), e.g. \"/ball/state\""),
+        Some(rest) => token_problem(rest),
+    }
+}
+
+/// Why `name` is not a valid ROS 2 node name, if it is not.
+fn node_name_problem(name: &str) -> Option<&'static str> {
+    if name.is_empty() {
+        Some("it must not be empty")
+    } else if name.contains('/') {
+        Some("it must not contain '/'; put the namespace in `node.namespace`")
+    } else {
+        token_problem(name)
+    }
+}
+
+/// Why `namespace` is not a valid ROS 2 namespace, if it is not.
+fn namespace_problem(namespace: &str) -> Option<&'static str> {
+    if namespace.is_empty() || namespace == "/" {
+        return None;
+    }
+    match namespace.strip_prefix('/') {
+        None => Some("it must be empty or absolute (start with '/'), e.g. \"/robot1\""),
+        Some(rest) => token_problem(rest),
+    }
+}
+
+impl Config {
+    /// Checks every value's range and the consistency between values; returns all violations
+    /// at once in [`ConfigError::Invalid`].
+    pub fn validate(&self) -> Result<(), ConfigError> {
+        let mut c = Checker::default();
+
+        c.real(
+            "gravity",
+            self.gravity,
+            |v| v > 0.0 && v <= 30.0,
+            "greater than 0 and at most 30 (m/s^2; Earth: 9.81)",
+        );
+
+        let b = &self.ball;
+        c.real(
+            "ball.radius",
+            b.radius,
+            |v| v > 0.0 && v <= 0.1,
+            "greater than 0 and at most 0.1 (metres; ITTF 40+: 0.020)",
+        );
+        c.real(
+            "ball.mass",
+            b.mass,
+            |v| v > 0.0 && v <= 0.1,
+            "greater than 0 and at most 0.1 (kilograms; ITTF 40+: 0.0027)",
+        );
+
+        let a = &self.air;
+        c.real(
+            "air.density",
+            a.density,
+            |v| (0.0..=10.0).contains(&v),
+            "between 0 (no air) and 10 (kg/m^3; 1.20 at 20 °C)",
+        );
+        c.positive("air.kinematic_viscosity", a.kinematic_viscosity);
+
+        let ae = &self.aero;
+        c.polynomial("aero.drag_coefficients", &ae.drag_coefficients);
+        c.polynomial("aero.magnus_coefficients", &ae.magnus_coefficients);
+        c.positive("aero.spin_parameter_max", ae.spin_parameter_max);
+        c.non_negative("aero.spin_decay_rate", ae.spin_decay_rate);
+
+        let t = &self.table;
+        for (key, value) in [
+            ("table.length", t.length),
+            ("table.width", t.width),
+            ("table.net_height", t.net_height),
+        ] {
+            c.real(
+                key,
+                value,
+                |v| v > 0.0 && v <= 10.0,
+                "greater than 0 and at most 10 (metres)",
+            );
+        }
+        c.real(
+            "table.height",
+            t.height,
+            |v| (0.0..=10.0).contains(&v),
+            "between 0 and 10 (metres)",
+        );
+        c.real(
+            "table.net_overhang",
+            t.net_overhang,
+            |v| (0.0..=10.0).contains(&v),
+            "between 0 and 10 (metres)",
+        );
+        c.real(
+            "table.restitution",
+            t.restitution,
+            |v| v > 0.0 && v <= 1.0,
+            "greater than 0 and at most 1 (a bounce cannot add energy)",
+        );
+        c.real(
+            "table.friction",
+            t.friction,
+            |v| (0.0..=2.0).contains(&v),
+            "between 0 and 2 (published fits: 0.1 to 0.3)",
+        );
+
+        let r = &self.racket;
+        c.real(
+            "racket.mass",
+            r.mass,
+            |v| v > 0.0 && v <= 2.0,
+            "greater than 0 and at most 2 (kilograms)",
+        );
+        c.real(
+            "racket.center_of_gravity_from_grip_end",
+            r.center_of_gravity_from_grip_end,
+            |v| v > 0.0 && v <= 1.0,
+            "greater than 0 and at most 1 (metres)",
+        );
+        for (key, value) in [
+            (
+                "racket.inertia_about_center_of_gravity",
+                r.inertia_about_center_of_gravity,
+            ),
+            ("racket.inertia_about_long_axis", r.inertia_about_long_axis),
+        ] {
+            c.real(
+                key,
+                value,
+                |v| v > 0.0 && v <= 1.0,
+                "greater than 0 and at most 1 (kg m^2)",
+            );
+        }
+        c.real(
+            "racket.face_area",
+            r.face_area,
+            |v| v > 0.0 && v <= 1.0,
+            "greater than 0 and at most 1 (m^2)",
+        );
+        c.real(
+            "racket.sponge_thickness",
+            r.sponge_thickness,
+            |v| (0.0..=0.01).contains(&v),
+            "between 0 and 0.01 (metres; ITTF allows 4 mm of rubber)",
+        );
+        c.positive("arm.equivalent_mass", self.arm.equivalent_mass);
+
+        let p = &self.prediction;
+        c.real(
+            "prediction.step",
+            p.step,
+            |v| v > 0.0 && v <= 0.05,
+            "greater than 0 and at most 0.05 (seconds)",
+        );
+        c.real(
+            "prediction.horizon",
+            p.horizon,
+            |v| v > 0.0 && v <= 10.0,
+            "greater than 0 and at most 10 (seconds)",
+        );
+        c.real(
+            "prediction.trajectory_rate",
+            p.trajectory_rate,
+            |v| v > 0.0 && v <= 1000.0,
+            "greater than 0 and at most 1000 (Hz)",
+        );
+        c.positive("prediction.trajectory_dt", p.trajectory_dt);
+        c.at_most(
+            "prediction.trajectory_dt",
+            p.trajectory_dt,
+            "prediction.horizon",
+            p.horizon,
+            "a trajectory needs at least one sample after its start",
+        );
+
+        c.real(
+            "intercept.plane_x",
+            self.intercept.plane_x,
+            |v| (-3.0..0.0).contains(&v),
+            "at least -3 and less than 0 (metres; on the robot's side, behind or over the table; \
+             the robot's baseline is at -1.37)",
+        );
+
+        c.source("sources.wide_150fps", &self.sources.wide_150fps);
+        c.source("sources.highspeed_900fps", &self.sources.highspeed_900fps);
+        c.source("sources.unknown", &self.sources.unknown);
+
+        let e = &self.ekf;
+        c.positive(
+            "ekf.acceleration_noise_density",
+            e.acceleration_noise_density,
+        );
+        c.non_negative("ekf.spin_noise_density", e.spin_noise_density);
+        c.count(
+            "ekf.init_detections",
+            e.init_detections,
+            3,
+            "at least 3 (position and velocity need 2 detections, a third checks them)",
+        );
+        c.positive("ekf.init_max_span", e.init_max_span);
+        c.positive("ekf.spin_prior_sigma", e.spin_prior_sigma);
+        c.real(
+            "ekf.min_confidence",
+            e.min_confidence,
+            |v| (0.0..=1.0).contains(&v),
+            "between 0 and 1",
+        );
+
+        c.real(
+            "gating.probability",
+            self.gating.probability,
+            |v| v > 0.0 && v < 1.0,
+            "greater than 0 and less than 1",
+        );
+        c.count(
+            "gating.max_consecutive_rejections",
+            self.gating.max_consecutive_rejections,
+            1,
+            "at least 1",
+        );
+
+        let tr = &self.tracking;
+        c.positive("tracking.timeout", tr.timeout);
+        c.non_negative("tracking.rollback_window", tr.rollback_window);
+        c.positive("tracking.coast_after", tr.coast_after);
+        c.at_most(
+            "tracking.coast_after",
+            tr.coast_after,
+            "tracking.timeout",
+            tr.timeout,
+            "a track coasts before it times out",
+        );
+
+        let n = &self.node;
+        c.name(
+            "node.name",
+            &n.name,
+            "node name",
+            node_name_problem(&n.name),
+        );
+        c.name(
+            "node.namespace",
+            &n.namespace,
+            "namespace",
+            namespace_problem(&n.namespace),
+        );
+        c.count("node.queue_capacity", n.queue_capacity, 1, "at least 1");
+
+        let tp = &self.topics;
+        for (key, value) in [
+            ("topics.detections", &tp.detections),
+            ("topics.state", &tp.state),
+            ("topics.intercept", &tp.intercept),
+            ("topics.trajectory", &tp.trajectory),
+            ("topics.markers", &tp.markers),
+            ("topics.diagnostics", &tp.diagnostics),
+            ("topics.truth", &tp.truth),
+        ] {
+            c.name(key, value, "topic name", topic_problem(value));
+        }
+
+        c.count(
+            "qos.detections_depth",
+            self.qos.detections_depth,
+            1,
+            "at least 1",
+        );
+        c.count("qos.outputs_depth", self.qos.outputs_depth, 1, "at least 1");
+
+        if c.violations.is_empty() {
+            Ok(())
+        } else {
+            Err(ConfigError::Invalid {
+                violations: c.violations,
+            })
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn violations(config: &Config) -> Vec<Violation> {
+        match config.validate() {
+            Ok(()) => Vec::new(),
+            Err(ConfigError::Invalid { violations }) => violations,
+        }
+    }
+
+    fn keys(config: &Config) -> Vec<String> {
+        violations(config)
+            .iter()
+            .map(|v| v.key().to_owned())
+            .collect()
+    }
+
+    #[test]
+    fn defaults_are_valid() {
+        assert_eq!(Config::default().validate(), Ok(()));
+    }
+
+    #[test]
+    fn every_violation_is_reported_at_once() {
+        let mut c = Config::default();
+        c.table.restitution = 1.5;
+        c.table.friction = -0.1;
+        c.ball.mass = f64::NAN;
+        c.prediction.step = 0.1;
+        c.gating.probability = 1.0;
+        c.ekf.init_detections = 2;
+        c.topics.state = "ball/state".to_owned();
+        c.aero.drag_coefficients.clear();
+        c.aero.magnus_coefficients[1] = f64::INFINITY;
+        c.intercept.plane_x = 0.0;
+        assert_eq!(
+            keys(&c),
+            [
+                "ball.mass",
+                "aero.drag_coefficients",
+                "aero.magnus_coefficients[1]",
+                "table.restitution",
+                "table.friction",
+                "prediction.step",
+                "intercept.plane_x",
+                "ekf.init_detections",
+                "gating.probability",
+                "topics.state",
+            ]
+        );
+    }
+
+    #[test]
+    fn messages_name_key_value_and_range() {
+        let mut c = Config::default();
+        c.table.restitution = 1.5;
+        c.ball.mass = f64::NAN;
+        c.ekf.init_detections = 2;
+        let text = c.validate().map_err(|e| e.to_string()).unwrap_err();
+        assert!(text.contains(
+            "`table.restitution` = 1.5 is out of range: it must be greater than 0 and at most 1"
+        ));
+        assert!(text.contains("`ball.mass` = NaN is not a finite number"));
+        assert!(text.contains("`ekf.init_detections` = 2 is out of range: it must be at least 3"));
+    }
+
+    #[test]
+    fn range_boundaries() {
+        let mut c = Config::default();
+        c.table.restitution = 1.0;
+        c.table.friction = 0.0;
+        c.prediction.step = 0.05;
+        c.intercept.plane_x = -3.0;
+        c.ekf.init_detections = 3;
+        c.air.density = 0.0;
+        assert_eq!(c.validate(), Ok(()));
+
+        c.table.restitution = 0.0;
+        c.intercept.plane_x = -3.0001;
+        c.gating.probability = 0.0;
+        c.prediction.horizon = 0.0;
+        assert_eq!(
+            keys(&c),
+            [
+                "table.restitution",
+                "prediction.horizon",
+                "intercept.plane_x",
+                "gating.probability"
+            ]
+        );
+    }
+
+    #[test]
+    fn infinities_are_rejected_even_where_unbounded() {
+        let mut c = Config::default();
+        c.tracking.timeout = f64::INFINITY;
+        c.ekf.acceleration_noise_density = f64::NEG_INFINITY;
+        assert!(matches!(
+            violations(&c).as_slice(),
+            [Violation::NotFinite { .. }, Violation::NotFinite { .. }]
+        ));
+    }
+
+    #[test]
+    fn consistency_between_keys() {
+        let mut c = Config::default();
+        c.tracking.coast_after = 0.2;
+        c.prediction.trajectory_dt = 2.0;
+        let v = violations(&c);
+        assert_eq!(
+            v,
+            [
+                Violation::Exceeds {
+                    key: "prediction.trajectory_dt".to_owned(),
+                    value: 2.0,
+                    limit_key: "prediction.horizon".to_owned(),
+                    limit: 1.5,
+                    reason: "a trajectory needs at least one sample after its start",
+                },
+                Violation::Exceeds {
+                    key: "tracking.coast_after".to_owned(),
+                    value: 0.2,
+                    limit_key: "tracking.timeout".to_owned(),
+                    limit: 0.1,
+                    reason: "a track coasts before it times out",
+                },
+            ]
+        );
+    }
+
+    #[test]
+    fn ros_names() {
+        for good in ["/a", "/ball/state", "/_x/y_2"] {
+            assert_eq!(topic_problem(good), None, "{good}");
+        }
+        for bad in ["", "a", "/", "/a/", "//a", "/a//b", "/a b", "/2d", "/a/~b"] {
+            assert!(topic_problem(bad).is_some(), "{bad}");
+        }
+        assert_eq!(node_name_problem("ttball_2"), None);
+        for bad in ["", "/ttball", "2ttball", "tt-ball"] {
+            assert!(node_name_problem(bad).is_some(), "{bad}");
+        }
+        for good in ["", "/", "/robot1", "/a/b"] {
+            assert_eq!(namespace_problem(good), None, "{good}");
+        }
+        for bad in ["robot1", "/robot1/", "/1robot"] {
+            assert!(namespace_problem(bad).is_some(), "{bad}");
+        }
+    }
+
+    #[test]
+    fn source_sigmas() {
+        let mut c = Config::default();
+        c.sources.unknown.position_sigma = 0.0;
+        c.sources.highspeed_900fps.spin_sigma = -1.0;
+        c.sources.wide_150fps.latency = -0.001;
+        assert_eq!(
+            keys(&c),
+            [
+                "sources.wide_150fps.latency",
+                "sources.highspeed_900fps.spin_sigma",
+                "sources.unknown.position_sigma",
+            ]
+        );
+    }
+}

@@ -1,0 +1,869 @@
+//! Loading the configuration from a ROS 2 parameters file and `-p NAME:=VALUE` overrides, and
+//! printing it back as one.
+//!
+//! The file format is the one rclcpp reads:
+//!
+//! ```yaml
+//! ttball:              # or /ttball, or the wildcard /**
+//!   ros__parameters:
+//!     table:
+//!       restitution: 0.9   # nested maps join into the dotted name `table.restitution`
+//! ```
+//!
+//! Layers, each overriding the one before: [`Config::default`], then the file (which may set any
+//! subset of the parameters), then the overrides in the order given. The result is checked
+//! strictly: an unknown key (with a "did you mean" suggestion), a value of the wrong type and a
+//! value out of range ([`Config::validate`]) are all reported at once, each naming its dotted key
+//! and where it was set.
+
+use std::collections::HashMap;
+use std::fmt;
+use std::path::{Path, PathBuf};
+
+use serde_norway::Value;
+use thiserror::Error;
+
+use super::{Config, ConfigError, Violation};
+
+/// Node-name keys accepted at the top of a parameters file: the node's name, its fully qualified
+/// name and the rclcpp wildcard.
+pub const NODE_KEYS: [&str; 3] = ["ttball", "/ttball", "/**"];
+
+/// The key under the node name that holds the parameters (rclcpp).
+pub const ROS_PARAMETERS: &str = "ros__parameters";
+
+/// Where a parameter's value was set.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum Origin {
+    /// A parameters file.
+    File {
+        /// The file, as given.
+        path: PathBuf,
+        /// 1-based line of the key, when it could be found.
+        line: Option<usize>,
+    },
+    /// A `-p NAME:=VALUE` override.
+    Override {
+        /// The override as given (`NAME:=VALUE`).
+        arg: String,
+    },
+}
+
+impl fmt::Display for Origin {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Self::File {
+                path,
+                line: Some(line),
+            } => write!(f, "{}:{line}", path.display()),
+            Self::File { path, line: None } => write!(f, "{}", path.display()),
+            Self::Override { arg } => write!(f, "-p {arg}"),
+        }
+    }
+}
+
+/// One problem in a configuration. Loading collects all of them before it fails.
+#[derive(Debug, Clone, PartialEq, Error)]
+pub enum Problem {
+    /// The file is not laid out as a ROS 2 parameters file.
+    #[error("{origin}: {message}")]
+    Layout {
+        /// Where.
+        origin: Origin,
+        /// What is wrong and what is expected.
+        message: String,
+    },
+    /// A key that the configuration does not have.
+    #[error(
+        "{origin}: unknown parameter `{key}`; {}",
+        match .suggestion {
+            Some(s) => format!("did you mean `{s}`?"),
+            None => "`ttball config print` lists every parameter".to_owned(),
+        }
+    )]
+    UnknownKey {
+        /// The full dotted key, as written.
+        key: String,
+        /// Where it was written.
+        origin: Origin,
+        /// The closest known key, if one is close.
+        suggestion: Option<String>,
+    },
+    /// A value of the wrong type.
+    #[error("{origin}: `{key}` must be {expected}, but is {found}")]
+    WrongType {
+        /// The full dotted key.
+        key: String,
+        /// Where the value was set.
+        origin: Origin,
+        /// The expected type, with the default value as an example.
+        expected: String,
+        /// What was found.
+        found: String,
+    },
+    /// A `-p` argument that is not `NAME:=VALUE`.
+    #[error("-p {arg}: {reason}")]
+    BadOverride {
+        /// The argument as given.
+        arg: String,
+        /// What is wrong and what is expected.
+        reason: String,
+    },
+    /// A value out of range ([`Config::validate`]).
+    #[error(
+        "{}{violation}",
+        match .origin {
+            Some(origin) => format!("{origin}: "),
+            None => String::new(),
+        }
+    )]
+    OutOfRange {
+        /// The range check that failed.
+        violation: Violation,
+        /// Where the offending value was set; `None` for a default.
+        origin: Option<Origin>,
+    },
+}
+
+/// Why a configuration could not be loaded.
+#[derive(Debug, Error)]
+pub enum LoadError {
+    /// The configuration file does not exist.
+    #[error(
+        "configuration file `{}` does not exist; check the path \
+         (`ttball config print > FILE` writes the defaults to start from)",
+        .path.display()
+    )]
+    NotFound {
+        /// The path as given.
+        path: PathBuf,
+    },
+    /// The configuration file could not be read.
+    #[error("cannot read configuration file `{}`: {source}", .path.display())]
+    Read {
+        /// The path as given.
+        path: PathBuf,
+        /// The I/O error.
+        source: std::io::Error,
+    },
+    /// The configuration file is not valid YAML.
+    #[error("{}: not valid YAML: {message}", .path.display())]
+    Syntax {
+        /// The path as given.
+        path: PathBuf,
+        /// 1-based line of the error, when known.
+        line: Option<usize>,
+        /// The YAML parser's message (with line and column).
+        message: String,
+    },
+    /// The configuration has problems: unknown keys, wrong types, values out of range.
+    #[error(
+        "the configuration has {} problem{}:{}",
+        .problems.len(),
+        if .problems.len() == 1 { "" } else { "s" },
+        .problems.iter().map(|p| format!("\n  - {p}")).collect::<String>()
+    )]
+    Rejected {
+        /// Every problem found.
+        problems: Vec<Problem>,
+    },
+    /// The default configuration could not be turned into YAML (a bug).
+    #[error("internal error: cannot serialise the default configuration: {message}")]
+    Internal {
+        /// The serialiser's message.
+        message: String,
+    },
+}
+
+/// Loads the configuration: defaults, then `file` if given, then `overrides` (`NAME:=VALUE`,
+/// the value parsed as YAML), then [`Config::validate`].
+///
+/// ```no_run
+/// # use std::path::Path;
+/// let config = ttball::config::yaml::load(
+///     Some(Path::new("config/ttball.yaml")),
+///     &["intercept.plane_x:=-1.45"],
+/// )?;
+/// assert_eq!(config.intercept.plane_x, -1.45);
+/// # Ok::<(), ttball::config::yaml::LoadError>(())
+/// ```
+pub fn load<S: AsRef<str>>(file: Option<&Path>, overrides: &[S]) -> Result<Config, LoadError> {
+    match file {
+        None => load_layers(None, overrides),
+        Some(path) => {
+            let text = std::fs::read_to_string(path).map_err(|source| {
+                if source.kind() == std::io::ErrorKind::NotFound {
+                    LoadError::NotFound {
+                        path: path.to_owned(),
+                    }
+                } else {
+                    LoadError::Read {
+                        path: path.to_owned(),
+                        source,
+                    }
+                }
+            })?;
+            load_layers(Some((&text, path)), overrides)
+        }
+    }
+}
+
+/// Like [`load`], with the file's contents given as `text`; `path` only names it in messages.
+pub fn load_str<S: AsRef<str>>(
+    text: &str,
+    path: &Path,
+    overrides: &[S],
+) -> Result<Config, LoadError> {
+    load_layers(Some((text, path)), overrides)
+}
+
+/// The configuration as a ROS 2 parameters file (`ttball: ros__parameters: ...`), every parameter
+/// listed; real numbers always carry a decimal point or exponent so they load back as doubles.
+/// [`load_str`] of the result gives `config` back.
+pub fn to_ros_params_yaml(config: &Config) -> String {
+    match serde_norway::to_value(config) {
+        Ok(params) => {
+            let mut out = String::new();
+            out.push_str(NODE_KEYS[0]);
+            out.push_str(":\n  ");
+            out.push_str(ROS_PARAMETERS);
+            out.push_str(":\n");
+            emit_mapping(&mut out, &params, 4);
+            out
+        }
+        // Not reachable for plain data; written so that it cannot load as a configuration.
+        Err(e) => format!("@ cannot serialise the configuration: {e}\n"),
+    }
+}
+
+/// Every parameter's dotted name (`table.restitution`), in the order of the configuration;
+/// these are the names of the ROS 2 parameters and of `-p` overrides.
+pub fn parameter_names(config: &Config) -> Vec<String> {
+    let mut names = Vec::new();
+    if let Ok(value) = serde_norway::to_value(config) {
+        collect_names(&value, "", false, &mut names);
+    }
+    names
+}
+
+fn collect_names(value: &Value, prefix: &str, with_sections: bool, out: &mut Vec<String>) {
+    if let Value::Mapping(map) = value {
+        for (k, v) in map {
+            let key = key_text(k);
+            let name = if prefix.is_empty() {
+                key
+            } else {
+                format!("{prefix}.{key}")
+            };
+            if v.is_mapping() {
+                if with_sections {
+                    out.push(name.clone());
+                }
+                collect_names(v, &name, with_sections, out);
+            } else {
+                out.push(name);
+            }
+        }
+    }
+}
+
+/// One value to apply: its dotted key split into segments, where it was written.
+struct Entry {
+    key: Vec<String>,
+    value: Value,
+    origin: Origin,
+}
+
+struct Loader {
+    defaults: Value,
+    merged: Value,
+    known: Vec<String>,
+    set_at: HashMap<String, Origin>,
+    problems: Vec<Problem>,
+}
+
+fn load_layers<S: AsRef<str>>(
+    file: Option<(&str, &Path)>,
+    overrides: &[S],
+) -> Result<Config, LoadError> {
+    let defaults = serde_norway::to_value(Config::default()).map_err(|e| LoadError::Internal {
+        message: e.to_string(),
+    })?;
+    let mut known = Vec::new();
+    collect_names(&defaults, "", true, &mut known);
+    let mut loader = Loader {
+        merged: defaults.clone(),
+        defaults,
+        known,
+        set_at: HashMap::new(),
+        problems: Vec::new(),
+    };
+
+    if let Some((text, path)) = file {
+        let document: Value = serde_norway::from_str(text).map_err(|e| LoadError::Syntax {
+            path: path.to_owned(),
+            line: e.location().map(|l| l.line()),
+            message: e.to_string(),
+        })?;
+        for entry in file_entries(&document, text, path, &mut loader.problems) {
+            loader.apply(entry);
+        }
+    }
+    for arg in overrides {
+        match parse_override(arg.as_ref()) {
+            Ok(entry) => {
+                let mut entries = Vec::new();
+                flatten(&entry.value, &entry.key, &mut |key, value| {
+                    entries.push(Entry {
+                        key,
+                        value: value.clone(),
+                        origin: entry.origin.clone(),
+                    });
+                });
+                for e in entries {
+                    loader.apply(e);
+                }
+            }
+            Err(reason) => loader.problems.push(Problem::BadOverride {
+                arg: arg.as_ref().to_owned(),
+                reason,
+            }),
+        }
+    }
+    loader.finish()
+}
+
+impl Loader {
+    /// Applies one value if its key exists and its type fits; records a problem otherwise.
+    fn apply(&mut self, entry: Entry) {
+        let dotted = entry.key.join(".");
+        let mut node = &self.defaults;
+        for (depth, segment) in entry.key.iter().enumerate() {
+            match node {
+                Value::Mapping(map) => match map.get(segment.as_str()) {
+                    Some(child) => node = child,
+                    None => {
+                        let suggestion = suggest(&dotted, &self.known);
+                        self.problems.push(Problem::UnknownKey {
+                            key: dotted,
+                            origin: entry.origin,
+                            suggestion,
+                        });
+                        return;
+                    }
+                },
+                leaf => {
+                    self.problems.push(Problem::WrongType {
+                        key: entry.key[..depth].join("."),
+                        origin: entry.origin,
+                        expected: describe_expected(leaf),
+                        found: "a map".to_owned(),
+                    });
+                    return;
+                }
+            }
+        }
+        match (node, &entry.value) {
+            // An empty section (`table:` with every key commented out) sets nothing.
+            (Value::Mapping(_), Value::Null) => {}
+            (Value::Mapping(_), found) => self.problems.push(Problem::WrongType {
+                key: if dotted.is_empty() {
+                    ROS_PARAMETERS.to_owned()
+                } else {
+                    dotted
+                },
+                origin: entry.origin,
+                expected: "a section of parameters (a map)".to_owned(),
+                found: describe_found(found),
+            }),
+            (leaf, value) => {
+                // Probe the type by deserialising the defaults with only this value changed.
+                let mut probe = self.defaults.clone();
+                set(&mut probe, &entry.key, value.clone());
+                if serde_norway::from_value::<Config>(probe).is_ok() {
+                    set(&mut self.merged, &entry.key, entry.value);
+                    self.set_at.insert(dotted, entry.origin);
+                } else {
+                    self.problems.push(Problem::WrongType {
+                        key: dotted,
+                        origin: entry.origin,
+                        expected: describe_expected(leaf),
+                        found: describe_found(value),
+                    });
+                }
+            }
+        }
+    }
+
+    fn finish(mut self) -> Result<Config, LoadError> {
+        match serde_norway::from_value::<Config>(self.merged) {
+            Ok(config) => {
+                if let Err(ConfigError::Invalid { violations }) = config.validate() {
+                    for violation in violations {
+                        let key = violation.key();
+                        let key = key.split_once('[').map_or(key, |(k, _)| k);
+                        let mut origin = self.set_at.get(key).cloned();
+                        if let Violation::Exceeds { limit_key, .. } = &violation {
+                            // A default exceeded by a limit that was set: point at the limit.
+                            origin = origin.or_else(|| self.set_at.get(limit_key).cloned());
+                        }
+                        self.problems
+                            .push(Problem::OutOfRange { violation, origin });
+                    }
+                }
+                if self.problems.is_empty() {
+                    Ok(config)
+                } else {
+                    Err(LoadError::Rejected {
+                        problems: self.problems,
+                    })
+                }
+            }
+            // Every value was type-checked on its own, so this is not expected.
+            Err(e) => Err(LoadError::Internal {
+                message: e.to_string(),
+            }),
+        }
+    }
+}
+
+/// Sets `root[key[0]][key[1]]... = value`; the path exists (checked against the defaults).
+fn set(root: &mut Value, key: &[String], value: Value) {
+    let mut node = root;
+    for segment in key {
+        match node.get_mut(segment.as_str()) {
+            Some(child) => node = child,
+            None => return,
+        }
+    }
+    *node = value;
+}
+
+/// The closest known dotted key to `key`, if it is close enough to be a likely typo; failing
+/// that, a known key with the same last segment (a parameter put in the wrong section).
+fn suggest(key: &str, known: &[String]) -> Option<String> {
+    let best = known
+        .iter()
+        .map(|k| (strsim::normalized_damerau_levenshtein(key, k), k))
+        .max_by(|a, b| a.0.total_cmp(&b.0));
+    if let Some((score, k)) = best
+        && score >= 0.7
+    {
+        return Some(k.clone());
+    }
+    let last = key.rsplit('.').next().unwrap_or(key);
+    known
+        .iter()
+        .find(|k| k.rsplit('.').next() == Some(last))
+        .cloned()
+}
+
+fn describe_expected(default: &Value) -> String {
+    match default {
+        Value::Bool(_) => "true or false".to_owned(),
+        Value::Number(n) if n.is_f64() => {
+            format!(
+                "a real number (default {})",
+                format_float(n.as_f64().unwrap_or(0.0))
+            )
+        }
+        Value::Number(n) => format!("a whole number from 0 to {} (default {n})", u32::MAX),
+        Value::String(s) => format!("a string (default {})", quote(s)),
+        Value::Sequence(_) => format!("a list of real numbers (default {})", scalar(default)),
+        Value::Mapping(_) => "a section of parameters (a map)".to_owned(),
+        Value::Null | Value::Tagged(_) => "a value".to_owned(),
+    }
+}
+
+fn describe_found(value: &Value) -> String {
+    match value {
+        Value::Null => "empty (no value)".to_owned(),
+        Value::Bool(b) => format!("the boolean `{b}`"),
+        Value::Number(n) if n.is_f64() => format!("the real number `{n}`"),
+        Value::Number(n) => format!("the integer `{n}`"),
+        Value::String(s) => format!("the string {}", quote(s)),
+        Value::Sequence(_) => "a list".to_owned(),
+        Value::Mapping(_) => "a map".to_owned(),
+        Value::Tagged(t) => format!("a value tagged `{}`", t.tag),
+    }
+}
+
+fn key_text(key: &Value) -> String {
+    match key {
+        Value::String(s) => s.clone(),
+        Value::Number(n) => n.to_string(),
+        Value::Bool(b) => b.to_string(),
+        Value::Null => "~".to_owned(),
+        other => describe_found(other),
+    }
+}
+
+/// Calls `f(dotted key segments, value)` for every non-map value under `value` (and for a null
+/// one); keys with dots are split, as rclcpp joins nested keys with dots.
+fn flatten(value: &Value, prefix: &[String], f: &mut dyn FnMut(Vec<String>, &Value)) {
+    match value {
+        Value::Mapping(map) => {
+            for (k, v) in map {
+                let mut key = prefix.to_vec();
+                key.extend(key_text(k).split('.').map(str::to_owned));
+                flatten(v, &key, f);
+            }
+        }
+        other => f(prefix.to_vec(), other),
+    }
+}
+
+/// The parameter entries of a file, after checking its ROS 2 layout.
+fn file_entries(
+    document: &Value,
+    text: &str,
+    path: &Path,
+    problems: &mut Vec<Problem>,
+) -> Vec<Entry> {
+    let at = |yaml_path: &[String]| Origin::File {
+        path: path.to_owned(),
+        line: find_line(text, yaml_path),
+    };
+    let expected = "a ROS 2 parameters file starts with the node name `ttball:` (or `/ttball:`, \
+                    or the wildcard `/**:`), then `ros__parameters:` indented under it, then the \
+                    parameters indented under that";
+    let mut entries = Vec::new();
+    let nodes = match document {
+        // An empty file sets nothing.
+        Value::Null => return entries,
+        Value::Mapping(nodes) => nodes,
+        other => {
+            problems.push(Problem::Layout {
+                origin: at(&[]),
+                message: format!("found {}, but {expected}", describe_found(other)),
+            });
+            return entries;
+        }
+    };
+    let sections: Vec<String> = match serde_norway::to_value(Config::default()) {
+        Ok(Value::Mapping(m)) => m.keys().map(key_text).collect(),
+        _ => Vec::new(),
+    };
+    for (node_key, node) in nodes {
+        let node_name = key_text(node_key);
+        let node_path = vec![node_name.clone()];
+        if !NODE_KEYS.contains(&node_name.as_str()) {
+            let hint = if sections.contains(&node_name) {
+                " (the parameters must be nested under `ttball:` and `ros__parameters:`)"
+            } else {
+                ""
+            };
+            problems.push(Problem::Layout {
+                origin: at(&node_path),
+                message: format!("unexpected top-level key `{node_name}`{hint}: {expected}"),
+            });
+            continue;
+        }
+        let Some(node_map) = node.as_mapping() else {
+            problems.push(Problem::Layout {
+                origin: at(&node_path),
+                message: format!(
+                    "`{node_name}` holds {}, but {expected}",
+                    describe_found(node)
+                ),
+            });
+            continue;
+        };
+        for (inner_key, params) in node_map {
+            let inner = key_text(inner_key);
+            let inner_path = vec![node_name.clone(), inner.clone()];
+            if inner != ROS_PARAMETERS {
+                problems.push(Problem::Layout {
+                    origin: at(&inner_path),
+                    message: format!(
+                        "unexpected key `{inner}` under `{node_name}`: only `{ROS_PARAMETERS}` \
+                         may follow the node name; {expected}"
+                    ),
+                });
+                continue;
+            }
+            collect_file_entries(params, &inner_path, &[], &at, &mut entries);
+        }
+    }
+    entries
+}
+
+/// Entries under `value`, tracking the keys as written (`yaml_path`, for line numbers) and the
+/// dotted key segments (`key`).
+fn collect_file_entries(
+    value: &Value,
+    yaml_path: &[String],
+    key: &[String],
+    at: &dyn Fn(&[String]) -> Origin,
+    out: &mut Vec<Entry>,
+) {
+    match value {
+        Value::Mapping(map) => {
+            for (k, v) in map {
+                let text = key_text(k);
+                let mut yaml_path = yaml_path.to_vec();
+                yaml_path.push(text.clone());
+                let mut key = key.to_vec();
+                key.extend(text.split('.').map(str::to_owned));
+                collect_file_entries(v, &yaml_path, &key, at, out);
+            }
+        }
+        other => out.push(Entry {
+            key: key.to_vec(),
+            value: other.clone(),
+            origin: at(yaml_path),
+        }),
+    }
+}
+
+/// The 1-based line of the key at `yaml_path` in block-style YAML, or of its deepest ancestor
+/// found (for keys inside a flow-style `{...}` map).
+fn find_line(text: &str, yaml_path: &[String]) -> Option<usize> {
+    let mut stack: Vec<(usize, String)> = Vec::new();
+    let mut best: Option<(usize, usize)> = None; // (depth, line)
+    for (index, line) in text.lines().enumerate() {
+        let trimmed = line.trim_start();
+        if trimmed.is_empty() || trimmed.starts_with('#') || trimmed.starts_with("- ") {
+            continue;
+        }
+        let indent = line.len() - trimmed.len();
+        let Some(key) = leading_key(trimmed) else {
+            continue;
+        };
+        while stack.last().is_some_and(|(i, _)| *i >= indent) {
+            stack.pop();
+        }
+        stack.push((indent, key));
+        let depth = stack.len();
+        if depth <= yaml_path.len()
+            && stack.iter().zip(yaml_path).all(|((_, k), p)| k == p)
+            && best.is_none_or(|(d, _)| depth > d)
+        {
+            best = Some((depth, index + 1));
+            if depth == yaml_path.len() {
+                break;
+            }
+        }
+    }
+    best.map(|(_, line)| line)
+}
+
+/// The key of a `key: ...` line (plain or quoted), if the line starts with one.
+fn leading_key(line: &str) -> Option<String> {
+    if let Some(quote) = line.chars().next().filter(|c| *c == '"' || *c == '\'') {
+        let rest = &line[1..];
+        let end = rest.find(quote)?;
+        return rest[end + 1..]
+            .trim_start()
+            .starts_with(':')
+            .then(|| rest[..end].to_owned());
+    }
+    let bytes = line.as_bytes();
+    let colon = (0..bytes.len()).find(|&i| {
+        bytes[i] == b':' && bytes.get(i + 1).is_none_or(|b| *b == b' ' || *b == b'\t')
+    })?;
+    let key = line[..colon].trim_end();
+    (!key.is_empty() && !key.contains(" #")).then(|| key.to_owned())
+}
+
+/// Parses `NAME:=VALUE` (ROS 2 `-p` syntax); the value is a YAML scalar or flow sequence. The
+/// error is the reason the argument is malformed.
+fn parse_override(arg: &str) -> Result<Entry, String> {
+    let Some((name, value)) = arg.split_once(":=") else {
+        return Err(
+            "expected NAME:=VALUE with a dotted parameter name, e.g. `-p intercept.plane_x:=-1.45`"
+                .to_owned(),
+        );
+    };
+    let name = name.trim();
+    if name.is_empty() {
+        return Err(
+            "the parameter name before `:=` is empty; e.g. `-p intercept.plane_x:=-1.45`"
+                .to_owned(),
+        );
+    }
+    let value: Value = serde_norway::from_str(value).map_err(|e| {
+        format!(
+            "the value `{value}` is not a YAML scalar or list ({e}); quote strings that contain \
+             YAML syntax"
+        )
+    })?;
+    Ok(Entry {
+        key: name.split('.').map(str::to_owned).collect(),
+        value,
+        origin: Origin::Override {
+            arg: arg.to_owned(),
+        },
+    })
+}
+
+fn emit_mapping(out: &mut String, value: &Value, indent: usize) {
+    let Value::Mapping(map) = value else {
+        return;
+    };
+    for (k, v) in map {
+        out.push_str(&" ".repeat(indent));
+        out.push_str(&key_text(k));
+        out.push(':');
+        match v {
+            Value::Mapping(m) if !m.is_empty() => {
+                out.push('\n');
+                emit_mapping(out, v, indent + 2);
+            }
+            _ => {
+                out.push(' ');
+                out.push_str(&scalar(v));
+                out.push('\n');
+            }
+        }
+    }
+}
+
+/// A value in flow style: reals keep a decimal point, strings are double-quoted.
+fn scalar(value: &Value) -> String {
+    match value {
+        Value::Null => "~".to_owned(),
+        Value::Bool(b) => b.to_string(),
+        Value::Number(n) => match n.as_f64() {
+            Some(f) if n.is_f64() => format_float(f),
+            _ => n.to_string(),
+        },
+        Value::String(s) => quote(s),
+        Value::Sequence(items) => {
+            let items: Vec<String> = items.iter().map(scalar).collect();
+            format!("[{}]", items.join(", "))
+        }
+        Value::Mapping(map) => {
+            let items: Vec<String> = map
+                .iter()
+                .map(|(k, v)| format!("{}: {}", key_text(k), scalar(v)))
+                .collect();
+            format!("{{{}}}", items.join(", "))
+        }
+        Value::Tagged(t) => format!("{} {}", t.tag, scalar(&t.value)),
+    }
+}
+
+/// The shortest representation that parses back to `f` and that YAML 1.1 and 1.2 parsers (and
+/// rclcpp) read as a double: `1.0`, `0.0027`, `1.512e-5`, `1.0e-7`, `1.0e+20`.
+fn format_float(f: f64) -> String {
+    if f.is_nan() {
+        return ".nan".to_owned();
+    }
+    if f.is_infinite() {
+        return if f > 0.0 { ".inf" } else { "-.inf" }.to_owned();
+    }
+    let s = format!("{f:?}");
+    match s.split_once('e') {
+        Some((mantissa, exponent)) => {
+            let mantissa = if mantissa.contains('.') {
+                mantissa.to_owned()
+            } else {
+                format!("{mantissa}.0")
+            };
+            let exponent = if exponent.starts_with('-') {
+                exponent.to_owned()
+            } else {
+                format!("+{exponent}")
+            };
+            format!("{mantissa}e{exponent}")
+        }
+        None => s,
+    }
+}
+
+/// A YAML double-quoted string.
+fn quote(s: &str) -> String {
+    let mut out = String::with_capacity(s.len() + 2);
+    out.push('"');
+    for c in s.chars() {
+        match c {
+            '"' => out.push_str("\\\""),
+            '\\' => out.push_str("\\\\"),
+            '\n' => out.push_str("\\n"),
+            '\t' => out.push_str("\\t"),
+            c if c.is_control() => out.push_str(&format!("\\u{:04x}", u32::from(c))),
+            c => out.push(c),
+        }
+    }
+    out.push('"');
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn floats_keep_a_point_and_round_trip() {
+        for (f, text) in [
+            (1.0, "1.0"),
+            (-1.6, "-1.6"),
+            (0.0027, "0.0027"),
+            (1.512e-5, "1.512e-5"),
+            (1e-7, "1.0e-7"),
+            (1e20, "1.0e+20"),
+            (2.5e300, "2.5e+300"),
+        ] {
+            assert_eq!(format_float(f), text);
+            let back: f64 = serde_norway::from_str(text).unwrap();
+            assert_eq!(back, f, "{text}");
+        }
+    }
+
+    #[test]
+    fn quoted_strings_round_trip() {
+        for s in ["", "/ball/state", "a\"b\\c", "true", "1.5", "~", "x\ny"] {
+            let back: String = serde_norway::from_str(&quote(s)).unwrap();
+            assert_eq!(back, s);
+        }
+    }
+
+    #[test]
+    fn lines_of_keys() {
+        let text = "ttball:\n  ros__parameters:\n    # comment\n    table:\n      length: 2.0\n      \
+                    restitution: 0.9\n    ball: {radius: 0.02}\n\"/**\":\n  ros__parameters:\n    gravity: 9.8\n";
+        let path = |p: &[&str]| p.iter().map(|s| (*s).to_owned()).collect::<Vec<_>>();
+        assert_eq!(
+            find_line(
+                text,
+                &path(&["ttball", "ros__parameters", "table", "restitution"])
+            ),
+            Some(6)
+        );
+        assert_eq!(
+            find_line(
+                text,
+                &path(&["ttball", "ros__parameters", "ball", "radius"])
+            ),
+            Some(7)
+        );
+        assert_eq!(
+            find_line(text, &path(&["/**", "ros__parameters", "gravity"])),
+            Some(10)
+        );
+    }
+
+    #[test]
+    fn suggestions() {
+        let known: Vec<String> = [
+            "table",
+            "table.restitution",
+            "table.friction",
+            "ball.radius",
+        ]
+        .iter()
+        .map(|s| (*s).to_owned())
+        .collect();
+        assert_eq!(
+            suggest("table.restitutoin", &known).as_deref(),
+            Some("table.restitution")
+        );
+        assert_eq!(suggest("tabel", &known).as_deref(), Some("table"));
+        assert_eq!(
+            suggest("ball.restitution", &known).as_deref(),
+            Some("table.restitution")
+        );
+        assert_eq!(suggest("nonsense", &known), None);
+    }
+}

@@ -1,0 +1,428 @@
+//! The YAML configuration: the shipped `config/ttball.yaml` against the defaults, layering of file
+//! and `-p` overrides, and the messages of every kind of error.
+#![cfg(feature = "interface")]
+#![allow(
+    clippy::unwrap_used,
+    clippy::expect_used,
+    clippy::panic,
+    reason = "test helpers outside #[test] functions"
+)]
+
+use std::collections::BTreeSet;
+use std::path::{Path, PathBuf};
+
+use serde_norway::Value;
+use ttball::config::Config;
+use ttball::config::yaml::{self, LoadError, Origin, Problem};
+
+const NO_OVERRIDES: &[&str] = &[];
+
+fn shipped() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("config/ttball.yaml")
+}
+
+fn load_text(text: &str, overrides: &[&str]) -> Result<Config, LoadError> {
+    yaml::load_str(text, Path::new("my.yaml"), overrides)
+}
+
+fn params(body: &str) -> String {
+    let indented: String = body.lines().map(|l| format!("    {l}\n")).collect();
+    format!("ttball:\n  ros__parameters:\n{indented}")
+}
+
+/// The error message of a configuration that must fail.
+fn error(text: &str, overrides: &[&str]) -> String {
+    match load_text(text, overrides) {
+        Ok(_) => panic!("expected an error for {text:?} {overrides:?}"),
+        Err(e) => e.to_string(),
+    }
+}
+
+fn problems(text: &str, overrides: &[&str]) -> Vec<Problem> {
+    match load_text(text, overrides) {
+        Err(LoadError::Rejected { problems }) => problems,
+        other => panic!("expected rejected problems, got {other:?}"),
+    }
+}
+
+/// Dotted leaf keys of a value (lists are leaves).
+fn leaf_keys(value: &Value, prefix: &str, out: &mut BTreeSet<String>) {
+    match value {
+        Value::Mapping(map) => {
+            for (k, v) in map {
+                let k = k.as_str().expect("string keys");
+                let name = if prefix.is_empty() {
+                    k.to_owned()
+                } else {
+                    format!("{prefix}.{k}")
+                };
+                leaf_keys(v, &name, out);
+            }
+        }
+        _ => {
+            out.insert(prefix.to_owned());
+        }
+    }
+}
+
+#[test]
+fn shipped_file_is_exactly_the_defaults() {
+    let config = yaml::load(Some(&shipped()), NO_OVERRIDES).unwrap();
+    assert_eq!(config, Config::default());
+}
+
+#[test]
+fn shipped_file_lists_every_key() {
+    let text = std::fs::read_to_string(shipped()).unwrap();
+    let document: Value = serde_norway::from_str(&text).unwrap();
+    let mut file_keys = BTreeSet::new();
+    leaf_keys(&document["ttball"]["ros__parameters"], "", &mut file_keys);
+
+    let mut default_keys = BTreeSet::new();
+    leaf_keys(
+        &serde_norway::to_value(Config::default()).unwrap(),
+        "",
+        &mut default_keys,
+    );
+    assert_eq!(file_keys, default_keys);
+
+    let names: BTreeSet<String> = yaml::parameter_names(&Config::default())
+        .into_iter()
+        .collect();
+    assert_eq!(names, default_keys);
+}
+
+/// Every key line of the shipped file has a comment (inline, or on the line(s) just above).
+#[test]
+fn shipped_file_comments_every_key() {
+    let text = std::fs::read_to_string(shipped()).unwrap();
+    let mut previous = "";
+    for (i, line) in text.lines().enumerate() {
+        let trimmed = line.trim();
+        if !trimmed.is_empty() && !trimmed.starts_with('#') {
+            assert!(
+                trimmed.contains(" # ") || previous.starts_with('#'),
+                "line {}: `{trimmed}` has no comment",
+                i + 1
+            );
+        }
+        if !trimmed.is_empty() {
+            previous = trimmed;
+        }
+    }
+}
+
+/// Every parameter is a ROS 2 parameter type: bool, integer, double, string, or a list of one
+/// of those (no maps in lists, no nulls).
+#[test]
+fn every_parameter_is_a_ros2_type() {
+    fn check(value: &Value, key: &str) {
+        match value {
+            Value::Mapping(map) => {
+                for (k, v) in map {
+                    check(v, &format!("{key}.{}", k.as_str().unwrap()));
+                }
+            }
+            Value::Bool(_) | Value::Number(_) | Value::String(_) => {}
+            Value::Sequence(items) => {
+                let kinds: BTreeSet<&str> = items
+                    .iter()
+                    .map(|v| match v {
+                        Value::Bool(_) => "bool",
+                        Value::Number(n) if n.is_f64() => "double",
+                        Value::Number(_) => "integer",
+                        Value::String(_) => "string",
+                        other => panic!("{key}: list element {other:?} is not a ROS 2 scalar"),
+                    })
+                    .collect();
+                assert!(kinds.len() <= 1, "{key}: mixed list {kinds:?}");
+            }
+            other => panic!("{key}: {other:?} is not a ROS 2 parameter type"),
+        }
+    }
+    check(&serde_norway::to_value(Config::default()).unwrap(), "");
+}
+
+#[test]
+fn partial_file_keeps_other_defaults() {
+    let config = load_text(
+        &params("table:\n  restitution: 0.92\nintercept:\n  plane_x: -1.45"),
+        NO_OVERRIDES,
+    )
+    .unwrap();
+    let mut expected = Config::default();
+    expected.table.restitution = 0.92;
+    expected.intercept.plane_x = -1.45;
+    assert_eq!(config, expected);
+}
+
+#[test]
+fn node_keys_and_dotted_keys() {
+    for node in ["ttball", "/ttball", "\"/**\""] {
+        let text = format!("{node}:\n  ros__parameters:\n    table.friction: 0.2\n");
+        let config = load_text(&text, NO_OVERRIDES).unwrap();
+        assert_eq!(config.table.friction, 0.2, "{node}");
+    }
+    assert_eq!(load_text("", NO_OVERRIDES).unwrap(), Config::default());
+}
+
+#[test]
+fn integer_for_a_real_is_accepted() {
+    let config = load_text(&params("gravity: 10"), &["tracking.timeout:=1"]).unwrap();
+    assert_eq!(config.gravity, 10.0);
+    assert_eq!(config.tracking.timeout, 1.0);
+}
+
+#[test]
+fn overrides_apply_after_the_file() {
+    let config = load_text(
+        &params("intercept:\n  plane_x: -1.5"),
+        &[
+            "intercept.plane_x:=-1.45",
+            "ekf.init_detections:=5",
+            "topics.state:=/robot/ball_state",
+            "aero.drag_coefficients:=[0.5, 0.1]",
+            "node.namespace:=/robot1",
+        ],
+    )
+    .unwrap();
+    assert_eq!(config.intercept.plane_x, -1.45);
+    assert_eq!(config.ekf.init_detections, 5);
+    assert_eq!(config.topics.state, "/robot/ball_state");
+    assert_eq!(config.aero.drag_coefficients, [0.5, 0.1]);
+    assert_eq!(config.node.namespace, "/robot1");
+
+    // The last override of a key wins; no file at all is fine.
+    let config = yaml::load(None, &["table.friction:=0.1", "table.friction:=0.3"]).unwrap();
+    assert_eq!(config.table.friction, 0.3);
+}
+
+#[test]
+fn unknown_key_names_the_key_the_line_and_a_suggestion() {
+    let text = params("table:\n  length: 2.74\n  restitutoin: 0.9");
+    let message = error(&text, NO_OVERRIDES);
+    assert!(
+        message.contains(
+            "my.yaml:5: unknown parameter `table.restitutoin`; did you mean `table.restitution`?"
+        ),
+        "{message}"
+    );
+
+    let p = problems(&params("tabel:\n  friction: 0.2"), NO_OVERRIDES);
+    assert_eq!(
+        p,
+        [Problem::UnknownKey {
+            key: "tabel.friction".to_owned(),
+            origin: Origin::File {
+                path: PathBuf::from("my.yaml"),
+                line: Some(4),
+            },
+            suggestion: Some("table.friction".to_owned()),
+        }]
+    );
+
+    let message = error(&params("nonsense: 1"), NO_OVERRIDES);
+    assert!(
+        message.contains("unknown parameter `nonsense`; `ttball config print` lists every"),
+        "{message}"
+    );
+}
+
+#[test]
+fn wrong_type_names_the_key_and_the_expected_type() {
+    let message = error(&params("table:\n  restitution: high"), NO_OVERRIDES);
+    assert!(
+        message.contains(
+            "my.yaml:4: `table.restitution` must be a real number (default 0.9), but is the \
+             string \"high\""
+        ),
+        "{message}"
+    );
+    let message = error(&params("ekf:\n  init_detections: 4.5"), NO_OVERRIDES);
+    assert!(
+        message.contains(
+            "`ekf.init_detections` must be a whole number from 0 to 4294967295 (default 4)"
+        ),
+        "{message}"
+    );
+    let message = error(&params("ekf:\n  init_detections: -4"), NO_OVERRIDES);
+    assert!(message.contains("`ekf.init_detections` must be a whole number"));
+    let message = error(&params("table: 0.9"), NO_OVERRIDES);
+    assert!(
+        message.contains("`table` must be a section of parameters (a map), but is the real number"),
+        "{message}"
+    );
+    let message = error(&params("table:\n  restitution:\n    x: 1"), NO_OVERRIDES);
+    assert!(
+        message.contains("`table.restitution` must be a real number (default 0.9), but is a map"),
+        "{message}"
+    );
+    let message = error(&params("topics:\n  state: 5"), NO_OVERRIDES);
+    assert!(
+        message.contains("`topics.state` must be a string (default \"/ball/state\")"),
+        "{message}"
+    );
+    let message = error(
+        &params("aero:\n  drag_coefficients: [0.3, a]"),
+        NO_OVERRIDES,
+    );
+    assert!(
+        message.contains("`aero.drag_coefficients` must be a list of real numbers"),
+        "{message}"
+    );
+    let message = error(&params("table:\n  friction:"), NO_OVERRIDES);
+    assert!(
+        message.contains("`table.friction` must be a real number (default 0.25), but is empty"),
+        "{message}"
+    );
+}
+
+#[test]
+fn out_of_range_names_the_key_value_range_and_where() {
+    let message = error(
+        &params("table:\n  restitution: 1.5"),
+        &["tracking.timeout:=-1.0"],
+    );
+    assert!(
+        message.contains(
+            "my.yaml:4: `table.restitution` = 1.5 is out of range: it must be greater than 0 \
+             and at most 1"
+        ),
+        "{message}"
+    );
+    assert!(
+        message.contains(
+            "-p tracking.timeout:=-1.0: `tracking.timeout` = -1 is out of range: it must be \
+             greater than 0"
+        ),
+        "{message}"
+    );
+    let message = error("", &["prediction.horizon:=0.005"]);
+    assert!(
+        message.contains(
+            "-p prediction.horizon:=0.005: `prediction.trajectory_dt` = 0.01 must not exceed \
+             `prediction.horizon` = 0.005"
+        ),
+        "{message}"
+    );
+    let message = error("", &["aero.magnus_coefficients:=[1.0, .nan]"]);
+    assert!(
+        message.contains("`aero.magnus_coefficients[1]` = NaN is not a finite number"),
+        "{message}"
+    );
+}
+
+#[test]
+fn all_problems_are_reported_at_once() {
+    let p = problems(
+        &params("tabel:\n  friction: 0.2\ntable:\n  restitution: 2.0\n  friction: x"),
+        &["nonsense:=1", "gating.probability:=1.0", "bad"],
+    );
+    let summary: Vec<String> = p.iter().map(ToString::to_string).collect();
+    assert_eq!(p.len(), 6, "{summary:#?}");
+    let keys = [
+        "`tabel.friction`",
+        "`table.friction`",
+        "`nonsense`",
+        "-p bad:",
+        "`table.restitution` = 2",
+        "`gating.probability` = 1",
+    ];
+    for (line, key) in summary.iter().zip(keys) {
+        assert!(line.contains(key), "{line} lacks {key}");
+    }
+}
+
+#[test]
+fn bad_overrides_say_what_is_expected() {
+    let message = error("", &["intercept.plane_x=-1.45"]);
+    assert!(
+        message.contains("-p intercept.plane_x=-1.45: expected NAME:=VALUE"),
+        "{message}"
+    );
+    let message = error("", &[":=1"]);
+    assert!(message.contains("the parameter name before `:=` is empty"));
+    let message = error("", &["nonsense:=1"]);
+    assert!(
+        message.contains("-p nonsense:=1: unknown parameter `nonsense`"),
+        "{message}"
+    );
+    let message = error("", &["intercept.planex:=-1.45"]);
+    assert!(
+        message.contains("unknown parameter `intercept.planex`; did you mean `intercept.plane_x`?"),
+        "{message}"
+    );
+    let message = error("", &["table.restitution:=[1"]);
+    assert!(
+        message.contains("-p table.restitution:=[1: the value `[1` is not a YAML scalar"),
+        "{message}"
+    );
+}
+
+#[test]
+fn file_layout_errors_say_what_is_expected() {
+    let message = error("table:\n  restitution: 0.9\n", NO_OVERRIDES);
+    assert!(
+        message.contains(
+            "my.yaml:1: unexpected top-level key `table` (the parameters must be nested under \
+             `ttball:` and `ros__parameters:`)"
+        ),
+        "{message}"
+    );
+    let message = error("other_node:\n  ros__parameters:\n    a: 1\n", NO_OVERRIDES);
+    assert!(message.contains("unexpected top-level key `other_node`"));
+    assert!(message.contains("starts with the node name `ttball:`"));
+    let message = error("ttball:\n  parameters:\n    a: 1\n", NO_OVERRIDES);
+    assert!(
+        message.contains("my.yaml:2: unexpected key `parameters` under `ttball`"),
+        "{message}"
+    );
+    let message = error("- 1\n- 2\n", NO_OVERRIDES);
+    assert!(message.contains("found a list, but a ROS 2 parameters file starts with"));
+}
+
+#[test]
+fn syntax_and_missing_file_errors() {
+    let message = error("ttball:\n  ros__parameters:\n   a: [1\n", NO_OVERRIDES);
+    assert!(message.starts_with("my.yaml: not valid YAML:"), "{message}");
+    assert!(message.contains("line"), "{message}");
+
+    let missing = Path::new("/nonexistent/ttball.yaml");
+    let err = yaml::load(Some(missing), NO_OVERRIDES).unwrap_err();
+    assert!(matches!(err, LoadError::NotFound { .. }));
+    assert!(
+        err.to_string()
+            .contains("configuration file `/nonexistent/ttball.yaml` does not exist"),
+        "{err}"
+    );
+}
+
+#[test]
+fn printed_configuration_round_trips() {
+    let printed = yaml::to_ros_params_yaml(&Config::default());
+    assert!(printed.starts_with("ttball:\n  ros__parameters:\n    gravity: 9.80665\n"));
+    assert!(printed.contains("\n    intercept:\n      plane_x: -1.6\n"));
+    assert!(printed.contains("      equivalent_mass: 1.0\n"));
+    assert!(printed.contains("      namespace: \"\"\n"));
+    assert_eq!(
+        load_text(&printed, NO_OVERRIDES).unwrap(),
+        Config::default()
+    );
+
+    let mut changed = Config {
+        gravity: 10.0,
+        ..Config::default()
+    };
+    changed.air.kinematic_viscosity = 1e-7;
+    changed.aero.drag_coefficients = vec![1.0, 0.0, -2.5e-9];
+    changed.node.name = "ttball_left".to_owned();
+    changed.node.namespace = "/robot1".to_owned();
+    changed.qos.outputs_depth = 1;
+    let printed = yaml::to_ros_params_yaml(&changed);
+    assert!(printed.contains("gravity: 10.0\n"), "{printed}");
+    assert_eq!(load_text(&printed, NO_OVERRIDES).unwrap(), changed);
+    // Reals re-parse as reals (a ROS 2 double parameter), never as integers.
+    let document: Value = serde_norway::from_str(&printed).unwrap();
+    assert!(document["ttball"]["ros__parameters"]["gravity"].is_f64());
+    assert!(document["ttball"]["ros__parameters"]["aero"]["drag_coefficients"][1].is_f64());
+}
