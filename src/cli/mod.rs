@@ -2,6 +2,7 @@
 //! shared between commands ([`ConfigArgs`]). Commands are thin adapters around the library.
 
 pub mod config_cmd;
+pub mod predict;
 
 use std::io::Write;
 use std::path::PathBuf;
@@ -41,6 +42,16 @@ pub enum Command {
     /// Print the effective configuration, or check a configuration file.
     #[command(subcommand)]
     Config(config_cmd::ConfigCommand),
+
+    /// Predict the flight of one ball state: bounces, net, floor and the hitting plane.
+    ///
+    /// Without arguments it predicts a real rally ball (see --position). The table lists every
+    /// event with the state just after it; --csv writes the sampled trajectory.
+    #[command(after_help = "Examples:\n  \
+        ttball predict                                       # a real rally ball, default config\n  \
+        ttball predict --velocity -7,0,1.2 --spin 0,-150,0   # a topspin drive\n  \
+        ttball predict -p table.restitution:=0.93 --csv flight.csv")]
+    Predict(predict::PredictArgs),
 }
 
 impl Command {
@@ -48,6 +59,7 @@ impl Command {
     pub fn run(self) -> anyhow::Result<ExitCode> {
         match self {
             Self::Config(command) => command.run(),
+            Self::Predict(args) => args.run(),
         }
     }
 }
