@@ -2,6 +2,9 @@
 //!
 //! The crate is a pure core (no I/O, no clock, no ROS or MCAP types) and thin adapters around it:
 //! - [`physics`]: flight (spin-parameter aerodynamic model), table bounce, event-aware propagation.
+//! - [`ekf`]: the extended Kalman filter over (position, velocity, spin).
+//! - [`intercept`]: the predicted crossing of the robot's hitting plane, with its covariance.
+//! - [`stats`]: chi-square quantiles for gates and consistency checks.
 //! - [`detection`]: one 3D ball detection, as the estimator takes it.
 //! - [`config`]: every physical constant and tuning value, with defaults and range checks.
 //! - `msgs` (feature `interface`): serde mirrors of the ROS 2 interfaces in `msgs/` (package
@@ -11,6 +14,9 @@
 
 pub mod config;
 pub mod detection;
+pub mod ekf;
+pub mod intercept;
 #[cfg(feature = "interface")]
 pub mod msgs;
 pub mod physics;
+pub mod stats;

@@ -68,6 +68,15 @@ impl Cursor {
         }
     }
 
+    /// A cursor at time `t` on a state vector that also propagates the state-transition matrix.
+    pub fn tracking(t: f64, state: StateVector) -> Self {
+        Self {
+            t,
+            state,
+            tangent: Some(Tangent::identity()),
+        }
+    }
+
     /// The state as a [`BallState`].
     pub fn ball(&self) -> BallState {
         BallState::from_vector(&self.state)
