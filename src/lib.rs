@@ -2,6 +2,8 @@
 //!
 //! The crate is a pure core (no I/O, no clock, no ROS or MCAP types) and thin adapters around it:
 //! - [`physics`]: flight (spin-parameter aerodynamic model), table bounce, event-aware propagation.
+//! - [`estimator`]: the one entry point, `Estimator::handle(detection)`: tracking, out-of-order
+//!   fusion, gating, initialisation, interception after every update.
 //! - [`ekf`]: the extended Kalman filter over (position, velocity, spin).
 //! - [`intercept`]: the predicted crossing of the robot's hitting plane, with its covariance.
 //! - [`stats`]: chi-square quantiles for gates and consistency checks.
@@ -15,6 +17,7 @@
 pub mod config;
 pub mod detection;
 pub mod ekf;
+pub mod estimator;
 pub mod intercept;
 #[cfg(feature = "interface")]
 pub mod msgs;

@@ -249,14 +249,14 @@ impl Default for SourcesParams {
             // Stereo triangulation of a 40 mm ball over the whole table: a few mm. Latency about
             // one frame period (6.7 ms) plus detection.
             wide_150fps: SourceParams {
-                position_sigma: 0.003,
+                position_sigma: 0.002,
                 spin_sigma: 0.0,
                 latency: 0.008,
             },
             // Narrow view, so finer pixels; spin from the marks on the ball.
             highspeed_900fps: SourceParams {
-                position_sigma: 0.0015,
-                spin_sigma: 15.0,
+                position_sigma: 0.001,
+                spin_sigma: 12.0,
                 latency: 0.004,
             },
             // Conservative: worse than either known camera.
@@ -276,11 +276,12 @@ impl Default for SourcesParams {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct EkfParams {
-    /// Power spectral density q_a of the white acceleration noise [m^2/s^3]; covers the error of
-    /// the fitted C_D and C_M (about 10-20 % of a 10 m/s^2 aerodynamic acceleration). Tuning value.
+    /// Power spectral density q_a of the white acceleration noise [m^2/s^3]; lets the velocity
+    /// wander by 0.045 m/s over 1 s. The filter learns spin from the flight's curvature, where
+    /// 1 rad/s changes the acceleration by only ~5 mm/s^2: larger values hide it. Tuning value.
     pub acceleration_noise_density: f64,
     /// Power spectral density q_w of the spin random walk [(rad/s)^2/s]; the model keeps spin
-    /// constant in flight, this lets the estimate drift by 20 rad/s per sqrt(s). Tuning value.
+    /// constant in flight, this lets the estimate drift by about 3 rad/s per sqrt(s). Tuning value.
     pub spin_noise_density: f64,
     /// Number of detections fitted by least squares to start a track [-]; at least 3 (position
     /// and velocity need 2, a third checks them), 4 tolerates one poor detection.
@@ -298,8 +299,8 @@ pub struct EkfParams {
 impl Default for EkfParams {
     fn default() -> Self {
         Self {
-            acceleration_noise_density: 4.0,
-            spin_noise_density: 400.0,
+            acceleration_noise_density: 0.002,
+            spin_noise_density: 10.0,
             init_detections: 4,
             init_max_span: 0.1,
             spin_prior_sigma: 150.0,

@@ -1,0 +1,798 @@
+//! The estimator: one entry point, [`Estimator::handle`], that takes every detection as it
+//! arrives and returns the filtered state and the interception prediction. The ROS node and the
+//! MCAP replay both call it, so a replay runs exactly the code path of the live node.
+//!
+//! - Zero added latency: each detection is processed on arrival. A detection older than the
+//!   newest fused one (the two cameras have different latencies) is fused by rolling back to the
+//!   estimate before its stamp and re-applying the newer detections, from a bounded history
+//!   (`tracking.rollback_window`); an older one is dropped and counted.
+//! - Gating by the Mahalanobis distance at `gating.probability`; a run of
+//!   `gating.max_consecutive_rejections` rejections, or a gap longer than `tracking.timeout`,
+//!   ends the track, and the next detections start a new one with a new track id.
+//! - Initialisation from the first `ekf.init_detections` detections ([`init`]).
+//! - Every rejected detection is counted by reason ([`Counters`]).
+//!
+//! No heap allocation per detection: the history and buffers are allocated once.
+
+mod init;
+
+use std::collections::VecDeque;
+
+use nalgebra::{Matrix3, Matrix6, SVector, Vector3};
+
+use crate::config::{Config, SourceParams};
+use crate::detection::{Detection, Source};
+use crate::ekf::{Ekf, ProcessNoise, UpdateError, position_H, position_spin_H};
+use crate::intercept::{Intercept, InterceptQuery, predict_intercept};
+use crate::physics::{BallState, FlightModel, Propagator, StateMatrix};
+use crate::stats::chi_square_quantile;
+
+/// Track status, with the codes of `BallState.msg`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum TrackStatus {
+    /// Collecting the first detections of a new ball.
+    Initializing,
+    /// Detections are being fused.
+    Tracking,
+    /// No detection fused for longer than `tracking.coast_after`: the estimate is a prediction.
+    Coasting,
+}
+
+impl TrackStatus {
+    /// The `STATUS_*` code of `BallState.msg`.
+    pub fn code(self) -> u8 {
+        match self {
+            Self::Initializing => 1,
+            Self::Tracking => 2,
+            Self::Coasting => 3,
+        }
+    }
+}
+
+/// Why a detection was not fused.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum Rejection {
+    /// A position, spin or covariance value is NaN or infinite.
+    NonFinite,
+    /// The confidence is outside [0, 1].
+    BadConfidence,
+    /// The confidence is below `ekf.min_confidence`.
+    LowConfidence,
+    /// A given covariance is not symmetric positive definite.
+    BadCovariance,
+    /// Older than the rollback window behind the newest fused detection, or before the track.
+    TooOld,
+    /// Same stamp and source as a detection already fused.
+    Duplicate,
+    /// Outside the Mahalanobis gate of the track.
+    Gated,
+    /// Dropped while initialising: it did not fit a ballistic flight with the others.
+    InitOutlier,
+}
+
+impl Rejection {
+    /// Every reason, in the order of [`Counters::rejected`].
+    pub const ALL: [Self; 8] = [
+        Self::NonFinite,
+        Self::BadConfidence,
+        Self::LowConfidence,
+        Self::BadCovariance,
+        Self::TooOld,
+        Self::Duplicate,
+        Self::Gated,
+        Self::InitOutlier,
+    ];
+
+    /// A short snake_case name for summaries and diagnostics.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::NonFinite => "non_finite",
+            Self::BadConfidence => "bad_confidence",
+            Self::LowConfidence => "low_confidence",
+            Self::BadCovariance => "bad_covariance",
+            Self::TooOld => "too_old",
+            Self::Duplicate => "duplicate",
+            Self::Gated => "gated",
+            Self::InitOutlier => "init_outlier",
+        }
+    }
+
+    fn index(self) -> usize {
+        Self::ALL.iter().position(|r| *r == self).unwrap_or(0)
+    }
+}
+
+/// What happened to the detections so far.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct Counters {
+    /// Detections handled.
+    pub received: u64,
+    /// Detections fused into a track (including those fused late through a rollback).
+    pub fused: u64,
+    /// Detections used to initialise a track (or still waiting in the initialiser).
+    pub initializing: u64,
+    /// Rejected detections by reason, in the order of [`Rejection::ALL`].
+    pub rejected: [u64; 8],
+    /// Tracks started.
+    pub tracks: u64,
+    /// Late detections fused by rolling back.
+    pub rollbacks: u64,
+}
+
+impl Counters {
+    /// Rejected detections of one reason.
+    pub fn rejected(&self, reason: Rejection) -> u64 {
+        self.rejected[reason.index()]
+    }
+
+    /// All rejected detections.
+    pub fn total_rejected(&self) -> u64 {
+        self.rejected.iter().sum()
+    }
+}
+
+/// What the estimator did with one detection.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Verdict {
+    /// Fused into the track; the normalised innovation squared of the update.
+    Fused {
+        /// NIS of the update.
+        nis: f64,
+    },
+    /// Taken by the initialiser of a new track.
+    Initializing,
+    /// Not fused.
+    Rejected(Rejection),
+}
+
+/// The filtered state of the tracked ball.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Estimate {
+    /// Time of the estimate [ns].
+    pub stamp: i64,
+    /// The track.
+    pub track_id: u32,
+    /// Track status.
+    pub status: TrackStatus,
+    /// The state.
+    pub state: BallState,
+    /// Its covariance over (position, velocity, spin).
+    pub covariance: StateMatrix,
+    /// Table bounces since the track started.
+    pub bounces: u32,
+    /// NIS of the last fused update.
+    pub nis: f64,
+}
+
+/// The interception prediction made from an estimate.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct InterceptEstimate {
+    /// Time of the estimate it was predicted from [ns].
+    pub stamp: i64,
+    /// The track.
+    pub track_id: u32,
+    /// The prediction (times relative to `stamp`).
+    pub intercept: Intercept,
+}
+
+/// Everything [`Estimator::handle`] returns for one detection.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Output {
+    /// What happened to the detection.
+    pub verdict: Verdict,
+    /// The estimate after it, when there is a ball.
+    pub estimate: Option<Estimate>,
+    /// The interception prediction from that estimate, when a track exists.
+    pub intercept: Option<InterceptEstimate>,
+}
+
+/// Measurement noise of one source, as variances.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct SourceNoise {
+    position_var: f64,
+    spin_var: Option<f64>,
+}
+
+impl SourceNoise {
+    fn new(p: &SourceParams) -> Self {
+        Self {
+            position_var: p.position_sigma * p.position_sigma,
+            spin_var: (p.spin_sigma > 0.0).then_some(p.spin_sigma * p.spin_sigma),
+        }
+    }
+}
+
+/// The configuration as the estimator uses it.
+#[derive(Debug, Clone, PartialEq)]
+pub(crate) struct Settings {
+    noise: ProcessNoise,
+    gate_position: f64,
+    gate_position_spin: f64,
+    gate_probability: f64,
+    sources: [SourceNoise; 3],
+    min_confidence: f64,
+    init_count: usize,
+    init_span: i64,
+    spin_prior_var: f64,
+    max_rejections: u32,
+    timeout: i64,
+    rollback: i64,
+    coast: i64,
+    plane_x: f64,
+    horizon: f64,
+    gravity: f64,
+}
+
+fn seconds_to_ns(s: f64) -> i64 {
+    (s * 1e9).round() as i64
+}
+
+impl Settings {
+    fn new(config: &Config) -> Self {
+        let p = config.gating.probability;
+        Self {
+            noise: ProcessNoise {
+                acceleration_density: config.ekf.acceleration_noise_density,
+                spin_density: config.ekf.spin_noise_density,
+            },
+            gate_position: chi_square_quantile(p, 3),
+            gate_position_spin: chi_square_quantile(p, 6),
+            gate_probability: p,
+            sources: [
+                SourceNoise::new(&config.sources.unknown),
+                SourceNoise::new(&config.sources.wide_150fps),
+                SourceNoise::new(&config.sources.highspeed_900fps),
+            ],
+            min_confidence: config.ekf.min_confidence,
+            init_count: config.ekf.init_detections.max(3) as usize,
+            init_span: seconds_to_ns(config.ekf.init_max_span),
+            spin_prior_var: config.ekf.spin_prior_sigma * config.ekf.spin_prior_sigma,
+            max_rejections: config.gating.max_consecutive_rejections.max(1),
+            timeout: seconds_to_ns(config.tracking.timeout),
+            rollback: seconds_to_ns(config.tracking.rollback_window),
+            coast: seconds_to_ns(config.tracking.coast_after),
+            plane_x: config.intercept.plane_x,
+            horizon: config.prediction.horizon,
+            gravity: config.gravity,
+        }
+    }
+
+    fn source(&self, source: Source) -> SourceNoise {
+        self.sources[usize::from(source.code()).min(2)]
+    }
+}
+
+/// A measurement ready for the filter.
+#[derive(Debug, Clone, Copy, PartialEq)]
+#[expect(
+    clippy::large_enum_variant,
+    reason = "kept inline: no heap allocation per detection"
+)]
+enum Measurement {
+    Position { z: Vector3<f64>, r: Matrix3<f64> },
+    PositionSpin { z: SVector<f64, 6>, r: Matrix6<f64> },
+}
+
+fn is_spd(m: &Matrix3<f64>) -> bool {
+    (m - m.transpose()).abs().max() <= 1e-9 * m.abs().max().max(f64::MIN_POSITIVE)
+        && m.cholesky().is_some()
+}
+
+/// The estimate at one time, with what the track knows at that time.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct Snapshot {
+    ekf: Ekf,
+    stamp: i64,
+    bounces: u32,
+    robot_half_bounces: u32,
+    last_fused: i64,
+    nis: f64,
+}
+
+/// A fused detection and the estimate just after it.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct Entry {
+    detection: Detection,
+    measurement: Measurement,
+    after: Snapshot,
+}
+
+#[derive(Debug, Clone)]
+struct Track {
+    id: u32,
+    now: Snapshot,
+    /// The estimate just before the oldest history entry.
+    base: Snapshot,
+    history: VecDeque<Entry>,
+    consecutive_rejections: u32,
+}
+
+/// The estimator (see the module doc).
+#[derive(Debug, Clone)]
+pub struct Estimator {
+    settings: Settings,
+    propagator: Propagator,
+    flight: FlightModel,
+    track: Option<Track>,
+    /// Detections of a ball being initialised, sorted by stamp.
+    pending: Vec<Detection>,
+    /// The latest run of rejected detections, to seed a new track.
+    rejected_run: VecDeque<Detection>,
+    next_track_id: u32,
+    counters: Counters,
+    history_capacity: usize,
+    /// The history buffer of the next track, allocated once.
+    spare_history: VecDeque<Entry>,
+}
+
+impl Estimator {
+    /// An estimator with the given configuration (assumed validated).
+    pub fn new(config: &Config) -> Self {
+        let settings = Settings::new(config);
+        // 900 + 150 detections per second over the rollback window, with a wide margin.
+        let history_capacity =
+            ((config.tracking.rollback_window * 2000.0).ceil() as usize).clamp(16, 4096);
+        let pending_capacity = settings.init_count.max(settings.max_rejections as usize) + 8;
+        Self {
+            propagator: Propagator::new(config),
+            flight: FlightModel::new(config),
+            track: None,
+            pending: Vec::with_capacity(pending_capacity),
+            rejected_run: VecDeque::with_capacity(settings.max_rejections as usize + 1),
+            next_track_id: 1,
+            counters: Counters::default(),
+            history_capacity,
+            spare_history: VecDeque::with_capacity(history_capacity),
+            settings,
+        }
+    }
+
+    /// What happened to the detections so far.
+    pub fn counters(&self) -> &Counters {
+        &self.counters
+    }
+
+    /// The propagator the estimator predicts with.
+    pub fn propagator(&self) -> &Propagator {
+        &self.propagator
+    }
+
+    /// The current estimate of the tracked ball, if any.
+    pub fn estimate(&self) -> Option<Estimate> {
+        self.track
+            .as_ref()
+            .map(|t| self.estimate_of(t, &t.now, t.now.stamp))
+    }
+
+    /// Takes one detection (in arrival order) and returns the estimate and interception after it.
+    pub fn handle(&mut self, detection: &Detection) -> Output {
+        self.counters.received += 1;
+        let verdict = match self.measurement(detection) {
+            Err(reason) => Verdict::Rejected(reason),
+            Ok(measurement) => self.process(detection, measurement),
+        };
+        match verdict {
+            Verdict::Fused { .. } => self.counters.fused += 1,
+            Verdict::Initializing => self.counters.initializing += 1,
+            Verdict::Rejected(reason) => self.counters.rejected[reason.index()] += 1,
+        }
+        self.output(verdict, detection.stamp)
+    }
+
+    fn output(&self, verdict: Verdict, stamp: i64) -> Output {
+        let Some(track) = &self.track else {
+            return Output {
+                verdict,
+                estimate: self.initializing_estimate(),
+                intercept: None,
+            };
+        };
+        // A rejected detection newer than the track still moves the estimate to its time.
+        let snapshot = if stamp > track.now.stamp && !matches!(verdict, Verdict::Fused { .. }) {
+            let mut s = track.now;
+            self.advance(&mut s, stamp);
+            s
+        } else {
+            track.now
+        };
+        let estimate = self.estimate_of(track, &snapshot, stamp);
+        let intercept = predict_intercept(
+            &self.propagator,
+            &snapshot.ekf.x,
+            &snapshot.ekf.P,
+            &InterceptQuery {
+                plane_x: self.settings.plane_x,
+                horizon: self.settings.horizon,
+                bounced_on_robot_half: snapshot.robot_half_bounces > 0,
+            },
+        );
+        Output {
+            verdict,
+            estimate: Some(estimate),
+            intercept: Some(InterceptEstimate {
+                stamp: snapshot.stamp,
+                track_id: track.id,
+                intercept,
+            }),
+        }
+    }
+
+    fn estimate_of(&self, track: &Track, snapshot: &Snapshot, now: i64) -> Estimate {
+        let status = if now.max(snapshot.stamp) - snapshot.last_fused > self.settings.coast {
+            TrackStatus::Coasting
+        } else {
+            TrackStatus::Tracking
+        };
+        Estimate {
+            stamp: snapshot.stamp,
+            track_id: track.id,
+            status,
+            state: BallState::from_vector(&snapshot.ekf.x),
+            covariance: snapshot.ekf.P,
+            bounces: snapshot.bounces,
+            nis: snapshot.nis,
+        }
+    }
+
+    /// The provisional estimate of a ball being initialised (from 2 detections on).
+    fn initializing_estimate(&self) -> Option<Estimate> {
+        if self.pending.len() < 2 {
+            return None;
+        }
+        let fit = self.fit_pending()?;
+        Some(Estimate {
+            stamp: fit.stamp,
+            track_id: self.next_track_id,
+            status: TrackStatus::Initializing,
+            state: BallState::from_vector(&fit.ekf.x),
+            covariance: fit.ekf.P,
+            bounces: 0,
+            nis: 0.0,
+        })
+    }
+
+    /// Checks a detection and turns it into a measurement with its noise.
+    fn measurement(&self, d: &Detection) -> Result<Measurement, Rejection> {
+        let finite = d.position.iter().all(|v| v.is_finite())
+            && d.spin.is_none_or(|w| w.iter().all(|v| v.is_finite()))
+            && d.position_covariance
+                .is_none_or(|c| c.iter().all(|v| v.is_finite()))
+            && d.spin_covariance
+                .is_none_or(|c| c.iter().all(|v| v.is_finite()));
+        if !finite {
+            return Err(Rejection::NonFinite);
+        }
+        let confidence = f64::from(d.confidence);
+        if !(0.0..=1.0).contains(&confidence) {
+            return Err(Rejection::BadConfidence);
+        }
+        if confidence < self.settings.min_confidence {
+            return Err(Rejection::LowConfidence);
+        }
+        let noise = self.settings.source(d.source);
+        let r_position = match d.position_covariance {
+            Some(c) if !is_spd(&c) => return Err(Rejection::BadCovariance),
+            Some(c) => c,
+            None => Matrix3::identity() * noise.position_var,
+        };
+        let r_spin = match (d.spin, d.spin_covariance, noise.spin_var) {
+            (None, _, _) => None,
+            (Some(_), Some(c), _) if !is_spd(&c) => return Err(Rejection::BadCovariance),
+            (Some(_), Some(c), _) => Some(c),
+            (Some(_), None, Some(var)) => Some(Matrix3::identity() * var),
+            // A source that does not measure spin: its spin values are ignored.
+            (Some(_), None, None) => None,
+        };
+        Ok(match (d.spin, r_spin) {
+            (Some(w), Some(rs)) => {
+                let mut z = SVector::<f64, 6>::zeros();
+                z.fixed_rows_mut::<3>(0).copy_from(&d.position);
+                z.fixed_rows_mut::<3>(3).copy_from(&w);
+                let mut r = Matrix6::zeros();
+                r.fixed_view_mut::<3, 3>(0, 0).copy_from(&r_position);
+                r.fixed_view_mut::<3, 3>(3, 3).copy_from(&rs);
+                Measurement::PositionSpin { z, r }
+            }
+            _ => Measurement::Position {
+                z: d.position,
+                r: r_position,
+            },
+        })
+    }
+
+    fn process(&mut self, d: &Detection, m: Measurement) -> Verdict {
+        let Some(track) = &self.track else {
+            return self.initialise(d);
+        };
+        if d.stamp - track.now.last_fused > self.settings.timeout {
+            self.end_track();
+            return self.initialise(d);
+        }
+        let result = if d.stamp >= track.now.stamp {
+            self.fuse_newest(d, m)
+        } else {
+            self.fuse_late(d, m)
+        };
+        match result {
+            Ok(nis) => {
+                if let Some(track) = self.track.as_mut() {
+                    track.consecutive_rejections = 0;
+                }
+                self.rejected_run.clear();
+                Verdict::Fused { nis }
+            }
+            Err(Rejection::Gated) => self.count_gated(d),
+            Err(reason) => Verdict::Rejected(reason),
+        }
+    }
+
+    /// A gated detection; a run of them ends the track and seeds a new one.
+    fn count_gated(&mut self, d: &Detection) -> Verdict {
+        if self.rejected_run.len() == self.rejected_run.capacity() {
+            self.rejected_run.pop_front();
+        }
+        self.rejected_run.push_back(*d);
+        let Some(track) = self.track.as_mut() else {
+            return Verdict::Rejected(Rejection::Gated);
+        };
+        track.consecutive_rejections += 1;
+        if track.consecutive_rejections >= self.settings.max_rejections {
+            self.end_track();
+            // The rejected run is probably the new ball (a racket hit, a new serve).
+            while let Some(seed) = self.rejected_run.pop_front() {
+                self.insert_pending(&seed);
+            }
+            if self.pending.len() >= self.settings.init_count {
+                self.try_start_track();
+            }
+        }
+        Verdict::Rejected(Rejection::Gated)
+    }
+
+    fn end_track(&mut self) {
+        if let Some(track) = self.track.take() {
+            // Keep the history's buffer for the next track: no allocation per track.
+            self.spare_history = track.history;
+            self.spare_history.clear();
+        }
+        self.pending.clear();
+    }
+
+    /// Moves a snapshot forward to `stamp`, counting bounces.
+    fn advance(&self, snapshot: &mut Snapshot, stamp: i64) {
+        let dt = (stamp - snapshot.stamp) as f64 * 1e-9;
+        if dt > 0.0 {
+            let report = snapshot
+                .ekf
+                .predict(&self.propagator, &self.settings.noise, dt);
+            snapshot.bounces += report.bounces;
+            snapshot.robot_half_bounces += report.robot_half_bounces;
+        }
+        snapshot.stamp = stamp.max(snapshot.stamp);
+    }
+
+    /// Fuses a measurement into a snapshot at the detection's stamp.
+    fn fuse(
+        &self,
+        snapshot: &mut Snapshot,
+        d: &Detection,
+        m: &Measurement,
+    ) -> Result<f64, Rejection> {
+        self.advance(snapshot, d.stamp);
+        let result = match m {
+            Measurement::Position { z, r } => {
+                snapshot
+                    .ekf
+                    .update(z, &position_H(), r, self.settings.gate_position)
+            }
+            Measurement::PositionSpin { z, r } => {
+                snapshot
+                    .ekf
+                    .update(z, &position_spin_H(), r, self.settings.gate_position_spin)
+            }
+        };
+        match result {
+            Ok(nis) => {
+                snapshot.last_fused = d.stamp;
+                snapshot.nis = nis;
+                Ok(nis)
+            }
+            Err(UpdateError::Gated { .. }) => Err(Rejection::Gated),
+            Err(UpdateError::NotFinite) => Err(Rejection::NonFinite),
+            Err(UpdateError::NotPositiveDefinite) => Err(Rejection::BadCovariance),
+        }
+    }
+
+    fn fuse_newest(&mut self, d: &Detection, m: Measurement) -> Result<f64, Rejection> {
+        let Some(track) = &self.track else {
+            return Err(Rejection::TooOld);
+        };
+        if track
+            .history
+            .back()
+            .is_some_and(|e| e.detection.stamp == d.stamp && e.detection.source == d.source)
+        {
+            return Err(Rejection::Duplicate);
+        }
+        let mut snapshot = track.now;
+        let nis = self.fuse(&mut snapshot, d, &m)?;
+        self.push_history(Entry {
+            detection: *d,
+            measurement: m,
+            after: snapshot,
+        });
+        Ok(nis)
+    }
+
+    /// Fuses a detection older than the newest fused one: roll back, fuse, re-apply the newer.
+    fn fuse_late(&mut self, d: &Detection, m: Measurement) -> Result<f64, Rejection> {
+        let Some(track) = &self.track else {
+            return Err(Rejection::TooOld);
+        };
+        if track.now.stamp - d.stamp > self.settings.rollback || d.stamp < track.base.stamp {
+            return Err(Rejection::TooOld);
+        }
+        if track
+            .history
+            .iter()
+            .any(|e| e.detection.stamp == d.stamp && e.detection.source == d.source)
+        {
+            return Err(Rejection::Duplicate);
+        }
+        let index = track
+            .history
+            .partition_point(|e| e.detection.stamp <= d.stamp);
+        let mut snapshot = match index {
+            0 => track.base,
+            i => track.history[i - 1].after,
+        };
+        let nis = self.fuse(&mut snapshot, d, &m)?;
+        let late = Entry {
+            detection: *d,
+            measurement: m,
+            after: snapshot,
+        };
+        let Some(mut track) = self.track.take() else {
+            return Err(Rejection::TooOld);
+        };
+        for entry in track.history.iter_mut().skip(index) {
+            // A re-applied detection that no longer passes the gate is skipped.
+            let mut next = snapshot;
+            if self
+                .fuse(&mut next, &entry.detection, &entry.measurement)
+                .is_ok()
+            {
+                snapshot = next;
+            } else {
+                self.advance(&mut snapshot, entry.detection.stamp);
+            }
+            entry.after = snapshot;
+        }
+        let mut index = index;
+        if track.history.len() >= self.history_capacity
+            && let Some(oldest) = track.history.pop_front()
+        {
+            track.base = oldest.after;
+            index = index.saturating_sub(1);
+        }
+        track.history.insert(index, late);
+        track.now = snapshot;
+        self.track = Some(track);
+        self.counters.rollbacks += 1;
+        Ok(nis)
+    }
+
+    fn push_history(&mut self, entry: Entry) {
+        let rollback = self.settings.rollback;
+        let capacity = self.history_capacity;
+        let Some(track) = self.track.as_mut() else {
+            return;
+        };
+        track.now = entry.after;
+        while track.history.len() >= capacity
+            || track
+                .history
+                .front()
+                .is_some_and(|e| e.detection.stamp < entry.after.stamp - rollback)
+        {
+            let Some(oldest) = track.history.pop_front() else {
+                break;
+            };
+            track.base = oldest.after;
+        }
+        track.history.push_back(entry);
+    }
+
+    fn insert_pending(&mut self, d: &Detection) {
+        if self.pending.len() == self.pending.capacity() {
+            self.pending.remove(0);
+        }
+        let index = self.pending.partition_point(|p| p.stamp <= d.stamp);
+        self.pending.insert(index, *d);
+        // Keep only the detections within the initialisation span of the newest.
+        let newest = self.pending.last().map_or(d.stamp, |p| p.stamp);
+        let span = self.settings.init_span;
+        self.pending.retain(|p| newest - p.stamp <= span);
+    }
+
+    fn initialise(&mut self, d: &Detection) -> Verdict {
+        if self
+            .pending
+            .iter()
+            .any(|p| p.stamp == d.stamp && p.source == d.source)
+        {
+            return Verdict::Rejected(Rejection::Duplicate);
+        }
+        self.insert_pending(d);
+        if self.pending.len() >= self.settings.init_count && !self.try_start_track() {
+            // Inconsistent: drop the worst-fitting detection and wait for more.
+            if let Some(fit) = self.fit_pending() {
+                self.pending.remove(fit.worst);
+                self.counters.rejected[Rejection::InitOutlier.index()] += 1;
+                self.counters.initializing = self.counters.initializing.saturating_sub(1);
+            }
+        }
+        Verdict::Initializing
+    }
+
+    fn fit_pending(&self) -> Option<init::InitialFit> {
+        let weights = |d: &Detection| {
+            let m = self.measurement(d).ok()?;
+            Some(match m {
+                Measurement::Position { r, .. } => init::Weights {
+                    position_var: r.diagonal(),
+                    spin: None,
+                },
+                Measurement::PositionSpin { z, r } => init::Weights {
+                    position_var: r.fixed_view::<3, 3>(0, 0).diagonal(),
+                    spin: Some((
+                        z.fixed_rows::<3>(3).into_owned(),
+                        r.fixed_view::<3, 3>(3, 3).diagonal(),
+                    )),
+                },
+            })
+        };
+        if self.pending.first()?.stamp == self.pending.last()?.stamp {
+            return None;
+        }
+        init::fit(
+            &self.pending,
+            &weights,
+            &self.flight,
+            self.settings.gravity,
+            &self.settings,
+        )
+    }
+
+    /// Starts a track from the pending detections when they fit one ballistic flight.
+    fn try_start_track(&mut self) -> bool {
+        let Some(fit) = self.fit_pending() else {
+            return false;
+        };
+        let gate = chi_square_quantile(self.settings.gate_probability, fit.dof.max(1));
+        let speed = fit.ekf.x.fixed_rows::<3>(3).norm();
+        if fit.chi_square > gate || speed > 40.0 {
+            return false;
+        }
+        let snapshot = Snapshot {
+            ekf: fit.ekf,
+            stamp: fit.stamp,
+            bounces: 0,
+            robot_half_bounces: 0,
+            last_fused: fit.stamp,
+            nis: 0.0,
+        };
+        let history = std::mem::take(&mut self.spare_history);
+        self.track = Some(Track {
+            id: self.next_track_id,
+            now: snapshot,
+            base: snapshot,
+            history,
+            consecutive_rejections: 0,
+        });
+        self.next_track_id = self.next_track_id.wrapping_add(1).max(1);
+        self.counters.tracks += 1;
+        self.pending.clear();
+        true
+    }
+}

@@ -1,0 +1,360 @@
+//! The estimator on controlled flights: spin learned from curvature alone, tracking through a
+//! bounce, out-of-order fusion equal to in-order fusion, outliers, new tracks.
+#![allow(
+    clippy::unwrap_used,
+    clippy::expect_used,
+    clippy::panic,
+    reason = "test code: fail loudly"
+)]
+
+use nalgebra::Vector3;
+use ttball::config::Config;
+use ttball::detection::{Detection, Source};
+use ttball::estimator::{Estimator, Rejection, TrackStatus, Verdict};
+use ttball::physics::{BallState, PredictOptions, Propagator, predict};
+
+/// SplitMix64 with Box-Muller normals: the same noise on every run.
+struct Rng(u64);
+impl Rng {
+    fn next_f64(&mut self) -> f64 {
+        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        ((z ^ (z >> 31)) >> 11) as f64 / (1u64 << 53) as f64
+    }
+    fn normal(&mut self) -> f64 {
+        let u1 = self.next_f64().max(1e-300);
+        let u2 = self.next_f64();
+        (-2.0 * u1.ln()).sqrt() * (2.0 * std::f64::consts::PI * u2).cos()
+    }
+}
+
+const EPOCH: i64 = 1_700_000_000_000_000_000;
+
+/// Noisy detections of a flight from `start` at `rate` Hz for `duration` s, with the truth.
+fn camera(
+    start: &BallState,
+    rate: f64,
+    phase: f64,
+    duration: f64,
+    sigma: f64,
+    source: Source,
+    rng: &mut Rng,
+) -> Vec<(Detection, BallState)> {
+    let propagator = Propagator::new(&Config::default());
+    let flight = predict(
+        &propagator,
+        start,
+        &PredictOptions {
+            horizon: duration,
+            sample_interval: 1.0 / rate,
+            plane_x: None,
+            stop_at_plane: false,
+        },
+    );
+    let offset = predict(
+        &propagator,
+        start,
+        &PredictOptions {
+            horizon: phase.max(1e-9),
+            sample_interval: phase.max(1e-9),
+            plane_x: None,
+            stop_at_plane: false,
+        },
+    );
+    let first = if phase > 0.0 {
+        offset.samples.last().unwrap().state
+    } else {
+        *start
+    };
+    let flight = if phase > 0.0 {
+        predict(
+            &propagator,
+            &first,
+            &PredictOptions {
+                horizon: duration - phase,
+                sample_interval: 1.0 / rate,
+                plane_x: None,
+                stop_at_plane: false,
+            },
+        )
+    } else {
+        flight
+    };
+    flight
+        .samples
+        .iter()
+        .map(|s| {
+            let noise = Vector3::new(rng.normal(), rng.normal(), rng.normal()) * sigma;
+            let t = phase + s.t;
+            (
+                Detection {
+                    stamp: EPOCH + (t * 1e9).round() as i64,
+                    source,
+                    position: s.state.position + noise,
+                    position_covariance: None,
+                    spin: None,
+                    spin_covariance: None,
+                    confidence: 0.9,
+                },
+                s.state,
+            )
+        })
+        .collect()
+}
+
+fn shot(p: [f64; 3], v: [f64; 3], w: [f64; 3]) -> BallState {
+    BallState::new(p.into(), v.into(), w.into())
+}
+
+fn wide_config() -> Config {
+    Config::default()
+}
+
+#[test]
+fn spin_is_learned_from_the_curvature_of_the_flight_alone() {
+    for wy in [-150.0, 150.0] {
+        let truth_start = shot([1.3, 0.0, 0.30], [-4.5, 0.0, 1.6], [0.0, wy, 0.0]);
+        let detections = camera(
+            &truth_start,
+            150.0,
+            0.0,
+            0.38, // the whole flight up to just before the bounce (0.39 s to 0.53 s)
+            0.002,
+            Source::Wide150Fps,
+            &mut Rng(3),
+        );
+        let mut estimator = Estimator::new(&wide_config());
+        let mut last = None;
+        for (d, truth) in &detections {
+            let out = estimator.handle(d);
+            last = out.estimate.map(|e| (e, *truth));
+        }
+        let (estimate, truth) = last.expect("an estimate");
+        assert_eq!(estimate.status, TrackStatus::Tracking);
+        let spin_error = (estimate.state.spin - truth.spin).y.abs();
+        let velocity_error = (estimate.state.velocity - truth.velocity).norm();
+        assert!(
+            spin_error < 20.0,
+            "w_y {} vs {} (error {spin_error})",
+            estimate.state.spin.y,
+            truth.spin.y
+        );
+        assert!(velocity_error < 0.05, "velocity error {velocity_error}");
+        // The filter's own uncertainty of w_y shrank from the 150 rad/s prior.
+        assert!(estimate.covariance[(7, 7)].sqrt() < 30.0);
+    }
+}
+
+#[test]
+fn tracks_through_the_bounce_without_a_reset() {
+    let start = shot([1.3, 0.0, 0.30], [-4.5, 0.0, 1.6], [0.0, -100.0, 0.0]);
+    let detections = camera(
+        &start,
+        150.0,
+        0.0,
+        0.80,
+        0.002,
+        Source::Wide150Fps,
+        &mut Rng(5),
+    );
+    let mut estimator = Estimator::new(&wide_config());
+    let mut ids = std::collections::BTreeSet::new();
+    let mut last = None;
+    for (d, truth) in &detections {
+        let out = estimator.handle(d);
+        if let Some(e) = out
+            .estimate
+            .filter(|e| e.status != TrackStatus::Initializing)
+        {
+            ids.insert(e.track_id);
+            last = Some((e, *truth));
+        }
+    }
+    assert_eq!(ids.len(), 1, "one track through the bounce: {ids:?}");
+    let (estimate, truth) = last.unwrap();
+    assert_eq!(estimate.bounces, 1);
+    assert!((estimate.state.position - truth.position).norm() < 0.005);
+    assert!((estimate.state.velocity - truth.velocity).norm() < 0.1);
+    assert_eq!(estimator.counters().total_rejected(), 0);
+}
+
+/// Both cameras, stamps interleaved by latency: fusing in arrival order (with rollbacks) gives
+/// the same estimate as fusing the same detections in stamp order.
+#[test]
+fn out_of_order_fusion_equals_in_order_fusion() {
+    let start = shot([1.3, 0.0, 0.30], [-4.5, 0.1, 1.6], [20.0, -120.0, 10.0]);
+    let mut rng = Rng(9);
+    let wide = camera(&start, 150.0, 0.0, 0.7, 0.002, Source::Wide150Fps, &mut rng);
+    let fast: Vec<_> = camera(
+        &start,
+        900.0,
+        0.0003,
+        0.7,
+        0.001,
+        Source::HighSpeed900Fps,
+        &mut rng,
+    )
+    .into_iter()
+    .filter(|(d, _)| d.position.x < 0.0)
+    .collect();
+    // Arrival = stamp + latency (8 ms wide, 3 ms fast).
+    let mut arrivals: Vec<(i64, Detection)> = wide
+        .iter()
+        .map(|(d, _)| (d.stamp + 8_000_000, *d))
+        .chain(fast.iter().map(|(d, _)| (d.stamp + 3_000_000, *d)))
+        .collect();
+    arrivals.sort_by_key(|(a, d)| (*a, d.stamp));
+    let mut by_stamp: Vec<Detection> = arrivals.iter().map(|(_, d)| *d).collect();
+    by_stamp.sort_by_key(|d| d.stamp);
+    let late = arrivals
+        .windows(2)
+        .filter(|w| w[1].1.stamp < w[0].1.stamp)
+        .count();
+    assert!(
+        late > 10,
+        "the streams interleave out of order ({late} late)"
+    );
+
+    let mut in_order = Estimator::new(&wide_config());
+    for d in &by_stamp {
+        in_order.handle(d);
+    }
+    let mut arrival_order = Estimator::new(&wide_config());
+    for (_, d) in &arrivals {
+        arrival_order.handle(d);
+    }
+    assert!(arrival_order.counters().rollbacks > 10);
+    let a = in_order.estimate().unwrap();
+    let b = arrival_order.estimate().unwrap();
+    assert_eq!(a.stamp, b.stamp);
+    let dx = (a.state.to_vector() - b.state.to_vector()).norm();
+    assert!(dx < 1e-9, "difference {dx}: {a:?} vs {b:?}");
+    assert_eq!(arrival_order.counters().rejected(Rejection::TooOld), 0);
+}
+
+#[test]
+fn outliers_are_rejected_and_the_track_goes_on() {
+    let start = shot([1.3, 0.0, 0.30], [-4.5, 0.0, 1.6], [0.0, -80.0, 0.0]);
+    let mut detections = camera(
+        &start,
+        150.0,
+        0.0,
+        0.6,
+        0.002,
+        Source::Wide150Fps,
+        &mut Rng(11),
+    );
+    for k in [20, 40, 60] {
+        detections[k].0.position += Vector3::new(0.0, 0.15, -0.1);
+    }
+    let mut estimator = Estimator::new(&wide_config());
+    let mut verdicts = Vec::new();
+    for (d, _) in &detections {
+        verdicts.push(estimator.handle(d));
+    }
+    for k in [20, 40, 60] {
+        assert_eq!(
+            verdicts[k].verdict,
+            Verdict::Rejected(Rejection::Gated),
+            "detection {k}"
+        );
+    }
+    assert_eq!(estimator.counters().rejected(Rejection::Gated), 3);
+    assert_eq!(estimator.counters().tracks, 1);
+    let last = verdicts.last().unwrap().estimate.unwrap();
+    assert_eq!(last.track_id, 1);
+    assert!(matches!(
+        verdicts.last().unwrap().verdict,
+        Verdict::Fused { .. }
+    ));
+}
+
+#[test]
+fn a_new_ball_starts_a_new_track() {
+    let mut estimator = Estimator::new(&wide_config());
+    let first = shot([1.3, 0.0, 0.30], [-4.5, 0.0, 1.6], [0.0, -80.0, 0.0]);
+    for (d, _) in camera(
+        &first,
+        150.0,
+        0.0,
+        0.5,
+        0.002,
+        Source::Wide150Fps,
+        &mut Rng(1),
+    ) {
+        estimator.handle(&d);
+    }
+    assert_eq!(estimator.estimate().unwrap().track_id, 1);
+    // A new serve 0.4 s later: the gap exceeds the timeout.
+    let second = shot([1.4, 0.2, 0.25], [-5.0, -0.3, 1.2], [0.0, 60.0, 0.0]);
+    for (mut d, _) in camera(
+        &second,
+        150.0,
+        0.0,
+        0.3,
+        0.002,
+        Source::Wide150Fps,
+        &mut Rng(2),
+    ) {
+        d.stamp += 900_000_000;
+        estimator.handle(&d);
+    }
+    assert_eq!(estimator.estimate().unwrap().track_id, 2);
+
+    // A racket hit sends the ball back: a run of rejections, then a new track without a gap.
+    let hit_at = estimator.estimate().unwrap();
+    let back = BallState::new(
+        hit_at.state.position,
+        Vector3::new(6.0, 0.0, 1.5),
+        Vector3::new(0.0, -200.0, 0.0),
+    );
+    for (mut d, _) in camera(
+        &back,
+        150.0,
+        0.0,
+        0.2,
+        0.002,
+        Source::Wide150Fps,
+        &mut Rng(4),
+    )
+    .into_iter()
+    .skip(1)
+    {
+        d.stamp += hit_at.stamp - EPOCH;
+        estimator.handle(&d);
+    }
+    let after = estimator.estimate().unwrap();
+    assert_eq!(after.track_id, 3);
+    assert!(after.state.velocity.x > 4.0);
+    assert_eq!(estimator.counters().tracks, 3);
+}
+
+#[test]
+fn every_detection_is_accounted_for() {
+    let start = shot([1.3, 0.0, 0.30], [-4.5, 0.0, 1.6], [0.0, -80.0, 0.0]);
+    let mut detections = camera(
+        &start,
+        150.0,
+        0.0,
+        0.6,
+        0.002,
+        Source::Wide150Fps,
+        &mut Rng(12),
+    );
+    detections[30].0.position.x = f64::NAN;
+    detections[31].0.confidence = 1.5;
+    let dup = detections[40].0;
+    detections.insert(41, (dup, detections[40].1));
+    let mut estimator = Estimator::new(&wide_config());
+    for (d, _) in &detections {
+        estimator.handle(d);
+    }
+    let c = estimator.counters();
+    assert_eq!(c.received, detections.len() as u64);
+    assert_eq!(c.fused + c.initializing + c.total_rejected(), c.received);
+    assert_eq!(c.rejected(Rejection::NonFinite), 1);
+    assert_eq!(c.rejected(Rejection::BadConfidence), 1);
+    assert_eq!(c.rejected(Rejection::Duplicate), 1);
+}
