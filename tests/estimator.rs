@@ -43,45 +43,25 @@ fn camera(
     rng: &mut Rng,
 ) -> Vec<(Detection, BallState)> {
     let propagator = Propagator::new(&Config::default());
-    let flight = predict(
-        &propagator,
-        start,
-        &PredictOptions {
-            horizon: duration,
-            sample_interval: 1.0 / rate,
-            plane_x: None,
-            stop_at_plane: false,
-        },
-    );
-    let offset = predict(
-        &propagator,
-        start,
-        &PredictOptions {
-            horizon: phase.max(1e-9),
-            sample_interval: phase.max(1e-9),
-            plane_x: None,
-            stop_at_plane: false,
-        },
-    );
-    let first = if phase > 0.0 {
-        offset.samples.last().unwrap().state
-    } else {
-        *start
-    };
-    let flight = if phase > 0.0 {
+    let fly = |from: &BallState, horizon: f64, interval: f64| {
         predict(
             &propagator,
-            &first,
+            from,
             &PredictOptions {
-                horizon: duration - phase,
-                sample_interval: 1.0 / rate,
+                horizon,
+                sample_interval: interval,
                 plane_x: None,
                 stop_at_plane: false,
             },
         )
-    } else {
-        flight
     };
+    // The camera's first frame comes `phase` seconds after the start.
+    let first = if phase > 0.0 {
+        fly(start, phase, phase).samples.last().unwrap().state
+    } else {
+        *start
+    };
+    let flight = fly(&first, duration - phase, 1.0 / rate);
     flight
         .samples
         .iter()

@@ -273,6 +273,11 @@ enum Measurement {
     PositionSpin { z: SVector<f64, 6>, r: Matrix6<f64> },
 }
 
+/// Two detections of the same camera frame: a duplicate.
+fn same_frame(a: &Detection, b: &Detection) -> bool {
+    a.stamp == b.stamp && a.source == b.source
+}
+
 fn is_spd(m: &Matrix3<f64>) -> bool {
     (m - m.transpose()).abs().max() <= 1e-9 * m.abs().max().max(f64::MIN_POSITIVE)
         && m.cholesky().is_some()
@@ -610,7 +615,7 @@ impl Estimator {
         if track
             .history
             .back()
-            .is_some_and(|e| e.detection.stamp == d.stamp && e.detection.source == d.source)
+            .is_some_and(|e| same_frame(&e.detection, d))
         {
             return Err(Rejection::Duplicate);
         }
@@ -632,11 +637,7 @@ impl Estimator {
         if track.now.stamp - d.stamp > self.settings.rollback || d.stamp < track.base.stamp {
             return Err(Rejection::TooOld);
         }
-        if track
-            .history
-            .iter()
-            .any(|e| e.detection.stamp == d.stamp && e.detection.source == d.source)
-        {
+        if track.history.iter().any(|e| same_frame(&e.detection, d)) {
             return Err(Rejection::Duplicate);
         }
         let index = track
