@@ -4,6 +4,7 @@
 //! - [`physics`]: flight (spin-parameter aerodynamic model), table bounce, event-aware propagation.
 //! - [`detection`]: one 3D ball detection, as the estimator takes it.
 //! - [`config`]: every physical constant and tuning value, with defaults and range checks.
+//! - [`sim`]: simulated camera detections of real and random shots, with the truth, from a seed.
 //! - `msgs` (feature `interface`): serde mirrors of the ROS 2 interfaces in `msgs/` (package
 //!   `ttball_msgs`) for ros2-client and MCAP, in wire (field) order.
 //!
@@ -14,3 +15,4 @@ pub mod detection;
 #[cfg(feature = "interface")]
 pub mod msgs;
 pub mod physics;
+pub mod sim;
