@@ -126,7 +126,10 @@ pub fn evaluate(config: &Config, session: &Session) -> EvalReport {
             continue;
         };
         let record = &mut records[sim.shot];
-        let Some(estimate) = out.estimate.filter(|e| e.status != TrackStatus::Initializing) else {
+        let Some(estimate) = out
+            .estimate
+            .filter(|e| e.status != TrackStatus::Initializing)
+        else {
             continue;
         };
         for (slot, lead) in LEADS.iter().enumerate() {
@@ -222,7 +225,11 @@ fn lead_report(session: &Session, records: &[ShotRecord], slot: usize, lead: f64
     LeadReport {
         lead,
         shots,
-        valid_fraction: if shots > 0 { valid as f64 / shots as f64 } else { 0.0 },
+        valid_fraction: if shots > 0 {
+            valid as f64 / shots as f64
+        } else {
+            0.0
+        },
         position_error: ErrorStats::of(&position),
         time_error: ErrorStats::of(&time),
         position_nees: if nees.is_empty() {
