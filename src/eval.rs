@@ -91,6 +91,10 @@ pub struct EvalReport {
     pub spin_error_high_speed: ErrorStats,
     /// Mean NEES per dimension of the 9-state.
     pub state_nees: f64,
+    /// Mean NEES per dimension of the position, velocity and spin blocks on their own.
+    pub block_nees: [f64; 3],
+    /// Mean NEES per dimension of the 9-state before and after the bounce on the robot's half.
+    pub bounce_nees: [f64; 2],
     /// Interception accuracy at each of [`LEADS`].
     pub leads: Vec<LeadReport>,
     /// What the estimator did with the detections.
@@ -118,6 +122,8 @@ pub fn evaluate(config: &Config, session: &Session) -> EvalReport {
     let mut spin_par = Vec::new();
     let mut spin_fast = Vec::new();
     let mut nees_sum = 0.0;
+    let mut block_sum = [0.0; 3];
+    let mut bounce_sum = [(0.0, 0usize); 2];
     let mut nees_count = 0usize;
 
     for sim in &session.stream {
@@ -145,8 +151,22 @@ pub fn evaluate(config: &Config, session: &Session) -> EvalReport {
         let start = *record.track_start.get_or_insert(estimate.stamp);
         let error = estimate.state.to_vector() - sim.truth.to_vector();
         if let Some(chol) = estimate.covariance.cholesky() {
-            nees_sum += error.dot(&chol.solve(&error)) / 9.0;
+            let nees = error.dot(&chol.solve(&error)) / 9.0;
+            nees_sum += nees;
             nees_count += 1;
+            let side = &mut bounce_sum[usize::from(sim.detection.stamp >= shot.bounce.stamp)];
+            side.0 += nees;
+            side.1 += 1;
+            for (block, sum) in block_sum.iter_mut().enumerate() {
+                let e = error.fixed_rows::<3>(3 * block).into_owned();
+                let p = estimate
+                    .covariance
+                    .fixed_view::<3, 3>(3 * block, 3 * block)
+                    .into_owned();
+                if let Some(c) = p.cholesky() {
+                    *sum += e.dot(&c.solve(&e)) / 3.0;
+                }
+            }
         }
         let spin_error: Vector3<f64> = estimate.state.spin - sim.truth.spin;
         if !record.scored_at_age && estimate.stamp - start >= (TRACK_AGE * 1e9) as i64 {
@@ -184,6 +204,8 @@ pub fn evaluate(config: &Config, session: &Session) -> EvalReport {
         } else {
             f64::NAN
         },
+        block_nees: block_sum.map(|b| b / nees_count.max(1) as f64),
+        bounce_nees: bounce_sum.map(|(sum, n)| sum / n.max(1) as f64),
         leads,
         counters: *estimator.counters(),
     }
