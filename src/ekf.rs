@@ -154,6 +154,18 @@ impl Ekf {
         Ok(nis)
     }
 
+    /// Forgets what the filter learned about the spin: its covariance goes back to `variance`
+    /// [(rad/s)^2] per axis, uncorrelated with the rest (the estimate itself is kept).
+    pub fn reset_spin(&mut self, variance: f64) {
+        for i in 6..9 {
+            for j in 0..9 {
+                self.P[(i, j)] = 0.0;
+                self.P[(j, i)] = 0.0;
+            }
+            self.P[(i, i)] = variance;
+        }
+    }
+
     /// The normalised innovation squared of a measurement, without fusing it.
     #[expect(non_snake_case, reason = "matrix notation")]
     pub fn nis<const M: usize>(

@@ -138,6 +138,11 @@ fn table(name: &str, r: &EvalReport, elapsed: f64) -> String {
     if r.spin_error_high_speed.count > 0 {
         let _ = writeln!(
             out,
+            "velocity where 900 fps sees it [m/s]  {}",
+            stats(&r.velocity_error_high_speed)
+        );
+        let _ = writeln!(
+            out,
             "spin where 900 fps sees it [rad/s]    {}",
             stats(&r.spin_error_high_speed)
         );
@@ -146,6 +151,12 @@ fn table(name: &str, r: &EvalReport, elapsed: f64) -> String {
         out,
         "state NEES per dimension              {:6.2}   (position {:.2}, velocity {:.2}, spin {:.2})",
         r.state_nees, r.block_nees[0], r.block_nees[1], r.block_nees[2]
+    );
+    let _ = writeln!(
+        out,
+        "velocity within 2 ms of the bounce    {}   ({} estimates, left out above)",
+        stats(&r.velocity_error_at_bounce),
+        r.velocity_error_at_bounce.count
     );
     let _ = writeln!(
         out,

@@ -290,7 +290,7 @@ pub struct EkfParams {
     /// spans drag bends the flight away from the fitted parabola.
     pub init_max_span: f64,
     /// Prior standard deviation of the spin at initialisation, per axis, about zero [rad/s];
-    /// covers rally spins up to about 300 rad/s at 2 sigma.
+    /// covers spins up to about 600 rad/s at 2 sigma (real rally balls reach 363 rad/s).
     pub spin_prior_sigma: f64,
     /// Detections with a confidence below this are ignored [-] in [0, 1]; 0 accepts all.
     pub min_confidence: f64,
@@ -303,7 +303,7 @@ impl Default for EkfParams {
             spin_noise_density: 10.0,
             init_detections: 4,
             init_max_span: 0.1,
-            spin_prior_sigma: 150.0,
+            spin_prior_sigma: 300.0,
             min_confidence: 0.0,
         }
     }

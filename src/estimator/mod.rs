@@ -117,6 +117,8 @@ pub struct Counters {
     pub tracks: u64,
     /// Late detections fused by rolling back.
     pub rollbacks: u64,
+    /// Spin measurements that disagreed with the filter's spin and replaced it.
+    pub spin_resets: u64,
 }
 
 impl Counters {
@@ -328,6 +330,8 @@ pub struct Estimator {
     history_capacity: usize,
     /// The history buffer of the next track, allocated once.
     spare_history: VecDeque<Entry>,
+    /// Spin measurements that overruled the filter's spin (see `fuse_position_spin`).
+    spin_resets: std::cell::Cell<u64>,
 }
 
 impl Estimator {
@@ -348,13 +352,17 @@ impl Estimator {
             counters: Counters::default(),
             history_capacity,
             spare_history: VecDeque::with_capacity(history_capacity),
+            spin_resets: std::cell::Cell::new(0),
             settings,
         }
     }
 
     /// What happened to the detections so far.
-    pub fn counters(&self) -> &Counters {
-        &self.counters
+    pub fn counters(&self) -> Counters {
+        Counters {
+            spin_resets: self.spin_resets.get(),
+            ..self.counters
+        }
     }
 
     /// The propagator the estimator predicts with.
@@ -590,11 +598,7 @@ impl Estimator {
                     .ekf
                     .update(z, &position_H(), r, self.settings.gate_position)
             }
-            Measurement::PositionSpin { z, r } => {
-                snapshot
-                    .ekf
-                    .update(z, &position_spin_H(), r, self.settings.gate_position_spin)
-            }
+            Measurement::PositionSpin { z, r } => self.fuse_position_spin(snapshot, z, r),
         };
         match result {
             Ok(nis) => {
@@ -605,6 +609,44 @@ impl Estimator {
             Err(UpdateError::Gated { .. }) => Err(Rejection::Gated),
             Err(UpdateError::NotFinite) => Err(Rejection::NonFinite),
             Err(UpdateError::NotPositiveDefinite) => Err(Rejection::BadCovariance),
+        }
+    }
+
+    /// A position + spin measurement. The position is gated on its own; when it fits but the
+    /// spin does not, the filter's spin (learned from curvature, where the EKF can be
+    /// overconfident at high spin parameters) is forgotten in favour of the camera's, and counted.
+    fn fuse_position_spin(
+        &self,
+        snapshot: &mut Snapshot,
+        z: &SVector<f64, 6>,
+        r: &Matrix6<f64>,
+    ) -> Result<f64, UpdateError> {
+        let z_position = z.fixed_rows::<3>(0).into_owned();
+        let r_position = r.fixed_view::<3, 3>(0, 0).into_owned();
+        let gate = self.settings.gate_position;
+        if let Some(nis) = snapshot.ekf.nis(&z_position, &position_H(), &r_position)
+            && nis > gate
+        {
+            return Err(UpdateError::Gated { nis, gate });
+        }
+        let h = position_spin_H();
+        match snapshot
+            .ekf
+            .update(z, &h, r, self.settings.gate_position_spin)
+        {
+            Err(UpdateError::Gated { .. }) => {
+                snapshot.ekf.reset_spin(self.settings.spin_prior_var);
+                self.spin_resets.set(self.spin_resets.get() + 1);
+                snapshot
+                    .ekf
+                    .update(z, &h, r, self.settings.gate_position_spin)
+                    .or_else(|_| {
+                        snapshot
+                            .ekf
+                            .update(&z_position, &position_H(), &r_position, gate)
+                    })
+            }
+            other => other,
         }
     }
 
