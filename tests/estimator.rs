@@ -158,6 +158,11 @@ fn tracks_through_the_bounce_without_a_reset() {
     assert!((estimate.state.position - truth.position).norm() < 0.005);
     assert!((estimate.state.velocity - truth.velocity).norm() < 0.1);
     assert_eq!(estimator.counters().total_rejected(), 0);
+    // The predicted trajectory starts at the estimate and is sampled as asked.
+    let (stamp, trajectory) = estimator.predicted_trajectory(0.01, 0.2).unwrap();
+    assert_eq!(stamp, estimate.stamp);
+    assert_eq!(trajectory.samples.len(), 21);
+    assert_eq!(trajectory.samples[0].state, estimate.state);
 }
 
 /// Both cameras, stamps interleaved by latency: fusing in arrival order (with rollbacks) gives

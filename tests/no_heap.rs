@@ -1,7 +1,11 @@
 //! No heap allocation per detection: the estimator's whole per-detection path (measurement,
 //! prediction, update, rollback of late detections, interception with covariance) runs on
 //! fixed-size matrices and buffers allocated once. Counted with a counting global allocator.
-#![allow(clippy::unwrap_used, clippy::expect_used, reason = "test code: fail loudly")]
+#![allow(
+    clippy::unwrap_used,
+    clippy::expect_used,
+    reason = "test code: fail loudly"
+)]
 
 use ttball::config::Config;
 use ttball::estimator::Estimator;

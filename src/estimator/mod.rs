@@ -24,7 +24,9 @@ use crate::config::{Config, SourceParams};
 use crate::detection::{Detection, Source};
 use crate::ekf::{Ekf, ProcessNoise, UpdateError, position_H, position_spin_H};
 use crate::intercept::{Intercept, InterceptQuery, predict_intercept};
-use crate::physics::{BallState, FlightModel, Propagator, StateMatrix};
+use crate::physics::{
+    BallState, FlightModel, PredictOptions, Propagator, StateMatrix, Trajectory, predict,
+};
 use crate::stats::chi_square_quantile;
 
 /// Track status, with the codes of `BallState.msg`.
@@ -119,6 +121,8 @@ pub struct Counters {
     pub rollbacks: u64,
     /// Spin measurements that disagreed with the filter's spin and replaced it.
     pub spin_resets: u64,
+    /// Detections near the table's edge that the other bounce hypothesis explained better.
+    pub edge_retries: u64,
 }
 
 impl Counters {
@@ -332,7 +336,16 @@ pub struct Estimator {
     spare_history: VecDeque<Entry>,
     /// Spin measurements that overruled the filter's spin (see `fuse_position_spin`).
     spin_resets: std::cell::Cell<u64>,
+    /// The propagator with the table grown and shrunk by [`EDGE_MARGIN`].
+    edge_alternatives: [Propagator; 2],
+    /// Detections fused under the other edge hypothesis.
+    edge_retries: std::cell::Cell<u64>,
 }
+
+/// How far from the table's edge [m] a detection is also fused with the table grown and shrunk
+/// by as much, and the better fit kept (the estimate's position is uncertain by millimetres; the
+/// edge is sharp).
+const EDGE_MARGIN: f64 = 0.02;
 
 impl Estimator {
     /// An estimator with the given configuration (assumed validated).
@@ -342,8 +355,8 @@ impl Estimator {
         let history_capacity =
             ((config.tracking.rollback_window * 2000.0).ceil() as usize).clamp(16, 4096);
         let pending_capacity = settings.init_count.max(settings.max_rejections as usize) + 8;
+        let propagator = Propagator::new(config);
         Self {
-            propagator: Propagator::new(config),
             flight: FlightModel::new(config),
             track: None,
             pending: Vec::with_capacity(pending_capacity),
@@ -353,6 +366,9 @@ impl Estimator {
             history_capacity,
             spare_history: VecDeque::with_capacity(history_capacity),
             spin_resets: std::cell::Cell::new(0),
+            edge_alternatives: [EDGE_MARGIN, -EDGE_MARGIN].map(|m| propagator.with_edge_margin(m)),
+            edge_retries: std::cell::Cell::new(0),
+            propagator,
             settings,
         }
     }
@@ -361,6 +377,7 @@ impl Estimator {
     pub fn counters(&self) -> Counters {
         Counters {
             spin_resets: self.spin_resets.get(),
+            edge_retries: self.edge_retries.get(),
             ..self.counters
         }
     }
@@ -375,6 +392,20 @@ impl Estimator {
         self.track
             .as_ref()
             .map(|t| self.estimate_of(t, &t.now, t.now.stamp))
+    }
+
+    /// The predicted trajectory of the tracked ball from its current estimate, sampled every
+    /// `dt` seconds over `horizon` seconds (for `PredictedTrajectory`; allocates its samples).
+    pub fn predicted_trajectory(&self, dt: f64, horizon: f64) -> Option<(i64, Trajectory)> {
+        let track = self.track.as_ref()?;
+        let start = BallState::from_vector(&track.now.ekf.x);
+        let options = PredictOptions {
+            horizon,
+            sample_interval: dt,
+            plane_x: Some(self.settings.plane_x),
+            stop_at_plane: false,
+        };
+        Some((track.now.stamp, predict(&self.propagator, &start, &options)))
     }
 
     /// Takes one detection (in arrival order) and returns the estimate and interception after it.
@@ -573,11 +604,13 @@ impl Estimator {
 
     /// Moves a snapshot forward to `stamp`, counting bounces.
     fn advance(&self, snapshot: &mut Snapshot, stamp: i64) {
+        self.advance_with(&self.propagator, snapshot, stamp);
+    }
+
+    fn advance_with(&self, propagator: &Propagator, snapshot: &mut Snapshot, stamp: i64) {
         let dt = (stamp - snapshot.stamp) as f64 * 1e-9;
         if dt > 0.0 {
-            let report = snapshot
-                .ekf
-                .predict(&self.propagator, &self.settings.noise, dt);
+            let report = snapshot.ekf.predict(propagator, &self.settings.noise, dt);
             snapshot.bounces += report.bounces;
             snapshot.robot_half_bounces += report.robot_half_bounces;
         }
@@ -591,15 +624,27 @@ impl Estimator {
         d: &Detection,
         m: &Measurement,
     ) -> Result<f64, Rejection> {
-        self.advance(snapshot, d.stamp);
-        let result = match m {
-            Measurement::Position { z, r } => {
-                snapshot
-                    .ekf
-                    .update(z, &position_H(), r, self.settings.gate_position)
+        let prior = *snapshot;
+        let mut result = self.predict_and_update(&self.propagator, snapshot, d, m);
+        if self.near_table_edge(snapshot) {
+            // An edge ball: estimate and ball may land on either side of the table's edge. The
+            // hypothesis that explains the detection best wins.
+            for alternative in &self.edge_alternatives {
+                let mut other = prior;
+                let Ok(nis) = self.predict_and_update(alternative, &mut other, d, m) else {
+                    continue;
+                };
+                let better = match result {
+                    Ok(current) => nis < current && other.bounces != snapshot.bounces,
+                    Err(_) => true,
+                };
+                if better {
+                    *snapshot = other;
+                    self.edge_retries.set(self.edge_retries.get() + 1);
+                    result = Ok(nis);
+                }
             }
-            Measurement::PositionSpin { z, r } => self.fuse_position_spin(snapshot, z, r),
-        };
+        }
         match result {
             Ok(nis) => {
                 snapshot.last_fused = d.stamp;
@@ -610,6 +655,31 @@ impl Estimator {
             Err(UpdateError::NotFinite) => Err(Rejection::NonFinite),
             Err(UpdateError::NotPositiveDefinite) => Err(Rejection::BadCovariance),
         }
+    }
+
+    fn predict_and_update(
+        &self,
+        propagator: &Propagator,
+        snapshot: &mut Snapshot,
+        d: &Detection,
+        m: &Measurement,
+    ) -> Result<f64, UpdateError> {
+        self.advance_with(propagator, snapshot, d.stamp);
+        match m {
+            Measurement::Position { z, r } => {
+                snapshot
+                    .ekf
+                    .update(z, &position_H(), r, self.settings.gate_position)
+            }
+            Measurement::PositionSpin { z, r } => self.fuse_position_spin(snapshot, z, r),
+        }
+    }
+
+    /// True when the estimate is low over the table's edge, where a bounce is a close call.
+    fn near_table_edge(&self, snapshot: &Snapshot) -> bool {
+        let x = &snapshot.ekf.x;
+        let outside = self.propagator.distance_outside_table(x[0], x[1]);
+        x[2] < 0.1 && outside.abs() < EDGE_MARGIN
     }
 
     /// A position + spin measurement. The position is gated on its own; when it fits but the

@@ -242,6 +242,8 @@ pub struct Propagator {
     net_half_span: f64,
     floor_z: f64,
     max_step: f64,
+    /// Grows (or, negative, shrinks) the table outline for bounces [m].
+    edge_margin: f64,
 }
 
 impl Propagator {
@@ -262,7 +264,22 @@ impl Propagator {
             net_half_span: 0.5 * config.table.width + config.table.net_overhang,
             floor_z: -config.table.height,
             max_step,
+            edge_margin: 0.0,
         }
+    }
+
+    /// The same propagator with the table outline grown by `margin` [m] on every side (shrunk
+    /// when negative): the other hypothesis for a ball that lands on the table's edge.
+    pub fn with_edge_margin(&self, margin: f64) -> Self {
+        Self {
+            edge_margin: margin,
+            ..self.clone()
+        }
+    }
+
+    /// The distance of a ball centre from the table's outline in the plane [m]: negative inside.
+    pub fn distance_outside_table(&self, x: f64, y: f64) -> f64 {
+        (x.abs() - self.half_length).max(y.abs() - self.half_width)
     }
 
     /// The flight model.
@@ -424,7 +441,7 @@ impl Propagator {
 
     /// True when the ball centre is over the playing surface.
     fn over_table(&self, x: &StateVector) -> bool {
-        x[0].abs() <= self.half_length && x[1].abs() <= self.half_width
+        self.distance_outside_table(x[0], x[1]) <= self.edge_margin
     }
 
     /// The earliest event inside a step from `start` to `end` (step size `h`), with its offset
