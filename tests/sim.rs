@@ -284,7 +284,7 @@ fn every_shot_is_a_good_shot() {
     let plane_x = config.intercept.plane_x;
     let half_length = config.table.length / 2.0;
     let half_width = config.table.width / 2.0;
-    // An independent look with the estimator's propagator (2 ms steps).
+    // An independent look with the estimator's propagator (10 ms steps).
     let coarse = Propagator::new(&config);
     let mut previous_end = DEFAULT_EPOCH;
     for (i, shot) in session.shots.iter().enumerate() {
@@ -336,8 +336,11 @@ fn every_shot_is_a_good_shot() {
             ),
             "shot {i}: {kinds:?}"
         );
-        assert!((trajectory.events[1].t - b.since_launch).abs() < 1e-6);
-        assert!((trajectory.events[2].t - p.since_launch).abs() < 1e-6);
+        // 10 us: the estimator's 10 ms steps against the truth's 0.25 ms, over a whole flight
+        // where Sp may cross the clamp at 2 (a kink that costs RK4 its order).
+        let dt_bounce = trajectory.events[1].t - b.since_launch;
+        assert!(dt_bounce.abs() < 1e-5, "shot {i}: {dt_bounce:e}");
+        assert!((trajectory.events[2].t - p.since_launch).abs() < 1e-5);
 
         // No detection's truth touches the table between the bounce and the end of the shot.
         assert!(
