@@ -1,0 +1,117 @@
+//! Cost of the per-detection path: one EKF update, one interception prediction with covariance
+//! at several horizons, and the whole `Estimator::handle` (update + interception), on states and
+//! detections from a simulated 150 + 900 fps session. `cargo bench --bench estimator`.
+
+use std::hint::black_box;
+
+use criterion::{BatchSize, Criterion, criterion_group, criterion_main};
+use nalgebra::{Matrix3, Matrix6, SVector};
+use ttball::config::Config;
+use ttball::ekf::{Ekf, position_H, position_spin_H};
+use ttball::estimator::Estimator;
+use ttball::intercept::{InterceptQuery, predict_intercept};
+use ttball::physics::{BallState, Propagator, StateMatrix};
+use ttball::sim::{Cameras, SimOptions, simulate};
+
+fn incoming() -> BallState {
+    BallState::new(
+        [1.3, 0.0, 0.30].into(),
+        [-6.5, 0.1, 1.4].into(),
+        [10.0, -150.0, 20.0].into(),
+    )
+}
+
+fn benches(c: &mut Criterion) {
+    let config = Config::default();
+    let propagator = Propagator::new(&config);
+    let x = incoming().to_vector();
+    let p = StateMatrix::identity() * 1e-4;
+
+    let mut group = c.benchmark_group("ekf_update");
+    let ekf = Ekf::new(x, p);
+    let z3 = x.fixed_rows::<3>(0).into_owned();
+    let r3 = Matrix3::identity() * 4e-6;
+    group.bench_function("position", |b| {
+        b.iter_batched(
+            || ekf,
+            |mut e| e.update(black_box(&z3), &position_H(), &r3, 100.0),
+            BatchSize::SmallInput,
+        )
+    });
+    let mut z6 = SVector::<f64, 6>::zeros();
+    z6.fixed_rows_mut::<3>(0).copy_from(&z3);
+    z6.fixed_rows_mut::<3>(3).copy_from(&x.fixed_rows::<3>(6));
+    let r6 = Matrix6::identity() * 4e-6;
+    group.bench_function("position_spin", |b| {
+        b.iter_batched(
+            || ekf,
+            |mut e| e.update(black_box(&z6), &position_spin_H(), &r6, 100.0),
+            BatchSize::SmallInput,
+        )
+    });
+    group.finish();
+
+    let mut group = c.benchmark_group("intercept_with_covariance");
+    for horizon in [0.1, 0.3, 0.6] {
+        // Start the ball `horizon` seconds before it reaches the hitting plane.
+        let query = InterceptQuery {
+            plane_x: config.intercept.plane_x,
+            horizon: 1.5,
+            bounced_on_robot_half: false,
+        };
+        let full = predict_intercept(&propagator, &x, &p, &query);
+        let to_plane = full.crossing.map(|c| c.time).unwrap_or(0.6);
+        let mut cursor = ttball::physics::Cursor::new(0.0, &incoming());
+        propagator.advance(
+            &mut cursor,
+            (to_plane - horizon).max(0.0),
+            ttball::physics::Watch::FLIGHT,
+            &mut (),
+        );
+        let start = cursor.state;
+        group.bench_function(format!("{:.0}ms", horizon * 1e3), |b| {
+            b.iter(|| predict_intercept(&propagator, black_box(&start), &p, &query))
+        });
+    }
+    group.finish();
+
+    // The whole per-detection path on a real stream, in steady tracking on the robot's half.
+    let session = simulate(
+        &config,
+        &SimOptions {
+            cameras: Cameras::WideAndHighSpeed,
+            shots: 2,
+            seed: 5,
+            ..SimOptions::default()
+        },
+    )
+    .ok();
+    if let Some(session) = session {
+        let mut estimator = Estimator::new(&config);
+        let shot = &session.shots[0];
+        let midway = session
+            .stream
+            .iter()
+            .position(|d| d.detection.stamp > shot.bounce.stamp - 100_000_000)
+            .unwrap_or(0);
+        for d in &session.stream[..midway] {
+            estimator.handle(&d.detection);
+        }
+        let next = session.stream[midway..]
+            .iter()
+            .find(|d| d.detection.spin.is_some())
+            .map(|d| d.detection);
+        if let Some(detection) = next {
+            c.bench_function("handle_detection", |b| {
+                b.iter_batched(
+                    || estimator.clone(),
+                    |mut e| e.handle(black_box(&detection)),
+                    BatchSize::SmallInput,
+                )
+            });
+        }
+    }
+}
+
+criterion_group!(estimator, benches);
+criterion_main!(estimator);
