@@ -256,6 +256,37 @@ fn outliers_are_rejected_and_the_track_goes_on() {
     ));
 }
 
+/// A few rejected detections in a row: the estimate coasts on the model, then tracks again.
+#[test]
+fn the_track_coasts_through_a_short_run_of_rejections() {
+    let start = shot([1.3, 0.0, 0.30], [-4.5, 0.0, 1.6], [0.0, -80.0, 0.0]);
+    let mut detections = camera(
+        &start,
+        150.0,
+        0.0,
+        0.5,
+        0.002,
+        Source::Wide150Fps,
+        &mut Rng(21),
+    );
+    for k in 30..34 {
+        detections[k].0.position.z += 0.2;
+    }
+    let mut estimator = Estimator::new(&wide_config());
+    let statuses: Vec<Option<TrackStatus>> = detections
+        .iter()
+        .map(|(d, _)| estimator.handle(d).estimate.map(|e| e.status))
+        .collect();
+    // 20 ms (coast_after) after the last fused detection at k = 29: k = 33 coasts.
+    assert_eq!(statuses[1], Some(TrackStatus::Initializing));
+    assert_eq!(statuses[29], Some(TrackStatus::Tracking));
+    assert_eq!(statuses[31], Some(TrackStatus::Tracking));
+    assert_eq!(statuses[33], Some(TrackStatus::Coasting));
+    assert_eq!(statuses[34], Some(TrackStatus::Tracking));
+    assert_eq!(estimator.counters().tracks, 1);
+    assert_eq!(estimator.counters().rejected(Rejection::Gated), 4);
+}
+
 #[test]
 fn a_new_ball_starts_a_new_track() {
     let mut estimator = Estimator::new(&wide_config());
