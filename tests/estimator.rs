@@ -269,8 +269,8 @@ fn the_track_coasts_through_a_short_run_of_rejections() {
         Source::Wide150Fps,
         &mut Rng(21),
     );
-    for k in 30..34 {
-        detections[k].0.position.z += 0.2;
+    for (detection, _) in &mut detections[30..34] {
+        detection.position.z += 0.2;
     }
     let mut estimator = Estimator::new(&wide_config());
     let statuses: Vec<Option<TrackStatus>> = detections
