@@ -9,34 +9,11 @@ use ttball::physics::{
     Propagator, StateMatrix, StateVector, TableBounce, TrajectoryEnd, Watch, predict,
     propagate::Event,
 };
+use ttball::sim::Rng;
 
-/// A small deterministic generator (SplitMix64) so every run checks the same states.
-struct Rng(u64);
-
-impl Rng {
-    fn next_u64(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        z ^ (z >> 31)
-    }
-    fn uniform(&mut self, lo: f64, hi: f64) -> f64 {
-        lo + (hi - lo) * (self.next_u64() >> 11) as f64 / (1u64 << 53) as f64
-    }
-    fn vector(&mut self, magnitude_lo: f64, magnitude_hi: f64) -> Vector3<f64> {
-        loop {
-            let d = Vector3::new(
-                self.uniform(-1.0, 1.0),
-                self.uniform(-1.0, 1.0),
-                self.uniform(-1.0, 1.0),
-            );
-            let n = d.norm();
-            if n > 0.1 && n <= 1.0 {
-                return d / n * self.uniform(magnitude_lo, magnitude_hi);
-            }
-        }
-    }
+/// A random vector with a magnitude uniform in [lo, hi] and a uniform direction.
+fn random_vector(rng: &mut Rng, lo: f64, hi: f64) -> Vector3<f64> {
+    rng.unit_vector() * rng.uniform_in(lo, hi)
 }
 
 /// Central finite-difference Jacobian of `f` at `x`, with a step relative to each component.
@@ -85,17 +62,17 @@ fn vacuum() -> Config {
 #[test]
 fn flight_jacobian_matches_finite_differences_including_high_spin_parameter() {
     let model = FlightModel::new(&Config::default());
-    let mut rng = Rng(7);
+    let mut rng = Rng::new(7);
     let (mut checked, mut clamped, mut high) = (0, 0, 0);
     while checked < 400 {
-        let v = rng.vector(0.5, 15.0);
-        let w = rng.vector(0.0, 700.0);
+        let v = random_vector(&mut rng, 0.5, 15.0);
+        let w = random_vector(&mut rng, 0.0, 700.0);
         let sp = model.spin_parameter(&v, &w);
         // Skip the kinks: the clamp at Sp_max and Sp = 0.
         if (sp - 2.0).abs() < 1e-2 || sp < 1e-3 {
             continue;
         }
-        let x = state(rng.vector(0.0, 2.0).into(), v.into(), w.into()).to_vector();
+        let x = state(random_vector(&mut rng, 0.0, 2.0).into(), v.into(), w.into()).to_vector();
         let analytic = model.jacobian(&x).to_matrix();
         let numeric = finite_difference(&x, |x| model.derivative(x));
         let err = relative_error(&analytic, &numeric);
@@ -128,17 +105,17 @@ fn flight_jacobian_with_spin_decay_matches_finite_differences() {
 fn bounce_jacobian_matches_finite_differences_sliding_and_rolling() {
     let config = Config::default();
     let bounce = TableBounce::new(&config);
-    let mut rng = Rng(11);
+    let mut rng = Rng::new(11);
     let (mut sliding, mut rolling) = (0, 0);
     while sliding + rolling < 400 {
         let v = Vector3::new(
-            rng.uniform(-9.0, 9.0),
-            rng.uniform(-3.0, 3.0),
-            rng.uniform(-8.0, -0.5),
+            rng.uniform_in(-9.0, 9.0),
+            rng.uniform_in(-3.0, 3.0),
+            rng.uniform_in(-8.0, -0.5),
         );
-        let w = rng.vector(0.0, 500.0);
+        let w = random_vector(&mut rng, 0.0, 500.0);
         let x = state(
-            [rng.uniform(-1.3, 1.3), rng.uniform(-0.7, 0.7), 0.02],
+            [rng.uniform_in(-1.3, 1.3), rng.uniform_in(-0.7, 0.7), 0.02],
             v.into(),
             w.into(),
         )
@@ -168,15 +145,19 @@ fn bounce_never_adds_energy_and_rolling_leaves_no_slip() {
     let config = Config::default();
     let bounce = TableBounce::new(&config);
     let (m, r) = (config.ball.mass, config.ball.radius);
-    let mut rng = Rng(13);
+    let mut rng = Rng::new(13);
     let mut rolled = 0;
     for _ in 0..2000 {
         let v = Vector3::new(
-            rng.uniform(-12.0, 12.0),
-            rng.uniform(-4.0, 4.0),
-            rng.uniform(-9.0, -0.1),
+            rng.uniform_in(-12.0, 12.0),
+            rng.uniform_in(-4.0, 4.0),
+            rng.uniform_in(-9.0, -0.1),
         );
-        let before = state([0.0, 0.0, r], v.into(), rng.vector(0.0, 800.0).into());
+        let before = state(
+            [0.0, 0.0, r],
+            v.into(),
+            random_vector(&mut rng, 0.0, 800.0).into(),
+        );
         let b = bounce.apply(&before.to_vector());
         let after = BallState::from_vector(&b.state);
         let (e0, e1) = (before.kinetic_energy(m, r), after.kinetic_energy(m, r));
