@@ -51,6 +51,15 @@ impl Time {
     }
 }
 
+/// `builtin_interfaces/msg/Duration`: a time span [s, ns].
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+pub struct Duration {
+    /// Whole seconds [s].
+    pub sec: i32,
+    /// Nanoseconds within the second [ns], in `[0, 1e9)`.
+    pub nanosec: u32,
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -1,4 +1,4 @@
-//! Mirror of the ROS 2 package `geometry_msgs` (only `Point` and `Vector3`).
+//! Mirror of the ROS 2 package `geometry_msgs` (only `Point`, `Vector3`, `Quaternion`, `Pose`).
 
 use serde::{Deserialize, Serialize};
 
@@ -23,4 +23,38 @@ pub struct Vector3 {
     pub y: f64,
     /// z component [unit of the field holding it].
     pub z: f64,
+}
+
+/// `geometry_msgs/msg/Quaternion`: an orientation (x, y, z, w) [-]; the identity is w = 1.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct Quaternion {
+    /// x [-].
+    pub x: f64,
+    /// y [-].
+    pub y: f64,
+    /// z [-].
+    pub z: f64,
+    /// w [-].
+    pub w: f64,
+}
+
+impl Default for Quaternion {
+    /// The identity, as the ROS 2 definition's default values.
+    fn default() -> Self {
+        Self {
+            x: 0.0,
+            y: 0.0,
+            z: 0.0,
+            w: 1.0,
+        }
+    }
+}
+
+/// `geometry_msgs/msg/Pose`: a position [m] and an orientation.
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
+pub struct Pose {
+    /// Position [m].
+    pub position: Point,
+    /// Orientation.
+    pub orientation: Quaternion,
 }

@@ -10,6 +10,9 @@
 //! these mirrors against it, so change both together.
 
 pub mod builtin_interfaces;
+pub mod definitions;
 pub mod geometry_msgs;
+pub mod sensor_msgs;
 pub mod std_msgs;
 pub mod ttball_msgs;
+pub mod visualization_msgs;

@@ -1,4 +1,4 @@
-//! Mirror of the ROS 2 package `std_msgs` (only `Header`).
+//! Mirror of the ROS 2 package `std_msgs` (only `Header` and `ColorRGBA`).
 
 use serde::{Deserialize, Serialize};
 
@@ -11,4 +11,17 @@ pub struct Header {
     pub stamp: Time,
     /// Coordinate frame of the data; `"table"` for every ttball message.
     pub frame_id: String,
+}
+
+/// `std_msgs/msg/ColorRGBA`: a colour, each channel in [0, 1].
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
+pub struct ColorRGBA {
+    /// Red [0, 1].
+    pub r: f32,
+    /// Green [0, 1].
+    pub g: f32,
+    /// Blue [0, 1].
+    pub b: f32,
+    /// Opacity [0, 1].
+    pub a: f32,
 }
