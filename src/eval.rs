@@ -16,8 +16,9 @@
 use nalgebra::{Matrix2, Vector2, Vector3};
 
 use crate::config::Config;
-use crate::detection::Source;
+use crate::detection::{Detection, Source};
 use crate::estimator::{Counters, Estimator, Output, TrackStatus};
+use crate::physics::BallState;
 use crate::sim::Session;
 
 /// The leads before the true crossing at which interceptions are scored [s].
@@ -114,68 +115,113 @@ pub struct EvalReport {
     pub counters: Counters,
 }
 
+/// The truth of one shot that the scores need.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ShotTruth {
+    /// When the ball bounces on the robot's half [ns].
+    pub bounce_stamp: i64,
+    /// When it crosses the hitting plane [ns].
+    pub intercept_stamp: i64,
+    /// Where it crosses the hitting plane [m].
+    pub intercept_position: Vector3<f64>,
+}
+
+impl From<&crate::sim::ShotTruth> for ShotTruth {
+    fn from(shot: &crate::sim::ShotTruth) -> Self {
+        Self {
+            bounce_stamp: shot.bounce.stamp,
+            intercept_stamp: shot.intercept.stamp,
+            intercept_position: shot.intercept.before.position,
+        }
+    }
+}
+
 /// What was kept of one shot while the session ran.
 #[derive(Debug, Clone, Default)]
 struct ShotRecord {
     track_start: Option<i64>,
     scored_at_age: bool,
     high_speed_start: Option<i64>,
-    /// (estimate stamp, output) of the latest estimate before each lead's time.
+    /// The output of the latest estimate before each lead's time.
     at_lead: [Option<Output>; 3],
 }
 
-/// Runs the estimator over the session and scores it.
-pub fn evaluate(config: &Config, session: &Session) -> EvalReport {
-    let mut estimator = Estimator::new(config);
-    let mut records = vec![ShotRecord::default(); session.shots.len()];
-    let mut velocity = Vec::new();
-    let mut spin = Vec::new();
-    let mut spin_perp = Vec::new();
-    let mut spin_par = Vec::new();
-    let mut spin_fast = Vec::new();
-    let mut velocity_fast = Vec::new();
-    let mut velocity_bounce = Vec::new();
-    let mut nees_sum = 0.0;
-    let mut block_sum = [0.0; 3];
-    let mut bounce_sum = [(0.0, 0usize); 2];
-    let mut nees_count = 0usize;
+/// Scores the estimator's outputs one detection at a time against the truth.
+#[derive(Debug, Clone, Default)]
+pub struct Scorer {
+    shots: Vec<ShotTruth>,
+    records: Vec<ShotRecord>,
+    detections: usize,
+    velocity: Vec<f64>,
+    spin: Vec<f64>,
+    spin_perp: Vec<f64>,
+    spin_par: Vec<f64>,
+    spin_fast: Vec<f64>,
+    velocity_fast: Vec<f64>,
+    velocity_bounce: Vec<f64>,
+    nees_sum: f64,
+    block_sum: [f64; 3],
+    bounce_sum: [(f64, usize); 2],
+    nees_count: usize,
+}
 
-    for sim in &session.stream {
-        let out = estimator.handle(&sim.detection);
-        let Some(shot) = session.shots.get(sim.shot) else {
-            continue;
+impl Scorer {
+    /// A scorer for these shots (indexed as the `shot` of [`Scorer::score`]).
+    pub fn new(shots: Vec<ShotTruth>) -> Self {
+        Self {
+            records: vec![ShotRecord::default(); shots.len()],
+            shots,
+            ..Self::default()
+        }
+    }
+
+    /// Scores the output of one detection of shot `shot`, whose true state at the detection's
+    /// stamp is `truth`; `outlier` marks a detection that is not the ball.
+    pub fn score(
+        &mut self,
+        shot: usize,
+        detection: &Detection,
+        truth: &BallState,
+        outlier: bool,
+        out: &Output,
+    ) {
+        self.detections += 1;
+        let (Some(truth_shot), Some(record)) = (self.shots.get(shot), self.records.get_mut(shot))
+        else {
+            return;
         };
-        let record = &mut records[sim.shot];
         let Some(estimate) = out
             .estimate
             .filter(|e| e.status != TrackStatus::Initializing)
         else {
-            continue;
+            return;
         };
         for (slot, lead) in LEADS.iter().enumerate() {
-            let deadline = shot.intercept.stamp - (lead * 1e9).round() as i64;
+            let deadline = truth_shot.intercept_stamp - (lead * 1e9).round() as i64;
             if estimate.stamp <= deadline {
-                record.at_lead[slot] = Some(out);
+                record.at_lead[slot] = Some(*out);
             }
         }
         // State errors only where the estimate is at the detection's own stamp (its truth).
-        if estimate.stamp != sim.detection.stamp || sim.outlier {
-            continue;
+        if estimate.stamp != detection.stamp || outlier {
+            return;
         }
         let start = *record.track_start.get_or_insert(estimate.stamp);
-        let error = estimate.state.to_vector() - sim.truth.to_vector();
-        if (sim.detection.stamp - shot.bounce.stamp).abs() <= (BOUNCE_WINDOW * 1e9) as i64 {
-            velocity_bounce.push((estimate.state.velocity - sim.truth.velocity).norm());
-            continue;
+        let error = estimate.state.to_vector() - truth.to_vector();
+        if (detection.stamp - truth_shot.bounce_stamp).abs() <= (BOUNCE_WINDOW * 1e9) as i64 {
+            self.velocity_bounce
+                .push((estimate.state.velocity - truth.velocity).norm());
+            return;
         }
         if let Some(chol) = estimate.covariance.cholesky() {
             let nees = error.dot(&chol.solve(&error)) / 9.0;
-            nees_sum += nees;
-            nees_count += 1;
-            let side = &mut bounce_sum[usize::from(sim.detection.stamp >= shot.bounce.stamp)];
+            self.nees_sum += nees;
+            self.nees_count += 1;
+            let side =
+                &mut self.bounce_sum[usize::from(detection.stamp >= truth_shot.bounce_stamp)];
             side.0 += nees;
             side.1 += 1;
-            for (block, sum) in block_sum.iter_mut().enumerate() {
+            for (block, sum) in self.block_sum.iter_mut().enumerate() {
                 let e = error.fixed_rows::<3>(3 * block).into_owned();
                 let p = estimate
                     .covariance
@@ -186,99 +232,115 @@ pub fn evaluate(config: &Config, session: &Session) -> EvalReport {
                 }
             }
         }
-        let spin_error: Vector3<f64> = estimate.state.spin - sim.truth.spin;
+        let spin_error: Vector3<f64> = estimate.state.spin - truth.spin;
         if !record.scored_at_age && estimate.stamp - start >= (TRACK_AGE * 1e9) as i64 {
             record.scored_at_age = true;
-            velocity.push((estimate.state.velocity - sim.truth.velocity).norm());
-            let along = sim.truth.velocity.normalize();
+            self.velocity
+                .push((estimate.state.velocity - truth.velocity).norm());
+            let along = truth.velocity.normalize();
             let parallel = spin_error.dot(&along);
-            spin.push(spin_error.norm());
-            spin_par.push(parallel);
-            spin_perp.push((spin_error - along * parallel).norm());
+            self.spin.push(spin_error.norm());
+            self.spin_par.push(parallel);
+            self.spin_perp.push((spin_error - along * parallel).norm());
         }
-        if sim.detection.source == Source::HighSpeed900Fps {
-            let first = *record.high_speed_start.get_or_insert(sim.detection.stamp);
-            if sim.detection.stamp - first >= (HIGH_SPEED_SETTLE * 1e9) as i64 {
-                spin_fast.push(spin_error.norm());
-                velocity_fast.push((estimate.state.velocity - sim.truth.velocity).norm());
+        if detection.source == Source::HighSpeed900Fps {
+            let first = *record.high_speed_start.get_or_insert(detection.stamp);
+            if detection.stamp - first >= (HIGH_SPEED_SETTLE * 1e9) as i64 {
+                self.spin_fast.push(spin_error.norm());
+                self.velocity_fast
+                    .push((estimate.state.velocity - truth.velocity).norm());
             }
         }
     }
 
-    let leads = LEADS
-        .iter()
-        .enumerate()
-        .map(|(slot, &lead)| lead_report(session, &records, slot, lead))
-        .collect();
-    EvalReport {
-        shots: session.shots.len(),
-        detections: session.stream.len(),
-        velocity_error: ErrorStats::of(&velocity),
-        spin_error: ErrorStats::of(&spin),
-        spin_error_perpendicular: ErrorStats::of(&spin_perp),
-        spin_error_parallel: ErrorStats::of(&spin_par),
-        spin_error_high_speed: ErrorStats::of(&spin_fast),
-        velocity_error_high_speed: ErrorStats::of(&velocity_fast),
-        velocity_error_at_bounce: ErrorStats::of(&velocity_bounce),
-        state_nees: if nees_count > 0 {
-            nees_sum / nees_count as f64
-        } else {
-            f64::NAN
-        },
-        block_nees: block_sum.map(|b| b / nees_count.max(1) as f64),
-        bounce_nees: bounce_sum.map(|(sum, n)| sum / n.max(1) as f64),
-        leads,
-        counters: estimator.counters(),
+    /// The report, with the estimator's counters.
+    pub fn report(&self, counters: Counters) -> EvalReport {
+        let leads = LEADS
+            .iter()
+            .enumerate()
+            .map(|(slot, &lead)| self.lead_report(slot, lead))
+            .collect();
+        let n = self.nees_count.max(1) as f64;
+        EvalReport {
+            shots: self.shots.len(),
+            detections: self.detections,
+            velocity_error: ErrorStats::of(&self.velocity),
+            spin_error: ErrorStats::of(&self.spin),
+            spin_error_perpendicular: ErrorStats::of(&self.spin_perp),
+            spin_error_parallel: ErrorStats::of(&self.spin_par),
+            spin_error_high_speed: ErrorStats::of(&self.spin_fast),
+            velocity_error_high_speed: ErrorStats::of(&self.velocity_fast),
+            velocity_error_at_bounce: ErrorStats::of(&self.velocity_bounce),
+            state_nees: if self.nees_count > 0 {
+                self.nees_sum / n
+            } else {
+                f64::NAN
+            },
+            block_nees: self.block_sum.map(|b| b / n),
+            bounce_nees: self.bounce_sum.map(|(sum, k)| sum / k.max(1) as f64),
+            leads,
+            counters,
+        }
+    }
+
+    fn lead_report(&self, slot: usize, lead: f64) -> LeadReport {
+        let mut position = Vec::new();
+        let mut time = Vec::new();
+        let mut nees = Vec::new();
+        let mut valid = 0usize;
+        for (shot, record) in self.shots.iter().zip(&self.records) {
+            let Some((stamp, crossing)) = record.at_lead[slot]
+                .and_then(|out| out.intercept)
+                .and_then(|i| i.intercept.crossing.ok().map(|c| (i.stamp, c)))
+            else {
+                continue;
+            };
+            valid += 1;
+            let truth = shot.intercept_position;
+            let error = Vector2::new(
+                crossing.state.position.y - truth.y,
+                crossing.state.position.z - truth.z,
+            );
+            position.push(error.norm());
+            let predicted = stamp as f64 * 1e-9 + crossing.time;
+            time.push(predicted - shot.intercept_stamp as f64 * 1e-9);
+            let cov = Matrix2::new(
+                crossing.covariance[(1, 1)],
+                crossing.covariance[(1, 2)],
+                crossing.covariance[(2, 1)],
+                crossing.covariance[(2, 2)],
+            );
+            if let Some(chol) = cov.cholesky() {
+                nees.push(error.dot(&chol.solve(&error)) / 2.0);
+            }
+        }
+        let shots = self.shots.len();
+        LeadReport {
+            lead,
+            shots,
+            valid_fraction: if shots > 0 {
+                valid as f64 / shots as f64
+            } else {
+                0.0
+            },
+            position_error: ErrorStats::of(&position),
+            time_error: ErrorStats::of(&time),
+            position_nees: if nees.is_empty() {
+                f64::NAN
+            } else {
+                nees.iter().sum::<f64>() / nees.len() as f64
+            },
+        }
     }
 }
 
-fn lead_report(session: &Session, records: &[ShotRecord], slot: usize, lead: f64) -> LeadReport {
-    let mut position = Vec::new();
-    let mut time = Vec::new();
-    let mut nees = Vec::new();
-    let mut valid = 0usize;
-    for (shot, record) in session.shots.iter().zip(records) {
-        let Some(crossing) = record.at_lead[slot]
-            .and_then(|out| out.intercept)
-            .and_then(|i| i.intercept.crossing.ok().map(|c| (i.stamp, c)))
-        else {
-            continue;
-        };
-        let (stamp, crossing) = crossing;
-        valid += 1;
-        let truth = shot.intercept.before.position;
-        let error = Vector2::new(
-            crossing.state.position.y - truth.y,
-            crossing.state.position.z - truth.z,
-        );
-        position.push(error.norm());
-        let predicted = stamp as f64 * 1e-9 + crossing.time;
-        time.push(predicted - shot.intercept.stamp as f64 * 1e-9);
-        let cov = Matrix2::new(
-            crossing.covariance[(1, 1)],
-            crossing.covariance[(1, 2)],
-            crossing.covariance[(2, 1)],
-            crossing.covariance[(2, 2)],
-        );
-        if let Some(chol) = cov.cholesky() {
-            nees.push(error.dot(&chol.solve(&error)) / 2.0);
-        }
+/// Runs the estimator over a simulated session in arrival order and scores it.
+pub fn evaluate(config: &Config, session: &Session) -> EvalReport {
+    let mut estimator = Estimator::new(config);
+    let mut scorer = Scorer::new(session.shots.iter().map(ShotTruth::from).collect());
+    for sim in &session.stream {
+        let out = estimator.handle(&sim.detection);
+        scorer.score(sim.shot, &sim.detection, &sim.truth, sim.outlier, &out);
     }
-    let shots = session.shots.len();
-    LeadReport {
-        lead,
-        shots,
-        valid_fraction: if shots > 0 {
-            valid as f64 / shots as f64
-        } else {
-            0.0
-        },
-        position_error: ErrorStats::of(&position),
-        time_error: ErrorStats::of(&time),
-        position_nees: if nees.is_empty() {
-            f64::NAN
-        } else {
-            nees.iter().sum::<f64>() / nees.len() as f64
-        },
-    }
+    scorer.report(estimator.counters())
 }

@@ -70,11 +70,13 @@ pub enum Rejection {
     Gated,
     /// Dropped while initialising: it did not fit a ballistic flight with the others.
     InitOutlier,
+    /// Rejected by an adapter before the filter: its `frame_id` is not `table`.
+    UnknownFrame,
 }
 
 impl Rejection {
     /// Every reason, in the order of [`Counters::rejected`].
-    pub const ALL: [Self; 8] = [
+    pub const ALL: [Self; 9] = [
         Self::NonFinite,
         Self::BadConfidence,
         Self::LowConfidence,
@@ -83,6 +85,7 @@ impl Rejection {
         Self::Duplicate,
         Self::Gated,
         Self::InitOutlier,
+        Self::UnknownFrame,
     ];
 
     /// A short snake_case name for summaries and diagnostics.
@@ -96,6 +99,7 @@ impl Rejection {
             Self::Duplicate => "duplicate",
             Self::Gated => "gated",
             Self::InitOutlier => "init_outlier",
+            Self::UnknownFrame => "unknown_frame",
         }
     }
 
@@ -114,7 +118,7 @@ pub struct Counters {
     /// Detections used to initialise a track (or still waiting in the initialiser).
     pub initializing: u64,
     /// Rejected detections by reason, in the order of [`Rejection::ALL`].
-    pub rejected: [u64; 8],
+    pub rejected: [u64; 9],
     /// Tracks started.
     pub tracks: u64,
     /// Late detections fused by rolling back.
@@ -406,6 +410,13 @@ impl Estimator {
             stop_at_plane: false,
         };
         Some((track.now.stamp, predict(&self.propagator, &start, &options)))
+    }
+
+    /// Counts a detection that an adapter rejected before it reached the filter (e.g. its
+    /// message's frame is not `table`), so that every input is accounted for in one place.
+    pub fn reject(&mut self, reason: Rejection) {
+        self.counters.received += 1;
+        self.counters.rejected[reason.index()] += 1;
     }
 
     /// Takes one detection (in arrival order) and returns the estimate and interception after it.

@@ -10,6 +10,7 @@
 //! these mirrors against it, so change both together.
 
 pub mod builtin_interfaces;
+pub mod convert;
 pub mod definitions;
 pub mod geometry_msgs;
 pub mod sensor_msgs;

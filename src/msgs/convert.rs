@@ -1,0 +1,331 @@
+//! The boundary between ROS messages and the core: detections in, estimates, interceptions,
+//! trajectories and RViz/Foxglove markers out. Stamps become integer nanoseconds; an all-zero
+//! covariance becomes "use the configured noise".
+
+use nalgebra::{Matrix3, Vector3};
+
+use super::builtin_interfaces::{Duration, Time};
+use super::geometry_msgs::{Point, Pose, Quaternion, Vector3 as RosVector3};
+use super::std_msgs::{ColorRGBA, Header};
+use super::ttball_msgs::msg::{BallDetection, BallState, InterceptPrediction, PredictedTrajectory};
+use super::visualization_msgs::{Marker, MarkerArray};
+use crate::detection::{Detection, Source};
+use crate::estimator::{Estimate, InterceptEstimate, TrackStatus};
+use crate::physics::{self, StateMatrix, Trajectory};
+
+/// The one frame every ttball message is in.
+pub const TABLE_FRAME: &str = "table";
+
+/// A message that cannot become a core value.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum ConvertError {
+    /// The detection is not in the `table` frame.
+    #[error("frame_id `{0}` is not `table`: ttball takes detections in the table frame only")]
+    UnknownFrame(String),
+}
+
+fn point(v: &Vector3<f64>) -> Point {
+    Point {
+        x: v.x,
+        y: v.y,
+        z: v.z,
+    }
+}
+
+fn vector(v: &Vector3<f64>) -> RosVector3 {
+    RosVector3 {
+        x: v.x,
+        y: v.y,
+        z: v.z,
+    }
+}
+
+fn from_point(p: &Point) -> Vector3<f64> {
+    Vector3::new(p.x, p.y, p.z)
+}
+
+fn from_vector(v: &RosVector3) -> Vector3<f64> {
+    Vector3::new(v.x, v.y, v.z)
+}
+
+/// A row-major 3x3 covariance; all zero means "not given".
+fn covariance3(values: &[f64; 9]) -> Option<Matrix3<f64>> {
+    if values.iter().all(|v| *v == 0.0) {
+        None
+    } else {
+        Some(Matrix3::from_row_slice(values))
+    }
+}
+
+fn row_major3(m: &Option<Matrix3<f64>>) -> [f64; 9] {
+    let mut out = [0.0; 9];
+    if let Some(m) = m {
+        for (i, slot) in out.iter_mut().enumerate() {
+            *slot = m[(i / 3, i % 3)];
+        }
+    }
+    out
+}
+
+fn row_major9(m: &StateMatrix) -> [f64; 81] {
+    let mut out = [0.0; 81];
+    for (i, slot) in out.iter_mut().enumerate() {
+        *slot = m[(i / 9, i % 9)];
+    }
+    out
+}
+
+fn header(stamp: i64) -> Header {
+    Header {
+        stamp: Time::from_nanos(stamp),
+        frame_id: TABLE_FRAME.to_string(),
+    }
+}
+
+/// A `BallDetection` message as the core's detection.
+pub fn detection_from_msg(msg: &BallDetection) -> Result<Detection, ConvertError> {
+    if msg.header.frame_id != TABLE_FRAME {
+        return Err(ConvertError::UnknownFrame(msg.header.frame_id.clone()));
+    }
+    Ok(Detection {
+        stamp: msg.header.stamp.to_nanos(),
+        source: Source::from_code(msg.source),
+        position: from_point(&msg.position),
+        position_covariance: covariance3(&msg.position_covariance),
+        spin: msg.has_spin.then(|| from_vector(&msg.spin)),
+        spin_covariance: covariance3(&msg.spin_covariance),
+        confidence: msg.confidence,
+    })
+}
+
+/// The core's detection as a `BallDetection` message.
+pub fn detection_to_msg(d: &Detection) -> BallDetection {
+    BallDetection {
+        header: header(d.stamp),
+        position: point(&d.position),
+        position_covariance: row_major3(&d.position_covariance),
+        has_spin: d.spin.is_some(),
+        spin: vector(&d.spin.unwrap_or_else(Vector3::zeros)),
+        spin_covariance: row_major3(&d.spin_covariance),
+        source: d.source.code(),
+        confidence: d.confidence,
+    }
+}
+
+/// An estimate as a `BallState` message.
+pub fn state_msg(e: &Estimate) -> BallState {
+    BallState {
+        header: header(e.stamp),
+        track_id: e.track_id,
+        status: e.status.code(),
+        position: point(&e.state.position),
+        velocity: vector(&e.state.velocity),
+        spin: vector(&e.state.spin),
+        covariance: row_major9(&e.covariance),
+        bounces: e.bounces,
+        nis: e.nis,
+    }
+}
+
+/// A true state (from the simulator) as a `BallState` message: status TRACKING, zero
+/// covariance, `track_id` = the shot's number (from 1).
+pub fn truth_msg(stamp: i64, shot: u32, state: &physics::BallState) -> BallState {
+    BallState {
+        header: header(stamp),
+        track_id: shot,
+        status: TrackStatus::Tracking.code(),
+        position: point(&state.position),
+        velocity: vector(&state.velocity),
+        spin: vector(&state.spin),
+        covariance: [0.0; 81],
+        bounces: 0,
+        nis: 0.0,
+    }
+}
+
+/// The stamp [ns], track id and state of a `BallState` message.
+pub fn state_from_msg(msg: &BallState) -> (i64, u32, physics::BallState) {
+    (
+        msg.header.stamp.to_nanos(),
+        msg.track_id,
+        physics::BallState::new(
+            from_point(&msg.position),
+            from_vector(&msg.velocity),
+            from_vector(&msg.spin),
+        ),
+    )
+}
+
+fn offset(stamp: i64, seconds: f64) -> Time {
+    Time::from_nanos(stamp + (seconds * 1e9).round() as i64)
+}
+
+/// An interception prediction as an `InterceptPrediction` message.
+pub fn intercept_msg(i: &InterceptEstimate) -> InterceptPrediction {
+    let mut msg = InterceptPrediction {
+        header: header(i.stamp),
+        track_id: i.track_id,
+        ..InterceptPrediction::default()
+    };
+    if let Ok(c) = &i.intercept.crossing {
+        msg.valid = true;
+        msg.intercept_stamp = offset(i.stamp, c.time);
+        msg.position = point(&c.state.position);
+        msg.velocity = vector(&c.state.velocity);
+        msg.spin = vector(&c.state.spin);
+        msg.covariance = row_major9(&c.covariance);
+    }
+    if let Some(b) = &i.intercept.bounce {
+        msg.bounce_valid = true;
+        msg.bounce_stamp = offset(i.stamp, b.time);
+        msg.bounce_position = point(&b.position);
+    }
+    msg
+}
+
+/// A predicted trajectory (times relative to `stamp`) as a `PredictedTrajectory` message.
+pub fn trajectory_msg(stamp: i64, track_id: u32, t: &Trajectory) -> PredictedTrajectory {
+    PredictedTrajectory {
+        header: header(stamp),
+        track_id,
+        stamps: t.samples.iter().map(|s| offset(stamp, s.t)).collect(),
+        positions: t.samples.iter().map(|s| point(&s.state.position)).collect(),
+        velocities: t
+            .samples
+            .iter()
+            .map(|s| vector(&s.state.velocity))
+            .collect(),
+        spins: t.samples.iter().map(|s| vector(&s.state.spin)).collect(),
+    }
+}
+
+/// Marker ids in the `ttball` namespace.
+const PATH: i32 = 0;
+const BALL: i32 = 1;
+const BOUNCE: i32 = 2;
+const INTERCEPT: i32 = 3;
+const LABEL: i32 = 4;
+
+fn color(r: f32, g: f32, b: f32) -> ColorRGBA {
+    ColorRGBA { r, g, b, a: 1.0 }
+}
+
+fn marker(stamp: i64, id: i32, type_: i32) -> Marker {
+    Marker {
+        header: header(stamp),
+        ns: "ttball".to_string(),
+        id,
+        type_,
+        action: Marker::ADD,
+        lifetime: Duration::default(),
+        ..Marker::default()
+    }
+}
+
+fn sphere(stamp: i64, id: i32, at: &Vector3<f64>, diameter: f64, c: ColorRGBA) -> Marker {
+    Marker {
+        pose: Pose {
+            position: point(at),
+            orientation: Quaternion::default(),
+        },
+        scale: RosVector3 {
+            x: diameter,
+            y: diameter,
+            z: diameter,
+        },
+        color: c,
+        ..marker(stamp, id, Marker::SPHERE)
+    }
+}
+
+fn delete(stamp: i64, id: i32) -> Marker {
+    Marker {
+        action: Marker::DELETE,
+        ..marker(stamp, id, Marker::SPHERE)
+    }
+}
+
+/// Markers for RViz and Foxglove: the predicted path (green line), the ball (white), the
+/// predicted bounce (orange) and interception point (red) with the time left until it.
+pub fn markers(e: &Estimate, i: Option<&InterceptEstimate>, t: &Trajectory) -> MarkerArray {
+    let stamp = e.stamp;
+    let path = Marker {
+        scale: RosVector3 {
+            x: 0.006,
+            y: 0.0,
+            z: 0.0,
+        },
+        color: color(0.2, 0.9, 0.3),
+        points: t.samples.iter().map(|s| point(&s.state.position)).collect(),
+        ..marker(stamp, PATH, Marker::LINE_STRIP)
+    };
+    let mut markers = vec![
+        path,
+        sphere(stamp, BALL, &e.state.position, 0.04, color(1.0, 1.0, 1.0)),
+    ];
+    let bounce = i.and_then(|i| i.intercept.bounce);
+    markers.push(match bounce {
+        Some(b) => sphere(stamp, BOUNCE, &b.position, 0.03, color(1.0, 0.6, 0.1)),
+        None => delete(stamp, BOUNCE),
+    });
+    match i.and_then(|i| i.intercept.crossing.ok()) {
+        Some(c) => {
+            markers.push(sphere(
+                stamp,
+                INTERCEPT,
+                &c.state.position,
+                0.05,
+                color(0.95, 0.1, 0.1),
+            ));
+            let mut above = c.state.position;
+            above.z += 0.08;
+            markers.push(Marker {
+                pose: Pose {
+                    position: point(&above),
+                    orientation: Quaternion::default(),
+                },
+                scale: RosVector3 {
+                    x: 0.0,
+                    y: 0.0,
+                    z: 0.05,
+                },
+                color: color(1.0, 1.0, 1.0),
+                text: format!("{:.0} ms", c.time * 1e3),
+                ..marker(stamp, LABEL, Marker::TEXT_VIEW_FACING)
+            });
+        }
+        None => {
+            markers.push(delete(stamp, INTERCEPT));
+            markers.push(delete(stamp, LABEL));
+        }
+    }
+    MarkerArray { markers }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn detections_round_trip_and_zero_covariance_means_default() {
+        let d = Detection {
+            stamp: 1_700_000_000_123_456_789,
+            source: Source::HighSpeed900Fps,
+            position: Vector3::new(-0.5, 0.1, 0.2),
+            position_covariance: None,
+            spin: Some(Vector3::new(1.0, -150.0, 3.0)),
+            spin_covariance: Some(Matrix3::from_diagonal_element(144.0)),
+            confidence: 0.9,
+        };
+        let msg = detection_to_msg(&d);
+        assert_eq!(msg.position_covariance, [0.0; 9]);
+        assert_eq!(msg.spin_covariance[4], 144.0);
+        assert_eq!(detection_from_msg(&msg), Ok(d));
+        let mut other = msg;
+        other.header.frame_id = "camera".into();
+        assert_eq!(
+            detection_from_msg(&other),
+            Err(ConvertError::UnknownFrame("camera".into()))
+        );
+    }
+}
