@@ -13,11 +13,16 @@
 //! - [`sim`]: simulated camera detections of real and random shots, with the truth, from a seed.
 //! - `pipeline` (feature `interface`): the node minus its transport, one detection message in,
 //!   the messages to publish out; the ROS node and the MCAP replay both drive it.
+//! - `bag` (feature `bag`): ROS 2 MCAP bags as rosbag2 and Foxglove read and write them.
+//! - `record` (feature `bag`): simulated play written as a bag, with its truth.
+//! - `replay` (feature `bag`): an MCAP bag through the node's code path, into an output bag.
 //! - `msgs` (feature `interface`): serde mirrors of the ROS 2 interfaces in `msgs/` (package
 //!   `ttball_msgs`) for ros2-client and MCAP, in wire (field) order.
 //!
 //! Units are SI everywhere (m, s, kg, rad/s) in the `table` frame described in the README.
 
+#[cfg(feature = "bag")]
+pub mod bag;
 pub mod config;
 pub mod detection;
 pub mod ekf;
@@ -29,5 +34,9 @@ pub mod msgs;
 pub mod physics;
 #[cfg(feature = "interface")]
 pub mod pipeline;
+#[cfg(feature = "bag")]
+pub mod record;
+#[cfg(feature = "bag")]
+pub mod replay;
 pub mod sim;
 pub mod stats;

@@ -4,6 +4,8 @@
 pub mod config_cmd;
 pub mod evaluate;
 pub mod predict;
+pub mod replay;
+pub mod simulate;
 
 use std::io::Write;
 use std::path::PathBuf;
@@ -65,6 +67,25 @@ pub enum Command {
         ttball evaluate --shots 50 --cameras wide+highspeed --json report.json\n  \
         ttball evaluate -p ekf.acceleration_noise_density:=0.01")]
     Evaluate(evaluate::EvaluateArgs),
+
+    /// Replay ROS 2 MCAP bags through the node's code path and write what it would publish.
+    ///
+    /// Reads `ttball_msgs/msg/BallDetection` from `topics.detections` in log-time order and runs
+    /// each through exactly the estimator the live node runs. The output bag holds the input
+    /// topics unchanged plus /ball/state, /ball/intercept, /ball/trajectory and /ball/markers
+    /// (open it in Foxglove). Deterministic: two replays give byte-identical files. A bag with
+    /// the simulator's truth also gets the accuracy table.
+    #[command(after_help = "Examples:\n  \
+        ttball replay bags/sim_rally_2cams.mcap --output out.mcap\n  \
+        ttball replay bags/*.mcap --output-dir out/ --report out/report.json\n  \
+        ttball replay my_rally.mcap -o out.mcap -p topics.detections:=/vision/ball -p intercept.plane_x:=-1.45")]
+    Replay(replay::ReplayArgs),
+
+    /// Write a bag of simulated play (detections of both cameras, with truth).
+    #[command(after_help = "Examples:\n  \
+        ttball simulate --output rally.mcap --shots 20 --seed 7\n  \
+        ttball simulate --output wide.mcap --cameras wide")]
+    Simulate(simulate::SimulateArgs),
 }
 
 impl Command {
@@ -74,6 +95,8 @@ impl Command {
             Self::Config(command) => command.run(),
             Self::Predict(args) => args.run(),
             Self::Evaluate(args) => args.run(),
+            Self::Replay(args) => args.run(),
+            Self::Simulate(args) => args.run(),
         }
     }
 }

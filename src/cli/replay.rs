@@ -1,0 +1,251 @@
+//! `ttball replay`: bags through the node's code path, with a summary (and accuracy when the bag
+//! carries truth). Many bags run in parallel, one per core.
+
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+
+use anyhow::{Context, bail};
+use clap::Args;
+use indicatif::{ProgressBar, ProgressStyle};
+use std::io::IsTerminal;
+use ttball::estimator::Rejection;
+use ttball::replay::{ReplaySummary, replay};
+
+use super::{ConfigArgs, write_stdout};
+
+/// Arguments of `ttball replay`.
+#[derive(Debug, Args)]
+pub struct ReplayArgs {
+    /// Input bags (ROS 2 MCAP, e.g. from `ros2 bag record` or `ttball simulate`).
+    #[arg(required = true, value_name = "INPUT.mcap")]
+    pub inputs: Vec<PathBuf>,
+
+    /// The output bag (one input).
+    #[arg(long, short, value_name = "OUT.mcap", conflicts_with = "output_dir")]
+    pub output: Option<PathBuf>,
+
+    /// Directory for the output bags (any number of inputs; each keeps its file name).
+    #[arg(long, value_name = "DIR")]
+    pub output_dir: Option<PathBuf>,
+
+    /// Write the summaries (and accuracy, when the bags carry truth) as JSON.
+    #[arg(long, value_name = "FILE.json")]
+    pub report: Option<PathBuf>,
+
+    /// The estimator's configuration and the topics.
+    #[command(flatten)]
+    pub config: ConfigArgs,
+}
+
+impl ReplayArgs {
+    /// Replays every input.
+    pub fn run(self) -> anyhow::Result<ExitCode> {
+        let config = self.config.load()?;
+        let jobs = self.jobs()?;
+        let cancel = Arc::new(AtomicBool::new(false));
+        {
+            let cancel = Arc::clone(&cancel);
+            // A second handler cannot be installed in tests that run several commands: ignore.
+            let _ = ctrlc::set_handler(move || cancel.store(true, Ordering::Relaxed));
+        }
+        let terminal = std::io::stderr().is_terminal();
+        let workers = std::thread::available_parallelism()
+            .map_or(1, |n| n.get())
+            .min(jobs.len())
+            .max(1);
+        let next = AtomicUsize::new(0);
+        let mut results: Vec<Option<anyhow::Result<ReplaySummary>>> =
+            (0..jobs.len()).map(|_| None).collect();
+        let slots: Vec<std::sync::Mutex<Option<anyhow::Result<ReplaySummary>>>> = (0..jobs.len())
+            .map(|_| std::sync::Mutex::new(None))
+            .collect();
+        std::thread::scope(|scope| {
+            for _ in 0..workers {
+                scope.spawn(|| {
+                    loop {
+                        let i = next.fetch_add(1, Ordering::Relaxed);
+                        let Some((input, output)) = jobs.get(i) else {
+                            break;
+                        };
+                        let bar = progress_bar(terminal, input);
+                        let mut progress = |done: u64, total: u64| {
+                            bar.set_length(total);
+                            bar.set_position(done);
+                        };
+                        let result = replay(input, output, &config, &mut progress, &cancel)
+                            .with_context(|| format!("cannot replay {}", input.display()));
+                        bar.finish_and_clear();
+                        if let Ok(mut slot) = slots[i].lock() {
+                            *slot = Some(result);
+                        }
+                    }
+                });
+            }
+        });
+        for (slot, result) in slots.into_iter().zip(results.iter_mut()) {
+            *result = slot.into_inner().ok().flatten();
+        }
+        let mut failed = false;
+        let mut summaries = Vec::new();
+        for result in results.into_iter().flatten() {
+            match result {
+                Ok(summary) => {
+                    write_stdout(&summary_text(&summary))?;
+                    summaries.push(summary);
+                }
+                Err(e) => {
+                    eprintln!("error: {e:#}");
+                    failed = true;
+                }
+            }
+        }
+        if let Some(path) = &self.report {
+            let json: Vec<_> = summaries.iter().map(summary_json).collect();
+            std::fs::write(path, serde_json::to_string_pretty(&json)? + "\n")
+                .with_context(|| format!("cannot write {}", path.display()))?;
+        }
+        Ok(if failed || cancel.load(Ordering::Relaxed) {
+            ExitCode::FAILURE
+        } else {
+            ExitCode::SUCCESS
+        })
+    }
+
+    /// (input, output) pairs.
+    fn jobs(&self) -> anyhow::Result<Vec<(PathBuf, PathBuf)>> {
+        match (&self.output, &self.output_dir, self.inputs.as_slice()) {
+            (Some(out), None, [input]) => Ok(vec![(input.clone(), out.clone())]),
+            (Some(_), None, _) => {
+                bail!("--output takes one input; use --output-dir DIR for several")
+            }
+            (None, Some(dir), inputs) => {
+                std::fs::create_dir_all(dir)
+                    .with_context(|| format!("cannot create {}", dir.display()))?;
+                inputs
+                    .iter()
+                    .map(|input| {
+                        let name = input
+                            .file_name()
+                            .with_context(|| format!("{} has no file name", input.display()))?;
+                        let out = dir.join(name);
+                        if out == *input {
+                            bail!("{} would overwrite its input", out.display());
+                        }
+                        Ok((input.clone(), out))
+                    })
+                    .collect()
+            }
+            _ => bail!("give --output OUT.mcap (one input) or --output-dir DIR"),
+        }
+    }
+}
+
+fn progress_bar(terminal: bool, input: &Path) -> ProgressBar {
+    if !terminal {
+        return ProgressBar::hidden();
+    }
+    let bar = ProgressBar::new(0);
+    if let Ok(style) = ProgressStyle::with_template(
+        "{msg} [{bar:30}] {pos}/{len} detections ({per_sec}, eta {eta})",
+    ) {
+        bar.set_style(style.progress_chars("=> "));
+    }
+    bar.set_message(input.display().to_string());
+    bar
+}
+
+/// The summary a user reads at the end of a replay.
+pub fn summary_text(s: &ReplaySummary) -> String {
+    let c = &s.counters;
+    let mut out = format!("{} -> {}\n", s.input.display(), s.output.display());
+    if let Some(damage) = &s.damage {
+        let _ = writeln!(out, "  warning: the input is damaged; {damage}");
+    }
+    if s.interrupted {
+        out.push_str("  interrupted: the output holds what was replayed, properly finished\n");
+    }
+    let _ = writeln!(
+        out,
+        "  detections read {}, fused {}, initialising {}, rejected {}, undecodable {}; tracks {}",
+        s.detections,
+        c.fused,
+        c.initializing,
+        c.total_rejected(),
+        s.undecodable,
+        c.tracks
+    );
+    let reasons: Vec<String> = Rejection::ALL
+        .iter()
+        .filter(|r| c.rejected(**r) > 0)
+        .map(|r| format!("{} {}", r.name(), c.rejected(*r)))
+        .collect();
+    if !reasons.is_empty() {
+        let _ = writeln!(out, "  rejected by reason: {}", reasons.join(", "));
+    }
+    let _ = writeln!(
+        out,
+        "  processing per detection: mean {:.1} us, p99 {:.1} us; {:.1} s recorded in {:.2} s ({:.0}x real time); {} messages written",
+        s.processing_mean_ns * 1e-3,
+        s.processing_p99_ns * 1e-3,
+        s.recorded_seconds,
+        s.processing_seconds,
+        s.real_time_factor(),
+        s.written
+    );
+    if let Some(a) = &s.accuracy {
+        let _ = writeln!(
+            out,
+            "  accuracy against the bag's truth ({} shots): state NEES/dim {:.2}",
+            a.shots, a.state_nees
+        );
+        if a.velocity_error_high_speed.count > 0 {
+            let _ = writeln!(
+                out,
+                "    where the 900 fps camera sees the ball: velocity {:.3} m/s RMS, spin {:.1} rad/s RMS",
+                a.velocity_error_high_speed.rms, a.spin_error_high_speed.rms
+            );
+        }
+        for lead in &a.leads {
+            let _ = writeln!(
+                out,
+                "    interception at {:.0} ms lead: valid {:.1} %, position RMS {:.1} mm, median {:.1} mm; time RMS {:.2} ms",
+                lead.lead * 1e3,
+                lead.valid_fraction * 100.0,
+                lead.position_error.rms * 1e3,
+                lead.position_error.median * 1e3,
+                lead.time_error.rms * 1e3
+            );
+        }
+    }
+    out
+}
+
+fn summary_json(s: &ReplaySummary) -> serde_json::Value {
+    let c = &s.counters;
+    let rejected: serde_json::Map<String, serde_json::Value> = Rejection::ALL
+        .iter()
+        .map(|r| (r.name().to_string(), c.rejected(*r).into()))
+        .collect();
+    serde_json::json!({
+        "input": s.input,
+        "output": s.output,
+        "damage": s.damage,
+        "interrupted": s.interrupted,
+        "detections": s.detections,
+        "undecodable": s.undecodable,
+        "fused": c.fused,
+        "initializing": c.initializing,
+        "rejected": rejected,
+        "tracks": c.tracks,
+        "rollbacks": c.rollbacks,
+        "processing_mean_ns": s.processing_mean_ns,
+        "processing_p99_ns": s.processing_p99_ns,
+        "recorded_seconds": s.recorded_seconds,
+        "processing_seconds": s.processing_seconds,
+        "real_time_factor": s.real_time_factor(),
+        "accuracy": s.accuracy,
+    })
+}

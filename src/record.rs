@@ -1,0 +1,83 @@
+//! Bags of simulated play (`ttball simulate`): the session's detections on `topics.detections`
+//! in arrival order (log time = arrival, header stamp = exposure), the true state at each
+//! detection's stamp on `topics.truth`, and each shot's true crossing of the hitting plane and
+//! bounce on `topics.truth` + `/intercept`. The same session gives the same bytes.
+
+use std::path::Path;
+
+use crate::bag::{BagError, BagWriter, encode, mcap_time};
+use crate::config::Config;
+use crate::msgs::builtin_interfaces::Time;
+use crate::msgs::convert::{TABLE_FRAME, detection_to_msg, truth_msg};
+use crate::msgs::geometry_msgs::{Point, Vector3};
+use crate::msgs::std_msgs::Header;
+use crate::msgs::ttball_msgs::msg::InterceptPrediction;
+use crate::replay::{DETECTION_TYPE, INTERCEPT_TYPE, STATE_TYPE, truth_intercept_topic};
+use crate::sim::Session;
+
+/// Writes a simulated session as a ROS 2 MCAP bag; returns the number of messages written.
+pub fn write_session(session: &Session, config: &Config, path: &Path) -> Result<u64, BagError> {
+    let mut writer = BagWriter::create(path)?;
+    let detections = writer.channel(&config.topics.detections, DETECTION_TYPE)?;
+    let truth = writer.channel(&config.topics.truth, STATE_TYPE)?;
+    let events = writer.channel(&truth_intercept_topic(&config.topics.truth), INTERCEPT_TYPE)?;
+
+    // (log time, order, channel, payload), written in log-time order.
+    let mut records: Vec<(u64, usize, u16, Vec<u8>)> = Vec::new();
+    for (k, shot) in session.shots.iter().enumerate() {
+        let id = u32::try_from(k + 1).unwrap_or(u32::MAX);
+        let p = &shot.intercept.before;
+        let msg = InterceptPrediction {
+            header: Header {
+                stamp: Time::from_nanos(shot.launch_stamp),
+                frame_id: TABLE_FRAME.to_string(),
+            },
+            track_id: id,
+            valid: true,
+            intercept_stamp: Time::from_nanos(shot.intercept.stamp),
+            position: Point {
+                x: p.position.x,
+                y: p.position.y,
+                z: p.position.z,
+            },
+            velocity: Vector3 {
+                x: p.velocity.x,
+                y: p.velocity.y,
+                z: p.velocity.z,
+            },
+            spin: Vector3 {
+                x: p.spin.x,
+                y: p.spin.y,
+                z: p.spin.z,
+            },
+            bounce_valid: true,
+            bounce_stamp: Time::from_nanos(shot.bounce.stamp),
+            bounce_position: Point {
+                x: shot.bounce.before.position.x,
+                y: shot.bounce.before.position.y,
+                z: shot.bounce.before.position.z,
+            },
+            ..InterceptPrediction::default()
+        };
+        records.push((
+            mcap_time(shot.launch_stamp),
+            records.len(),
+            events,
+            encode(INTERCEPT_TYPE, &msg)?,
+        ));
+    }
+    for sim in &session.stream {
+        let t = mcap_time(sim.arrival);
+        let id = u32::try_from(sim.shot + 1).unwrap_or(u32::MAX);
+        let detection = encode(DETECTION_TYPE, &detection_to_msg(&sim.detection))?;
+        records.push((t, records.len(), detections, detection));
+        let state = encode(STATE_TYPE, &truth_msg(sim.detection.stamp, id, &sim.truth))?;
+        records.push((t, records.len(), truth, state));
+    }
+    records.sort_by_key(|(t, order, _, _)| (*t, *order));
+    for (t, _, channel, payload) in &records {
+        writer.write_raw(*channel, *t, *t, payload)?;
+    }
+    writer.finish()?;
+    Ok(records.len() as u64)
+}

@@ -1,0 +1,316 @@
+//! Offline replay of a ROS 2 MCAP bag through the node's own code path ([`Pipeline`]): the
+//! detections of the bag, in log-time order, go through `Pipeline::on_detection` exactly as the
+//! live node's would, and the output bag holds the input topics unchanged plus what the node
+//! would have published, each with the log time of the detection that produced it. Time comes
+//! from the messages only, so two replays give byte-identical files.
+//!
+//! When the bag carries the simulator's truth (`/ball/truth`: the true state at each detection's
+//! stamp; `/ball/truth/intercept`: each shot's true crossing and bounce), the replay scores the
+//! estimator with the same [`Scorer`] as `ttball evaluate`.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::Instant;
+
+use crate::bag::{BagContents, BagError, BagWriter, decode, read_bag_file};
+use crate::config::Config;
+use crate::estimator::Counters;
+use crate::eval::{EvalReport, Scorer, ShotTruth};
+use crate::msgs::convert::{detection_from_msg, state_from_msg};
+use crate::msgs::ttball_msgs::msg::{BallDetection, BallState, InterceptPrediction};
+use crate::pipeline::Pipeline;
+
+/// The type of the detection topic.
+pub const DETECTION_TYPE: &str = "ttball_msgs/msg/BallDetection";
+/// The type of `/ball/state` and `/ball/truth`.
+pub const STATE_TYPE: &str = "ttball_msgs/msg/BallState";
+/// The type of `/ball/intercept` and `/ball/truth/intercept`.
+pub const INTERCEPT_TYPE: &str = "ttball_msgs/msg/InterceptPrediction";
+/// The type of `/ball/trajectory`.
+pub const TRAJECTORY_TYPE: &str = "ttball_msgs/msg/PredictedTrajectory";
+/// The type of `/ball/markers`.
+pub const MARKERS_TYPE: &str = "visualization_msgs/msg/MarkerArray";
+/// The topic of each shot's true crossing and bounce, next to `topics.truth`.
+pub fn truth_intercept_topic(truth: &str) -> String {
+    format!("{truth}/intercept")
+}
+
+/// Why a replay could not run.
+#[derive(Debug, thiserror::Error)]
+pub enum ReplayError {
+    /// Reading or writing a bag failed.
+    #[error(transparent)]
+    Bag(#[from] BagError),
+    /// The bag has no detection topic.
+    #[error(
+        "{path}: no topic `{topic}` (topics in the bag: {present}); set the detection topic with -p topics.detections:=/your/topic"
+    )]
+    NoDetections {
+        /// The input bag.
+        path: PathBuf,
+        /// The topic looked for.
+        topic: String,
+        /// The topics present.
+        present: String,
+    },
+    /// The detection topic carries another type.
+    #[error("{path}: topic `{topic}` carries `{found}`, not `{DETECTION_TYPE}`")]
+    WrongType {
+        /// The input bag.
+        path: PathBuf,
+        /// The topic.
+        topic: String,
+        /// Its type.
+        found: String,
+    },
+}
+
+/// What a replay did.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ReplaySummary {
+    /// The input bag.
+    pub input: PathBuf,
+    /// The output bag.
+    pub output: PathBuf,
+    /// Messages read from the input (all topics).
+    pub messages: usize,
+    /// Detection messages read.
+    pub detections: u64,
+    /// Detection messages whose payload could not be decoded (skipped).
+    pub undecodable: u64,
+    /// What the estimator did with the decoded ones.
+    pub counters: Counters,
+    /// Messages written to the output bag.
+    pub written: u64,
+    /// Processing time per detection [ns], mean and 99th percentile.
+    pub processing_mean_ns: f64,
+    /// 99th percentile of the processing time per detection [ns].
+    pub processing_p99_ns: f64,
+    /// Log time spanned by the detections [s].
+    pub recorded_seconds: f64,
+    /// Time spent processing them [s].
+    pub processing_seconds: f64,
+    /// Why the input was read only in part (truncated or corrupt), if it was.
+    pub damage: Option<String>,
+    /// True when the replay was interrupted (the output holds what was done, finished).
+    pub interrupted: bool,
+    /// Accuracy against the bag's truth, when it has one.
+    pub accuracy: Option<EvalReport>,
+}
+
+impl ReplaySummary {
+    /// Recorded duration over processing time.
+    pub fn real_time_factor(&self) -> f64 {
+        if self.processing_seconds > 0.0 {
+            self.recorded_seconds / self.processing_seconds
+        } else {
+            f64::INFINITY
+        }
+    }
+}
+
+/// The output topics of the pipeline, with their channels.
+struct Outputs {
+    state: u16,
+    intercept: u16,
+    trajectory: u16,
+    markers: u16,
+}
+
+/// The truth a bag carries, indexed for scoring.
+struct BagTruth {
+    /// Truth at a stamp: (shot index, state).
+    states: BTreeMap<i64, (usize, crate::physics::BallState)>,
+    shots: Vec<ShotTruth>,
+}
+
+fn read_truth(contents: &BagContents, config: &Config) -> Option<BagTruth> {
+    let state_channel = contents.channel(&config.topics.truth)?;
+    let event_channel = contents.channel(&truth_intercept_topic(&config.topics.truth))?;
+    let mut shots: BTreeMap<u32, ShotTruth> = BTreeMap::new();
+    for m in contents
+        .messages
+        .iter()
+        .filter(|m| m.channel == event_channel)
+    {
+        if let Ok(msg) = decode::<InterceptPrediction>(&m.data) {
+            shots.insert(
+                msg.track_id,
+                ShotTruth {
+                    bounce_stamp: msg.bounce_stamp.to_nanos(),
+                    intercept_stamp: msg.intercept_stamp.to_nanos(),
+                    intercept_position: [msg.position.x, msg.position.y, msg.position.z].into(),
+                },
+            );
+        }
+    }
+    let index: BTreeMap<u32, usize> = shots.keys().enumerate().map(|(i, id)| (*id, i)).collect();
+    let mut states = BTreeMap::new();
+    for m in contents
+        .messages
+        .iter()
+        .filter(|m| m.channel == state_channel)
+    {
+        if let Ok(msg) = decode::<BallState>(&m.data) {
+            let (stamp, shot, state) = state_from_msg(&msg);
+            if let Some(i) = index.get(&shot) {
+                states.insert(stamp, (*i, state));
+            }
+        }
+    }
+    Some(BagTruth {
+        states,
+        shots: shots.into_values().collect(),
+    })
+}
+
+/// A detection further than this from the truth is an outlier for scoring [m].
+const OUTLIER_DISTANCE: f64 = 0.03;
+
+/// Replays `input` into `output` (see the module doc). `progress` is called with (done, total)
+/// detections now and then; setting `cancel` stops early with a properly finished output.
+pub fn replay(
+    input: &Path,
+    output: &Path,
+    config: &Config,
+    progress: &mut dyn FnMut(u64, u64),
+    cancel: &AtomicBool,
+) -> Result<ReplaySummary, ReplayError> {
+    let contents = read_bag_file(input)?;
+    let topic = &config.topics.detections;
+    let Some(detection_channel) = contents.channel(topic) else {
+        let present: Vec<&str> = contents.channels.iter().map(|c| c.topic.as_str()).collect();
+        return Err(ReplayError::NoDetections {
+            path: input.to_path_buf(),
+            topic: topic.clone(),
+            present: if present.is_empty() {
+                "none".to_string()
+            } else {
+                present.join(", ")
+            },
+        });
+    };
+    let found = &contents.channels[detection_channel].schema_name;
+    if found != DETECTION_TYPE {
+        return Err(ReplayError::WrongType {
+            path: input.to_path_buf(),
+            topic: topic.clone(),
+            found: found.clone(),
+        });
+    }
+    let truth = read_truth(&contents, config);
+    let mut scorer = truth.as_ref().map(|t| Scorer::new(t.shots.clone()));
+
+    let mut writer = BagWriter::create(output)?;
+    let mut copied = Vec::with_capacity(contents.channels.len());
+    for channel in &contents.channels {
+        copied.push(writer.add_channel(channel)?);
+    }
+    let outputs = Outputs {
+        state: writer.channel(&config.topics.state, STATE_TYPE)?,
+        intercept: writer.channel(&config.topics.intercept, INTERCEPT_TYPE)?,
+        trajectory: writer.channel(&config.topics.trajectory, TRAJECTORY_TYPE)?,
+        markers: writer.channel(&config.topics.markers, MARKERS_TYPE)?,
+    };
+
+    let total = contents
+        .messages
+        .iter()
+        .filter(|m| m.channel == detection_channel)
+        .count() as u64;
+    let mut pipeline = Pipeline::new(config);
+    let mut detections = 0u64;
+    let mut undecodable = 0u64;
+    let mut written = 0u64;
+    let mut times: Vec<u64> = Vec::with_capacity(total as usize);
+    let mut first_last: Option<(u64, u64)> = None;
+    let mut interrupted = false;
+    let result = (|| -> Result<(), ReplayError> {
+        for m in &contents.messages {
+            if cancel.load(Ordering::Relaxed) {
+                interrupted = true;
+                break;
+            }
+            writer.write_raw(copied[m.channel], m.log_time, m.publish_time, &m.data)?;
+            written += 1;
+            if m.channel != detection_channel {
+                continue;
+            }
+            detections += 1;
+            let Ok(msg) = decode::<BallDetection>(&m.data) else {
+                undecodable += 1;
+                continue;
+            };
+            let started = Instant::now();
+            let step = pipeline.on_detection(&msg);
+            times.push(u64::try_from(started.elapsed().as_nanos()).unwrap_or(u64::MAX));
+            first_last =
+                Some(first_last.map_or((m.log_time, m.log_time), |(a, _)| (a, m.log_time)));
+            let t = m.log_time;
+            let p = &step.published;
+            if let Some(s) = &p.state {
+                writer.write(outputs.state, STATE_TYPE, t, s)?;
+                written += 1;
+            }
+            if let Some(i) = &p.intercept {
+                writer.write(outputs.intercept, INTERCEPT_TYPE, t, i)?;
+                written += 1;
+            }
+            if let Some(tr) = &p.trajectory {
+                writer.write(outputs.trajectory, TRAJECTORY_TYPE, t, tr)?;
+                written += 1;
+            }
+            if let Some(mk) = &p.markers {
+                writer.write(outputs.markers, MARKERS_TYPE, t, mk)?;
+                written += 1;
+            }
+            if let (Some(scorer), Some(truth), Some(out), Ok(d)) = (
+                scorer.as_mut(),
+                truth.as_ref(),
+                step.output.as_ref(),
+                detection_from_msg(&msg),
+            ) && let Some((shot, state)) = truth.states.get(&d.stamp)
+            {
+                let outlier = (d.position - state.position).norm() > OUTLIER_DISTANCE;
+                scorer.score(*shot, &d, state, outlier, out);
+            }
+            if detections % 1024 == 0 {
+                progress(detections, total);
+            }
+        }
+        Ok(())
+    })();
+    // The output is finished whatever happened above.
+    let finished = writer.finish();
+    result?;
+    finished?;
+    progress(detections, total);
+
+    times.sort_unstable();
+    let mean = if times.is_empty() {
+        0.0
+    } else {
+        times.iter().map(|t| *t as f64).sum::<f64>() / times.len() as f64
+    };
+    let p99 = times
+        .get(((times.len() as f64 - 1.0) * 0.99).round().max(0.0) as usize)
+        .map_or(0.0, |t| *t as f64);
+    let counters = pipeline.counters();
+    Ok(ReplaySummary {
+        input: input.to_path_buf(),
+        output: output.to_path_buf(),
+        messages: contents.messages.len(),
+        detections,
+        undecodable,
+        counters,
+        written,
+        processing_mean_ns: mean,
+        processing_p99_ns: p99,
+        recorded_seconds: first_last.map_or(0.0, |(a, b)| (b - a) as f64 * 1e-9),
+        processing_seconds: times.iter().map(|t| *t as f64).sum::<f64>() * 1e-9,
+        damage: contents.damage,
+        interrupted,
+        accuracy: scorer.map(|s| s.report(counters)),
+    })
+}
