@@ -275,7 +275,7 @@ pub fn replay(
                 let outlier = (d.position - state.position).norm() > OUTLIER_DISTANCE;
                 scorer.score(*shot, &d, state, outlier, out);
             }
-            if detections % 1024 == 0 {
+            if detections.is_multiple_of(1024) {
                 progress(detections, total);
             }
         }
