@@ -166,6 +166,9 @@ pub fn read_bag_file(path: &Path) -> Result<BagContents, BagError> {
 /// Reads every message of an MCAP file in memory, in log-time order. A file that does not start
 /// as MCAP is an error; damage later on ends the reading with what was read and the reason.
 pub fn read_bag(bytes: &[u8]) -> Result<BagContents, String> {
+    if !bytes.starts_with(mcap::MAGIC) {
+        return Err("it does not start with the MCAP magic bytes".to_string());
+    }
     let options = mcap::read::Options::IgnoreEndMagic.into();
     let stream =
         mcap::MessageStream::new_with_options(bytes, options).map_err(|e| e.to_string())?;

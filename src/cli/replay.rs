@@ -27,7 +27,7 @@ pub struct ReplayArgs {
     #[arg(long, short, value_name = "OUT.mcap", conflicts_with = "output_dir")]
     pub output: Option<PathBuf>,
 
-    /// Directory for the output bags (any number of inputs; each keeps its file name).
+    /// Directory for the output bags, each with its input's file name [default: replay-out].
     #[arg(long, value_name = "DIR")]
     pub output_dir: Option<PathBuf>,
 
@@ -121,7 +121,9 @@ impl ReplayArgs {
             (Some(_), None, _) => {
                 bail!("--output takes one input; use --output-dir DIR for several")
             }
-            (None, Some(dir), inputs) => {
+            (None, dir, inputs) => {
+                let dir = dir.clone().unwrap_or_else(|| PathBuf::from("replay-out"));
+                let dir = &dir;
                 std::fs::create_dir_all(dir)
                     .with_context(|| format!("cannot create {}", dir.display()))?;
                 inputs
@@ -138,7 +140,7 @@ impl ReplayArgs {
                     })
                     .collect()
             }
-            _ => bail!("give --output OUT.mcap (one input) or --output-dir DIR"),
+            (Some(_), Some(_), _) => bail!("give either --output or --output-dir"),
         }
     }
 }

@@ -1,0 +1,260 @@
+//! Replay of MCAP bags through the node's code path: determinism, what the output holds, and
+//! bad input (wrong type, missing topic, truncated file, non-finite values, foreign frames,
+//! interruption), each with a clear outcome and a properly finished output.
+#![cfg(feature = "bag")]
+#![allow(
+    clippy::unwrap_used,
+    clippy::expect_used,
+    reason = "test code: fail loudly"
+)]
+
+use std::path::PathBuf;
+use std::sync::atomic::{AtomicBool, Ordering};
+
+use ttball::bag::{BagWriter, decode, read_bag_file};
+use ttball::config::Config;
+use ttball::estimator::Rejection;
+use ttball::msgs::convert::detection_to_msg;
+use ttball::msgs::ttball_msgs::msg::{BallDetection, BallState, InterceptPrediction};
+use ttball::record::write_session;
+use ttball::replay::{DETECTION_TYPE, ReplayError, STATE_TYPE, replay};
+use ttball::sim::{Cameras, SimOptions, simulate};
+
+fn dir(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("ttball-replay-{}-{name}", std::process::id()));
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+fn simulated_bag(path: &PathBuf, shots: usize) -> ttball::sim::Session {
+    let config = Config::default();
+    let session = simulate(
+        &config,
+        &SimOptions {
+            cameras: Cameras::WideAndHighSpeed,
+            shots,
+            seed: 11,
+            ..SimOptions::default()
+        },
+    )
+    .unwrap();
+    write_session(&session, &config, path).unwrap();
+    session
+}
+
+fn run(input: &PathBuf, output: &PathBuf) -> Result<ttball::replay::ReplaySummary, ReplayError> {
+    replay(
+        input,
+        output,
+        &Config::default(),
+        &mut |_, _| {},
+        &AtomicBool::new(false),
+    )
+}
+
+#[test]
+fn replays_are_byte_identical_and_hold_every_output_topic() {
+    let d = dir("determinism");
+    let input = d.join("sim.mcap");
+    let session = simulated_bag(&input, 3);
+    let (a, b) = (d.join("a.mcap"), d.join("b.mcap"));
+    let summary = run(&input, &a).unwrap();
+    run(&input, &b).unwrap();
+    assert_eq!(std::fs::read(&a).unwrap(), std::fs::read(&b).unwrap());
+
+    assert_eq!(summary.detections, session.stream.len() as u64);
+    let c = summary.counters;
+    assert_eq!(
+        c.fused + c.initializing + c.total_rejected(),
+        summary.detections
+    );
+    assert_eq!(c.tracks, 3);
+    let accuracy = summary.accuracy.expect("the simulated bag carries truth");
+    assert!(
+        accuracy.leads[2].position_error.rms < 0.005,
+        "{:?}",
+        accuracy.leads[2]
+    );
+
+    let out = read_bag_file(&a).unwrap();
+    assert!(out.damage.is_none());
+    let count = |topic: &str| {
+        let ch = out.channel(topic).unwrap_or_else(|| panic!("no {topic}"));
+        out.messages.iter().filter(|m| m.channel == ch).count()
+    };
+    assert_eq!(count("/ball/detections"), session.stream.len());
+    assert_eq!(count("/ball/truth"), session.stream.len());
+    let states = count("/ball/state");
+    assert!(states > session.stream.len() - 20, "{states} states");
+    assert_eq!(
+        count("/ball/intercept"),
+        states - 3 * 2,
+        "no intercept while initialising"
+    );
+    let trajectories = count("/ball/trajectory");
+    assert!(
+        trajectories > 20 && trajectories < states / 5,
+        "{trajectories}"
+    );
+    assert_eq!(count("/ball/markers"), trajectories);
+    let state_channel = out.channel("/ball/state").unwrap();
+    assert_eq!(out.channels[state_channel].schema_name, STATE_TYPE);
+    // Output messages carry the log time of the detection that produced them.
+    let detection_times: std::collections::BTreeSet<u64> = out
+        .messages
+        .iter()
+        .filter(|m| m.channel == out.channel("/ball/detections").unwrap())
+        .map(|m| m.log_time)
+        .collect();
+    for m in out.messages.iter().filter(|m| m.channel == state_channel) {
+        assert!(detection_times.contains(&m.log_time));
+        let state: BallState = decode(&m.data).unwrap();
+        assert_eq!(state.header.frame_id, "table");
+    }
+    let intercept_channel = out.channel("/ball/intercept").unwrap();
+    let valid = out
+        .messages
+        .iter()
+        .filter(|m| m.channel == intercept_channel)
+        .filter(|m| decode::<InterceptPrediction>(&m.data).unwrap().valid)
+        .count();
+    assert!(valid > states / 2);
+}
+
+fn write_detections(path: &PathBuf, topic_type: &str, detections: &[BallDetection]) {
+    let mut w = BagWriter::create(path).unwrap();
+    let ch = w.channel("/ball/detections", topic_type).unwrap();
+    for (i, d) in detections.iter().enumerate() {
+        w.write(ch, topic_type, 1_000_000_000 + i as u64 * 1_000_000, d)
+            .unwrap();
+    }
+    w.finish().unwrap();
+}
+
+#[test]
+fn a_detection_topic_of_another_type_is_an_error_naming_it() {
+    let d = dir("wrong-type");
+    let input = d.join("in.mcap");
+    let mut w = BagWriter::create(&input).unwrap();
+    let ch = w.channel("/ball/detections", STATE_TYPE).unwrap();
+    w.write(ch, STATE_TYPE, 1, &BallState::default()).unwrap();
+    w.finish().unwrap();
+    let err = run(&input, &d.join("out.mcap")).unwrap_err();
+    let text = err.to_string();
+    assert!(matches!(err, ReplayError::WrongType { .. }), "{text}");
+    assert!(
+        text.contains("/ball/detections") && text.contains(STATE_TYPE),
+        "{text}"
+    );
+}
+
+#[test]
+fn a_bag_without_the_detection_topic_lists_what_it_has() {
+    let d = dir("no-topic");
+    let input = d.join("in.mcap");
+    let mut w = BagWriter::create(&input).unwrap();
+    let ch = w.channel("/camera/ball", DETECTION_TYPE).unwrap();
+    w.write(ch, DETECTION_TYPE, 1, &BallDetection::default())
+        .unwrap();
+    w.finish().unwrap();
+    let text = run(&input, &d.join("out.mcap")).unwrap_err().to_string();
+    assert!(
+        text.contains("no topic `/ball/detections`") && text.contains("/camera/ball"),
+        "{text}"
+    );
+    assert!(
+        text.contains("topics.detections"),
+        "says what to do: {text}"
+    );
+}
+
+#[test]
+fn a_truncated_bag_is_replayed_as_far_as_it_goes_and_the_output_is_finished() {
+    let d = dir("truncated");
+    let input = d.join("sim.mcap");
+    simulated_bag(&input, 2);
+    let bytes = std::fs::read(&input).unwrap();
+    let cut = d.join("cut.mcap");
+    std::fs::write(&cut, &bytes[..bytes.len() * 6 / 10]).unwrap();
+    let output = d.join("out.mcap");
+    let summary = run(&cut, &output).unwrap();
+    assert!(summary.damage.is_some());
+    assert!(
+        summary.detections > 100,
+        "{} detections read",
+        summary.detections
+    );
+    let out = read_bag_file(&output).unwrap();
+    assert!(out.damage.is_none(), "the output is a finished file");
+    assert!(out.channel("/ball/state").is_some());
+    // Not MCAP at all: a clear error naming the file.
+    let junk = d.join("junk.mcap");
+    std::fs::write(&junk, b"this is not a bag").unwrap();
+    let text = run(&junk, &d.join("junk-out.mcap"))
+        .unwrap_err()
+        .to_string();
+    assert!(
+        text.contains("junk.mcap") && text.contains("not an MCAP file"),
+        "{text}"
+    );
+    let missing = run(&d.join("missing.mcap"), &d.join("x.mcap"))
+        .unwrap_err()
+        .to_string();
+    assert!(missing.contains("missing.mcap"), "{missing}");
+}
+
+#[test]
+fn bad_detections_are_counted_by_reason() {
+    let d = dir("bad-detections");
+    let session = simulate(
+        &Config::default(),
+        &SimOptions {
+            shots: 1,
+            seed: 3,
+            ..SimOptions::default()
+        },
+    )
+    .unwrap();
+    let mut msgs: Vec<BallDetection> = session
+        .stream
+        .iter()
+        .map(|s| detection_to_msg(&s.detection))
+        .collect();
+    msgs[50].position.x = f64::NAN;
+    msgs[60].header.frame_id = "camera_left".to_string();
+    msgs[70].confidence = 2.0;
+    let input = d.join("in.mcap");
+    write_detections(&input, DETECTION_TYPE, &msgs);
+    let summary = run(&input, &d.join("out.mcap")).unwrap();
+    let c = summary.counters;
+    assert_eq!(c.rejected(Rejection::NonFinite), 1);
+    assert_eq!(c.rejected(Rejection::UnknownFrame), 1);
+    assert_eq!(c.rejected(Rejection::BadConfidence), 1);
+    assert_eq!(c.received, msgs.len() as u64);
+    assert_eq!(c.fused + c.initializing + c.total_rejected(), c.received);
+}
+
+#[test]
+fn an_interrupted_replay_finishes_its_output() {
+    let d = dir("interrupted");
+    let input = d.join("sim.mcap");
+    simulated_bag(&input, 3);
+    let output = d.join("out.mcap");
+    let cancel = AtomicBool::new(false);
+    let summary = replay(
+        &input,
+        &output,
+        &Config::default(),
+        &mut |done, _| {
+            if done >= 1024 {
+                cancel.store(true, Ordering::Relaxed);
+            }
+        },
+        &cancel,
+    )
+    .unwrap();
+    assert!(summary.interrupted);
+    assert!(summary.detections >= 1024 && summary.detections < 1200);
+    let out = read_bag_file(&output).unwrap();
+    assert!(out.damage.is_none());
+}
