@@ -8,7 +8,7 @@
     reason = "test code: fail loudly"
 )]
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
 
 use ttball::bag::{BagWriter, decode, read_bag_file};
@@ -26,7 +26,7 @@ fn dir(name: &str) -> PathBuf {
     d
 }
 
-fn simulated_bag(path: &PathBuf, shots: usize) -> ttball::sim::Session {
+fn simulated_bag(path: &Path, shots: usize) -> ttball::sim::Session {
     let config = Config::default();
     let session = simulate(
         &config,
@@ -42,7 +42,7 @@ fn simulated_bag(path: &PathBuf, shots: usize) -> ttball::sim::Session {
     session
 }
 
-fn run(input: &PathBuf, output: &PathBuf) -> Result<ttball::replay::ReplaySummary, ReplayError> {
+fn run(input: &Path, output: &Path) -> Result<ttball::replay::ReplaySummary, ReplayError> {
     replay(
         input,
         output,
@@ -121,7 +121,7 @@ fn replays_are_byte_identical_and_hold_every_output_topic() {
     assert!(valid > states / 2);
 }
 
-fn write_detections(path: &PathBuf, topic_type: &str, detections: &[BallDetection]) {
+fn write_detections(path: &Path, topic_type: &str, detections: &[BallDetection]) {
     let mut w = BagWriter::create(path).unwrap();
     let ch = w.channel("/ball/detections", topic_type).unwrap();
     for (i, d) in detections.iter().enumerate() {
