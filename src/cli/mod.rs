@@ -2,6 +2,7 @@
 //! shared between commands ([`ConfigArgs`]). Commands are thin adapters around the library.
 
 pub mod config_cmd;
+pub mod dump;
 pub mod evaluate;
 pub mod predict;
 pub mod replay;
@@ -81,6 +82,12 @@ pub enum Command {
         ttball replay my_rally.mcap -o out.mcap -p topics.detections:=/vision/ball -p intercept.plane_x:=-1.45")]
     Replay(replay::ReplayArgs),
 
+    /// Print every message of a bag as JSON lines (topic, log time, decoded message).
+    #[command(after_help = "Examples:\n  \
+        ttball dump out.mcap --topic /ball/intercept | head\n  \
+        ttball dump bags/sim_rally_2cams.mcap > messages.jsonl")]
+    Dump(dump::DumpArgs),
+
     /// Write a bag of simulated play (detections of both cameras, with truth).
     #[command(after_help = "Examples:\n  \
         ttball simulate --output rally.mcap --shots 20 --seed 7\n  \
@@ -97,6 +104,7 @@ impl Command {
             Self::Evaluate(args) => args.run(),
             Self::Replay(args) => args.run(),
             Self::Simulate(args) => args.run(),
+            Self::Dump(args) => args.run(),
         }
     }
 }
