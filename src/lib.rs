@@ -11,6 +11,8 @@
 //! - [`detection`]: one 3D ball detection, as the estimator takes it.
 //! - [`config`]: every physical constant and tuning value, with defaults and range checks.
 //! - [`sim`]: simulated camera detections of real and random shots, with the truth, from a seed.
+//! - `plot` (feature `plot`): figures (SVG, PNG) of what the estimator saw on one track or time
+//!   window: detections, filtered track, predictions, truth; pure rendering, no file I/O.
 //! - `msgs` (feature `interface`): serde mirrors of the ROS 2 interfaces in `msgs/` (package
 //!   `ttball_msgs`) for ros2-client and MCAP, in wire (field) order.
 //!
@@ -25,5 +27,7 @@ pub mod intercept;
 #[cfg(feature = "interface")]
 pub mod msgs;
 pub mod physics;
+#[cfg(feature = "plot")]
+pub mod plot;
 pub mod sim;
 pub mod stats;
