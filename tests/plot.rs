@@ -268,13 +268,15 @@ fn an_empty_or_impossible_selection_is_an_error_not_a_panic() {
         height: 100,
         ..PlotOptions::default()
     };
-    assert!(matches!(
-        render_png(data(), &Selection::all(), &tiny),
-        Err(PlotError::BadSize {
+    let err = render_png(data(), &Selection::all(), &tiny).unwrap_err();
+    assert_eq!(
+        err,
+        PlotError::BadSize {
             width: 100,
             height: 100
-        })
-    ));
+        }
+    );
+    assert!(err.to_string().contains("800x500"), "{err}");
 }
 
 #[test]
@@ -288,6 +290,21 @@ fn detections_alone_and_odd_values_still_draw() {
     assert!(svg.contains("Detections"));
     assert!(!svg.contains("NaN"));
     assert!(!svg.contains("filtered track"));
+}
+
+#[test]
+fn the_smallest_and_a_square_figure_draw() {
+    let selection = Selection::track(main_track());
+    for (width, height) in [ttball::plot::MIN_SIZE, (1000, 1000)] {
+        let options = PlotOptions {
+            width,
+            height,
+            ..PlotOptions::default()
+        };
+        let png = render_png(data(), &selection, &options).unwrap();
+        assert_eq!(png_size(&png), (width, height));
+        std::fs::write(out_dir().join(format!("track-{width}x{height}.png")), &png).unwrap();
+    }
 }
 
 #[test]

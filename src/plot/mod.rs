@@ -24,8 +24,8 @@ pub use data::{
 /// The font family the figures use; the bundled DejaVu Sans is registered under this name.
 const FONT: &str = "sans-serif";
 
-/// Smallest figure, width x height [px]: below it the panels do not fit their labels.
-pub const MIN_SIZE: (u32, u32) = (480, 320);
+/// Smallest figure, width x height [px]: below it the labels are too small to read.
+pub const MIN_SIZE: (u32, u32) = (800, 500);
 /// Largest figure, width x height [px] (a PNG buffer of 192 MB).
 pub const MAX_SIZE: (u32, u32) = (8000, 8000);
 
@@ -55,7 +55,10 @@ pub enum PlotError {
         end: i64,
     },
     /// The figure size is outside [`MIN_SIZE`]..=[`MAX_SIZE`].
-    #[error("figure size {width}x{height} px is outside 480x320 to 8000x8000 px")]
+    #[error(
+        "figure size {width}x{height} px is outside {}x{} to {}x{} px",
+        MIN_SIZE.0, MIN_SIZE.1, MAX_SIZE.0, MAX_SIZE.1
+    )]
     BadSize {
         /// Width [px].
         width: u32,

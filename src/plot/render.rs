@@ -257,7 +257,7 @@ pub(crate) fn draw<DB: DrawingBackend>(
     let header_h = fig.px(78);
     let legend_h = fig.px(16) + fig.px(30) * rows.len() as i32;
     let (header, rest) = root.split_vertically(header_h);
-    let (body, footer) = rest.split_vertically(height as i32 - header_h - legend_h);
+    let (body, footer) = rest.split_vertically((height as i32 - header_h - legend_h).max(1));
     draw_header(&header, fig)?;
     draw_legend(&footer, fig, &rows)?;
 
@@ -332,9 +332,8 @@ fn panel<DB: DrawingBackend>(
         let (tw, _) = strip.estimate_text_size(label, &style)?;
         x -= tw as i32;
         strip.draw(&Text::new(label.clone(), (x, y), style.clone()))?;
-        x -= fig.px(22);
-        draw_glyph(&strip, fig, *glyph, (x + fig.px(8), y))?;
-        x -= fig.px(14);
+        draw_glyph(&strip, fig, *glyph, (x - fig.px(21), y))?;
+        x -= fig.px(52);
     }
     Ok(chart)
 }
@@ -370,17 +369,16 @@ fn draw_mesh<DB: DrawingBackend, Y: Ranged<ValueType = f64> + ValueFormatter<f64
     chart: &mut Chart<'_, DB, Y>,
     fig: &Figure,
     (x_desc, y_desc): (&str, &str),
-    y_format: &dyn Fn(&f64) -> String,
 ) -> Result<(), PlotError> {
-    let x_format = |v: &f64| format_tick(*v);
+    let format = |v: &f64| format_tick(*v);
     chart
         .configure_mesh()
         .x_desc(x_desc)
         .y_desc(y_desc)
         .x_labels(9)
         .y_labels(6)
-        .x_label_formatter(&x_format)
-        .y_label_formatter(y_format)
+        .x_label_formatter(&format)
+        .y_label_formatter(&format)
         .label_style(fig.font(15.0))
         .axis_desc_style(fig.font(16.0))
         .bold_line_style(GRID.stroke_width(1))
@@ -478,7 +476,7 @@ fn draw_views<DB: DrawingBackend>(
         .clamp(0.38 * f64::from(h), 0.62 * f64::from(h))
         .round() as i32;
     let (top, side) = area.split_vertically(top_h);
-    let (pw, ph) = plot_size(fig, (w, top_h as u32 - fig.px(STRIP) as u32));
+    let (pw, ph) = plot_size(fig, (w, (top_h - fig.px(STRIP)).max(1) as u32));
     let (x, y) = if pw / x.width() > ph / y.width() {
         (x.widened(y.width() * pw / ph), y)
     } else {
@@ -506,7 +504,7 @@ fn draw_view<DB: DrawingBackend>(
         View::Top => "y [m]",
         View::Side => "z [m]",
     };
-    draw_mesh(&mut chart, fig, ("x [m]", y_desc), &|v| format_tick(*v))?;
+    draw_mesh(&mut chart, fig, ("x [m]", y_desc))?;
 
     let d = &fig.data;
     let s = &d.scene;
@@ -787,9 +785,7 @@ fn draw_speed<DB: DrawingBackend>(
         hi: (span.hi * 1.1).max(1.0),
     };
     let mut chart = chart_on(&chart_area, fig, time_span(fig).range(), ys.range())?;
-    draw_mesh(&mut chart, fig, ("t [s]", "|v| [m/s]"), &|v| {
-        format_tick(*v)
-    })?;
+    draw_mesh(&mut chart, fig, ("t [s]", "|v| [m/s]"))?;
     shade_coasting(&mut chart, fig, (ys.lo, ys.hi))?;
     truth_lines(&mut chart, fig, TRUTH, |t| t.velocity.norm())?;
     estimate_lines(&mut chart, fig, TRACK, |e| e.velocity.norm())?;
@@ -824,9 +820,7 @@ fn draw_spin<DB: DrawingBackend>(
     }
     let ys = span.padded(0.08 * span.width().max(10.0), (-100.0, 100.0));
     let mut chart = chart_on(&chart_area, fig, time_span(fig).range(), ys.range())?;
-    draw_mesh(&mut chart, fig, ("t [s]", "ω [rad/s]"), &|v| {
-        format_tick(*v)
-    })?;
+    draw_mesh(&mut chart, fig, ("t [s]", "ω [rad/s]"))?;
     shade_coasting(&mut chart, fig, (ys.lo, ys.hi))?;
     for (i, c) in AXIS.iter().enumerate() {
         truth_lines(&mut chart, fig, *c, |t| t.spin[i])?;
@@ -860,9 +854,7 @@ fn draw_sigma<DB: DrawingBackend>(
     };
     let y = (lo..hi).log_scale().with_key_points(log_ticks(lo, hi));
     let mut chart = chart_on(&chart_area, fig, time_span(fig).range(), y)?;
-    draw_mesh(&mut chart, fig, ("t [s]", "σ [mm] (log)"), &|v| {
-        format_tick(*v)
-    })?;
+    draw_mesh(&mut chart, fig, ("t [s]", "σ [mm] (log)"))?;
     shade_coasting(&mut chart, fig, (lo, hi))?;
     for (i, c) in AXIS.iter().enumerate() {
         estimate_lines(&mut chart, fig, *c, |e| {
