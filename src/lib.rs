@@ -16,6 +16,8 @@
 //! - `bag` (feature `bag`): ROS 2 MCAP bags as rosbag2 and Foxglove read and write them.
 //! - `record` (feature `bag`): simulated play written as a bag, with its truth.
 //! - `replay` (feature `bag`): an MCAP bag through the node's code path, into an output bag.
+//! - `plot` (feature `plot`): figures (SVG, PNG) of what the estimator saw on one track or time
+//!   window: detections, filtered track, predictions, truth; pure rendering, no file I/O.
 //! - `msgs` (feature `interface`): serde mirrors of the ROS 2 interfaces in `msgs/` (package
 //!   `ttball_msgs`) for ros2-client and MCAP, in wire (field) order.
 //!
@@ -38,5 +40,7 @@ pub mod pipeline;
 pub mod record;
 #[cfg(feature = "bag")]
 pub mod replay;
+#[cfg(feature = "plot")]
+pub mod plot;
 pub mod sim;
 pub mod stats;
