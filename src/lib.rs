@@ -25,5 +25,6 @@ pub mod intercept;
 #[cfg(feature = "interface")]
 pub mod msgs;
 pub mod physics;
+pub mod real;
 pub mod sim;
 pub mod stats;
