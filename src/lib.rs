@@ -42,5 +42,6 @@ pub mod record;
 pub mod replay;
 #[cfg(feature = "plot")]
 pub mod plot;
+pub mod real;
 pub mod sim;
 pub mod stats;

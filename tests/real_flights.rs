@@ -1,0 +1,346 @@
+//! The estimator on real flights: the MPI launcher trajectories (`../shared/data/mpi_launcher`,
+//! BSD 3-Clause License, Copyright (c) 2023, Intelligent Soft Robots; the licence text is next to
+//! the files), read where they are, moved into the `table` frame, and predicted.
+//!
+//! Skipped, with a notice, when the data are not there. `cargo test --release --test
+//! real_flights -- --nocapture` prints the transform's evidence, the noise and the accuracy
+//! tables of the full model and of a drag-only model without spin.
+#![allow(
+    clippy::unwrap_used,
+    clippy::expect_used,
+    reason = "test code: fail loudly"
+)]
+
+use std::path::PathBuf;
+use std::sync::OnceLock;
+
+use ttball::config::Config;
+use ttball::real::{
+    Flight, LeadOutcome, NoiseEstimate, Plane, RawFlight, RealEvalOptions, RealReport, SpinKind,
+    TransformEstimate, detect_bounce, drag_only, estimate_noise, estimate_transform,
+    evaluate_flights, parse_mpi_csv,
+};
+
+struct Data {
+    raw: Vec<RawFlight>,
+    estimate: TransformEstimate,
+    flights: Vec<Flight>,
+    noise: NoiseEstimate,
+}
+
+fn data_dir() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared/data/mpi_launcher")
+}
+
+fn data() -> Option<&'static Data> {
+    static DATA: OnceLock<Option<Data>> = OnceLock::new();
+    let data = DATA.get_or_init(|| {
+        let dir = data_dir();
+        let mut raw = Vec::new();
+        for kind in SpinKind::ALL {
+            let path = dir.join(kind.file_name());
+            let Ok(text) = std::fs::read_to_string(&path) else {
+                return None;
+            };
+            raw.extend(parse_mpi_csv(&text, kind).unwrap());
+        }
+        let config = Config::default();
+        let estimate = estimate_transform(
+            &raw,
+            config.ball.radius,
+            config.table.length,
+            config.gravity,
+        )
+        .unwrap();
+        let flights: Vec<Flight> = raw
+            .iter()
+            .map(|f| f.to_table(&estimate.transform))
+            .collect();
+        let noise = estimate_noise(&flights, config.gravity);
+        Some(Data {
+            raw,
+            estimate,
+            flights,
+            noise,
+        })
+    });
+    if data.is_none() {
+        eprintln!(
+            "skipping: the MPI launcher data are not at {}",
+            data_dir().display()
+        );
+    }
+    data.as_ref()
+}
+
+/// The configuration for these flights: the full model with the measured noise.
+fn real_config(data: &Data) -> Config {
+    let mut config = Config::default();
+    config.sources.wide_150fps.position_sigma = recommended_sigma(data);
+    config.validate().unwrap();
+    config
+}
+
+/// The recommended `position_sigma`, rounded up to 0.1 mm.
+fn recommended_sigma(data: &Data) -> f64 {
+    (data.noise.recommended_sigma() * 1e4).ceil() / 1e4
+}
+
+#[test]
+fn the_files_hold_forty_flights_of_three_kinds() {
+    let Some(data) = data() else { return };
+    let count = |k| data.raw.iter().filter(|f| f.spin_kind == k).count();
+    assert_eq!(
+        [
+            count(SpinKind::Backspin),
+            count(SpinKind::NoSpin),
+            count(SpinKind::Topspin)
+        ],
+        [15, 10, 15]
+    );
+    let samples: usize = data.raw.iter().map(|f| f.samples.len()).sum();
+    assert_eq!(samples, 4477);
+}
+
+#[test]
+fn the_transform_puts_every_bounce_on_the_robots_half_at_one_radius() {
+    let Some(data) = data() else { return };
+    let e = &data.estimate;
+    let t = e.transform;
+    println!(
+        "transform: x_t = {:.3} - x, y_t = {:.4} - y, z_t = z - {:.4} [m]",
+        t.c_x, t.c_y, t.z_surface
+    );
+    println!(
+        "  {} of {} flights show a bounce; contact heights {:.4}..{:.4} m, robust sigma {:.2} mm",
+        e.flights_with_bounce.0,
+        e.flights_with_bounce.1,
+        e.contact_heights.first().unwrap(),
+        e.contact_heights.last().unwrap(),
+        e.contact_height_sigma * 1e3
+    );
+    println!(
+        "  bounces at x = {:.3}..{:.3} m: c_x admissible in ({:.3}, {:.3}); launch y {:.4}..{:.4} \
+         m; {} flights start within one frame of x = 0; x spans {:.3}..{:.3} m",
+        e.bounce_x.0,
+        e.bounce_x.1,
+        e.c_x_admissible.0,
+        e.c_x_admissible.1,
+        e.launch_y.0,
+        e.launch_y.1,
+        e.starts_at_zero,
+        e.x_extent.0,
+        e.x_extent.1
+    );
+    // The documented values (module doc of ttball::real::mpi).
+    assert!((t.z_surface - 0.7396).abs() < 0.0005, "{t:?}");
+    assert!((t.c_y - 0.005).abs() < 0.001, "{t:?}");
+    assert_eq!(t.c_x, 1.37);
+    assert!(e.c_x_admissible.0 < t.c_x && t.c_x < e.c_x_admissible.1);
+    assert_eq!(e.flights_with_bounce, (30, 40));
+
+    let config = Config::default();
+    let r = config.ball.radius;
+    let mut bounce_heights = Vec::new();
+    for flight in &data.flights {
+        let first = flight.samples.first().unwrap().1;
+        let last = flight.samples.last().unwrap().1;
+        // Launched over the far end line, toward the robot, over the net.
+        assert!(first.x > 1.0 && first.x <= 1.37 + 1e-9, "{first:?}");
+        assert!(last.x < first.x - 2.0, "{last:?}");
+        assert!(first.z > 0.25 && first.z < 0.45, "{first:?}");
+        let Some(b) = detect_bounce(&flight.samples, config.gravity) else {
+            continue;
+        };
+        let p = b.position;
+        assert!(p.x > -1.37 && p.x < -0.5, "bounce at {p:?}");
+        assert!(p.y.abs() < 0.1, "bounce at {p:?}");
+        assert!((p.z - r).abs() < 0.01, "bounce at {p:?}");
+        assert!(
+            b.velocity_before.x < 0.0 && b.velocity_before.z < -2.0,
+            "{b:?}"
+        );
+        bounce_heights.push(p.z);
+        // Over the net at x_t = 0 with room to spare.
+        let net = flight
+            .samples
+            .windows(2)
+            .find(|w| w[0].1.x >= 0.0 && w[1].1.x < 0.0)
+            .unwrap();
+        assert!(net[0].1.z > config.table.net_height + 0.15, "{net:?}");
+    }
+    bounce_heights.sort_by(f64::total_cmp);
+    let median = bounce_heights[bounce_heights.len() / 2];
+    assert!((median - r).abs() < 0.001, "median contact height {median}");
+}
+
+#[test]
+fn the_noise_is_about_a_millimetre_and_largest_along_the_flight() {
+    let Some(data) = data() else { return };
+    let n = &data.noise;
+    println!("position noise (local quadratic fit, 7 samples; mm):");
+    println!(
+        "| component | residuals | RMS | robust sigma | inlier RMS | outliers > 5 sigma | max |"
+    );
+    println!("|---|---|---|---|---|---|---|");
+    let rows = [
+        ("x_t", n.axes[0]),
+        ("y_t", n.axes[1]),
+        ("z_t", n.axes[2]),
+        ("along the flight", n.along),
+        ("across the flight", n.across),
+    ];
+    for (name, a) in rows {
+        println!(
+            "| {name} | {} | {:.2} | {:.2} | {:.2} | {} ({:.2} %) | {:.1} |",
+            a.count,
+            a.rms * 1e3,
+            a.robust_sigma * 1e3,
+            a.inlier_rms * 1e3,
+            a.outliers,
+            100.0 * a.outliers as f64 / a.count.max(1) as f64,
+            a.max * 1e3
+        );
+    }
+    println!(
+        "isotropic sigma (mean inlier variance) {:.2} mm; largest axis {:.2} mm: recommended \
+         position_sigma = {:.4} m",
+        n.isotropic_sigma() * 1e3,
+        n.recommended_sigma() * 1e3,
+        recommended_sigma(data)
+    );
+    for a in n.axes {
+        assert!(a.count > 3000, "{a:?}");
+        assert!(a.robust_sigma > 0.0002 && a.robust_sigma < 0.003, "{a:?}");
+        assert!((a.outliers as f64) < 0.02 * a.count as f64, "{a:?}");
+    }
+    // Timing noise acts along the flight: the noise there is larger than across it.
+    assert!(n.along.robust_sigma > 1.5 * n.across.robust_sigma, "{n:?}");
+}
+
+fn print_report(title: &str, report: &RealReport) {
+    println!("\n{title}\n");
+    println!("{}", report.to_markdown());
+}
+
+fn print_flights(report: &RealReport) {
+    for f in &report.flights {
+        let leads: Vec<String> = f
+            .leads
+            .iter()
+            .map(|l| match l {
+                LeadOutcome::Predicted {
+                    y_error,
+                    z_error,
+                    time_error,
+                    ..
+                } => format!(
+                    "dy {:+5.1} dz {:+5.1} mm dt {:+5.1} ms",
+                    y_error * 1e3,
+                    z_error * 1e3,
+                    time_error * 1e3
+                ),
+                LeadOutcome::NoTrack => "no track".to_owned(),
+                LeadOutcome::Invalid(why) => why.describe().to_owned(),
+            })
+            .collect();
+        let spin = f
+            .lead_states
+            .last()
+            .copied()
+            .flatten()
+            .map_or("-".to_owned(), |s| {
+                format!("({:+.0}, {:+.0}, {:+.0})", s.spin.x, s.spin.y, s.spin.z)
+            });
+        match &f.crossing {
+            Ok(c) => println!(
+                "  {:8} {:2}: plane x {:+.3}, bounce ({:+.3}, {:+.3}) v ({:+.2}, {:+.2}) -> \
+                 ({:+.2}, {:+.2}) m/s | {} | spin at the last lead {} rad/s; gated {}",
+                f.spin_kind.name(),
+                f.id,
+                c.position.x,
+                c.bounce.position.x,
+                c.bounce.position.y,
+                c.bounce.velocity_before.x,
+                c.bounce.velocity_before.z,
+                c.bounce.velocity_after.x,
+                c.bounce.velocity_after.z,
+                leads.join(" | "),
+                spin,
+                f.counters.rejected(ttball::estimator::Rejection::Gated)
+            ),
+            Err(why) => println!(
+                "  {:8} {:2}: not scored: {}",
+                f.spin_kind.name(),
+                f.id,
+                why.describe()
+            ),
+        }
+    }
+}
+
+#[test]
+fn the_estimator_predicts_real_flights_through_their_bounce() {
+    let Some(data) = data() else { return };
+    let config = real_config(data);
+    let options = RealEvalOptions::default();
+    let full = evaluate_flights(&config, &data.flights, &options);
+    let drag = evaluate_flights(&drag_only(&config), &data.flights, &options);
+    println!(
+        "position_sigma {:.4} m; plane {}",
+        config.sources.wide_150fps.position_sigma,
+        options.plane.describe()
+    );
+    print_report("full model (drag + Magnus, spin learned online):", &full);
+    print_flights(&full);
+    print_report("drag only, no spin:", &drag);
+    print_flights(&drag);
+
+    let all = full.overall().unwrap();
+    assert_eq!(all.scored, 24, "{all:?}");
+    let scored = SpinKind::ALL.map(|k| full.group(k).unwrap().scored);
+    assert_eq!(scored, [5, 10, 9]);
+    let [lead200, lead100] = [&all.leads[0], &all.leads[1]];
+    // Within a racket's sweet spot at 100 ms, for every kind.
+    assert!(lead100.valid_fraction >= 0.9, "{lead100:?}");
+    assert!(lead100.position_error.rms < 0.025, "{lead100:?}");
+    assert!(lead100.time_error.rms < 0.010, "{lead100:?}");
+    for kind in SpinKind::ALL {
+        let l = &full.group(kind).unwrap().leads[1];
+        assert!(l.valid_fraction >= 0.9, "{kind:?}: {l:?}");
+        assert!(l.position_error.rms < 0.03, "{kind:?}: {l:?}");
+    }
+    // 200 ms ahead the spin matters: the full model predicts where drag alone cannot.
+    let drag_all = drag.overall().unwrap();
+    assert!(lead200.valid_fraction >= 0.9, "{lead200:?}");
+    assert!(lead200.valid_fraction >= drag_all.leads[0].valid_fraction);
+    assert!(lead200.position_error.rms < drag_all.leads[0].position_error.rms);
+    // Topspin: the full model finds the bounce that drag alone misses by centimetres.
+    let top = &full.group(SpinKind::Topspin).unwrap().leads[1];
+    let top_drag = &drag.group(SpinKind::Topspin).unwrap().leads[1];
+    assert!(top.bounce_position_error.rms < 0.015, "{top:?}");
+    assert!(top.bounce_position_error.rms < 0.5 * top_drag.bounce_position_error.rms);
+}
+
+#[test]
+fn a_fixed_hitting_plane_near_the_robots_end_line() {
+    let Some(data) = data() else { return };
+    let config = real_config(data);
+    let options = RealEvalOptions {
+        plane: Plane::Fixed(-1.2),
+        ..RealEvalOptions::default()
+    };
+    let full = evaluate_flights(&config, &data.flights, &options);
+    let drag = evaluate_flights(&drag_only(&config), &data.flights, &options);
+    println!(
+        "position_sigma {:.4} m; plane {}",
+        config.sources.wide_150fps.position_sigma,
+        options.plane.describe()
+    );
+    print_report("full model:", &full);
+    print_flights(&full);
+    print_report("drag only, no spin:", &drag);
+    let all = full.overall().unwrap();
+    assert!(all.scored >= 20, "{all:?}");
+    assert!(all.leads[0].valid_fraction >= 0.8, "{all:?}");
+}
