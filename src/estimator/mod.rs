@@ -9,7 +9,9 @@
 //! - Gating by the Mahalanobis distance at `gating.probability`; a run of
 //!   `gating.max_consecutive_rejections` rejections, or a gap longer than `tracking.timeout`,
 //!   ends the track, and the next detections start a new one with a new track id.
-//! - Initialisation from the first `ekf.init_detections` detections ([`init`]).
+//! - Initialisation from the first `ekf.init_detections` detections (`init.rs`). A track that
+//!   starts on the robot's half with the ball rising toward the robot (a restart after a run of
+//!   rejections, or a late first sight) counts the bounce it must already have made.
 //! - Every rejected detection is counted by reason ([`Counters`]).
 //!
 //! No heap allocation per detection: the history and buffers are allocated once.
@@ -281,6 +283,12 @@ impl Settings {
 enum Measurement {
     Position { z: Vector3<f64>, r: Matrix3<f64> },
     PositionSpin { z: SVector<f64, 6>, r: Matrix6<f64> },
+}
+
+/// A ball on the robot's half, moving toward the robot and rising, has bounced there already
+/// (an incoming ball falls from the net to its bounce).
+fn already_bounced(x: &crate::physics::StateVector) -> bool {
+    x[0] < 0.0 && x[3] < 0.0 && x[5] > 0.0
 }
 
 /// Two detections of the same camera frame: a duplicate.
@@ -902,7 +910,7 @@ impl Estimator {
             ekf: fit.ekf,
             stamp: fit.stamp,
             bounces: 0,
-            robot_half_bounces: 0,
+            robot_half_bounces: u32::from(already_bounced(&fit.ekf.x)),
             last_fused: fit.stamp,
             nis: 0.0,
         };
