@@ -36,12 +36,12 @@ pub mod msgs;
 pub mod physics;
 #[cfg(feature = "interface")]
 pub mod pipeline;
+#[cfg(feature = "plot")]
+pub mod plot;
+pub mod real;
 #[cfg(feature = "bag")]
 pub mod record;
 #[cfg(feature = "bag")]
 pub mod replay;
-#[cfg(feature = "plot")]
-pub mod plot;
-pub mod real;
 pub mod sim;
 pub mod stats;

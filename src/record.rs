@@ -1,4 +1,5 @@
-//! Bags of simulated play (`ttball simulate`): the session's detections on `topics.detections`
+//! Bags written by ttball: [`write_detections`] (e.g. real flights imported from CSV), and
+//! [`write_session`], simulated play (`ttball simulate`): the session's detections on `topics.detections`
 //! in arrival order (log time = arrival, header stamp = exposure), the true state at each
 //! detection's stamp on `topics.truth`, and each shot's true crossing of the hitting plane and
 //! bounce on `topics.truth` + `/intercept`. The same session gives the same bytes.
@@ -7,6 +8,7 @@ use std::path::Path;
 
 use crate::bag::{BagError, BagWriter, encode, mcap_time};
 use crate::config::Config;
+use crate::detection::Detection;
 use crate::msgs::builtin_interfaces::Time;
 use crate::msgs::convert::{TABLE_FRAME, detection_to_msg, truth_msg};
 use crate::msgs::geometry_msgs::{Point, Vector3};
@@ -80,4 +82,23 @@ pub fn write_session(session: &Session, config: &Config, path: &Path) -> Result<
     }
     writer.finish()?;
     Ok(records.len() as u64)
+}
+
+/// Writes detections on `topics.detections`, log time = stamp, in stamp order; returns the
+/// number of messages written.
+pub fn write_detections(
+    detections: &[Detection],
+    config: &Config,
+    path: &Path,
+) -> Result<u64, BagError> {
+    let mut writer = BagWriter::create(path)?;
+    let channel = writer.channel(&config.topics.detections, DETECTION_TYPE)?;
+    let mut sorted: Vec<&Detection> = detections.iter().collect();
+    sorted.sort_by_key(|d| d.stamp);
+    for d in &sorted {
+        let t = mcap_time(d.stamp);
+        writer.write(channel, DETECTION_TYPE, t, &detection_to_msg(d))?;
+    }
+    writer.finish()?;
+    Ok(sorted.len() as u64)
 }

@@ -4,6 +4,8 @@
 pub mod config_cmd;
 pub mod dump;
 pub mod evaluate;
+pub mod import;
+pub mod plot;
 pub mod predict;
 pub mod replay;
 pub mod simulate;
@@ -88,6 +90,18 @@ pub enum Command {
         ttball dump bags/sim_rally_2cams.mcap > messages.jsonl")]
     Dump(dump::DumpArgs),
 
+    /// Draw what the estimator saw in a bag (SVG or PNG): views, predictions, speed and spin.
+    #[command(after_help = "Examples:\n  \
+        ttball plot out.mcap --list\n  \
+        ttball plot out.mcap --output track.png             # the longest track\n  \
+        ttball plot out.mcap --output t3.svg --track 3\n  \
+        ttball plot out.mcap --output w.png --window 1.0,2.5")]
+    Plot(plot::PlotArgs),
+
+    /// Import recorded ball flights from other formats as a bag of detections.
+    #[command(subcommand)]
+    Import(import::ImportCommand),
+
     /// Write a bag of simulated play (detections of both cameras, with truth).
     #[command(after_help = "Examples:\n  \
         ttball simulate --output rally.mcap --shots 20 --seed 7\n  \
@@ -105,6 +119,8 @@ impl Command {
             Self::Replay(args) => args.run(),
             Self::Simulate(args) => args.run(),
             Self::Dump(args) => args.run(),
+            Self::Import(command) => command.run(),
+            Self::Plot(args) => args.run(),
         }
     }
 }

@@ -1,0 +1,108 @@
+//! `ttball import mpi`: real launcher flights (MPI for Intelligent Systems' CSV recordings) as a
+//! bag of detections in the `table` frame, ready for `ttball replay`.
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+use anyhow::{Context, bail};
+use clap::{Args, Subcommand};
+use ttball::detection::Source;
+use ttball::real::mpi::{
+    RawFlight, SpinKind, estimate_transform, flight_detections, parse_mpi_csv,
+};
+use ttball::record::write_detections;
+use ttball::sim::DEFAULT_EPOCH;
+
+use super::{ConfigArgs, write_stdout};
+
+/// `ttball import ...`.
+#[derive(Debug, Subcommand)]
+pub enum ImportCommand {
+    /// Launcher flights recorded by the MPI for Intelligent Systems (CSV: trajectory,t_s,x_m,y_m,z_m).
+    ///
+    /// The frame transform into `table` is worked out from the flights themselves (the bounce
+    /// heights give the surface, the launch positions the lateral centre, the launcher stands at
+    /// the far end line): x_t = 1.37 - x, y_t = c_y - y, z_t = z - z_surface. The spin kind of each
+    /// file comes from its name (backspin, no_spin, topspin). Flights follow each other 1 s apart.
+    #[command(after_help = "Example:\n  \
+        ttball import mpi ../shared/data/mpi_launcher/*.csv --output bags/real_launcher.mcap")]
+    Mpi(MpiArgs),
+}
+
+/// Arguments of `ttball import mpi`.
+#[derive(Debug, Args)]
+pub struct MpiArgs {
+    /// The CSV files.
+    #[arg(required = true, value_name = "FILE.csv")]
+    pub files: Vec<PathBuf>,
+
+    /// The bag to write.
+    #[arg(long, short, value_name = "OUT.mcap")]
+    pub output: PathBuf,
+
+    /// The table geometry, ball and topics.
+    #[command(flatten)]
+    pub config: ConfigArgs,
+}
+
+fn kind_of(path: &std::path::Path) -> anyhow::Result<SpinKind> {
+    let name = path
+        .file_name()
+        .and_then(|n| n.to_str())
+        .unwrap_or_default();
+    SpinKind::ALL
+        .into_iter()
+        .find(|k| name.contains(k.file_name()))
+        .with_context(|| {
+            format!(
+                "{}: cannot tell the spin kind from the file name (expected one of {})",
+                path.display(),
+                SpinKind::ALL.map(|k| k.file_name()).join(", ")
+            )
+        })
+}
+
+impl ImportCommand {
+    /// Runs the import.
+    pub fn run(self) -> anyhow::Result<ExitCode> {
+        let Self::Mpi(args) = self;
+        let config = args.config.load()?;
+        let mut raw: Vec<RawFlight> = Vec::new();
+        for file in &args.files {
+            let kind = kind_of(file)?;
+            let text = std::fs::read_to_string(file)
+                .with_context(|| format!("cannot read {}", file.display()))?;
+            raw.extend(parse_mpi_csv(&text, kind).with_context(|| format!("{}", file.display()))?);
+        }
+        if raw.is_empty() {
+            bail!("no flights in {:?}", args.files);
+        }
+        let estimate = estimate_transform(
+            &raw,
+            config.ball.radius,
+            config.table.length,
+            config.gravity,
+        )
+        .context("cannot work out the frame transform from these flights")?;
+        let transform = estimate.transform;
+        let mut detections = Vec::new();
+        let mut epoch = DEFAULT_EPOCH;
+        for flight in &raw {
+            let flight = flight.to_table(&transform);
+            let span = flight.samples.last().map_or(0.0, |(t, _)| *t);
+            detections.extend(flight_detections(&flight, epoch, Source::Wide150Fps));
+            epoch += ((span + 1.0) * 1e9).round() as i64;
+        }
+        let written = write_detections(&detections, &config, &args.output)?;
+        write_stdout(&format!(
+            "{}: {} flights, {} detections (frame: x_t = {:.4} - x, y_t = {:.4} - y, z_t = z - {:.4} m)\n",
+            args.output.display(),
+            raw.len(),
+            written,
+            transform.c_x,
+            transform.c_y,
+            transform.z_surface
+        ))?;
+        Ok(ExitCode::SUCCESS)
+    }
+}

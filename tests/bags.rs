@@ -1,0 +1,125 @@
+//! The shipped sample bags: the commands in bags/README.md reproduce them byte for byte (same
+//! seed, same bytes), and each replays through the estimator.
+#![cfg(feature = "cli")]
+#![allow(
+    clippy::unwrap_used,
+    clippy::expect_used,
+    reason = "test code: fail loudly"
+)]
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+fn root() -> &'static Path {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+}
+
+fn ttball(args: &[&str]) -> String {
+    let out = Command::new(env!("CARGO_BIN_EXE_ttball"))
+        .current_dir(root())
+        .args(args)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "ttball {args:?}: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    String::from_utf8(out.stdout).unwrap()
+}
+
+fn scratch(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("ttball-bags-{}", std::process::id()));
+    std::fs::create_dir_all(&d).unwrap();
+    d.join(name)
+}
+
+fn same_bytes(a: &Path, b: &Path) {
+    assert!(
+        std::fs::read(a).unwrap() == std::fs::read(b).unwrap(),
+        "{} differs from {}",
+        a.display(),
+        b.display()
+    );
+}
+
+#[test]
+fn the_simulated_bags_are_reproduced_by_their_commands() {
+    let two = scratch("sim_rally_2cams.mcap");
+    ttball(&[
+        "simulate",
+        "--output",
+        two.to_str().unwrap(),
+        "--shots",
+        "8",
+        "--seed",
+        "1",
+    ]);
+    same_bytes(&two, &root().join("bags/sim_rally_2cams.mcap"));
+    let wide = scratch("sim_rally_wide.mcap");
+    ttball(&[
+        "simulate",
+        "--output",
+        wide.to_str().unwrap(),
+        "--shots",
+        "8",
+        "--seed",
+        "2",
+        "--cameras",
+        "wide",
+    ]);
+    same_bytes(&wide, &root().join("bags/sim_rally_wide.mcap"));
+}
+
+#[test]
+fn the_real_bag_is_reproduced_from_the_shared_data() {
+    let data = root().join("../shared/data/mpi_launcher");
+    if !data.exists() {
+        eprintln!("skipped: {} is not here", data.display());
+        return;
+    }
+    let out = scratch("real_launcher.mcap");
+    let files: Vec<String> = [
+        "mn5008_backspin.csv",
+        "mn5008_no_spin.csv",
+        "mn5008_topspin.csv",
+    ]
+    .iter()
+    .map(|f| data.join(f).to_str().unwrap().to_string())
+    .collect();
+    let mut args = vec!["import", "mpi"];
+    args.extend(files.iter().map(String::as_str));
+    args.extend(["--output", out.to_str().unwrap()]);
+    let report = ttball(&args);
+    assert!(report.contains("40 flights, 4477 detections"), "{report}");
+    same_bytes(&out, &root().join("bags/real_launcher.mcap"));
+}
+
+#[test]
+fn every_shipped_bag_replays() {
+    let dir = scratch("replayed");
+    let summary = ttball(&[
+        "replay",
+        "bags/sim_rally_2cams.mcap",
+        "bags/sim_rally_wide.mcap",
+        "bags/real_launcher.mcap",
+        "--output-dir",
+        dir.to_str().unwrap(),
+    ]);
+    assert_eq!(
+        summary
+            .matches("accuracy against the bag's truth (8 shots)")
+            .count(),
+        2,
+        "{summary}"
+    );
+    assert!(summary.contains("detections read 3243"), "{summary}");
+    assert!(summary.contains("detections read 4477"), "{summary}");
+    for name in [
+        "sim_rally_2cams.mcap",
+        "sim_rally_wide.mcap",
+        "real_launcher.mcap",
+    ] {
+        assert!(dir.join(name).exists());
+    }
+}
