@@ -99,7 +99,7 @@ impl PlotArgs {
             data.record(&detection, &out);
             if let Some(e) = out.estimate.filter(|e| e.status == TrackStatus::Tracking) {
                 estimates += 1;
-                if estimates % PREDICTION_EVERY == 0
+                if estimates.is_multiple_of(PREDICTION_EVERY)
                     && let Some((stamp, t)) = estimator.predicted_trajectory(
                         config.prediction.trajectory_dt,
                         config.prediction.horizon,
