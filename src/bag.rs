@@ -151,8 +151,12 @@ impl BagContents {
     }
 }
 
-/// Reads a bag file (see [`read_bag`]).
+/// Reads a bag (see [`read_bag`]): an MCAP file, or a rosbag2 directory (as `ros2 bag record`
+/// writes it: `metadata.yaml` beside one or more `.mcap` files, read together in log-time order).
 pub fn read_bag_file(path: &Path) -> Result<BagContents, BagError> {
+    if path.is_dir() {
+        return read_bag_dir(path);
+    }
     let bytes = std::fs::read(path).map_err(|source| BagError::Io {
         path: path.to_path_buf(),
         source,
@@ -161,6 +165,50 @@ pub fn read_bag_file(path: &Path) -> Result<BagContents, BagError> {
         path: path.to_path_buf(),
         reason,
     })
+}
+
+fn read_bag_dir(dir: &Path) -> Result<BagContents, BagError> {
+    let io = |source| BagError::Io {
+        path: dir.to_path_buf(),
+        source,
+    };
+    let mut files: Vec<PathBuf> = std::fs::read_dir(dir)
+        .map_err(io)?
+        .filter_map(|entry| entry.ok().map(|e| e.path()))
+        .filter(|p| p.extension().is_some_and(|e| e == "mcap"))
+        .collect();
+    files.sort();
+    if files.is_empty() {
+        return Err(BagError::NotMcap {
+            path: dir.to_path_buf(),
+            reason: "a directory without .mcap files".to_string(),
+        });
+    }
+    let mut merged = BagContents::default();
+    for file in &files {
+        let part = read_bag_file(file)?;
+        let map: Vec<usize> = part
+            .channels
+            .iter()
+            .map(|c| {
+                merged.channel(&c.topic).unwrap_or_else(|| {
+                    merged.channels.push(c.clone());
+                    merged.channels.len() - 1
+                })
+            })
+            .collect();
+        merged
+            .messages
+            .extend(part.messages.into_iter().map(|m| BagMessage {
+                channel: map[m.channel],
+                ..m
+            }));
+        if let Some(damage) = part.damage {
+            merged.damage = Some(format!("{}: {damage}", file.display()));
+        }
+    }
+    merged.messages.sort_by_key(|m| m.log_time);
+    Ok(merged)
 }
 
 /// Reads every message of an MCAP file in memory, in log-time order. A file that does not start

@@ -258,3 +258,19 @@ fn an_interrupted_replay_finishes_its_output() {
     let out = read_bag_file(&output).unwrap();
     assert!(out.damage.is_none());
 }
+
+#[test]
+fn a_rosbag2_directory_is_read_as_one_bag() {
+    let d = dir("rosbag2");
+    let bag_dir = d.join("rally");
+    std::fs::create_dir_all(&bag_dir).unwrap();
+    std::fs::write(
+        bag_dir.join("metadata.yaml"),
+        "rosbag2_bagfile_information: {}\n",
+    )
+    .unwrap();
+    let session = simulated_bag(&bag_dir.join("rally_0.mcap"), 1);
+    let summary = run(&bag_dir, &d.join("out.mcap")).unwrap();
+    assert_eq!(summary.detections, session.stream.len() as u64);
+    assert_eq!(summary.counters.tracks, 1);
+}

@@ -19,7 +19,7 @@ use super::{ConfigArgs, write_stdout};
 /// Arguments of `ttball replay`.
 #[derive(Debug, Args)]
 pub struct ReplayArgs {
-    /// Input bags (ROS 2 MCAP, e.g. from `ros2 bag record` or `ttball simulate`).
+    /// Input bags: MCAP files, or rosbag2 directories from `ros2 bag record` (MCAP storage).
     #[arg(required = true, value_name = "INPUT.mcap")]
     pub inputs: Vec<PathBuf>,
 
@@ -132,7 +132,11 @@ impl ReplayArgs {
                         let name = input
                             .file_name()
                             .with_context(|| format!("{} has no file name", input.display()))?;
-                        let out = dir.join(name);
+                        let mut out = dir.join(name);
+                        if out.extension().is_none_or(|e| e != "mcap") {
+                            // A rosbag2 directory: its output is one file.
+                            out.set_extension("mcap");
+                        }
                         if out == *input {
                             bail!("{} would overwrite its input", out.display());
                         }
