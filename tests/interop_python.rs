@@ -15,6 +15,14 @@
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
+mod common;
+
+use common::ok as ttball;
+
+fn dir() -> PathBuf {
+    common::scratch("interop")
+}
+
 fn python() -> Option<PathBuf> {
     match std::env::var_os("TTBALL_PYTHON") {
         Some(p) => Some(PathBuf::from(p)),
@@ -29,25 +37,6 @@ fn python() -> Option<PathBuf> {
             None
         }
     }
-}
-
-fn ttball(args: &[&str]) -> std::process::Output {
-    let out = Command::new(env!("CARGO_BIN_EXE_ttball"))
-        .args(args)
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "ttball {args:?}: {}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    out
-}
-
-fn dir() -> PathBuf {
-    let d = std::env::temp_dir().join(format!("ttball-interop-{}", std::process::id()));
-    std::fs::create_dir_all(&d).unwrap();
-    d
 }
 
 fn script(name: &str) -> PathBuf {
@@ -73,7 +62,7 @@ fn python_clients_decode_every_message_ttball_writes_to_the_same_values() {
         "5",
     ]);
     ttball(&["replay", &s(&sim), "--output", &s(&out)]);
-    let dump = ttball(&["dump", &s(&out)]).stdout;
+    let dump = ttball(&["dump", &s(&out)]);
     let dump_path = d.join("out.jsonl");
     std::fs::write(&dump_path, &dump).unwrap();
     let check = Command::new(&python)
@@ -120,16 +109,12 @@ fn a_bag_written_by_mcap_ros2_support_replays_in_ttball() {
         String::from_utf8_lossy(&write.stderr)
     );
     let out = d.join("python-out.mcap");
-    let summary = String::from_utf8(
-        ttball(&[
-            "replay",
-            bag.to_str().unwrap(),
-            "--output",
-            out.to_str().unwrap(),
-        ])
-        .stdout,
-    )
-    .unwrap();
+    let summary = ttball(&[
+        "replay",
+        bag.to_str().unwrap(),
+        "--output",
+        out.to_str().unwrap(),
+    ]);
     assert!(
         summary.contains("detections read 45, fused 41, initialising 4, rejected 0, undecodable 0"),
         "{summary}"

@@ -1,0 +1,38 @@
+//! Helpers shared by the integration tests that run the `ttball` binary.
+#![allow(dead_code, reason = "each test file uses the helpers it needs")]
+#![allow(clippy::panic, reason = "test code: fail loudly")]
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+/// The package's root directory.
+pub fn root() -> &'static Path {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+}
+
+/// Runs `ttball` from the package root and returns its output, whatever its exit code.
+pub fn run(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_ttball"))
+        .current_dir(root())
+        .args(args)
+        .output()
+        .unwrap_or_else(|e| panic!("cannot run ttball: {e}"))
+}
+
+/// Runs `ttball`, asserts that it succeeded and returns its standard output.
+pub fn ok(args: &[&str]) -> String {
+    let out = run(args);
+    assert!(
+        out.status.success(),
+        "ttball {args:?}: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    String::from_utf8_lossy(&out.stdout).into_owned()
+}
+
+/// A fresh directory of this test process, under the system's temporary directory.
+pub fn scratch(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("ttball-{name}-{}", std::process::id()));
+    std::fs::create_dir_all(&d).unwrap_or_else(|e| panic!("cannot create {}: {e}", d.display()));
+    d
+}
