@@ -1,0 +1,72 @@
+//! `ttball replay` as a user runs it: Ctrl-C (SIGINT) in the middle of a long replay leaves a
+//! properly finished output bag and says so.
+#![cfg(all(feature = "cli", unix))]
+#![allow(
+    clippy::unwrap_used,
+    clippy::expect_used,
+    reason = "test code: fail loudly"
+)]
+
+mod common;
+
+use std::process::{Command, Stdio};
+use std::time::{Duration, Instant};
+
+use ttball::bag::read_bag_file;
+
+#[test]
+fn ctrl_c_finishes_the_output_bag() {
+    let dir = common::scratch("sigint");
+    let input = dir.join("long.mcap");
+    let output = dir.join("out.mcap");
+    common::ok(&[
+        "simulate",
+        "--output",
+        input.to_str().unwrap(),
+        "--shots",
+        "150",
+        "--seed",
+        "9",
+    ]);
+    let child = Command::new(env!("CARGO_BIN_EXE_ttball"))
+        .args([
+            "replay",
+            input.to_str().unwrap(),
+            "--output",
+            output.to_str().unwrap(),
+        ])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    // Wait until the replay is writing, then interrupt it as Ctrl-C would.
+    let started = Instant::now();
+    while std::fs::metadata(&output).map_or(0, |m| m.len()) == 0
+        && started.elapsed() < Duration::from_secs(30)
+    {
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    std::thread::sleep(Duration::from_millis(150));
+    let kill = Command::new("kill")
+        .args(["-INT", &child.id().to_string()])
+        .status()
+        .unwrap();
+    assert!(kill.success());
+    let out = child.wait_with_output().unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    let contents = read_bag_file(&output).unwrap();
+    assert!(
+        contents.damage.is_none(),
+        "the output is a finished MCAP file"
+    );
+    assert!(contents.channel("/ball/state").is_some());
+    if stdout.contains("interrupted") {
+        assert!(
+            !out.status.success(),
+            "an interrupted replay does not report success"
+        );
+    } else {
+        // The replay won the race and finished first: still a complete, finished file.
+        assert!(out.status.success(), "{stdout}");
+    }
+}
