@@ -8,6 +8,7 @@ pub mod import;
 pub mod plot;
 pub mod predict;
 pub mod replay;
+pub mod report;
 pub mod simulate;
 
 use std::io::Write;

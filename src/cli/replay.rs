@@ -14,6 +14,7 @@ use std::io::IsTerminal;
 use ttball::estimator::Rejection;
 use ttball::replay::{ReplaySummary, replay};
 
+use super::report::accuracy_table;
 use super::{ConfigArgs, write_stdout};
 
 /// Arguments of `ttball replay`.
@@ -204,26 +205,11 @@ pub fn summary_text(s: &ReplaySummary) -> String {
     if let Some(a) = &s.accuracy {
         let _ = writeln!(
             out,
-            "  accuracy against the bag's truth ({} shots): state NEES/dim {:.2}",
-            a.shots, a.state_nees
+            "  accuracy against the bag's truth ({} shots):",
+            a.shots
         );
-        if a.velocity_error_high_speed.count > 0 {
-            let _ = writeln!(
-                out,
-                "    where the 900 fps camera sees the ball: velocity {:.3} m/s RMS, spin {:.1} rad/s RMS",
-                a.velocity_error_high_speed.rms, a.spin_error_high_speed.rms
-            );
-        }
-        for lead in &a.leads {
-            let _ = writeln!(
-                out,
-                "    interception at {:.0} ms lead: valid {:.1} %, position RMS {:.1} mm, median {:.1} mm; time RMS {:.2} ms",
-                lead.lead * 1e3,
-                lead.valid_fraction * 100.0,
-                lead.position_error.rms * 1e3,
-                lead.position_error.median * 1e3,
-                lead.time_error.rms * 1e3
-            );
+        for line in accuracy_table(a).lines() {
+            let _ = writeln!(out, "    {line}");
         }
     }
     out
