@@ -1,0 +1,115 @@
+//! Properties over random input: the filter's covariance stays symmetric positive definite
+//! whatever the detections, and decoding arbitrary bytes as a message never panics.
+#![cfg(feature = "bag")]
+#![allow(clippy::unwrap_used, reason = "test code: fail loudly")]
+
+use nalgebra::{Matrix3, Vector3};
+use proptest::prelude::*;
+use ttball::bag::decode;
+use ttball::config::Config;
+use ttball::detection::Detection;
+use ttball::estimator::Estimator;
+use ttball::msgs::ttball_msgs::msg::{BallDetection, BallState, PredictedTrajectory};
+use ttball::sim::{SimOptions, simulate};
+
+/// A real stream (one simulated shot, both cameras) to corrupt.
+fn stream() -> &'static [Detection] {
+    static STREAM: std::sync::OnceLock<Vec<Detection>> = std::sync::OnceLock::new();
+    STREAM.get_or_init(|| {
+        let session = simulate(
+            &Config::default(),
+            &SimOptions {
+                shots: 1,
+                seed: 21,
+                ..SimOptions::default()
+            },
+        )
+        .unwrap();
+        session.stream.iter().map(|s| s.detection).collect()
+    })
+}
+
+/// One corruption of one detection of the stream.
+#[derive(Debug, Clone)]
+enum Corruption {
+    /// Move it by this much [m].
+    Displace([f64; 3]),
+    /// Shift its stamp [ns] (out of order, duplicates, a little ahead). A stamp far in the
+    /// future is the robustness issue's: it restarts the track today.
+    Restamp(i64),
+    /// A measured spin [rad/s] with this covariance scale.
+    Spin([f64; 3], f64),
+    /// Its own position covariance: a random symmetric matrix (maybe not positive definite).
+    Covariance([f64; 6]),
+    /// A non-finite coordinate.
+    NotFinite,
+    /// A confidence.
+    Confidence(f32),
+}
+
+fn corruption() -> impl Strategy<Value = Corruption> {
+    prop_oneof![
+        prop::array::uniform3(-0.5f64..0.5).prop_map(Corruption::Displace),
+        (-40_000_000i64..40_000_000).prop_map(Corruption::Restamp),
+        (prop::array::uniform3(-700.0f64..700.0), 1e-3f64..1e4)
+            .prop_map(|(w, s)| Corruption::Spin(w, s)),
+        prop::array::uniform6(-1e-4f64..1e-4).prop_map(Corruption::Covariance),
+        Just(Corruption::NotFinite),
+        (-1.0f32..2.0).prop_map(Corruption::Confidence),
+    ]
+}
+
+fn apply(d: &mut Detection, c: &Corruption) {
+    match c {
+        Corruption::Displace(v) => d.position += Vector3::from(*v),
+        Corruption::Restamp(dt) => d.stamp += dt,
+        Corruption::Spin(w, s) => {
+            d.spin = Some(Vector3::from(*w));
+            d.spin_covariance = Some(Matrix3::identity() * *s);
+        }
+        Corruption::Covariance(c) => {
+            d.position_covariance = Some(Matrix3::new(
+                c[0], c[1], c[2], c[1], c[3], c[4], c[2], c[4], c[5],
+            ));
+        }
+        Corruption::NotFinite => d.position.y = f64::NAN,
+        Corruption::Confidence(x) => d.confidence = *x,
+    }
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 64, ..ProptestConfig::default() })]
+
+    #[test]
+    fn the_covariance_stays_symmetric_positive_definite(
+        corruptions in prop::collection::vec((any::<prop::sample::Index>(), corruption()), 0..60)
+    ) {
+        let mut detections = stream().to_vec();
+        for (index, c) in &corruptions {
+            let i = index.index(detections.len());
+            apply(&mut detections[i], c);
+        }
+        let mut estimator = Estimator::new(&Config::default());
+        let mut estimates = 0;
+        for d in &detections {
+            if let Some(e) = estimator.handle(d).estimate {
+                estimates += 1;
+                let p = e.covariance;
+                prop_assert!(p.iter().all(|v| v.is_finite()));
+                prop_assert!((p - p.transpose()).abs().max() <= 1e-9 * p.abs().max().max(1e-300));
+                prop_assert!(p.cholesky().is_some(), "not positive definite: {p}");
+                prop_assert!(e.state.is_finite());
+            }
+        }
+        prop_assert!(estimates > detections.len() / 2, "{estimates} estimates");
+        let c = estimator.counters();
+        prop_assert_eq!(c.fused + c.initializing + c.total_rejected(), c.received);
+    }
+
+    #[test]
+    fn decoding_arbitrary_bytes_never_panics(bytes in prop::collection::vec(any::<u8>(), 0..600)) {
+        let _ = decode::<BallDetection>(&bytes);
+        let _ = decode::<BallState>(&bytes);
+        let _ = decode::<PredictedTrajectory>(&bytes);
+    }
+}
