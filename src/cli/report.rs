@@ -22,37 +22,24 @@ fn stats(s: &ErrorStats) -> String {
 pub fn accuracy_table(r: &EvalReport) -> String {
     let mut out = String::new();
     out.push_str("                                         RMS median    p95\n");
-    let _ = writeln!(
-        out,
-        "velocity after 100 ms [m/s]           {}",
-        stats(&r.velocity_error)
-    );
-    let _ = writeln!(
-        out,
-        "spin after 100 ms [rad/s]             {}",
-        stats(&r.spin_error)
-    );
-    let _ = writeln!(
-        out,
-        "  perpendicular to v [rad/s]          {}",
-        stats(&r.spin_error_perpendicular)
-    );
-    let _ = writeln!(
-        out,
-        "  along v [rad/s]                     {}",
-        stats(&r.spin_error_parallel)
-    );
+    let mut rows = vec![
+        ("velocity after 100 ms [m/s]", &r.velocity_error),
+        ("spin after 100 ms [rad/s]", &r.spin_error),
+        ("  perpendicular to v [rad/s]", &r.spin_error_perpendicular),
+        ("  along v [rad/s]", &r.spin_error_parallel),
+    ];
     if r.spin_error_high_speed.count > 0 {
-        let _ = writeln!(
-            out,
-            "velocity where 900 fps sees it [m/s]  {}",
-            stats(&r.velocity_error_high_speed)
-        );
-        let _ = writeln!(
-            out,
-            "spin where 900 fps sees it [rad/s]    {}",
-            stats(&r.spin_error_high_speed)
-        );
+        rows.push((
+            "velocity where 900 fps sees it [m/s]",
+            &r.velocity_error_high_speed,
+        ));
+        rows.push((
+            "spin where 900 fps sees it [rad/s]",
+            &r.spin_error_high_speed,
+        ));
+    }
+    for (label, values) in rows {
+        let _ = writeln!(out, "{label:<38}{}", stats(values));
     }
     let _ = writeln!(
         out,
