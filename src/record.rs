@@ -9,11 +9,7 @@ use std::path::Path;
 use crate::bag::{BagError, BagWriter, encode, mcap_time};
 use crate::config::Config;
 use crate::detection::Detection;
-use crate::msgs::builtin_interfaces::Time;
-use crate::msgs::convert::{TABLE_FRAME, detection_to_msg, truth_msg};
-use crate::msgs::geometry_msgs::{Point, Vector3};
-use crate::msgs::std_msgs::Header;
-use crate::msgs::ttball_msgs::msg::InterceptPrediction;
+use crate::msgs::convert::{detection_to_msg, truth_intercept_msg, truth_msg};
 use crate::replay::{DETECTION_TYPE, INTERCEPT_TYPE, STATE_TYPE, truth_intercept_topic};
 use crate::sim::Session;
 
@@ -28,39 +24,14 @@ pub fn write_session(session: &Session, config: &Config, path: &Path) -> Result<
     let mut records: Vec<(u64, usize, u16, Vec<u8>)> = Vec::new();
     for (k, shot) in session.shots.iter().enumerate() {
         let id = u32::try_from(k + 1).unwrap_or(u32::MAX);
-        let p = &shot.intercept.before;
-        let msg = InterceptPrediction {
-            header: Header {
-                stamp: Time::from_nanos(shot.launch_stamp),
-                frame_id: TABLE_FRAME.to_string(),
-            },
-            track_id: id,
-            valid: true,
-            intercept_stamp: Time::from_nanos(shot.intercept.stamp),
-            position: Point {
-                x: p.position.x,
-                y: p.position.y,
-                z: p.position.z,
-            },
-            velocity: Vector3 {
-                x: p.velocity.x,
-                y: p.velocity.y,
-                z: p.velocity.z,
-            },
-            spin: Vector3 {
-                x: p.spin.x,
-                y: p.spin.y,
-                z: p.spin.z,
-            },
-            bounce_valid: true,
-            bounce_stamp: Time::from_nanos(shot.bounce.stamp),
-            bounce_position: Point {
-                x: shot.bounce.before.position.x,
-                y: shot.bounce.before.position.y,
-                z: shot.bounce.before.position.z,
-            },
-            ..InterceptPrediction::default()
-        };
+        let msg = truth_intercept_msg(
+            shot.launch_stamp,
+            id,
+            shot.intercept.stamp,
+            &shot.intercept.before,
+            shot.bounce.stamp,
+            &shot.bounce.before.position,
+        );
         records.push((
             mcap_time(shot.launch_stamp),
             records.len(),

@@ -17,7 +17,7 @@ use crate::bag::{BagContents, BagError, BagWriter, decode, read_bag_file};
 use crate::config::Config;
 use crate::estimator::Counters;
 use crate::eval::{EvalReport, Scorer, ShotTruth};
-use crate::msgs::convert::{detection_from_msg, state_from_msg};
+use crate::msgs::convert::{detection_from_msg, state_from_msg, truth_intercept_from_msg};
 use crate::msgs::ttball_msgs::msg::{BallDetection, BallState, InterceptPrediction};
 use crate::pipeline::Pipeline;
 
@@ -135,12 +135,14 @@ fn read_truth(contents: &BagContents, config: &Config) -> Option<BagTruth> {
         .filter(|m| m.channel == event_channel)
     {
         if let Ok(msg) = decode::<InterceptPrediction>(&m.data) {
+            let (shot, intercept_stamp, intercept_position, bounce_stamp) =
+                truth_intercept_from_msg(&msg);
             shots.insert(
-                msg.track_id,
+                shot,
                 ShotTruth {
-                    bounce_stamp: msg.bounce_stamp.to_nanos(),
-                    intercept_stamp: msg.intercept_stamp.to_nanos(),
-                    intercept_position: [msg.position.x, msg.position.y, msg.position.z].into(),
+                    bounce_stamp,
+                    intercept_stamp,
+                    intercept_position,
                 },
             );
         }

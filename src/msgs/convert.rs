@@ -156,6 +156,42 @@ pub fn state_from_msg(msg: &BallState) -> (i64, u32, physics::BallState) {
     )
 }
 
+/// A simulated shot's true crossing of the hitting plane and bounce as an `InterceptPrediction`
+/// message (`/ball/truth/intercept`): header stamp = launch, `track_id` = the shot's number.
+pub fn truth_intercept_msg(
+    launch_stamp: i64,
+    shot: u32,
+    crossing_stamp: i64,
+    crossing: &physics::BallState,
+    bounce_stamp: i64,
+    bounce_position: &Vector3<f64>,
+) -> InterceptPrediction {
+    InterceptPrediction {
+        header: header(launch_stamp),
+        track_id: shot,
+        valid: true,
+        intercept_stamp: Time::from_nanos(crossing_stamp),
+        position: point(&crossing.position),
+        velocity: vector(&crossing.velocity),
+        spin: vector(&crossing.spin),
+        bounce_valid: true,
+        bounce_stamp: Time::from_nanos(bounce_stamp),
+        bounce_position: point(bounce_position),
+        ..InterceptPrediction::default()
+    }
+}
+
+/// The shot number, crossing stamp [ns] and point, and bounce stamp [ns] of a
+/// `/ball/truth/intercept` message.
+pub fn truth_intercept_from_msg(msg: &InterceptPrediction) -> (u32, i64, Vector3<f64>, i64) {
+    (
+        msg.track_id,
+        msg.intercept_stamp.to_nanos(),
+        from_point(&msg.position),
+        msg.bounce_stamp.to_nanos(),
+    )
+}
+
 fn offset(stamp: i64, seconds: f64) -> Time {
     Time::from_nanos(stamp + (seconds * 1e9).round() as i64)
 }
