@@ -3,6 +3,12 @@
 
 use nalgebra::{Matrix3, Vector3};
 
+/// A duration or offset in seconds as integer nanoseconds (rounded), the time unit at every
+/// boundary of ttball.
+pub fn seconds_to_ns(seconds: f64) -> i64 {
+    (seconds * 1e9).round() as i64
+}
+
 /// The camera system that made a detection.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub enum Source {

@@ -16,7 +16,7 @@
 use nalgebra::{Matrix2, Vector2, Vector3};
 
 use crate::config::Config;
-use crate::detection::{Detection, Source};
+use crate::detection::{Detection, Source, seconds_to_ns};
 use crate::estimator::{Counters, Estimator, Output, TrackStatus};
 use crate::physics::BallState;
 use crate::sim::Session;
@@ -197,7 +197,7 @@ impl Scorer {
             return;
         };
         for (slot, lead) in LEADS.iter().enumerate() {
-            let deadline = truth_shot.intercept_stamp - (lead * 1e9).round() as i64;
+            let deadline = truth_shot.intercept_stamp - seconds_to_ns(*lead);
             if estimate.stamp <= deadline {
                 record.at_lead[slot] = Some(*out);
             }
@@ -208,7 +208,7 @@ impl Scorer {
         }
         let start = *record.track_start.get_or_insert(estimate.stamp);
         let error = estimate.state.to_vector() - truth.to_vector();
-        if (detection.stamp - truth_shot.bounce_stamp).abs() <= (BOUNCE_WINDOW * 1e9) as i64 {
+        if (detection.stamp - truth_shot.bounce_stamp).abs() <= seconds_to_ns(BOUNCE_WINDOW) {
             self.velocity_bounce
                 .push((estimate.state.velocity - truth.velocity).norm());
             return;
@@ -233,7 +233,7 @@ impl Scorer {
             }
         }
         let spin_error: Vector3<f64> = estimate.state.spin - truth.spin;
-        if !record.scored_at_age && estimate.stamp - start >= (TRACK_AGE * 1e9) as i64 {
+        if !record.scored_at_age && estimate.stamp - start >= seconds_to_ns(TRACK_AGE) {
             record.scored_at_age = true;
             self.velocity
                 .push((estimate.state.velocity - truth.velocity).norm());
@@ -245,7 +245,7 @@ impl Scorer {
         }
         if detection.source == Source::HighSpeed900Fps {
             let first = *record.high_speed_start.get_or_insert(detection.stamp);
-            if detection.stamp - first >= (HIGH_SPEED_SETTLE * 1e9) as i64 {
+            if detection.stamp - first >= seconds_to_ns(HIGH_SPEED_SETTLE) {
                 self.spin_fast.push(spin_error.norm());
                 self.velocity_fast
                     .push((estimate.state.velocity - truth.velocity).norm());

@@ -6,7 +6,7 @@ use std::process::ExitCode;
 
 use anyhow::{Context, bail};
 use clap::{Args, Subcommand};
-use ttball::detection::Source;
+use ttball::detection::{Source, seconds_to_ns};
 use ttball::real::mpi::{
     RawFlight, SpinKind, estimate_transform, flight_detections, parse_mpi_csv,
 };
@@ -91,7 +91,7 @@ impl ImportCommand {
             let flight = flight.to_table(&transform);
             let span = flight.samples.last().map_or(0.0, |(t, _)| *t);
             detections.extend(flight_detections(&flight, epoch, Source::Wide150Fps));
-            epoch += ((span + 1.0) * 1e9).round() as i64;
+            epoch += seconds_to_ns(span + 1.0);
         }
         let written = write_detections(&detections, &config, &args.output)?;
         write_stdout(&format!(

@@ -13,6 +13,7 @@ use std::process::ExitCode;
 use anyhow::{Context, bail};
 use clap::Args;
 use ttball::bag::{decode, read_bag_file};
+use ttball::detection::seconds_to_ns;
 use ttball::estimator::{Estimator, TrackStatus};
 use ttball::msgs::convert::{detection_from_msg, state_from_msg};
 use ttball::msgs::ttball_msgs::msg::{BallDetection, BallState};
@@ -138,7 +139,7 @@ impl PlotArgs {
                         .trim()
                         .parse()
                         .with_context(|| format!("`{s}` is not a number of seconds"))?;
-                    Ok(origin + (v * 1e9).round() as i64)
+                    Ok(origin + seconds_to_ns(v))
                 };
                 Selection::window(at(a)?, at(b)?)
             }

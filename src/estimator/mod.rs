@@ -23,7 +23,7 @@ use std::collections::VecDeque;
 use nalgebra::{Matrix3, Matrix6, SVector, Vector3};
 
 use crate::config::{Config, SourceParams};
-use crate::detection::{Detection, Source};
+use crate::detection::{Detection, Source, seconds_to_ns};
 use crate::ekf::{Ekf, ProcessNoise, UpdateError, position_H, position_spin_H};
 use crate::intercept::{Intercept, InterceptQuery, predict_intercept};
 use crate::physics::{
@@ -233,10 +233,6 @@ pub(crate) struct Settings {
     plane_x: f64,
     horizon: f64,
     gravity: f64,
-}
-
-fn seconds_to_ns(s: f64) -> i64 {
-    (s * 1e9).round() as i64
 }
 
 impl Settings {

@@ -9,7 +9,7 @@ use super::geometry_msgs::{Point, Pose, Quaternion, Vector3 as RosVector3};
 use super::std_msgs::{ColorRGBA, Header};
 use super::ttball_msgs::msg::{BallDetection, BallState, InterceptPrediction, PredictedTrajectory};
 use super::visualization_msgs::{Marker, MarkerArray};
-use crate::detection::{Detection, Source};
+use crate::detection::{Detection, Source, seconds_to_ns};
 use crate::estimator::{Estimate, InterceptEstimate, TrackStatus};
 use crate::physics::{self, StateMatrix, Trajectory};
 
@@ -193,7 +193,7 @@ pub fn truth_intercept_from_msg(msg: &InterceptPrediction) -> (u32, i64, Vector3
 }
 
 fn offset(stamp: i64, seconds: f64) -> Time {
-    Time::from_nanos(stamp + (seconds * 1e9).round() as i64)
+    Time::from_nanos(stamp + seconds_to_ns(seconds))
 }
 
 /// An interception prediction as an `InterceptPrediction` message.

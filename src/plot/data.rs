@@ -7,7 +7,7 @@ use nalgebra::Vector3;
 
 use super::PlotError;
 use crate::config::Config;
-use crate::detection::{Detection, Source};
+use crate::detection::{Detection, Source, seconds_to_ns};
 use crate::estimator::{Estimate, InterceptEstimate, Output, TrackStatus, Verdict};
 use crate::physics::{BallState, Trajectory};
 
@@ -101,7 +101,7 @@ impl PlotIntercept {
 
 impl From<&InterceptEstimate> for PlotIntercept {
     fn from(i: &InterceptEstimate) -> Self {
-        let at = |t: f64| i.stamp + (t * 1e9).round() as i64;
+        let at = |t: f64| i.stamp + seconds_to_ns(t);
         Self {
             stamp: i.stamp,
             track_id: i.track_id,

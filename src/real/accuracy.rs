@@ -34,7 +34,7 @@ use nalgebra::Vector3;
 use super::fit::{MeasuredBounce, detect_bounce, fit_ballistic};
 use super::mpi::{Flight, SpinKind, flight_detections};
 use crate::config::Config;
-use crate::detection::Source;
+use crate::detection::{Source, seconds_to_ns};
 use crate::estimator::{Counters, Estimator, InterceptEstimate};
 use crate::eval::ErrorStats;
 use crate::intercept::NoIntercept;
@@ -446,7 +446,7 @@ fn evaluate_flight(config: &Config, flight: &Flight, options: &RealEvalOptions) 
     let deadlines: Vec<i64> = options
         .leads
         .iter()
-        .map(|lead| epoch + ((measured.time - lead) * 1e9).round() as i64)
+        .map(|lead| epoch + seconds_to_ns(measured.time - lead))
         .collect();
     let last_deadline = deadlines.iter().copied().max().unwrap_or(epoch);
     let mut latest: Vec<Option<(InterceptEstimate, Option<BallState>)>> =

@@ -57,7 +57,7 @@
 use nalgebra::Vector3;
 
 use super::fit::{Sample, detect_bounce};
-use crate::detection::{Detection, Source};
+use crate::detection::{Detection, Source, seconds_to_ns};
 
 /// The kind of spin the launcher was set to.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
@@ -363,7 +363,7 @@ pub fn flight_detections(flight: &Flight, epoch_ns: i64, source: Source) -> Vec<
         .samples
         .iter()
         .map(|(t, p)| Detection {
-            stamp: epoch_ns + (t * 1e9).round() as i64,
+            stamp: epoch_ns + seconds_to_ns(*t),
             source,
             position: *p,
             position_covariance: None,

@@ -9,7 +9,7 @@ use nalgebra::Vector3;
 
 use super::params::CameraParams;
 use super::rng::Rng;
-use crate::detection::{Detection, Source};
+use crate::detection::{Detection, Source, seconds_to_ns};
 use crate::physics::{BallState, Cursor, Outcome, Propagator, Watch};
 
 /// Nanoseconds per second.
@@ -187,7 +187,7 @@ impl<'a> Camera<'a> {
         let spin = (!outlier && draws.spin < p.spin_probability)
             .then(|| truth.spin + p.spin_sigma * draws.spin_noise);
         let latency = (p.latency_mean + p.latency_jitter * draws.latency).max(0.0);
-        let arrival = stamp + (latency * NS_PER_S).round() as i64;
+        let arrival = stamp + seconds_to_ns(latency);
         self.counts.detections += 1;
         self.counts.outliers += u64::from(outlier);
         self.counts.with_spin += u64::from(spin.is_some());

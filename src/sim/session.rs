@@ -17,7 +17,7 @@ use super::launch::{
 use super::params::{Cameras, ParamError, SimParams};
 use super::rng::{Rng, Stream};
 use crate::config::{Config, ConfigError};
-use crate::detection::{Detection, Source};
+use crate::detection::{Detection, Source, seconds_to_ns};
 use crate::physics::{BallState, Cursor, Event, Outcome, Propagator, Watch};
 
 /// The default start of a session: 1,700,000,000 s after the Unix epoch [ns] (November 2023),
@@ -191,10 +191,6 @@ pub struct Session {
     pub acceptance: Vec<Acceptance>,
     /// Per camera, what it delivered.
     pub cameras: Vec<CameraReport>,
-}
-
-fn seconds_to_ns(t: f64) -> i64 {
-    (t * NS_PER_S).round() as i64
 }
 
 /// Draws launch states until one makes a good shot.
