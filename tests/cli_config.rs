@@ -7,23 +7,14 @@
     reason = "test helpers outside #[test] functions"
 )]
 
-use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+mod common;
 
+use std::path::{Path, PathBuf};
+use std::process::Output;
+
+use common::run as ttball;
 use ttball::config::Config;
 use ttball::config::yaml;
-
-fn manifest_dir() -> &'static Path {
-    Path::new(env!("CARGO_MANIFEST_DIR"))
-}
-
-fn ttball(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_ttball"))
-        .args(args)
-        .current_dir(manifest_dir())
-        .output()
-        .unwrap()
-}
 
 fn stdout(output: &Output) -> String {
     String::from_utf8(output.stdout.clone()).unwrap()
@@ -35,9 +26,7 @@ fn stderr(output: &Output) -> String {
 
 /// A file in a fresh temporary directory of this test.
 fn temp_file(name: &str, text: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("ttball-cli-{}-{name}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    let path = dir.join(name);
+    let path = common::scratch("cli-config").join(name);
     std::fs::write(&path, text).unwrap();
     path
 }

@@ -6,14 +6,9 @@
     reason = "test code: fail loudly"
 )]
 
-use std::process::Command;
+mod common;
 
-fn ttball(args: &[&str]) -> std::process::Output {
-    Command::new(env!("CARGO_BIN_EXE_ttball"))
-        .args(args)
-        .output()
-        .expect("run ttball")
-}
+use common::run as ttball;
 
 #[test]
 fn default_prediction_shows_the_bounce_and_the_hitting_plane() {
