@@ -33,6 +33,8 @@ pub mod eval;
 pub mod intercept;
 #[cfg(feature = "interface")]
 pub mod msgs;
+#[cfg(feature = "node")]
+pub mod node;
 pub mod physics;
 #[cfg(feature = "interface")]
 pub mod pipeline;

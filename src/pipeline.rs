@@ -6,11 +6,13 @@
 use crate::config::Config;
 use crate::estimator::{Counters, Estimator, Output, Rejection, Verdict};
 use crate::msgs::convert::{
-    ConvertError, detection_from_msg, intercept_msg, markers, state_msg, trajectory_msg,
+    ConvertError, detection_from_msg, intercept_msg, markers, state_from_msg, state_msg,
+    trajectory_msg,
 };
 use crate::msgs::ttball_msgs::msg::{
     BallDetection, BallState, InterceptPrediction, PredictedTrajectory,
 };
+use crate::msgs::ttball_msgs::srv::{PredictTrajectoryRequest, PredictTrajectoryResponse};
 use crate::msgs::visualization_msgs::MarkerArray;
 
 /// The messages to publish after one detection.
@@ -59,6 +61,11 @@ impl Pipeline {
         }
     }
 
+    /// The estimator behind the pipeline.
+    pub fn estimator(&self) -> &Estimator {
+        &self.estimator
+    }
+
     /// What happened to the detections so far.
     pub fn counters(&self) -> Counters {
         self.estimator.counters()
@@ -103,4 +110,84 @@ impl Pipeline {
             published,
         }
     }
+
+    /// Answers `~/predict_trajectory`: the predicted flight of the live track (`track_id` its id)
+    /// or of the request's `initial` state (`track_id` 0). A zero `horizon` or `dt` takes the
+    /// configured `prediction.horizon` / `prediction.trajectory_dt`. Never fails silently: a
+    /// request that cannot be answered gets `success = false` and a message saying why.
+    pub fn predict_trajectory(
+        &self,
+        request: &PredictTrajectoryRequest,
+    ) -> PredictTrajectoryResponse {
+        match self.answer_predict_trajectory(request) {
+            Ok(trajectory) => PredictTrajectoryResponse {
+                success: true,
+                message: String::new(),
+                trajectory,
+            },
+            Err(message) => PredictTrajectoryResponse {
+                success: false,
+                message,
+                trajectory: PredictedTrajectory::default(),
+            },
+        }
+    }
+
+    fn answer_predict_trajectory(
+        &self,
+        request: &PredictTrajectoryRequest,
+    ) -> Result<PredictedTrajectory, String> {
+        let horizon = if request.horizon == 0.0 {
+            self.horizon
+        } else {
+            request.horizon
+        };
+        let dt = if request.dt == 0.0 {
+            self.trajectory_dt
+        } else {
+            request.dt
+        };
+        if !(horizon > 0.0 && horizon <= MAX_HORIZON) {
+            return Err(format!(
+                "horizon {horizon} s is out of range: give 0 < horizon <= {MAX_HORIZON} s (0 = the configured {} s)",
+                self.horizon
+            ));
+        }
+        if !(dt > 0.0 && dt <= horizon && horizon / dt <= MAX_SAMPLES) {
+            return Err(format!(
+                "dt {dt} s is out of range: give 0 < dt <= horizon with at most {MAX_SAMPLES} samples (0 = the configured {} s)",
+                self.trajectory_dt
+            ));
+        }
+        if request.track_id == 0 {
+            let (stamp, _, start) = state_from_msg(&request.initial);
+            if !start.to_vector().iter().all(|v| v.is_finite()) {
+                return Err("the initial state has a non-finite value".to_owned());
+            }
+            let trajectory = self.estimator.predict_flight(&start, dt, horizon);
+            return Ok(trajectory_msg(stamp, 0, &trajectory));
+        }
+        match self.estimator.estimate() {
+            Some(e) if e.track_id == request.track_id => {
+                let (stamp, trajectory) = self
+                    .estimator
+                    .predicted_trajectory(dt, horizon)
+                    .ok_or_else(|| format!("track {} ended", request.track_id))?;
+                Ok(trajectory_msg(stamp, e.track_id, &trajectory))
+            }
+            Some(e) => Err(format!(
+                "track {} is not live; the live track is {} (or use track_id 0 with an initial state)",
+                request.track_id, e.track_id
+            )),
+            None => Err(format!(
+                "track {} is not live: no ball is tracked now (use track_id 0 with an initial state)",
+                request.track_id
+            )),
+        }
+    }
 }
+
+/// Longest horizon `~/predict_trajectory` accepts [s] (as `prediction.horizon`).
+const MAX_HORIZON: f64 = 10.0;
+/// Most samples one `~/predict_trajectory` response may hold.
+const MAX_SAMPLES: f64 = 100_000.0;

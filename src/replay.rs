@@ -20,6 +20,7 @@ use crate::eval::{EvalReport, Scorer, ShotTruth};
 use crate::msgs::convert::{detection_from_msg, state_from_msg, truth_intercept_from_msg};
 use crate::msgs::ttball_msgs::msg::{BallDetection, BallState, InterceptPrediction};
 use crate::pipeline::Pipeline;
+use crate::stats::DurationSummary;
 
 /// The type of the detection topic.
 pub const DETECTION_TYPE: &str = "ttball_msgs/msg/BallDetection";
@@ -167,6 +168,35 @@ fn read_truth(contents: &BagContents, config: &Config) -> Option<BagTruth> {
     })
 }
 
+/// The channel of `topic` in a bag read from `path`, checked to carry `BallDetection`.
+pub fn detection_channel(
+    contents: &BagContents,
+    topic: &str,
+    path: &Path,
+) -> Result<usize, ReplayError> {
+    let Some(channel) = contents.channel(topic) else {
+        let present: Vec<&str> = contents.channels.iter().map(|c| c.topic.as_str()).collect();
+        return Err(ReplayError::NoDetections {
+            path: path.to_path_buf(),
+            topic: topic.to_owned(),
+            present: if present.is_empty() {
+                "none".to_string()
+            } else {
+                present.join(", ")
+            },
+        });
+    };
+    let found = &contents.channels[channel].schema_name;
+    if found != DETECTION_TYPE {
+        return Err(ReplayError::WrongType {
+            path: path.to_path_buf(),
+            topic: topic.to_owned(),
+            found: found.clone(),
+        });
+    }
+    Ok(channel)
+}
+
 /// A detection further than this from the truth is an outlier for scoring [m].
 const OUTLIER_DISTANCE: f64 = 0.03;
 
@@ -180,27 +210,7 @@ pub fn replay(
     cancel: &AtomicBool,
 ) -> Result<ReplaySummary, ReplayError> {
     let contents = read_bag_file(input)?;
-    let topic = &config.topics.detections;
-    let Some(detection_channel) = contents.channel(topic) else {
-        let present: Vec<&str> = contents.channels.iter().map(|c| c.topic.as_str()).collect();
-        return Err(ReplayError::NoDetections {
-            path: input.to_path_buf(),
-            topic: topic.clone(),
-            present: if present.is_empty() {
-                "none".to_string()
-            } else {
-                present.join(", ")
-            },
-        });
-    };
-    let found = &contents.channels[detection_channel].schema_name;
-    if found != DETECTION_TYPE {
-        return Err(ReplayError::WrongType {
-            path: input.to_path_buf(),
-            topic: topic.clone(),
-            found: found.clone(),
-        });
-    }
+    let detection_channel = detection_channel(&contents, &config.topics.detections, input)?;
     let truth = read_truth(&contents, config);
     let mut scorer = truth.as_ref().map(|t| Scorer::new(t.shots.clone()));
 
@@ -289,15 +299,7 @@ pub fn replay(
     finished?;
     progress(detections, total);
 
-    times.sort_unstable();
-    let mean = if times.is_empty() {
-        0.0
-    } else {
-        times.iter().map(|t| *t as f64).sum::<f64>() / times.len() as f64
-    };
-    let p99 = times
-        .get(((times.len() as f64 - 1.0) * 0.99).round().max(0.0) as usize)
-        .map_or(0.0, |t| *t as f64);
+    let timing = DurationSummary::of(&mut times);
     let counters = pipeline.counters();
     Ok(ReplaySummary {
         input: input.to_path_buf(),
@@ -307,10 +309,10 @@ pub fn replay(
         undecodable,
         counters,
         written,
-        processing_mean_ns: mean,
-        processing_p99_ns: p99,
+        processing_mean_ns: timing.mean,
+        processing_p99_ns: timing.p99,
         recorded_seconds: first_last.map_or(0.0, |(a, b)| (b - a) as f64 * 1e-9),
-        processing_seconds: times.iter().map(|t| *t as f64).sum::<f64>() * 1e-9,
+        processing_seconds: timing.total * 1e-9,
         damage: contents.damage,
         interrupted,
         accuracy: scorer.map(|s| s.report(counters)),

@@ -1,6 +1,44 @@
 //! The chi-square distribution, for Mahalanobis gates and consistency checks: the regularised
 //! lower incomplete gamma function by its power series (exact to rounding for the small degrees
-//! of freedom used here), and the quantile by bisection.
+//! of freedom used here), and the quantile by bisection. Also the nearest-rank summary of
+//! durations that the replay and the node report.
+
+/// Mean and nearest-rank quantiles of a set of durations [ns].
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct DurationSummary {
+    /// How many durations.
+    pub count: usize,
+    /// Mean [ns].
+    pub mean: f64,
+    /// Median [ns].
+    pub p50: f64,
+    /// 99th percentile [ns].
+    pub p99: f64,
+    /// Largest [ns].
+    pub max: f64,
+    /// Sum [ns].
+    pub total: f64,
+}
+
+impl DurationSummary {
+    /// Summarises `durations` (sorting them in place); all zero when empty.
+    pub fn of(durations: &mut [u64]) -> Self {
+        durations.sort_unstable();
+        let Some(&max) = durations.last() else {
+            return Self::default();
+        };
+        let total: f64 = durations.iter().map(|d| *d as f64).sum();
+        let rank = |q: f64| durations[((durations.len() - 1) as f64 * q).round() as usize] as f64;
+        Self {
+            count: durations.len(),
+            mean: total / durations.len() as f64,
+            p50: rank(0.5),
+            p99: rank(0.99),
+            max: max as f64,
+            total,
+        }
+    }
+}
 
 /// Gamma(a) for a positive integer or half-integer `a`.
 fn gamma_half_integer(a: f64) -> f64 {

@@ -5,6 +5,8 @@ pub mod config_cmd;
 pub mod dump;
 pub mod evaluate;
 pub mod import;
+pub mod node;
+pub mod play;
 pub mod plot;
 pub mod predict;
 pub mod replay;
@@ -103,6 +105,32 @@ pub enum Command {
     #[command(subcommand)]
     Import(import::ImportCommand),
 
+    /// Run the live ROS 2 node: detections in, state, intercept, trajectory, markers out.
+    ///
+    /// A ROS 2 node (ros2-client on RustDDS; no ROS 2 installation needed) on the domain from
+    /// ROS_DOMAIN_ID. Subscribes topics.detections (ttball_msgs/msg/BallDetection, best effort);
+    /// publishes /ball/state, /ball/intercept, /ball/trajectory, /ball/markers and /diagnostics
+    /// (reliable) and serves ~/predict_trajectory. Every detection runs through exactly the code
+    /// `ttball replay` runs. Stops cleanly on Ctrl-C or SIGTERM and prints what it did.
+    /// Logs go to stderr; set their level with RUST_LOG (e.g. RUST_LOG=debug).
+    #[command(after_help = "Examples:\n  \
+        ttball node\n  \
+        ttball node --config my.yaml -p intercept.plane_x:=-1.45\n  \
+        ttball node --ros-args -r __ns:=/robot1 -r /ball/detections:=/vision/ball -p node.localhost_only:=true\n  \
+        ROS_DOMAIN_ID=7 ttball node -p node.service_mapping:=cyclone   # beside rmw_cyclonedds\n\n\
+        Try it without ROS 2: `ttball play bags/sim_rally_2cams.mcap` in another terminal.")]
+    Node(node::NodeArgs),
+
+    /// Publish a bag's detections on DDS at their recorded pace (like `ros2 bag play`).
+    ///
+    /// Publishes the ttball_msgs/msg/BallDetection messages of topics.detections with the
+    /// node's QoS (best effort), on the domain from ROS_DOMAIN_ID, waiting first for a
+    /// subscriber (--wait). With --loop, each pass's stamps continue where the last ended.
+    #[command(after_help = "Examples:\n  \
+        ttball play bags/sim_rally_2cams.mcap\n  \
+        ttball play bags/real_launcher.mcap --rate 0.5 --loop")]
+    Play(play::PlayArgs),
+
     /// Write a bag of simulated play (detections of both cameras, with truth).
     #[command(after_help = "Examples:\n  \
         ttball simulate --output rally.mcap --shots 20 --seed 7\n  \
@@ -122,6 +150,8 @@ impl Command {
             Self::Dump(args) => args.run(),
             Self::Import(command) => command.run(),
             Self::Plot(args) => args.run(),
+            Self::Node(args) => args.run(),
+            Self::Play(args) => args.run(),
         }
     }
 }
@@ -156,19 +186,39 @@ pub struct Overrides {
     pub params: Vec<String>,
 }
 
+/// A command line that cannot be run as given (exit code [`EXIT_BAD_CONFIG`]).
+#[derive(Debug, thiserror::Error)]
+#[error("{0}")]
+pub struct BadUsage(pub String);
+
 /// The exit code for a failed command: [`EXIT_BAD_CONFIG`] when the configuration could not be
-/// loaded, [`EXIT_FAILURE`] otherwise.
+/// loaded or the command line is unusable, [`EXIT_FAILURE`] otherwise.
 pub fn exit_code_for(err: &anyhow::Error) -> ExitCode {
     let bad_config = err.chain().any(|cause| {
-        cause
-            .downcast_ref::<LoadError>()
-            .is_some_and(|e| !matches!(e, LoadError::Internal { .. }))
+        cause.downcast_ref::<BadUsage>().is_some()
+            || cause
+                .downcast_ref::<LoadError>()
+                .is_some_and(|e| !matches!(e, LoadError::Internal { .. }))
     });
     ExitCode::from(if bad_config {
         EXIT_BAD_CONFIG
     } else {
         EXIT_FAILURE
     })
+}
+
+/// Sends logs (ttball's, ros2-client's and RustDDS's) to stderr, filtered by `RUST_LOG`, else
+/// by `level` (ROS 2's `--log-level`) or `info`, with the DDS libraries at `warn`.
+pub fn init_logging(level: Option<&str>) {
+    use tracing_subscriber::EnvFilter;
+    let filter = EnvFilter::try_from_default_env().unwrap_or_else(|_| {
+        let level = level.unwrap_or("info");
+        EnvFilter::new(format!("{level},rustdds=warn,ros2_client=warn"))
+    });
+    let _ = tracing_subscriber::fmt()
+        .with_env_filter(filter)
+        .with_writer(std::io::stderr)
+        .try_init();
 }
 
 /// Writes `text` to standard output; a closed pipe (`ttball ... | head`) is not an error.

@@ -369,6 +369,29 @@ pub struct NodeParams {
     /// full, the oldest detection is dropped and counted. 256 is about 0.25 s of both cameras
     /// (150 + 900 detections per second).
     pub queue_capacity: u32,
+    /// How the `~/predict_trajectory` service frames requests and replies on DDS: `enhanced`
+    /// (RPC over DDS enhanced mapping: rmw_fastrtps, ROS 2's default, and rmw_connextdds),
+    /// `cyclone` (rmw_cyclonedds) or `basic` (RPC over DDS basic mapping). Topics need no choice.
+    pub service_mapping: ServiceMapping,
+    /// Use only the loopback interface (127.0.0.1) for DDS, as ROS 2's `ROS_LOCALHOST_ONLY=1` or
+    /// `ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST`, which also turn this on.
+    pub localhost_only: bool,
+    /// IP address of the one network interface DDS may use, e.g. "192.168.1.20"; empty = all.
+    pub interface_address: String,
+    /// Period of the `/diagnostics` messages [s]. ROS 2's diagnostic_updater publishes at 1 Hz.
+    pub diagnostics_period: f64,
+}
+
+/// The request/reply framing of ROS 2 services on DDS (it differs between RMW implementations).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum ServiceMapping {
+    /// Enhanced mapping of the OMG RPC over DDS specification (rmw_fastrtps, rmw_connextdds).
+    Enhanced,
+    /// rmw_cyclonedds' mapping: a 16-byte request id in front of every payload.
+    Cyclone,
+    /// Basic mapping of the OMG RPC over DDS specification.
+    Basic,
 }
 
 impl Default for NodeParams {
@@ -377,6 +400,10 @@ impl Default for NodeParams {
             name: "ttball".to_owned(),
             namespace: String::new(),
             queue_capacity: 256,
+            service_mapping: ServiceMapping::Enhanced,
+            localhost_only: false,
+            interface_address: String::new(),
+            diagnostics_period: 1.0,
         }
     }
 }

@@ -485,6 +485,20 @@ impl Config {
             namespace_problem(&n.namespace),
         );
         c.count("node.queue_capacity", n.queue_capacity, 1, "at least 1");
+        c.name(
+            "node.interface_address",
+            &n.interface_address,
+            "IP address",
+            (!n.interface_address.is_empty()
+                && n.interface_address.parse::<std::net::IpAddr>().is_err())
+            .then_some("give the address of one of this machine's interfaces, e.g. \"192.168.1.20\", or \"\" for all"),
+        );
+        c.real(
+            "node.diagnostics_period",
+            n.diagnostics_period,
+            |v| (0.01..=60.0).contains(&v),
+            "from 0.01 to 60 (s)",
+        );
 
         let tp = &self.topics;
         for (key, value) in [

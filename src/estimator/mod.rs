@@ -407,13 +407,19 @@ impl Estimator {
     pub fn predicted_trajectory(&self, dt: f64, horizon: f64) -> Option<(i64, Trajectory)> {
         let track = self.track.as_ref()?;
         let start = BallState::from_vector(&track.now.ekf.x);
+        Some((track.now.stamp, self.predict_flight(&start, dt, horizon)))
+    }
+
+    /// The predicted flight of any ball state with this estimator's model, sampled every `dt`
+    /// seconds over `horizon` seconds (events: table, net, floor, the hitting plane).
+    pub fn predict_flight(&self, start: &BallState, dt: f64, horizon: f64) -> Trajectory {
         let options = PredictOptions {
             horizon,
             sample_interval: dt,
             plane_x: Some(self.settings.plane_x),
             stop_at_plane: false,
         };
-        Some((track.now.stamp, predict(&self.propagator, &start, &options)))
+        predict(&self.propagator, start, &options)
     }
 
     /// Counts a detection that an adapter rejected before it reached the filter (e.g. its

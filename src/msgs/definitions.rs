@@ -54,7 +54,25 @@ const DEFINITIONS: &[(&str, &str)] = &[
     ),
     ("visualization_msgs/Marker", MARKER),
     ("visualization_msgs/MarkerArray", "Marker[] markers\n"),
+    ("diagnostic_msgs/KeyValue", "string key\nstring value\n"),
+    ("diagnostic_msgs/DiagnosticStatus", DIAGNOSTIC_STATUS),
+    (
+        "diagnostic_msgs/DiagnosticArray",
+        "std_msgs/Header header\nDiagnosticStatus[] status\n",
+    ),
 ];
+
+const DIAGNOSTIC_STATUS: &str = "\
+byte OK=0
+byte WARN=1
+byte ERROR=2
+byte STALE=3
+byte level
+string name
+string message
+string hardware_id
+KeyValue[] values
+";
 
 const MARKER: &str = "\
 int32 ARROW=0

@@ -12,6 +12,7 @@
 pub mod builtin_interfaces;
 pub mod convert;
 pub mod definitions;
+pub mod diagnostic_msgs;
 pub mod geometry_msgs;
 pub mod sensor_msgs;
 pub mod std_msgs;

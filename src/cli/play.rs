@@ -1,0 +1,119 @@
+//! `ttball play`: a bag's detections on the DDS bus at their recorded pace (see
+//! `ttball::node::play`).
+
+use std::io::IsTerminal;
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::Duration;
+
+use anyhow::Context;
+use clap::Args;
+use indicatif::{ProgressBar, ProgressStyle};
+use ttball::node::{Placement, PlayOptions, play};
+
+use super::node::node_error;
+use super::{BadUsage, ConfigArgs, write_stdout};
+
+/// Arguments of `ttball play`.
+#[derive(Debug, Args)]
+pub struct PlayArgs {
+    /// The bag: an MCAP file, or a rosbag2 directory (MCAP storage).
+    #[arg(value_name = "BAG.mcap")]
+    pub bag: PathBuf,
+
+    /// Speed factor: 0.5 plays at half the recorded speed, 2 at twice.
+    #[arg(long, default_value_t = 1.0, value_name = "X")]
+    pub rate: f64,
+
+    /// Play again and again until Ctrl-C; each pass's stamps follow the previous pass's.
+    #[arg(long = "loop")]
+    pub repeat: bool,
+
+    /// Wait up to this long for a subscriber before the first detection (0: start at once).
+    #[arg(long, default_value_t = 5.0, value_name = "SECONDS")]
+    pub wait: f64,
+
+    /// Topic names, QoS depth, DDS interfaces.
+    #[command(flatten)]
+    pub config: ConfigArgs,
+}
+
+impl PlayArgs {
+    /// Plays the bag.
+    pub fn run(self) -> anyhow::Result<ExitCode> {
+        if !(self.rate.is_finite() && self.rate > 0.0 && self.rate <= 1000.0) {
+            return Err(BadUsage(format!("--rate must be in (0, 1000], got {}", self.rate)).into());
+        }
+        if !(self.wait.is_finite() && (0.0..=3600.0).contains(&self.wait)) {
+            return Err(
+                BadUsage(format!("--wait must be in [0, 3600] s, got {}", self.wait)).into(),
+            );
+        }
+        super::init_logging(None);
+        let config = self.config.load()?;
+        let placement = Placement::from_env(&config).map_err(node_error)?;
+        let cancel = Arc::new(AtomicBool::new(false));
+        {
+            let cancel = Arc::clone(&cancel);
+            ctrlc::set_handler(move || cancel.store(true, Ordering::Relaxed))
+                .context("cannot install the SIGINT/SIGTERM handler")?;
+        }
+        let bar = if std::io::stderr().is_terminal() {
+            let bar = ProgressBar::new(0);
+            bar.set_style(
+                ProgressStyle::with_template(
+                    "{msg} [{bar:30}] {pos}/{len} detections, {elapsed_precise}",
+                )
+                .unwrap_or_else(|_| ProgressStyle::default_bar()),
+            );
+            bar.set_message(format!("playing {}", self.bag.display()));
+            bar
+        } else {
+            ProgressBar::hidden()
+        };
+        let options = PlayOptions {
+            rate: self.rate,
+            repeat: self.repeat,
+            wait_for_subscriber: Duration::from_secs_f64(self.wait),
+        };
+        let mut progress = |done: u64, total: u64| {
+            bar.set_length(total);
+            bar.set_position(done);
+        };
+        let summary = play(
+            &self.bag,
+            &config,
+            &placement,
+            &options,
+            &cancel,
+            &mut progress,
+        )
+        .map_err(node_error)
+        .with_context(|| format!("cannot play {}", self.bag.display()))?;
+        bar.finish_and_clear();
+        write_stdout(&format!(
+            "{}: {} detections published on {} in {:.1} s ({} pass{}, {} subscriber{} at the start){}{}\n",
+            self.bag.display(),
+            summary.published,
+            config.topics.detections,
+            summary.seconds,
+            summary.passes,
+            if summary.passes == 1 { "" } else { "es" },
+            summary.subscribers,
+            if summary.subscribers == 1 { "" } else { "s" },
+            if summary.undecodable > 0 {
+                format!("; {} undecodable skipped", summary.undecodable)
+            } else {
+                String::new()
+            },
+            if summary.errors > 0 {
+                format!("; {} refused by DDS", summary.errors)
+            } else {
+                String::new()
+            },
+        ))?;
+        Ok(ExitCode::SUCCESS)
+    }
+}

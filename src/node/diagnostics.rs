@@ -1,0 +1,269 @@
+//! The node's `/diagnostics` message (`diagnostic_msgs/DiagnosticArray`, one status named
+//! `<node>: estimator`): rates, what happened to every detection (by reason), queue drops and
+//! processing time over the last period. Pure: the caller passes the clock readings.
+
+use crate::estimator::{Counters, Rejection};
+use crate::msgs::builtin_interfaces::Time;
+use crate::msgs::diagnostic_msgs::{DiagnosticArray, DiagnosticStatus, KeyValue};
+use crate::msgs::std_msgs::Header;
+use crate::stats::DurationSummary;
+
+/// What happened to detections before they reached the estimator, and to the node's outputs.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct TransportCounters {
+    /// Detections taken from DDS (decoded or not).
+    pub received: u64,
+    /// Detection samples that did not decode as `BallDetection` (dropped).
+    pub undecodable: u64,
+    /// Detections dropped because the queue to the estimator was full (the oldest goes).
+    pub dropped_queue_full: u64,
+    /// Messages that DDS refused to publish.
+    pub publish_errors: u64,
+    /// `~/predict_trajectory` requests answered.
+    pub service_requests: u64,
+    /// Requests refused because the estimator had too many waiting.
+    pub service_busy: u64,
+}
+
+/// Processing and queueing times of one diagnostics period.
+#[derive(Debug, Clone, Default)]
+pub struct Window {
+    /// `Pipeline::on_detection` time per detection [ns].
+    pub processing: Vec<u64>,
+    /// Time each detection waited in the queue [ns].
+    pub queue_wait: Vec<u64>,
+}
+
+impl Window {
+    /// An empty window with room for `capacity` detections.
+    pub fn with_capacity(capacity: usize) -> Self {
+        Self {
+            processing: Vec::with_capacity(capacity),
+            queue_wait: Vec::with_capacity(capacity),
+        }
+    }
+
+    /// Records one detection.
+    pub fn record(&mut self, processing_ns: u64, queue_wait_ns: u64) {
+        self.processing.push(processing_ns);
+        self.queue_wait.push(queue_wait_ns);
+    }
+}
+
+/// Everything one diagnostics message reports.
+#[derive(Debug, Clone, Copy)]
+pub struct Snapshot<'a> {
+    /// Fully qualified node name, e.g. `/ttball`.
+    pub node: &'a str,
+    /// The detections topic, for the message when nothing arrives.
+    pub detections_topic: &'a str,
+    /// When the snapshot was taken [ns since the epoch].
+    pub stamp: i64,
+    /// Length of the period the window covers [s].
+    pub period: f64,
+    /// The estimator's counters (whole run).
+    pub counters: &'a Counters,
+    /// The transport's counters (whole run).
+    pub transport: &'a TransportCounters,
+    /// The same transport counters at the start of the period.
+    pub transport_before: &'a TransportCounters,
+    /// Detections waiting in the queue now.
+    pub queue_len: usize,
+    /// The live track, if any.
+    pub track: Option<u32>,
+}
+
+/// Builds the diagnostics message of one period and empties `window`.
+pub fn diagnostics_msg(snapshot: &Snapshot<'_>, window: &mut Window) -> DiagnosticArray {
+    let s = snapshot;
+    let processing = DurationSummary::of(&mut window.processing);
+    let wait = DurationSummary::of(&mut window.queue_wait);
+    let rate = processing.count as f64 / s.period.max(1e-9);
+    let dropped_now = s.transport.dropped_queue_full - s.transport_before.dropped_queue_full;
+    let undecodable_now = s.transport.undecodable - s.transport_before.undecodable;
+    let (level, message) = if dropped_now > 0 {
+        (
+            DiagnosticStatus::WARN,
+            format!(
+                "{dropped_now} detections dropped in the last {:.1} s: the estimator falls behind (raise node.queue_capacity or lower the camera rate)",
+                s.period
+            ),
+        )
+    } else if undecodable_now > 0 {
+        (
+            DiagnosticStatus::WARN,
+            format!(
+                "{undecodable_now} detections on {} did not decode as ttball_msgs/msg/BallDetection",
+                s.detections_topic
+            ),
+        )
+    } else if processing.count == 0 {
+        (
+            DiagnosticStatus::OK,
+            format!("waiting for detections on {}", s.detections_topic),
+        )
+    } else {
+        (
+            DiagnosticStatus::OK,
+            match s.track {
+                Some(track) => format!("tracking ball {track} ({rate:.0} detections/s)"),
+                None => format!("no ball tracked ({rate:.0} detections/s)"),
+            },
+        )
+    };
+    let c = s.counters;
+    let t = s.transport;
+    let us = |ns: f64| format!("{:.1}", ns * 1e-3);
+    let mut values = vec![
+        kv("detections per second [1/s]", format!("{rate:.1}")),
+        kv("processing time mean [us]", us(processing.mean)),
+        kv("processing time p99 [us]", us(processing.p99)),
+        kv("processing time max [us]", us(processing.max)),
+        kv("queue wait p99 [us]", us(wait.p99)),
+        kv("queue length", s.queue_len.to_string()),
+        kv("detections received", t.received.to_string()),
+        kv("fused", c.fused.to_string()),
+        kv("initialising", c.initializing.to_string()),
+        kv(
+            "rejected",
+            (c.total_rejected() + t.undecodable + t.dropped_queue_full).to_string(),
+        ),
+        kv("rejected: undecodable", t.undecodable.to_string()),
+        kv("rejected: queue full", t.dropped_queue_full.to_string()),
+    ];
+    values.extend(Rejection::ALL.iter().map(|r| {
+        kv(
+            &format!("rejected: {}", r.name()),
+            c.rejected(*r).to_string(),
+        )
+    }));
+    values.extend([
+        kv("tracks", c.tracks.to_string()),
+        kv(
+            "live track",
+            s.track
+                .map_or_else(|| "none".to_owned(), |id| id.to_string()),
+        ),
+        kv("late detections fused by rollback", c.rollbacks.to_string()),
+        kv("publish errors", t.publish_errors.to_string()),
+        kv("service requests", t.service_requests.to_string()),
+        kv(
+            "service requests refused (busy)",
+            t.service_busy.to_string(),
+        ),
+    ]);
+    DiagnosticArray {
+        header: Header {
+            stamp: Time::from_nanos(s.stamp),
+            frame_id: String::new(),
+        },
+        status: vec![DiagnosticStatus {
+            level,
+            name: format!("{}: estimator", s.node.trim_start_matches('/')),
+            message,
+            hardware_id: String::new(),
+            values,
+        }],
+    }
+}
+
+fn kv(key: &str, value: String) -> KeyValue {
+    KeyValue {
+        key: key.to_owned(),
+        value,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn value<'a>(msg: &'a DiagnosticArray, key: &str) -> &'a str {
+        let status = &msg.status[0];
+        status
+            .values
+            .iter()
+            .find(|kv| kv.key == key)
+            .map(|kv| kv.value.as_str())
+            .unwrap_or_else(|| panic!("no {key}"))
+    }
+
+    #[test]
+    fn reports_rates_times_and_every_reason() {
+        let mut rejected = [0; 9];
+        rejected[0] = 3; // Rejection::ALL[0]
+        let counters = Counters {
+            fused: 140,
+            rejected,
+            ..Counters::default()
+        };
+        let transport = TransportCounters {
+            received: 150,
+            undecodable: 1,
+            ..TransportCounters::default()
+        };
+        let mut window = Window::with_capacity(8);
+        for i in 0..150 {
+            window.record(10_000 + i * 100, 2_000);
+        }
+        let msg = diagnostics_msg(
+            &Snapshot {
+                node: "/ttball",
+                detections_topic: "/ball/detections",
+                stamp: 1_500_000_000,
+                period: 1.0,
+                counters: &counters,
+                transport: &transport,
+                transport_before: &transport,
+                queue_len: 0,
+                track: Some(4),
+            },
+            &mut window,
+        );
+        assert!(window.processing.is_empty() && window.queue_wait.is_empty());
+        let status = &msg.status[0];
+        assert_eq!(status.name, "ttball: estimator");
+        assert_eq!(status.level, DiagnosticStatus::OK);
+        assert_eq!(status.message, "tracking ball 4 (150 detections/s)");
+        assert_eq!(value(&msg, "detections per second [1/s]"), "150.0");
+        assert_eq!(value(&msg, "processing time max [us]"), "24.9");
+        assert_eq!(value(&msg, "rejected"), "4");
+        assert_eq!(
+            value(&msg, &format!("rejected: {}", Rejection::ALL[0].name())),
+            "3"
+        );
+        for r in Rejection::ALL {
+            value(&msg, &format!("rejected: {}", r.name()));
+        }
+        assert_eq!(msg.header.stamp, Time::from_nanos(1_500_000_000));
+    }
+
+    #[test]
+    fn drops_in_the_period_warn() {
+        let counters = Counters::default();
+        let before = TransportCounters::default();
+        let now = TransportCounters {
+            received: 500,
+            dropped_queue_full: 20,
+            ..before
+        };
+        let msg = diagnostics_msg(
+            &Snapshot {
+                node: "/robot/ttball",
+                detections_topic: "/ball/detections",
+                stamp: 0,
+                period: 1.0,
+                counters: &counters,
+                transport: &now,
+                transport_before: &before,
+                queue_len: 256,
+                track: None,
+            },
+            &mut Window::default(),
+        );
+        assert_eq!(msg.status[0].level, DiagnosticStatus::WARN);
+        assert!(msg.status[0].message.starts_with("20 detections dropped"));
+        assert_eq!(value(&msg, "rejected: queue full"), "20");
+        assert_eq!(msg.status[0].name, "robot/ttball: estimator");
+    }
+}

@@ -1,0 +1,601 @@
+//! The live ROS 2 node (`ttball node`), on ros2-client (pure-Rust ROS 2 on RustDDS): detections
+//! in from `topics.detections`, [`Pipeline::on_detection`] (the code path `ttball replay` runs),
+//! state, intercept, trajectory, markers and diagnostics out, and the `~/predict_trajectory`
+//! service.
+//!
+//! Threads: the DDS thread takes detections and service requests off DDS and never waits for the
+//! estimator: detections go through a bounded crossbeam channel (`node.queue_capacity`; when
+//! full the oldest is dropped and counted) to the one estimator thread, which runs the pipeline
+//! and publishes its outputs and the diagnostics. Service requests go to the estimator thread
+//! through a second small channel and their replies come back to the DDS thread, which sends
+//! them. A third thread spins ros2-client's node (graph discovery, `ros_discovery_info`).
+//! [`NodeHandle::stop`] stops the DDS side first, lets the estimator finish what was queued,
+//! then shuts DDS down.
+
+mod dds;
+mod diagnostics;
+mod play;
+
+use std::sync::Arc;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::thread::JoinHandle;
+use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
+
+use crossbeam::channel::{self, Receiver, Sender, TrySendError};
+use futures::channel::{mpsc, oneshot};
+use futures::{FutureExt, StreamExt};
+use ros2_client::{Node, Publisher, RmwRequestId, Server, Subscription};
+use serde::Serialize;
+use tracing::{debug, info, warn};
+
+pub use dds::domain_id;
+pub use diagnostics::{Snapshot, TransportCounters, Window, diagnostics_msg};
+pub use play::{PlayOptions, PlaySummary, play};
+
+use crate::config::Config;
+use crate::estimator::Counters;
+use crate::msgs::diagnostic_msgs::DiagnosticArray;
+use crate::msgs::ttball_msgs::msg::{
+    BallDetection, BallState, InterceptPrediction, PredictedTrajectory,
+};
+use crate::msgs::ttball_msgs::srv::{PredictTrajectoryRequest, PredictTrajectoryResponse};
+use crate::msgs::visualization_msgs::MarkerArray;
+use crate::pipeline::{Pipeline, Published};
+use crate::replay::{DETECTION_TYPE, INTERCEPT_TYPE, MARKERS_TYPE, STATE_TYPE, TRAJECTORY_TYPE};
+
+impl ros2_client::Message for BallDetection {}
+impl ros2_client::Message for PredictTrajectoryRequest {}
+impl ros2_client::Message for PredictTrajectoryResponse {}
+
+/// ROS 2 type of `/diagnostics`.
+pub const DIAGNOSTICS_TYPE: &str = "diagnostic_msgs/msg/DiagnosticArray";
+/// ROS 2 type of the `~/predict_trajectory` service.
+pub const PREDICT_TRAJECTORY_TYPE: &str = "ttball_msgs/srv/PredictTrajectory";
+/// Base name of the trajectory service, private to the node (`~/predict_trajectory`).
+pub const PREDICT_TRAJECTORY_SERVICE: &str = "predict_trajectory";
+
+/// Service requests that may wait for the estimator thread; more are refused as busy.
+const REQUEST_QUEUE: usize = 16;
+
+/// Why the node could not start or run.
+#[derive(Debug, thiserror::Error)]
+pub enum NodeError {
+    /// `ROS_DOMAIN_ID` is not a domain id.
+    #[error(
+        "ROS_DOMAIN_ID={0:?} is not a DDS domain id: set it to a whole number from 0 to 232, or unset it for domain 0"
+    )]
+    DomainId(String),
+    /// A node, topic or service name is malformed.
+    #[error("invalid ROS 2 name {0}")]
+    Name(String),
+    /// DDS refused to create something (participant, topic, reader, writer).
+    #[error("DDS: {0}")]
+    Dds(String),
+    /// A thread of the node could not start or ended abnormally.
+    #[error("node thread: {0}")]
+    Thread(String),
+    /// Reading the bag to play failed.
+    #[error(transparent)]
+    Replay(#[from] crate::replay::ReplayError),
+}
+
+/// Where the node runs: DDS domain and interfaces. [`Placement::from_env`] reads them as ROS 2
+/// does.
+#[derive(Debug, Clone, PartialEq, Eq, Default)]
+pub struct Placement {
+    /// DDS domain (`ROS_DOMAIN_ID`).
+    pub domain: u16,
+    /// Addresses of the interfaces DDS may use; `None` = all.
+    pub interfaces: Option<Vec<std::net::IpAddr>>,
+}
+
+impl Placement {
+    /// The domain from `ROS_DOMAIN_ID` and the interfaces from the configuration and
+    /// `ROS_LOCALHOST_ONLY` / `ROS_AUTOMATIC_DISCOVERY_RANGE`.
+    pub fn from_env(config: &Config) -> Result<Self, NodeError> {
+        let var = |name: &str| std::env::var(name).ok();
+        Ok(Self {
+            domain: dds::domain_id(var("ROS_DOMAIN_ID").as_deref())?,
+            interfaces: dds::interfaces(
+                &config.node,
+                var("ROS_LOCALHOST_ONLY").as_deref(),
+                var("ROS_AUTOMATIC_DISCOVERY_RANGE").as_deref(),
+            ),
+        })
+    }
+
+    /// The interfaces in words, for logs.
+    pub fn describe_interfaces(&self) -> String {
+        match &self.interfaces {
+            None => "all interfaces".to_owned(),
+            Some(list) => list
+                .iter()
+                .map(ToString::to_string)
+                .collect::<Vec<_>>()
+                .join(", "),
+        }
+    }
+}
+
+/// What the node did, returned when it stops.
+#[derive(Debug, Clone, PartialEq)]
+pub struct NodeSummary {
+    /// The estimator's counters.
+    pub counters: Counters,
+    /// What happened before the estimator and to the outputs.
+    pub transport: TransportCounters,
+    /// Processing time per detection over the whole run: mean [ns].
+    pub processing_mean_ns: f64,
+    /// Longest processing time of one detection [ns].
+    pub processing_max_ns: f64,
+    /// How long the node ran [s].
+    pub seconds: f64,
+}
+
+/// A running node. Dropping it without [`NodeHandle::stop`] leaves its threads running until
+/// the process ends.
+pub struct NodeHandle {
+    stop: Option<oneshot::Sender<()>>,
+    dds: Option<JoinHandle<Result<NodeSummary, NodeError>>>,
+    ended: Receiver<()>,
+    name: String,
+}
+
+impl NodeHandle {
+    /// The node's fully qualified name, e.g. `/ttball`.
+    pub fn name(&self) -> &str {
+        &self.name
+    }
+
+    /// Fires (disconnects) when the node stops on its own, e.g. after a fatal DDS error; for
+    /// `crossbeam::select!` beside a signal channel.
+    pub fn ended(&self) -> &Receiver<()> {
+        &self.ended
+    }
+
+    /// Stops the node cleanly: no more detections are taken, those queued are processed and
+    /// published, then DDS is shut down.
+    pub fn stop(mut self) -> Result<NodeSummary, NodeError> {
+        if let Some(stop) = self.stop.take() {
+            let _ = stop.send(());
+        }
+        match self.dds.take().map(JoinHandle::join) {
+            Some(Ok(result)) => result,
+            Some(Err(_)) => Err(NodeError::Thread("the DDS thread panicked".to_owned())),
+            None => Err(NodeError::Thread("the node was already stopped".to_owned())),
+        }
+    }
+}
+
+/// Counters shared by the DDS and estimator threads.
+#[derive(Debug, Default)]
+struct Shared {
+    received: AtomicU64,
+    undecodable: AtomicU64,
+    dropped_queue_full: AtomicU64,
+    publish_errors: AtomicU64,
+    service_requests: AtomicU64,
+    service_busy: AtomicU64,
+}
+
+impl Shared {
+    fn snapshot(&self) -> TransportCounters {
+        let get = |c: &AtomicU64| c.load(Ordering::Relaxed);
+        TransportCounters {
+            received: get(&self.received),
+            undecodable: get(&self.undecodable),
+            dropped_queue_full: get(&self.dropped_queue_full),
+            publish_errors: get(&self.publish_errors),
+            service_requests: get(&self.service_requests),
+            service_busy: get(&self.service_busy),
+        }
+    }
+
+    fn add(counter: &AtomicU64) -> u64 {
+        counter.fetch_add(1, Ordering::Relaxed) + 1
+    }
+}
+
+/// A detection in the queue, with the instant DDS handed it over.
+type Queued = (BallDetection, Instant);
+/// A service request in the queue, and its reply.
+type Request = (RmwRequestId, PredictTrajectoryRequest);
+type Reply = (RmwRequestId, PredictTrajectoryResponse);
+
+/// The node's publishers.
+struct Outputs {
+    state: Publisher<BallState>,
+    intercept: Publisher<InterceptPrediction>,
+    trajectory: Publisher<PredictedTrajectory>,
+    markers: Publisher<MarkerArray>,
+    diagnostics: Publisher<DiagnosticArray>,
+}
+
+/// Starts the node with a validated configuration: creates the participant, the node, its
+/// subscription, publishers and service, then starts its threads.
+pub fn start(config: &Config, placement: &Placement) -> Result<NodeHandle, NodeError> {
+    let context = dds::context(placement.domain, placement.interfaces.as_deref())?;
+    let node_name = dds::node_name(config)?;
+    let mut node = dds::node(&context, node_name.clone(), true)?;
+    let fq_name = node_name.fully_qualified_name();
+    let dds_error = |e: ros2_client::CreateError| NodeError::Dds(e.to_string());
+
+    let topics = &config.topics;
+    let output_qos = dds::reliable(config.qos.outputs_depth);
+    let detections_topic = node
+        .create_topic(
+            &dds::name(&topics.detections)?,
+            dds::message_type(DETECTION_TYPE),
+            &dds::sensor_data(config.qos.detections_depth),
+        )
+        .map_err(dds_error)?;
+    let subscription: Subscription<BallDetection> = node
+        .create_subscription(&detections_topic, None)
+        .map_err(dds_error)?;
+    let outputs = Outputs {
+        state: publisher(&mut node, &topics.state, STATE_TYPE, &output_qos)?,
+        intercept: publisher(&mut node, &topics.intercept, INTERCEPT_TYPE, &output_qos)?,
+        trajectory: publisher(&mut node, &topics.trajectory, TRAJECTORY_TYPE, &output_qos)?,
+        markers: publisher(&mut node, &topics.markers, MARKERS_TYPE, &output_qos)?,
+        diagnostics: publisher(
+            &mut node,
+            &topics.diagnostics,
+            DIAGNOSTICS_TYPE,
+            &output_qos,
+        )?,
+    };
+    let server: Server<PredictTrajectoryRequest, PredictTrajectoryResponse> = node
+        .create_server(
+            dds::service_mapping(config.node.service_mapping),
+            &dds::private_name(&node_name, PREDICT_TRAJECTORY_SERVICE)?,
+            &dds::service_type(PREDICT_TRAJECTORY_TYPE),
+            dds::services(),
+            dds::services(),
+        )
+        .map_err(dds_error)?;
+    let spinner = node.spinner().map_err(dds_error)?;
+
+    let shared = Arc::new(Shared::default());
+    let capacity = usize::try_from(config.node.queue_capacity).unwrap_or(usize::MAX);
+    let (detection_tx, detection_rx) = channel::bounded::<Queued>(capacity);
+    let (request_tx, request_rx) = channel::bounded::<Request>(REQUEST_QUEUE);
+    let (reply_tx, reply_rx) = mpsc::unbounded::<Reply>();
+    let (stop_tx, stop_rx) = oneshot::channel::<()>();
+    let (ended_tx, ended_rx) = channel::bounded::<()>(0);
+
+    std::thread::Builder::new()
+        .name("ttball-spinner".to_owned())
+        .spawn(move || {
+            if let Err(e) = futures::executor::block_on(spinner.spin()) {
+                warn!("ros2-client spinner stopped: {e}");
+            }
+        })
+        .map_err(|e| NodeError::Thread(e.to_string()))?;
+
+    let estimator = EstimatorThread {
+        pipeline: Pipeline::new(config),
+        outputs,
+        shared: Arc::clone(&shared),
+        node_name: fq_name.clone(),
+        detections_topic: topics.detections.clone(),
+        period: Duration::from_secs_f64(config.node.diagnostics_period),
+        capacity,
+    };
+    let queue_rx = detection_rx.clone();
+    let estimator = std::thread::Builder::new()
+        .name("ttball-estimator".to_owned())
+        .spawn(move || estimator.run(&detection_rx, &request_rx, &reply_tx))
+        .map_err(|e| NodeError::Thread(e.to_string()))?;
+
+    info!(
+        "node {fq_name} on DDS domain {}, {}: detections from {} (best effort, depth {}), outputs on {}, {}, {}, {}, {} (reliable, depth {}), service {fq_name}/{PREDICT_TRAJECTORY_SERVICE} ({:?} mapping)",
+        placement.domain,
+        placement.describe_interfaces(),
+        topics.detections,
+        config.qos.detections_depth,
+        topics.state,
+        topics.intercept,
+        topics.trajectory,
+        topics.markers,
+        topics.diagnostics,
+        config.qos.outputs_depth,
+        config.node.service_mapping,
+    );
+
+    let dds = std::thread::Builder::new()
+        .name("ttball-dds".to_owned())
+        .spawn(move || {
+            let started = Instant::now();
+            let queue = DetectionQueue {
+                tx: detection_tx,
+                rx: queue_rx,
+                shared: &shared,
+            };
+            dds_loop(
+                &subscription,
+                &server,
+                queue,
+                &request_tx,
+                reply_rx,
+                stop_rx,
+                &shared,
+            );
+            // Detections stop here: the estimator drains its queue and ends.
+            drop(request_tx);
+            let estimator = estimator
+                .join()
+                .map_err(|_| NodeError::Thread("the estimator thread panicked".to_owned()))?;
+            node.stop_spinner();
+            drop(ended_tx);
+            drop(node);
+            drop(context);
+            Ok(NodeSummary {
+                counters: estimator.counters,
+                transport: shared.snapshot(),
+                processing_mean_ns: estimator.processing_mean_ns,
+                processing_max_ns: estimator.processing_max_ns,
+                seconds: started.elapsed().as_secs_f64(),
+            })
+        })
+        .map_err(|e| NodeError::Thread(e.to_string()))?;
+
+    Ok(NodeHandle {
+        stop: Some(stop_tx),
+        dds: Some(dds),
+        ended: ended_rx,
+        name: fq_name,
+    })
+}
+
+fn publisher<M: Serialize>(
+    node: &mut Node,
+    topic: &str,
+    ros_type: &str,
+    qos: &ros2_client::QosProfile,
+) -> Result<Publisher<M>, NodeError> {
+    let topic = node
+        .create_topic(&dds::name(topic)?, dds::message_type(ros_type), qos)
+        .map_err(|e| NodeError::Dds(e.to_string()))?;
+    node.create_publisher(&topic, None)
+        .map_err(|e| NodeError::Dds(e.to_string()))
+}
+
+/// The DDS side of the bounded queue: pushing never blocks; when full, the oldest goes.
+struct DetectionQueue<'a> {
+    tx: Sender<Queued>,
+    rx: Receiver<Queued>,
+    shared: &'a Shared,
+}
+
+impl DetectionQueue<'_> {
+    fn push(&self, detection: BallDetection) {
+        let mut item = (detection, Instant::now());
+        loop {
+            match self.tx.try_send(item) {
+                Ok(()) => return,
+                Err(TrySendError::Full(back)) => {
+                    item = back;
+                    if self.rx.try_recv().is_ok() {
+                        let dropped = Shared::add(&self.shared.dropped_queue_full);
+                        if dropped == 1 || dropped.is_multiple_of(1000) {
+                            warn!(
+                                "the estimator falls behind: {dropped} detections dropped so far (queue full)"
+                            );
+                        }
+                    }
+                }
+                Err(TrySendError::Disconnected(_)) => return,
+            }
+        }
+    }
+}
+
+/// Takes detections and requests off DDS until `stop` fires.
+fn dds_loop(
+    subscription: &Subscription<BallDetection>,
+    server: &Server<PredictTrajectoryRequest, PredictTrajectoryResponse>,
+    queue: DetectionQueue<'_>,
+    requests: &Sender<Request>,
+    mut replies: mpsc::UnboundedReceiver<Reply>,
+    stop: oneshot::Receiver<()>,
+    shared: &Shared,
+) {
+    futures::executor::block_on(async {
+        let detections = subscription.async_stream();
+        let incoming = server.receive_request_stream();
+        futures::pin_mut!(detections, incoming);
+        let mut stop = stop.fuse();
+        loop {
+            futures::select! {
+                sample = detections.select_next_some() => {
+                    Shared::add(&shared.received);
+                    match sample {
+                        Ok((detection, _info)) => queue.push(detection),
+                        Err(e) => {
+                            let n = Shared::add(&shared.undecodable);
+                            if n == 1 || n.is_multiple_of(1000) {
+                                warn!("{n} detection samples did not decode as BallDetection so far: {e:?}");
+                            }
+                        }
+                    }
+                }
+                request = incoming.select_next_some() => match request {
+                    Ok((id, request)) => {
+                        if let Err(TrySendError::Full((id, _))) = requests.try_send((id, request)) {
+                            Shared::add(&shared.service_busy);
+                            send_reply(server, id, busy_response(), shared);
+                        }
+                    }
+                    Err(e) => warn!("a predict_trajectory request did not decode: {e:?}"),
+                },
+                reply = replies.select_next_some() => {
+                    let (id, response) = reply;
+                    Shared::add(&shared.service_requests);
+                    send_reply(server, id, response, shared);
+                }
+                _ = stop => break,
+            }
+        }
+    });
+}
+
+fn send_reply(
+    server: &Server<PredictTrajectoryRequest, PredictTrajectoryResponse>,
+    id: RmwRequestId,
+    response: PredictTrajectoryResponse,
+    shared: &Shared,
+) {
+    if let Err(e) = server.send_response(id, response) {
+        Shared::add(&shared.publish_errors);
+        warn!("cannot send a predict_trajectory reply: {e:?}");
+    }
+}
+
+fn busy_response() -> PredictTrajectoryResponse {
+    PredictTrajectoryResponse {
+        success: false,
+        message: format!("busy: {REQUEST_QUEUE} requests are waiting; try again"),
+        trajectory: PredictedTrajectory::default(),
+    }
+}
+
+/// What the estimator thread owns.
+struct EstimatorThread {
+    pipeline: Pipeline,
+    outputs: Outputs,
+    shared: Arc<Shared>,
+    node_name: String,
+    detections_topic: String,
+    period: Duration,
+    capacity: usize,
+}
+
+/// What the estimator thread did.
+struct EstimatorResult {
+    counters: Counters,
+    processing_mean_ns: f64,
+    processing_max_ns: f64,
+}
+
+impl EstimatorThread {
+    fn run(
+        mut self,
+        detections: &Receiver<Queued>,
+        requests: &Receiver<Request>,
+        replies: &mpsc::UnboundedSender<Reply>,
+    ) -> EstimatorResult {
+        let ticker = channel::tick(self.period);
+        let mut window = Window::with_capacity(self.capacity.max(1024));
+        let mut period_start = Instant::now();
+        let mut transport_before = self.shared.snapshot();
+        let mut requests_open = true;
+        let (mut total_ns, mut max_ns, mut count) = (0.0, 0u64, 0u64);
+        loop {
+            let never = channel::never();
+            channel::select! {
+                recv(detections) -> item => {
+                    let Ok((detection, queued_at)) = item else { break };
+                    let started = Instant::now();
+                    let step = self.pipeline.on_detection(&detection);
+                    let ns = nanos(started.elapsed());
+                    window.record(ns, nanos(started.duration_since(queued_at)));
+                    total_ns += ns as f64;
+                    max_ns = max_ns.max(ns);
+                    count += 1;
+                    self.publish(step.published);
+                }
+                recv(if requests_open { requests } else { &never }) -> request => match request {
+                    Ok((id, request)) => {
+                        let response = self.pipeline.predict_trajectory(&request);
+                        debug!("predict_trajectory: track {} -> {} samples", request.track_id, response.trajectory.stamps.len());
+                        let _ = replies.unbounded_send((id, response));
+                    }
+                    Err(_) => requests_open = false,
+                },
+                recv(ticker) -> _ => {
+                    let now = Instant::now();
+                    let transport = self.shared.snapshot();
+                    self.publish_diagnostics(&mut window, now - period_start, &transport, &transport_before, detections.len());
+                    period_start = now;
+                    transport_before = transport;
+                }
+            }
+        }
+        let transport = self.shared.snapshot();
+        self.publish_diagnostics(
+            &mut window,
+            period_start.elapsed(),
+            &transport,
+            &transport_before,
+            0,
+        );
+        EstimatorResult {
+            counters: self.pipeline.counters(),
+            processing_mean_ns: if count > 0 {
+                total_ns / count as f64
+            } else {
+                0.0
+            },
+            processing_max_ns: max_ns as f64,
+        }
+    }
+
+    fn publish(&self, published: Published) {
+        let o = &self.outputs;
+        let results = [
+            published.state.map(|m| o.state.publish(m).is_ok()),
+            published.intercept.map(|m| o.intercept.publish(m).is_ok()),
+            published
+                .trajectory
+                .map(|m| o.trajectory.publish(m).is_ok()),
+            published.markers.map(|m| o.markers.publish(m).is_ok()),
+        ];
+        for ok in results.into_iter().flatten() {
+            if !ok {
+                let n = Shared::add(&self.shared.publish_errors);
+                if n == 1 || n.is_multiple_of(1000) {
+                    warn!("{n} messages could not be published so far");
+                }
+            }
+        }
+    }
+
+    fn publish_diagnostics(
+        &self,
+        window: &mut Window,
+        period: Duration,
+        transport: &TransportCounters,
+        transport_before: &TransportCounters,
+        queue_len: usize,
+    ) {
+        let counters = self.pipeline.counters();
+        let msg = diagnostics_msg(
+            &Snapshot {
+                node: &self.node_name,
+                detections_topic: &self.detections_topic,
+                stamp: wall_clock_ns(),
+                period: period.as_secs_f64(),
+                counters: &counters,
+                transport,
+                transport_before,
+                queue_len,
+                track: self.pipeline.estimator().estimate().map(|e| e.track_id),
+            },
+            window,
+        );
+        if self.outputs.diagnostics.publish(msg).is_err() {
+            Shared::add(&self.shared.publish_errors);
+        }
+    }
+}
+
+fn nanos(d: Duration) -> u64 {
+    u64::try_from(d.as_nanos()).unwrap_or(u64::MAX)
+}
+
+/// Now, as ROS time [ns since the epoch].
+fn wall_clock_ns() -> i64 {
+    SystemTime::now()
+        .duration_since(UNIX_EPOCH)
+        .map_or(0, |d| i64::try_from(d.as_nanos()).unwrap_or(i64::MAX))
+}
