@@ -201,10 +201,10 @@ class Recorder:
 
     def _take(self, reader):
         while True:
+            now = time.monotonic_ns()  # before take(), which also deserialises
             samples = reader.take(N=256)
             if not samples:
                 return
-            now = time.monotonic_ns()
             with self.lock:
                 for sample in samples:
                     if not sample.sample_info.valid_data:
@@ -251,7 +251,6 @@ def percentile(sorted_values, p):
 
 def read_detections(bag, topic):
     """(log_time, BallDetection_) for every message on topic, in log-time order, decoded by Cyclone."""
-
     with open(bag, "rb") as f:
         return [(m.log_time, BallDetection_.deserialize(m.data))
                 for _, _, m in make_reader(f).iter_messages(topics=[topic], log_time_order=True)]
