@@ -1,0 +1,430 @@
+"""A DDS peer for `ttball node`, written with Eclipse Cyclone DDS (Python binding), which ttball
+did not write: it proves the node interoperates over DDS, and lets you try the node without ROS 2.
+
+    pip install cyclonedds mcap
+    ttball node &                                   # in one shell (same ROS_DOMAIN_ID)
+    python dds_peer.py publish bags/sim_rally_2cams.mcap --out results.json
+    python dds_peer.py listen --count 100           # e.g. against `ttball play BAG`
+    python dds_peer.py call-predict --horizon 0.5   # needs `-p node.service_mapping:=cyclone`
+
+`publish` plays a bag's detections to /ball/detections at their recorded times and records the
+node's /ball/state and /ball/intercept (with latency); `listen` records detections published by
+someone else; `call-predict` calls the node's PredictTrajectory service. `python dds_peer.py
+COMMAND --help` has the details.
+
+The ROS 2 messages are declared below as plain (final) Cyclone IDL structs under their ROS 2 DDS
+type names, so Cyclone speaks plain CDR (encapsulation 00 01 00 00) like ROS 2 and RustDDS. DDS
+topics follow ROS 2: /ball/state is `rt/ball/state`; a service /s is `rq/sRequest` and
+`rr/sReply`, each payload led by rmw_cyclonedds' request header (client guid, sequence number).
+
+Network: unless CYCLONEDDS_URI is already set, Cyclone is restricted to the loopback interface
+(LOOPBACK_URI). DDS discovery multicasts, so for tests also run inside a loopback-only network
+namespace:
+    unshare -n bash -c 'ip link set lo up; ip link set lo multicast on;
+                        ip route add 224.0.0.0/4 dev lo; ...'
+The domain id is ROS_DOMAIN_ID (default 0), as in ROS 2.
+"""
+
+import argparse
+import collections
+import json
+import math
+import os
+import random
+import sys
+import threading
+import time
+from dataclasses import dataclass
+
+from cyclonedds.core import Listener, Policy, Qos
+from cyclonedds.domain import DomainParticipant
+from cyclonedds.idl import IdlStruct
+from cyclonedds.idl import types as t
+from cyclonedds.pub import DataWriter
+from cyclonedds.sub import DataReader
+from cyclonedds.topic import Topic
+from cyclonedds.util import duration
+from mcap.reader import make_reader
+
+LOOPBACK_URI = (
+    '<CycloneDDS><Domain id="any"><General><Interfaces>'
+    '<NetworkInterface address="127.0.0.1" multicast="true"/>'
+    "</Interfaces></General></Domain></CycloneDDS>"
+)
+
+
+# ---- ROS 2 message types (fields, types and order exactly as the .msg files) -------------------
+
+
+@dataclass
+class Time_(IdlStruct, typename="builtin_interfaces::msg::dds_::Time_"):
+    sec: t.int32
+    nanosec: t.uint32
+
+
+@dataclass
+class Header_(IdlStruct, typename="std_msgs::msg::dds_::Header_"):
+    stamp: Time_
+    frame_id: str
+
+
+@dataclass
+class Point_(IdlStruct, typename="geometry_msgs::msg::dds_::Point_"):
+    x: t.float64
+    y: t.float64
+    z: t.float64
+
+
+@dataclass
+class Vector3_(IdlStruct, typename="geometry_msgs::msg::dds_::Vector3_"):
+    x: t.float64
+    y: t.float64
+    z: t.float64
+
+
+@dataclass
+class BallDetection_(IdlStruct, typename="ttball_msgs::msg::dds_::BallDetection_"):
+    header: Header_
+    position: Point_
+    position_covariance: t.array[t.float64, 9]
+    has_spin: bool
+    spin: Vector3_
+    spin_covariance: t.array[t.float64, 9]
+    source: t.uint8
+    confidence: t.float32
+
+
+@dataclass
+class BallState_(IdlStruct, typename="ttball_msgs::msg::dds_::BallState_"):
+    header: Header_
+    track_id: t.uint32
+    status: t.uint8
+    position: Point_
+    velocity: Vector3_
+    spin: Vector3_
+    covariance: t.array[t.float64, 81]
+    bounces: t.uint32
+    nis: t.float64
+
+
+@dataclass
+class InterceptPrediction_(IdlStruct, typename="ttball_msgs::msg::dds_::InterceptPrediction_"):
+    header: Header_
+    track_id: t.uint32
+    valid: bool
+    intercept_stamp: Time_
+    position: Point_
+    velocity: Vector3_
+    spin: Vector3_
+    covariance: t.array[t.float64, 81]
+    bounce_valid: bool
+    bounce_stamp: Time_
+    bounce_position: Point_
+
+
+@dataclass
+class PredictedTrajectory_(IdlStruct, typename="ttball_msgs::msg::dds_::PredictedTrajectory_"):
+    header: Header_
+    track_id: t.uint32
+    stamps: t.sequence[Time_]
+    positions: t.sequence[Point_]
+    velocities: t.sequence[Vector3_]
+    spins: t.sequence[Vector3_]
+
+
+# rmw_cyclonedds ("cyclone" service mapping): the type is the ROS one, the payload is led by the
+# request header {uint64 client guid; int64 sequence number}, which the server echoes in the reply.
+@dataclass
+class PredictTrajectory_Request_(IdlStruct, typename="ttball_msgs::srv::dds_::PredictTrajectory_Request_"):
+    client_guid: t.uint64
+    sequence_number: t.int64
+    track_id: t.uint32
+    initial: BallState_
+    horizon: t.float64
+    dt: t.float64
+
+
+@dataclass
+class PredictTrajectory_Response_(IdlStruct, typename="ttball_msgs::srv::dds_::PredictTrajectory_Response_"):
+    client_guid: t.uint64
+    sequence_number: t.int64
+    success: bool
+    message: str
+    trajectory: PredictedTrajectory_
+
+
+# ---- DDS plumbing ------------------------------------------------------------------------------
+
+
+def participant():
+    """A DomainParticipant on ROS_DOMAIN_ID, restricted to loopback unless CYCLONEDDS_URI is set
+    (Cyclone reads CYCLONEDDS_URI when the first participant creates the domain)."""
+    os.environ.setdefault("CYCLONEDDS_URI", LOOPBACK_URI)
+    return DomainParticipant(int(os.environ.get("ROS_DOMAIN_ID", "0")))
+
+
+def qos(reliable, depth):
+    """KeepLast(depth), Volatile, Reliable or BestEffort (as ROS 2 maps its QoS profiles)."""
+    reliability = Policy.Reliability.Reliable(duration(seconds=1)) if reliable else Policy.Reliability.BestEffort
+    return Qos(reliability, Policy.History.KeepLast(depth), Policy.Durability.Volatile)
+
+
+def ros_topic(prefix, name, suffix=""):
+    """ROS 2 name -> DDS topic name: ("rt", "/ball/state") -> "rt/ball/state"."""
+    return prefix + "/" + name.strip("/") + suffix
+
+
+def warn_incompatible(kind):
+    """A listener that says so when QoS prevents a match (otherwise a silent non-match)."""
+    def report(entity, status):
+        print(f"dds_peer: incompatible QoS on {kind} {entity.topic.name} (policy id {status.last_policy_id})",
+              file=sys.stderr)
+
+    return Listener(on_offered_incompatible_qos=report, on_requested_incompatible_qos=report)
+
+
+def writer(dp, name, data_type, reliable, depth):
+    return DataWriter(dp, Topic(dp, name, data_type), qos(reliable, depth), listener=warn_incompatible("writer"))
+
+
+class Recorder:
+    """A DataReader whose samples are taken from Cyclone's receive thread (a listener, so none is
+    lost and recv_ns is the arrival time), kept as {"stamp_ns"?, "recv_ns", "cdr"} plus the sample."""
+
+    def __init__(self, dp, name, data_type, reliable, depth):
+        self.records, self.samples = [], []
+        self.lock = threading.Lock()
+        self.arrived = threading.Condition(self.lock)
+        listener = warn_incompatible("reader")
+        listener.merge(Listener(on_data_available=self._take))
+        self.reader = DataReader(dp, Topic(dp, name, data_type), qos(reliable, depth), listener=listener)
+
+    def _take(self, reader):
+        while True:
+            now = time.monotonic_ns()  # before take(), which also deserialises
+            samples = reader.take(N=256)
+            if not samples:
+                return
+            with self.lock:
+                for sample in samples:
+                    if not sample.sample_info.valid_data:
+                        continue
+                    record = {"recv_ns": now, "cdr": sample.serialize().hex()}
+                    if hasattr(sample, "header"):
+                        record = {"stamp_ns": stamp_ns(sample.header.stamp), **record}
+                    self.records.append(record)
+                    self.samples.append(sample)
+                self.arrived.notify_all()
+
+    def snapshot(self):
+        with self.lock:
+            return list(self.records)
+
+
+def stamp_ns(stamp):
+    return stamp.sec * 1_000_000_000 + stamp.nanosec
+
+
+def wait_until(condition, deadline):
+    """Polls condition() until it holds or time.monotonic() passes deadline; returns it."""
+    while not condition():
+        if time.monotonic() >= deadline:
+            return False
+        time.sleep(0.01)
+    return True
+
+
+def write_json(path, value):
+    if path:
+        with open(path, "w") as out:
+            json.dump(value, out)
+            out.write("\n")
+
+
+def percentile(sorted_values, p):
+    """Nearest-rank percentile of a sorted list."""
+    return sorted_values[max(0, math.ceil(p / 100 * len(sorted_values)) - 1)]
+
+
+# ---- sub-commands ------------------------------------------------------------------------------
+
+
+def read_detections(bag, topic):
+    """(log_time, BallDetection_) for every message on topic, in log-time order, decoded by Cyclone."""
+    with open(bag, "rb") as f:
+        return [(m.log_time, BallDetection_.deserialize(m.data))
+                for _, _, m in make_reader(f).iter_messages(topics=[topic], log_time_order=True)]
+
+
+def latency_ms(sent, states):
+    """recv_ns of each state minus send_ns of the detection with its stamp (FIFO when stamps repeat)."""
+    pending = collections.defaultdict(collections.deque)
+    for s in sent:
+        pending[s["stamp_ns"]].append(s["send_ns"])
+    values = sorted((r["recv_ns"] - pending[r["stamp_ns"]].popleft()) / 1e6
+                    for r in states if pending.get(r["stamp_ns"]))
+    if not values:
+        return {"p50": None, "p99": None, "count": 0}
+    return {"p50": percentile(values, 50), "p99": percentile(values, 99), "count": len(values)}
+
+
+def cmd_publish(args):
+    detections = read_detections(args.bag, args.topic)
+    if not detections:
+        sys.exit(f"dds_peer: no messages on {args.topic} in {args.bag}")
+    dp = participant()
+    states = Recorder(dp, ros_topic("rt", args.state_topic), BallState_, True, 10000)
+    intercepts = Recorder(dp, ros_topic("rt", args.intercept_topic), InterceptPrediction_, True, 10000)
+    out = writer(dp, ros_topic("rt", args.topic), BallDetection_, False, 100)  # REP 2003 sensor data
+
+    # The detections are volatile: send none before the node's reader has matched ours. Then give
+    # the node's state/intercept writers up to 2 s more to match our readers (not required).
+    if not wait_until(out.get_matched_subscriptions, time.monotonic() + args.wait_match):
+        print(f"dds_peer: no subscriber to {args.topic} matched within {args.wait_match} s "
+              f"(is `ttball node` running, on ROS_DOMAIN_ID={os.environ.get('ROS_DOMAIN_ID', '0')}?)",
+              file=sys.stderr)
+        return 3
+    deadline = time.monotonic() + 2.0
+    for rec, name in ((states, args.state_topic), (intercepts, args.intercept_topic)):
+        if not wait_until(rec.reader.get_matched_publications, deadline):
+            print(f"dds_peer: warning: no publisher of {name} matched yet", file=sys.stderr)
+    time.sleep(0.5)
+
+    # Each detection at its recorded offset / rate from the start, against the monotonic clock
+    # (absolute targets, so sleep overshoot does not accumulate). send_ns is taken after write().
+    sent, first, start = [], detections[0][0], time.monotonic_ns()
+    for log_time, detection in detections:
+        target = start + round((log_time - first) / args.rate)
+        delay = target - time.monotonic_ns()
+        if delay > 0:
+            time.sleep(delay / 1e9)
+        out.write(detection)
+        sent.append({"stamp_ns": stamp_ns(detection.header.stamp), "send_ns": time.monotonic_ns()})
+    time.sleep(args.linger)
+
+    result = {"sent": sent, "states": states.snapshot(), "intercepts": intercepts.snapshot()}
+    result["latency_ms"] = latency_ms(sent, result["states"])
+    write_json(args.out, result)
+    lat = result["latency_ms"]
+    print(f"dds_peer: sent {len(sent)} detections in {(sent[-1]['send_ns'] - start) / 1e9:.2f} s, received "
+          f"{len(result['states'])} states, {len(result['intercepts'])} intercepts; latency "
+          + (f"p50 {lat['p50']:.3f} ms, p99 {lat['p99']:.3f} ms over {lat['count']}" if lat["count"] else "n/a"),
+          file=sys.stderr)
+    return 0
+
+
+def cmd_listen(args):
+    dp = participant()
+    rec = Recorder(dp, ros_topic("rt", args.topic), BallDetection_, False, 10000)
+    deadline = time.monotonic() + args.timeout
+    with rec.arrived:
+        while not (args.count and len(rec.records) >= args.count):
+            left = deadline - time.monotonic()
+            if left <= 0:
+                break
+            rec.arrived.wait(left)
+    received = rec.snapshot()
+    write_json(args.out, {"received": received})
+    print(f"dds_peer: received {len(received)} detections on {args.topic}", file=sys.stderr)
+    return 0
+
+
+def cmd_call_predict(args):
+    dp = participant()
+    service = args.service.strip("/")
+    request_writer = writer(dp, ros_topic("rq", service, "Request"), PredictTrajectory_Request_, True, 10)
+    replies = Recorder(dp, ros_topic("rr", service, "Reply"), PredictTrajectory_Response_, True, 10)
+
+    # Both directions must be matched before the (volatile) request is sent.
+    deadline = time.monotonic() + args.timeout
+    if not wait_until(lambda: request_writer.get_matched_subscriptions()
+                      and replies.reader.get_matched_publications(), deadline):
+        print(f"dds_peer: service {args.service} not matched within {args.timeout} s (is `ttball node` "
+              "running with -p node.service_mapping:=cyclone?)", file=sys.stderr)
+        return 3
+
+    x, y, z, vx, vy, vz, wx, wy, wz = args.initial
+    now = time.time_ns()
+    initial = BallState_(
+        header=Header_(stamp=Time_(sec=now // 1_000_000_000, nanosec=now % 1_000_000_000), frame_id="table"),
+        track_id=0, status=2, position=Point_(x=x, y=y, z=z), velocity=Vector3_(x=vx, y=vy, z=vz),
+        spin=Vector3_(x=wx, y=wy, z=wz), covariance=[0.0] * 81, bounces=0, nis=0.0)
+    guid, seq = random.getrandbits(64), 1
+    request_writer.write(PredictTrajectory_Request_(
+        client_guid=guid, sequence_number=seq, track_id=args.track_id, initial=initial,
+        horizon=args.horizon, dt=args.dt))
+
+    def ours():
+        return next((r for r in replies.samples if (r.client_guid, r.sequence_number) == (guid, seq)), None)
+
+    with replies.arrived:
+        replies.arrived.wait_for(ours, args.timeout)
+    reply = ours()
+    if reply is None:
+        print(f"dds_peer: no reply from {args.service} within {args.timeout} s", file=sys.stderr)
+        return 4
+    points = len(reply.trajectory.stamps)
+    write_json(args.out, {"success": reply.success, "message": reply.message,
+                          "cdr": reply.serialize().hex(), "points": points})
+    print(f"dds_peer: {args.service}: success={reply.success} points={points}"
+          + (f" message={reply.message!r}" if reply.message else ""), file=sys.stderr)
+    return 0
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+                                     formatter_class=argparse.RawDescriptionHelpFormatter,
+                                     epilog="Environment: ROS_DOMAIN_ID (default 0); CYCLONEDDS_URI "
+                                            "(default: loopback only, see the module docstring).")
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    p = sub.add_parser("publish", help="play a bag's detections to the node, record its states and intercepts",
+                       description="Publish every detection of BAG (BestEffort, KeepLast 100, Volatile) at its "
+                                   "recorded time once a subscriber has matched, while recording the node's "
+                                   "states and intercepts (Reliable, KeepLast 10000). Writes JSON {sent, states, "
+                                   "intercepts, latency_ms}. Exit code 3 when no subscriber matched.")
+    p.add_argument("bag", help="MCAP file with ttball_msgs/BallDetection messages (CDR)")
+    p.add_argument("--topic", default="/ball/detections", help="detections topic (default %(default)s)")
+    p.add_argument("--state-topic", default="/ball/state", help="default %(default)s")
+    p.add_argument("--intercept-topic", default="/ball/intercept", help="default %(default)s")
+    p.add_argument("--rate", type=float, default=1.0, help="playback speed factor (default %(default)s)")
+    p.add_argument("--wait-match", type=float, default=10.0, metavar="SECONDS",
+                   help="how long to wait for a subscriber (default %(default)s)")
+    p.add_argument("--linger", type=float, default=2.0, metavar="SECONDS",
+                   help="keep recording this long after the last detection (default %(default)s)")
+    p.add_argument("--out", metavar="FILE.json", help="write the results here")
+    p.set_defaults(run=cmd_publish)
+
+    p = sub.add_parser("listen", help="record detections published by someone else (e.g. `ttball play`)",
+                       description="Subscribe to detections (BestEffort, KeepLast 10000) until --count arrive "
+                                   "or --timeout passes. Writes JSON {received: [{stamp_ns, recv_ns, cdr}]}.")
+    p.add_argument("--topic", default="/ball/detections", help="default %(default)s")
+    p.add_argument("--count", type=int, default=0, help="stop after this many (default: wait for --timeout)")
+    p.add_argument("--timeout", type=float, default=30.0, metavar="SECONDS", help="default %(default)s")
+    p.add_argument("--out", metavar="FILE.json", help="write the results here")
+    p.set_defaults(run=cmd_listen)
+
+    p = sub.add_parser("call-predict", help="call the node's PredictTrajectory service",
+                       description="Call ttball_msgs/srv/PredictTrajectory over DDS (rmw_cyclonedds mapping: "
+                                   "rq/<service>Request, rr/<service>Reply, Reliable, KeepLast 10). Writes JSON "
+                                   "{success, message, cdr, points}. Exit code 3 when the service did not match, "
+                                   "4 when no reply came within --timeout.")
+    p.add_argument("--service", default="/ttball/predict_trajectory", help="default %(default)s")
+    p.add_argument("--track-id", type=int, default=0, help="track to predict from; 0 = --initial (default 0)")
+    p.add_argument("--horizon", type=float, default=0.5, metavar="SECONDS", help="default %(default)s")
+    p.add_argument("--dt", type=float, default=0.01, metavar="SECONDS", help="default %(default)s")
+    p.add_argument("--initial", type=float, nargs=9, metavar=("X", "Y", "Z", "VX", "VY", "VZ", "WX", "WY", "WZ"),
+                   default=[1.0178, -0.0184, 0.4448, -5.4122, -0.1333, 1.5129, 7.051, -40.643, -3.915],
+                   help="initial state in the table frame [m, m/s, rad/s] (default: the rally ball of "
+                        "`ttball predict`)")
+    p.add_argument("--timeout", type=float, default=10.0, metavar="SECONDS",
+                   help="for matching and for the reply, each (default %(default)s)")
+    p.add_argument("--out", metavar="FILE.json", help="write the reply here")
+    p.set_defaults(run=cmd_call_predict)
+
+    args = parser.parse_args(argv)
+    return args.run(args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
