@@ -78,6 +78,8 @@ pub fn diagnostics_msg(snapshot: &Snapshot<'_>, window: &mut Window) -> Diagnost
     let s = snapshot;
     let processing = DurationSummary::of(&mut window.processing);
     let wait = DurationSummary::of(&mut window.queue_wait);
+    window.processing.clear();
+    window.queue_wait.clear();
     let rate = processing.count as f64 / s.period.max(1e-9);
     let dropped_now = s.transport.dropped_queue_full - s.transport_before.dropped_queue_full;
     let undecodable_now = s.transport.undecodable - s.transport_before.undecodable;
