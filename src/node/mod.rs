@@ -325,10 +325,13 @@ pub fn start(config: &Config, placement: &Placement) -> Result<NodeHandle, NodeE
             let estimator = estimator
                 .join()
                 .map_err(|_| NodeError::Thread("the estimator thread panicked".to_owned()))?;
+            // Readers and writers go before their node, the node before its participant.
+            drop(subscription);
+            drop(server);
             node.stop_spinner();
-            drop(ended_tx);
             drop(node);
             drop(context);
+            drop(ended_tx);
             Ok(NodeSummary {
                 counters: estimator.counters,
                 transport: shared.snapshot(),

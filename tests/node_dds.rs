@@ -1,0 +1,321 @@
+//! `ttball node` and `ttball play` against a DDS implementation ttball did not write: Eclipse
+//! Cyclone DDS through its Python binding (`tests/interop/dds_peer.py`), in a network namespace
+//! that has only loopback (`unshare -n`), both sides limited to 127.0.0.1 as well.
+//!
+//! - The peer publishes the detections of `bags/sim_rally_2cams.mcap` at their recorded pace and
+//!   records `/ball/state` and `/ball/intercept`: every detection must have reached the node, and
+//!   every state and intercept must equal, bit for bit, what `ttball replay` publishes for the
+//!   same bag (same code path). Detections lost on the wire are counted and reported; then only
+//!   the outputs before the first difference are compared. The end-to-end latency (detection
+//!   written by the peer to state read by the peer) is printed.
+//! - The peer calls `~/predict_trajectory` (rmw_cyclonedds' service framing) for a given state
+//!   and for a track that does not exist.
+//! - `ttball play` publishes the bag and the peer receives every detection, byte for byte.
+//!
+//! Needs a Python with `cyclonedds` and `mcap` (`.ci/run` sets `TTBALL_PYTHON`) and permission
+//! to make a network namespace (root, or unprivileged user namespaces). Without either the test
+//! says so and passes, except under CI (`CI=true`), where it fails.
+#![cfg(feature = "cli")]
+#![allow(
+    clippy::unwrap_used,
+    clippy::expect_used,
+    clippy::panic,
+    reason = "test code: fail loudly"
+)]
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+use serde_json::Value;
+use ttball::bag::{decode, read_bag_file};
+use ttball::config::Config;
+use ttball::msgs::builtin_interfaces::Time;
+use ttball::msgs::geometry_msgs::{Point, Vector3};
+use ttball::msgs::ttball_msgs::msg::{BallDetection, BallState, InterceptPrediction};
+use ttball::msgs::ttball_msgs::srv::{PredictTrajectoryRequest, PredictTrajectoryResponse};
+use ttball::pipeline::Pipeline;
+
+mod common;
+
+const BAG: &str = "bags/sim_rally_2cams.mcap";
+
+/// The Python interpreter with cyclonedds, and `unshare`, or why the test cannot run.
+fn prerequisites() -> Option<PathBuf> {
+    let ci = std::env::var("CI").as_deref() == Ok("true");
+    let skip = |why: &str| {
+        assert!(!ci, "CI must be able to run the DDS interop test: {why}");
+        eprintln!("skipped: {why}");
+        None
+    };
+    let Some(python) = std::env::var_os("TTBALL_PYTHON").map(PathBuf::from) else {
+        return skip("set TTBALL_PYTHON to a Python with cyclonedds and mcap (see .ci/run)");
+    };
+    let has_cyclone = Command::new(&python)
+        .args(["-c", "import cyclonedds, mcap"])
+        .status()
+        .is_ok_and(|s| s.success());
+    if !has_cyclone {
+        return skip("TTBALL_PYTHON has no cyclonedds (pip install cyclonedds mcap)");
+    }
+    let netns = Command::new("unshare")
+        .args(["-n", "true"])
+        .status()
+        .is_ok_and(|s| s.success());
+    if !netns {
+        return skip("cannot make a loopback-only network namespace (`unshare -n` failed)");
+    }
+    Some(python)
+}
+
+fn hex(text: &str) -> Vec<u8> {
+    (0..text.len())
+        .step_by(2)
+        .map(|i| u8::from_str_radix(&text[i..i + 2], 16).unwrap())
+        .collect()
+}
+
+fn read_json(path: &Path) -> Value {
+    let text = std::fs::read_to_string(path)
+        .unwrap_or_else(|e| panic!("{}: {e} (see the .err files beside it)", path.display()));
+    serde_json::from_str(&text).unwrap()
+}
+
+fn records(json: &Value, key: &str) -> Vec<Value> {
+    json[key].as_array().cloned().unwrap_or_default()
+}
+
+fn cdr_of(record: &Value) -> Vec<u8> {
+    hex(record["cdr"].as_str().unwrap())
+}
+
+/// Nearest-rank quantile of sorted values.
+fn quantile(sorted: &[f64], q: f64) -> f64 {
+    sorted[((sorted.len() - 1) as f64 * q).round() as usize]
+}
+
+/// The common prefix of two sequences, and whether they are equal.
+fn compare<T: PartialEq + std::fmt::Debug>(what: &str, live: &[T], replayed: &[T], exact: bool) {
+    let prefix = live
+        .iter()
+        .zip(replayed)
+        .take_while(|(a, b)| a == b)
+        .count();
+    if exact {
+        assert_eq!(
+            live.len(),
+            replayed.len(),
+            "{what}: {} over DDS, {} in the replay",
+            live.len(),
+            replayed.len()
+        );
+        if prefix < live.len() {
+            assert_eq!(live[prefix], replayed[prefix], "{what} #{prefix} differs");
+        }
+    } else {
+        assert!(prefix > 0, "{what}: the first one already differs");
+        eprintln!(
+            "{what}: the first {prefix} equal the replay's (of {} over DDS, {} replayed)",
+            live.len(),
+            replayed.len()
+        );
+    }
+}
+
+#[test]
+fn node_and_play_interoperate_with_cyclone_dds() {
+    let Some(python) = prerequisites() else {
+        return;
+    };
+    let dir = common::scratch("dds");
+    let ttball = env!("CARGO_BIN_EXE_ttball");
+    let peer = common::root().join("tests/interop/dds_peer.py");
+    let bag = common::root().join(BAG);
+    // The rally ball `ttball predict` starts from, for the service call.
+    let initial = [
+        1.0178, -0.0184, 0.4448, -5.4122, -0.1333, 1.5129, 7.051, -40.643, -3.915,
+    ];
+    let initial_args: Vec<String> = initial.iter().map(ToString::to_string).collect();
+    let detections: Vec<(u64, Vec<u8>)> = {
+        let contents = read_bag_file(&bag).unwrap();
+        let channel = contents.channel("/ball/detections").unwrap();
+        contents
+            .messages
+            .iter()
+            .filter(|m| m.channel == channel)
+            .map(|m| (m.log_time, m.data.clone()))
+            .collect()
+    };
+    let script = format!(
+        r#"
+ip link set lo up && ip link set lo multicast on && ip route add 224.0.0.0/4 dev lo || exit 90
+export ROS_DOMAIN_ID=42 ROS_LOCALHOST_ONLY=1
+cd "{dir}"
+"{ttball}" node -p node.service_mapping:=cyclone > node.out 2> node.err &
+node=$!
+"{python}" "{peer}" publish "{bag}" --wait-match 30 --out peer.json 2> peer.err
+"{python}" "{peer}" call-predict --initial {initial} --horizon 0.5 --dt 0.01 --timeout 20 --out call.json 2>> peer.err
+"{python}" "{peer}" call-predict --track-id 999 --timeout 20 --out call_bad.json 2>> peer.err
+kill -TERM $node
+wait $node
+echo $? > node.rc
+"{python}" "{peer}" listen --count {count} --timeout 60 --out listen.json 2> listen.err &
+listener=$!
+"{ttball}" play "{bag}" --rate 2 --wait 30 > play.out 2> play.err
+echo $? > play.rc
+wait $listener
+"#,
+        dir = dir.display(),
+        python = python.display(),
+        peer = peer.display(),
+        bag = bag.display(),
+        initial = initial_args.join(" "),
+        count = detections.len(),
+    );
+    let status = Command::new("unshare")
+        .args(["-n", "bash", "-c", &script])
+        .status()
+        .unwrap();
+    assert_ne!(
+        status.code(),
+        Some(90),
+        "cannot set up loopback in the namespace"
+    );
+    let read = |name: &str| std::fs::read_to_string(dir.join(name)).unwrap_or_default();
+
+    // The node stopped cleanly on SIGTERM and said what it did.
+    assert_eq!(read("node.rc").trim(), "0", "node: {}", read("node.err"));
+    let node_out = read("node.out");
+    let received: usize = node_out
+        .split("detections received ")
+        .nth(1)
+        .and_then(|rest| rest.split(',').next())
+        .and_then(|n| n.parse().ok())
+        .unwrap_or_else(|| panic!("no summary from the node: {node_out}"));
+
+    // The replay of the same bag: what the node must have published.
+    let replayed = dir.join("replay.mcap");
+    common::ok(&["replay", BAG, "--output", replayed.to_str().unwrap()]);
+    let contents = read_bag_file(&replayed).unwrap();
+    let (state_ch, intercept_ch) = (
+        contents.channel("/ball/state").unwrap(),
+        contents.channel("/ball/intercept").unwrap(),
+    );
+    let replay_states: Vec<(u64, BallState)> = contents
+        .messages
+        .iter()
+        .filter(|m| m.channel == state_ch)
+        .map(|m| (m.log_time, decode(&m.data).unwrap()))
+        .collect();
+    let replay_intercepts: Vec<InterceptPrediction> = contents
+        .messages
+        .iter()
+        .filter(|m| m.channel == intercept_ch)
+        .map(|m| decode(&m.data).unwrap())
+        .collect();
+
+    let peer = read_json(&dir.join("peer.json"));
+    let sent = records(&peer, "sent");
+    assert_eq!(sent.len(), detections.len(), "the peer sent the whole bag");
+    let lost = sent.len() - received;
+    let states: Vec<BallState> = records(&peer, "states")
+        .iter()
+        .map(|r| decode(&cdr_of(r)).unwrap())
+        .collect();
+    let intercepts: Vec<InterceptPrediction> = records(&peer, "intercepts")
+        .iter()
+        .map(|r| decode(&cdr_of(r)).unwrap())
+        .collect();
+    eprintln!(
+        "node: {received} of {} detections arrived ({lost} lost on the wire); {} states, {} intercepts",
+        sent.len(),
+        states.len(),
+        intercepts.len()
+    );
+    let replay_state_msgs: Vec<BallState> = replay_states.iter().map(|(_, s)| s.clone()).collect();
+    compare("states", &states, &replay_state_msgs, lost == 0);
+    compare("intercepts", &intercepts, &replay_intercepts, lost == 0);
+
+    // End-to-end latency: each state with the detection whose processing published it.
+    if lost == 0 {
+        let mut latency_ms: Vec<f64> = records(&peer, "states")
+            .iter()
+            .zip(&replay_states)
+            .map(|(record, (log_time, _))| {
+                let index = detections.iter().position(|(t, _)| t == log_time).unwrap();
+                let recv = record["recv_ns"].as_f64().unwrap();
+                let send = sent[index]["send_ns"].as_f64().unwrap();
+                (recv - send) * 1e-6
+            })
+            .collect();
+        latency_ms.sort_by(f64::total_cmp);
+        eprintln!(
+            "end-to-end latency, detection written (Cyclone) to state read (Cyclone), {} states: p50 {:.2} ms, p99 {:.2} ms, max {:.2} ms",
+            latency_ms.len(),
+            quantile(&latency_ms, 0.5),
+            quantile(&latency_ms, 0.99),
+            latency_ms[latency_ms.len() - 1],
+        );
+    }
+
+    // ~/predict_trajectory over rmw_cyclonedds' framing: the reply equals the in-process answer.
+    let call = read_json(&dir.join("call.json"));
+    assert_eq!(call["success"], Value::Bool(true), "{call}");
+    let bytes = cdr_of(&call);
+    // Encapsulation header, then rmw_cyclonedds' 16-byte request id, then the response.
+    let response: PredictTrajectoryResponse =
+        decode(&[&bytes[..4], &bytes[20..]].concat()).unwrap();
+    let [x, y, z, vx, vy, vz, wx, wy, wz] = initial;
+    let mut request = PredictTrajectoryRequest {
+        track_id: 0,
+        horizon: 0.5,
+        dt: 0.01,
+        ..PredictTrajectoryRequest::default()
+    };
+    request.initial.header.stamp = response.trajectory.header.stamp;
+    request.initial.position = Point { x, y, z };
+    request.initial.velocity = Vector3 {
+        x: vx,
+        y: vy,
+        z: vz,
+    };
+    request.initial.spin = Vector3 {
+        x: wx,
+        y: wy,
+        z: wz,
+    };
+    let expected = Pipeline::new(&Config::default()).predict_trajectory(&request);
+    assert_eq!(response, expected);
+    assert_eq!(response.trajectory.stamps.len(), 51);
+    assert_ne!(response.trajectory.header.stamp, Time::default());
+    let bad = read_json(&dir.join("call_bad.json"));
+    assert_eq!(bad["success"], Value::Bool(false), "{bad}");
+    assert!(
+        bad["message"].as_str().unwrap().contains("not live"),
+        "{bad}"
+    );
+
+    // `ttball play`: the Cyclone listener got the bag's detections, byte for byte, in order.
+    assert_eq!(read("play.rc").trim(), "0", "play: {}", read("play.err"));
+    let listened = read_json(&dir.join("listen.json"));
+    let got: Vec<Vec<u8>> = records(&listened, "received").iter().map(cdr_of).collect();
+    let mut expected = detections.iter().map(|(_, data)| data);
+    for (i, bytes) in got.iter().enumerate() {
+        assert!(
+            expected.any(|d| d == bytes),
+            "received detection #{i} is not the next one of the bag: {:?}",
+            decode::<BallDetection>(bytes)
+        );
+    }
+    eprintln!(
+        "play: the listener received {} of {} detections, each equal to the bag's bytes",
+        got.len(),
+        detections.len()
+    );
+    assert!(
+        got.len() * 100 >= detections.len() * 99,
+        "play: only {} of {} detections arrived",
+        got.len(),
+        detections.len()
+    );
+    assert!(read("play.out").contains(&format!("{} detections published", detections.len())));
+}
