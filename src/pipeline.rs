@@ -191,3 +191,102 @@ impl Pipeline {
 const MAX_HORIZON: f64 = 10.0;
 /// Most samples one `~/predict_trajectory` response may hold.
 const MAX_SAMPLES: f64 = 100_000.0;
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::detection::seconds_to_ns;
+    use crate::msgs::convert::detection_to_msg;
+    use crate::sim::{SimOptions, simulate};
+
+    fn request(track_id: u32, horizon: f64, dt: f64) -> PredictTrajectoryRequest {
+        let mut r = PredictTrajectoryRequest {
+            track_id,
+            horizon,
+            dt,
+            ..PredictTrajectoryRequest::default()
+        };
+        r.initial.header.stamp =
+            crate::msgs::builtin_interfaces::Time::from_nanos(seconds_to_ns(2.0));
+        r.initial.position.x = 1.0;
+        r.initial.position.z = 0.3;
+        r.initial.velocity.x = -5.0;
+        r.initial.velocity.z = 1.0;
+        r.initial.spin.y = -50.0;
+        r
+    }
+
+    #[test]
+    fn predict_trajectory_from_a_state_and_from_the_live_track() {
+        let config = Config::default();
+        let mut pipeline = Pipeline::new(&config);
+        // From a given state: samples every dt from its stamp, the configured defaults for 0.
+        let r = pipeline.predict_trajectory(&request(0, 0.5, 0.01));
+        assert!(r.success, "{}", r.message);
+        assert_eq!(r.trajectory.stamps.len(), 51);
+        assert_eq!(r.trajectory.header.stamp.to_nanos(), seconds_to_ns(2.0));
+        assert_eq!(r.trajectory.positions[0].x, 1.0);
+        let defaults = pipeline.predict_trajectory(&request(0, 0.0, 0.0));
+        let p = &config.prediction;
+        assert!(defaults.success);
+        assert_eq!(
+            defaults,
+            pipeline.predict_trajectory(&request(0, p.horizon, p.trajectory_dt))
+        );
+        // No track yet.
+        let none = pipeline.predict_trajectory(&request(1, 0.5, 0.01));
+        assert!(
+            !none.success && none.message.contains("no ball is tracked"),
+            "{}",
+            none.message
+        );
+        // A live track: its id gives the same prediction as the published trajectory's model.
+        let options = SimOptions {
+            shots: 1,
+            ..SimOptions::default()
+        };
+        let session = simulate(&config, &options).expect("simulated");
+        let mut live = None;
+        for d in session.stream.iter().take(60) {
+            let step = pipeline.on_detection(&detection_to_msg(&d.detection));
+            if let Some(e) = step.output.and_then(|o| o.estimate) {
+                live = Some(e.track_id);
+            }
+        }
+        let track = live.expect("a track after 60 detections");
+        let r = pipeline.predict_trajectory(&request(track, 0.3, 0.01));
+        assert!(r.success, "{}", r.message);
+        assert_eq!(r.trajectory.track_id, track);
+        let other = pipeline.predict_trajectory(&request(track + 1, 0.3, 0.01));
+        assert!(
+            !other.success
+                && other
+                    .message
+                    .contains(&format!("the live track is {track}"))
+        );
+    }
+
+    #[test]
+    fn predict_trajectory_refuses_bad_requests_with_a_reason() {
+        let pipeline = Pipeline::new(&Config::default());
+        for (horizon, dt, words) in [
+            (-1.0, 0.01, "horizon"),
+            (20.0, 0.01, "horizon"),
+            (f64::NAN, 0.01, "horizon"),
+            (0.5, 1.0, "dt"),
+            (10.0, 1e-6, "dt"),
+        ] {
+            let r = pipeline.predict_trajectory(&request(0, horizon, dt));
+            assert!(
+                !r.success && r.message.contains(words),
+                "{horizon} {dt}: {}",
+                r.message
+            );
+            assert!(r.trajectory.stamps.is_empty());
+        }
+        let mut bad = request(0, 0.5, 0.01);
+        bad.initial.velocity.y = f64::INFINITY;
+        let r = pipeline.predict_trajectory(&bad);
+        assert!(!r.success && r.message.contains("non-finite"));
+    }
+}

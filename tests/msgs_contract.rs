@@ -1134,3 +1134,41 @@ fn every_mirror_round_trips_through_cdr() {
         landing_position: p(0.9),
     });
 }
+
+/// The standard messages the node publishes besides its own (`/diagnostics`) match their ROS 2
+/// definitions (as embedded in the MCAP schemas), field for field.
+#[test]
+fn diagnostic_msgs_mirror_matches_its_ros_definition() {
+    use ttball::msgs::definitions::definition;
+    use ttball::msgs::diagnostic_msgs::{DiagnosticArray, DiagnosticStatus};
+    let specs: Vec<MsgSpec> = ["DiagnosticArray", "DiagnosticStatus", "KeyValue"]
+        .iter()
+        .map(|name| {
+            let text = definition(&format!("diagnostic_msgs/{name}")).unwrap();
+            parse_msg("diagnostic_msgs", name, text).unwrap()
+        })
+        .collect();
+    let mut tracer = Tracer::new(TracerConfig::default());
+    let mut top = BTreeMap::new();
+    top.insert(
+        "diagnostic_msgs/DiagnosticArray".to_owned(),
+        trace::<DiagnosticArray>(&mut tracer),
+    );
+    top.insert(
+        "diagnostic_msgs/DiagnosticStatus".to_owned(),
+        trace::<DiagnosticStatus>(&mut tracer),
+    );
+    top.insert("diagnostic_msgs/KeyValue".to_owned(), "KeyValue".to_owned());
+    let registry = tracer.registry().unwrap();
+    let errors = contract_errors(&specs, &top, &registry);
+    assert!(errors.is_empty(), "contract broken:\n{}", errors.join("\n"));
+    assert_eq!(
+        (
+            DiagnosticStatus::OK,
+            DiagnosticStatus::WARN,
+            DiagnosticStatus::ERROR,
+            DiagnosticStatus::STALE
+        ),
+        (0, 1, 2, 3)
+    );
+}

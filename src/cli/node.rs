@@ -168,7 +168,7 @@ impl NodeArgs {
         for name in unused {
             tracing::warn!("remap of {name}: the node has no such topic (ignored)");
         }
-        let placement = Placement::from_env(&config)?;
+        let placement = Placement::from_env(&config).map_err(node_error)?;
 
         let (signal_tx, signal_rx) = crossbeam::channel::bounded::<()>(1);
         ctrlc::set_handler(move || {

@@ -602,3 +602,31 @@ fn wall_clock_ns() -> i64 {
         .duration_since(UNIX_EPOCH)
         .map_or(0, |d| i64::try_from(d.as_nanos()).unwrap_or(i64::MAX))
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn detection(sec: i32) -> BallDetection {
+        let mut d = BallDetection::default();
+        d.header.stamp.sec = sec;
+        d
+    }
+
+    #[test]
+    fn a_full_queue_drops_the_oldest_and_counts_it() {
+        let shared = Shared::default();
+        let (tx, rx) = channel::bounded::<Queued>(4);
+        let queue = DetectionQueue {
+            tx,
+            rx: rx.clone(),
+            shared: &shared,
+        };
+        for sec in 0..10 {
+            queue.push(detection(sec));
+        }
+        assert_eq!(shared.snapshot().dropped_queue_full, 6);
+        let kept: Vec<i32> = rx.try_iter().map(|(d, _)| d.header.stamp.sec).collect();
+        assert_eq!(kept, [6, 7, 8, 9], "the newest stay, in order");
+    }
+}
