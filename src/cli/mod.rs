@@ -208,16 +208,18 @@ pub fn exit_code_for(err: &anyhow::Error) -> ExitCode {
 }
 
 /// Sends logs (ttball's, ros2-client's and RustDDS's) to stderr, filtered by `RUST_LOG`, else
-/// by `level` (ROS 2's `--log-level`) or `info`, with the DDS libraries at `warn`.
+/// by `level` (ROS 2's `--log-level`) or `info`, with the DDS libraries at `error` (their
+/// warnings are about datagram sizes and ROS_DISTRO; `RUST_LOG=rustdds=warn` shows them).
 pub fn init_logging(level: Option<&str>) {
     use tracing_subscriber::EnvFilter;
     let filter = EnvFilter::try_from_default_env().unwrap_or_else(|_| {
         let level = level.unwrap_or("info");
-        EnvFilter::new(format!("{level},rustdds=warn,ros2_client=warn"))
+        EnvFilter::new(format!("{level},rustdds=error,ros2_client=error"))
     });
     let _ = tracing_subscriber::fmt()
         .with_env_filter(filter)
         .with_writer(std::io::stderr)
+        .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
         .try_init();
 }
 

@@ -328,8 +328,7 @@ pub fn start(config: &Config, placement: &Placement) -> Result<NodeHandle, NodeE
             // Readers and writers go before their node, the node before its participant.
             drop(subscription);
             drop(server);
-            node.stop_spinner();
-            drop(node);
+            drop(node); // stops its spinner too
             drop(context);
             drop(ended_tx);
             Ok(NodeSummary {

@@ -105,13 +105,13 @@ pub fn play(
 
     let started = Instant::now();
     let deadline = started + options.wait_for_subscriber;
-    while publisher.get_subscription_count(&node) == 0
+    while node.subscription_count(&config.topics.detections) == 0
         && Instant::now() < deadline
         && !cancel.load(Ordering::Relaxed)
     {
         std::thread::sleep(Duration::from_millis(20));
     }
-    let subscribers = publisher.get_subscription_count(&node);
+    let subscribers = node.subscription_count(&config.topics.detections);
     if subscribers == 0 && !options.wait_for_subscriber.is_zero() {
         warn!(
             "no subscriber of {} after {:.1} s; playing anyway",
@@ -167,7 +167,6 @@ pub fn play(
     }
     // Let the last samples leave before the participant goes.
     std::thread::sleep(Duration::from_millis(100));
-    node.stop_spinner();
     summary.seconds = started.elapsed().as_secs_f64();
     Ok(summary)
 }
