@@ -118,7 +118,9 @@ pub enum Command {
         ttball node --config my.yaml -p intercept.plane_x:=-1.45\n  \
         ttball node --ros-args -r __ns:=/robot1 -r /ball/detections:=/vision/ball -p node.localhost_only:=true\n  \
         ROS_DOMAIN_ID=7 ttball node -p node.service_mapping:=cyclone   # beside rmw_cyclonedds\n\n\
-        Try it without ROS 2: `ttball play bags/sim_rally_2cams.mcap` in another terminal.")]
+        Try it without ROS 2: `ttball play bags/sim_rally_2cams.mcap` in another terminal.\n\
+        DDS discovers peers by multicast on every interface: ROS_LOCALHOST_ONLY=1 (or\n\
+        -p node.localhost_only:=true) keeps it on this machine.")]
     Node(node::NodeArgs),
 
     /// Publish a bag's detections on DDS at their recorded pace (like `ros2 bag play`).
