@@ -5,14 +5,20 @@
 
 use std::net::{IpAddr, Ipv4Addr};
 
+use ros2_client::dds::rustdds::Topic;
 use ros2_client::{
     Context, MessageTypeName, Name, Node, NodeName, NodeOptions, QosProfile, ServiceMapping,
     ServiceTypeName,
     qos::{Durability, History, WhenFull},
 };
 
-use super::NodeError;
+use super::{DETECTION_TYPE, NodeError};
 use crate::config::{self, Config};
+
+/// A DDS failure as the node's error.
+pub fn error(e: impl std::fmt::Display) -> NodeError {
+    NodeError::Dds(e.to_string())
+}
 
 /// The DDS domain from `ROS_DOMAIN_ID` (unset or empty: 0), as ROS 2 reads it. ros2-client does
 /// not read it itself.
@@ -56,15 +62,40 @@ pub fn context(domain: u16, interfaces: Option<&[IpAddr]>) -> Result<Context, No
     if let Some(addresses) = interfaces {
         builder = builder.with_only_networks(addresses.iter().copied());
     }
-    let participant = builder.build().map_err(|e| NodeError::Dds(e.to_string()))?;
-    Context::from_domain_participant(participant).map_err(|e| NodeError::Dds(e.to_string()))
+    let participant = builder.build().map_err(error)?;
+    Context::from_domain_participant(participant).map_err(error)
 }
 
 /// A ROS 2 node on `context`, publishing its log on `/rosout` when `rosout`.
 pub fn node(context: &Context, name: NodeName, rosout: bool) -> Result<Node, NodeError> {
     context
         .new_node(name, NodeOptions::new().enable_rosout(rosout))
-        .map_err(|e| NodeError::Dds(e.to_string()))
+        .map_err(error)
+}
+
+/// Runs the node's ros2-client spinner (graph discovery, `ros_discovery_info`) on its own
+/// thread; it stops when the node is dropped.
+pub fn spawn_spinner(node: &mut Node) -> Result<(), NodeError> {
+    let spinner = node.spinner().map_err(error)?;
+    std::thread::Builder::new()
+        .name("ttball-spinner".to_owned())
+        .spawn(move || {
+            if let Err(e) = futures::executor::block_on(spinner.spin()) {
+                tracing::warn!("ros2-client spinner stopped: {e}");
+            }
+        })
+        .map(drop)
+        .map_err(|e| NodeError::Thread(e.to_string()))
+}
+
+/// The detections topic (`topics.detections`, sensor-data QoS), for the node and `ttball play`.
+pub fn detections_topic(node: &mut Node, config: &Config) -> Result<Topic, NodeError> {
+    node.create_topic(
+        &name(&config.topics.detections)?,
+        message_type(DETECTION_TYPE),
+        &sensor_data(config.qos.detections_depth),
+    )
+    .map_err(error)
 }
 
 /// The node's name in its namespace (`/` when `node.namespace` is empty).

@@ -218,20 +218,13 @@ pub fn start(config: &Config, placement: &Placement) -> Result<NodeHandle, NodeE
     let node_name = dds::node_name(config)?;
     let mut node = dds::node(&context, node_name.clone(), true)?;
     let fq_name = node_name.fully_qualified_name();
-    let dds_error = |e: ros2_client::CreateError| NodeError::Dds(e.to_string());
 
     let topics = &config.topics;
     let output_qos = dds::reliable(config.qos.outputs_depth);
-    let detections_topic = node
-        .create_topic(
-            &dds::name(&topics.detections)?,
-            dds::message_type(DETECTION_TYPE),
-            &dds::sensor_data(config.qos.detections_depth),
-        )
-        .map_err(dds_error)?;
+    let detections_topic = dds::detections_topic(&mut node, config)?;
     let subscription: Subscription<BallDetection> = node
         .create_subscription(&detections_topic, None)
-        .map_err(dds_error)?;
+        .map_err(dds::error)?;
     let outputs = Outputs {
         state: publisher(&mut node, &topics.state, STATE_TYPE, &output_qos)?,
         intercept: publisher(&mut node, &topics.intercept, INTERCEPT_TYPE, &output_qos)?,
@@ -252,8 +245,8 @@ pub fn start(config: &Config, placement: &Placement) -> Result<NodeHandle, NodeE
             dds::services(),
             dds::services(),
         )
-        .map_err(dds_error)?;
-    let spinner = node.spinner().map_err(dds_error)?;
+        .map_err(dds::error)?;
+    dds::spawn_spinner(&mut node)?;
 
     let shared = Arc::new(Shared::default());
     let capacity = usize::try_from(config.node.queue_capacity).unwrap_or(usize::MAX);
@@ -262,15 +255,6 @@ pub fn start(config: &Config, placement: &Placement) -> Result<NodeHandle, NodeE
     let (reply_tx, reply_rx) = mpsc::unbounded::<Reply>();
     let (stop_tx, stop_rx) = oneshot::channel::<()>();
     let (ended_tx, ended_rx) = channel::bounded::<()>(0);
-
-    std::thread::Builder::new()
-        .name("ttball-spinner".to_owned())
-        .spawn(move || {
-            if let Err(e) = futures::executor::block_on(spinner.spin()) {
-                warn!("ros2-client spinner stopped: {e}");
-            }
-        })
-        .map_err(|e| NodeError::Thread(e.to_string()))?;
 
     let estimator = EstimatorThread {
         pipeline: Pipeline::new(config),
@@ -357,9 +341,8 @@ fn publisher<M: Serialize>(
 ) -> Result<Publisher<M>, NodeError> {
     let topic = node
         .create_topic(&dds::name(topic)?, dds::message_type(ros_type), qos)
-        .map_err(|e| NodeError::Dds(e.to_string()))?;
-    node.create_publisher(&topic, None)
-        .map_err(|e| NodeError::Dds(e.to_string()))
+        .map_err(dds::error)?;
+    node.create_publisher(&topic, None).map_err(dds::error)
 }
 
 /// The DDS side of the bounded queue: pushing never blocks; when full, the oldest goes.

@@ -9,7 +9,7 @@ use std::time::{Duration, Instant};
 use ros2_client::{NodeName, Publisher};
 use tracing::{info, warn};
 
-use super::{DETECTION_TYPE, NodeError, Placement, dds};
+use super::{NodeError, Placement, dds};
 use crate::bag::{decode, read_bag_file};
 use crate::config::Config;
 use crate::msgs::builtin_interfaces::Time;
@@ -82,26 +82,13 @@ pub fn play(
     };
     let span = i64::try_from(last - first).unwrap_or(i64::MAX);
 
-    let dds_error = |e: ros2_client::CreateError| NodeError::Dds(e.to_string());
     let context = dds::context(placement.domain, placement.interfaces.as_deref())?;
     let name = NodeName::new("/", "ttball_play").map_err(|e| NodeError::Name(e.to_string()))?;
     let mut node = dds::node(&context, name, false)?;
-    let topic = node
-        .create_topic(
-            &dds::name(&config.topics.detections)?,
-            dds::message_type(DETECTION_TYPE),
-            &dds::sensor_data(config.qos.detections_depth),
-        )
-        .map_err(dds_error)?;
+    let topic = dds::detections_topic(&mut node, config)?;
     let publisher: Publisher<BallDetection> =
-        node.create_publisher(&topic, None).map_err(dds_error)?;
-    let spinner = node.spinner().map_err(dds_error)?;
-    std::thread::Builder::new()
-        .name("ttball-spinner".to_owned())
-        .spawn(move || {
-            let _ = futures::executor::block_on(spinner.spin());
-        })
-        .map_err(|e| NodeError::Thread(e.to_string()))?;
+        node.create_publisher(&topic, None).map_err(dds::error)?;
+    dds::spawn_spinner(&mut node)?;
 
     let started = Instant::now();
     let deadline = started + options.wait_for_subscriber;
