@@ -160,7 +160,7 @@ wait $node
 echo $? > node.rc
 "{python}" "{peer}" listen --count {count} --timeout 60 --out listen.json 2> listen.err &
 listener=$!
-"{ttball}" play "{bag}" --rate 2 --wait 30 > play.out 2> play.err
+"{ttball}" play "{bag}" --wait 30 > play.out 2> play.err
 echo $? > play.rc
 wait $listener
 "#,
