@@ -7,6 +7,8 @@
 //! - [`eval`]: accuracy of the estimator on a simulated session against its truth.
 //! - [`ekf`]: the extended Kalman filter over (position, velocity, spin).
 //! - [`intercept`]: the predicted crossing of the robot's hitting plane, with its covariance.
+//! - [`stroke`]: the robot's hit: the ball's rebound off the racket and its return flight, and
+//!   the racket command (velocity, face normal) that returns the ball to a target.
 //! - [`stats`]: chi-square quantiles for gates and consistency checks.
 //! - [`detection`]: one 3D ball detection, as the estimator takes it.
 //! - [`config`]: every physical constant and tuning value, with defaults and range checks.
@@ -47,3 +49,4 @@ pub mod record;
 pub mod replay;
 pub mod sim;
 pub mod stats;
+pub mod stroke;

@@ -140,6 +140,31 @@ pub struct RacketParams {
     /// Thickness of the rubber's sponge layer [m]. Seed racket: 1.9 mm; 0 for a pimpled
     /// rubber without sponge.
     pub sponge_thickness: f64,
+    /// Where the hitting face begins along the long axis, from the grip end [m]: impact points
+    /// closer to the grip are refused. The seeds give no value; 100 mm is a common handle length.
+    pub face_start_from_grip_end: f64,
+    /// The farthest impact point along the long axis, from the grip end [m]. Seed racket: the top
+    /// point A at b = 132 mm from the centre of gravity, 279 mm from the grip end (seed 000).
+    pub face_end_from_grip_end: f64,
+    /// Coefficient of restitution of the ball on the clamped rubber, e_RB(V) = c0 + c1 V + ...,
+    /// V the normal impact speed [m/s], lowest order first; clamped to [0, 1]. Seed 000 eq. (2):
+    /// 0.77 - 0.0123 V (38 mm ball on Tamas SRIVER, 1.9 mm sponge).
+    pub rubber_restitution: Vec<f64>,
+    /// Coulomb friction coefficient between ball and rubber [-]: the tangential impulse is at most
+    /// this times the normal impulse (physics.md "Racket impact"; source in config/ttball.yaml).
+    pub rubber_friction: f64,
+    /// Restoring characteristic of the ball-rubber system, F = f(K) = c0 + c1 K + c2 K^2 + ...
+    /// with F [N] and K = dF/dX [N/m], lowest order first (seed 000 eq. (1) is this curve in kgf
+    /// and kgf/mm: multiply c_i by 9.80665 / 9806.65^i). Default and source in
+    /// config/ttball.yaml.
+    pub restoring_force_vs_stiffness: Vec<f64>,
+    /// Natural frequencies of the racket plate's modes counted in the vibration loss [Hz]
+    /// (seed 000 eq. 14-20). Empty (default): no vibration loss, as the seed concludes it is
+    /// negligible.
+    pub vibration_mode_frequencies: Vec<f64>,
+    /// Modal mass of each of those modes at the impact point [kg] (1 / squared mass-normalised
+    /// mode shape there), one per frequency.
+    pub vibration_mode_masses: Vec<f64>,
 }
 
 impl Default for RacketParams {
@@ -151,9 +176,24 @@ impl Default for RacketParams {
             inertia_about_long_axis: 0.26e-3,
             face_area: 0.0185,
             sponge_thickness: 0.0019,
+            face_start_from_grip_end: 0.10,
+            face_end_from_grip_end: 0.279,
+            rubber_restitution: vec![0.77, -0.0123],
+            rubber_friction: RUBBER_FRICTION,
+            restoring_force_vs_stiffness: vec![0.0, 0.0, 0.0, HERTZ_RESTORING_CUBIC],
+            vibration_mode_frequencies: Vec::new(),
+            vibration_mode_masses: Vec::new(),
         }
     }
 }
+
+/// Default ball-rubber friction coefficient (source in config/ttball.yaml).
+pub const RUBBER_FRICTION: f64 = 1.0;
+
+/// Default restoring characteristic F = c3 K^3 [N per (N/m)^3]: the Hertz contact law
+/// F = k X^{3/2} written as F = f(K) (K = dF/dX gives F = 8 K^3 / (27 k^2)), with k set to
+/// reproduce a published contact time (source in config/ttball.yaml).
+pub const HERTZ_RESTORING_CUBIC: f64 = 2.3834e-12;
 
 /// What holds the racket (Kawazoe & Suzuki, seed 000 eq. 5-6; seed 001 eq. 23-26).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -161,14 +201,42 @@ impl Default for RacketParams {
 pub struct ArmParams {
     /// Equivalent mass M_H of the arm or robot wrist, lumped at the grip [kg]. Human arm: about
     /// 1.0 kg (0.97 kg for a 60 kg, 170 cm player, seed 000). A robot sets its wrist's effective
-    /// mass at the grip; a large value approximates a rigidly held racket, a small one a free racket.
+    /// mass at the grip; a large value approximates a rigidly held racket, 0 a free racket.
     pub equivalent_mass: f64,
+    /// Where that mass is attached: the hand's or the wrist flange's distance from the grip end
+    /// [m] (L_H of seed 001 eq. 24-26).
+    pub grip_from_grip_end: f64,
 }
 
 impl Default for ArmParams {
     fn default() -> Self {
         Self {
             equivalent_mass: 1.0,
+            grip_from_grip_end: 0.05,
+        }
+    }
+}
+
+/// The racket command planner (`ttball aim`, `~/plan_return`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct StrokeParams {
+    /// Largest speed of the racket's impact point the planner may command [m/s].
+    pub max_racket_speed: f64,
+    /// Height of the ball's bottom over the net top when the request asks for neither a
+    /// clearance nor a flight time [m].
+    pub net_clearance: f64,
+    /// Impact point from the racket's centre of gravity along its long axis, toward the tip,
+    /// when the request gives none [m].
+    pub impact_offset: f64,
+}
+
+impl Default for StrokeParams {
+    fn default() -> Self {
+        Self {
+            max_racket_speed: 8.0,
+            net_clearance: 0.15,
+            impact_offset: 0.0,
         }
     }
 }
@@ -479,6 +547,8 @@ pub struct Config {
     pub racket: RacketParams,
     /// The arm or robot wrist holding the racket.
     pub arm: ArmParams,
+    /// The racket command planner.
+    pub stroke: StrokeParams,
     /// Flight propagation and trajectory publishing.
     pub prediction: PredictionParams,
     /// The robot's hitting plane.
@@ -509,6 +579,7 @@ impl Default for Config {
             table: TableParams::default(),
             racket: RacketParams::default(),
             arm: ArmParams::default(),
+            stroke: StrokeParams::default(),
             prediction: PredictionParams::default(),
             intercept: InterceptParams::default(),
             sources: SourcesParams::default(),

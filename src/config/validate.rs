@@ -74,6 +74,18 @@ pub enum Violation {
         /// Why the one must not exceed the other.
         reason: &'static str,
     },
+    /// Two lists that pair up element by element have different lengths.
+    #[error("`{key}` has {len} elements but `{other_key}` has {other_len}: give one per element of `{other_key}`")]
+    LengthMismatch {
+        /// Dotted key of the list.
+        key: String,
+        /// Its length.
+        len: usize,
+        /// Dotted key of the list it pairs with.
+        other_key: String,
+        /// That list's length.
+        other_len: usize,
+    },
 }
 
 impl Violation {
@@ -85,7 +97,8 @@ impl Violation {
             | Self::CountOutOfRange { key, .. }
             | Self::EmptyList { key, .. }
             | Self::BadName { key, .. }
-            | Self::Exceeds { key, .. } => key,
+            | Self::Exceeds { key, .. }
+            | Self::LengthMismatch { key, .. } => key,
         }
     }
 }
@@ -177,6 +190,17 @@ impl Checker {
                 limit_key: limit_key.to_owned(),
                 limit,
                 reason,
+            });
+        }
+    }
+
+    fn same_length(&mut self, key: &str, len: usize, other_key: &str, other_len: usize) {
+        if len != other_len {
+            self.violations.push(Violation::LengthMismatch {
+                key: key.to_owned(),
+                len,
+                other_key: other_key.to_owned(),
+                other_len,
             });
         }
     }
@@ -383,7 +407,101 @@ impl Config {
             |v| (0.0..=0.01).contains(&v),
             "between 0 and 0.01 (metres; ITTF allows 4 mm of rubber)",
         );
-        c.positive("arm.equivalent_mass", self.arm.equivalent_mass);
+        c.real(
+            "racket.face_start_from_grip_end",
+            r.face_start_from_grip_end,
+            |v| (0.0..=1.0).contains(&v),
+            "between 0 and 1 (metres)",
+        );
+        c.real(
+            "racket.face_end_from_grip_end",
+            r.face_end_from_grip_end,
+            |v| v > 0.0 && v <= 1.0,
+            "greater than 0 and at most 1 (metres)",
+        );
+        c.at_most(
+            "racket.face_start_from_grip_end",
+            r.face_start_from_grip_end,
+            "racket.face_end_from_grip_end",
+            r.face_end_from_grip_end,
+            "the face starts before it ends",
+        );
+        c.polynomial("racket.rubber_restitution", &r.rubber_restitution);
+        c.real(
+            "racket.rubber_friction",
+            r.rubber_friction,
+            |v| (0.0..=5.0).contains(&v),
+            "between 0 and 5",
+        );
+        c.polynomial(
+            "racket.restoring_force_vs_stiffness",
+            &r.restoring_force_vs_stiffness,
+        );
+        for (i, &f) in r.vibration_mode_frequencies.iter().enumerate() {
+            c.real(
+                &format!("racket.vibration_mode_frequencies[{i}]"),
+                f,
+                |v| v > 0.0 && v <= 1.0e5,
+                "greater than 0 and at most 100000 (Hz)",
+            );
+        }
+        for (i, &m) in r.vibration_mode_masses.iter().enumerate() {
+            c.real(
+                &format!("racket.vibration_mode_masses[{i}]"),
+                m,
+                |v| v > 0.0 && v <= 10.0,
+                "greater than 0 and at most 10 (kilograms)",
+            );
+        }
+        c.same_length(
+            "racket.vibration_mode_masses",
+            r.vibration_mode_masses.len(),
+            "racket.vibration_mode_frequencies",
+            r.vibration_mode_frequencies.len(),
+        );
+        c.real(
+            "arm.equivalent_mass",
+            self.arm.equivalent_mass,
+            |v| (0.0..=1000.0).contains(&v),
+            "between 0 (a free racket) and 1000 (kilograms)",
+        );
+        c.real(
+            "arm.grip_from_grip_end",
+            self.arm.grip_from_grip_end,
+            |v| (0.0..=1.0).contains(&v),
+            "between 0 and 1 (metres)",
+        );
+        c.at_most(
+            "arm.grip_from_grip_end",
+            self.arm.grip_from_grip_end,
+            "racket.center_of_gravity_from_grip_end",
+            r.center_of_gravity_from_grip_end,
+            "the grip is between the grip end and the centre of gravity",
+        );
+        let s = &self.stroke;
+        c.real(
+            "stroke.max_racket_speed",
+            s.max_racket_speed,
+            |v| v > 0.0 && v <= 100.0,
+            "greater than 0 and at most 100 (m/s)",
+        );
+        c.real(
+            "stroke.net_clearance",
+            s.net_clearance,
+            |v| (0.0..=3.0).contains(&v),
+            "between 0 and 3 (metres)",
+        );
+        c.real(
+            "stroke.impact_offset",
+            s.impact_offset,
+            |v| {
+                (r.face_start_from_grip_end - r.center_of_gravity_from_grip_end
+                    ..=r.face_end_from_grip_end - r.center_of_gravity_from_grip_end)
+                    .contains(&v)
+            },
+            "on the face: between face_start_from_grip_end and face_end_from_grip_end, \
+             measured from the centre of gravity (metres)",
+        );
 
         let p = &self.prediction;
         c.real(

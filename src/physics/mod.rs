@@ -6,17 +6,25 @@
 //! - [`propagate`]: RK4 with the state-transition matrix, and events (table, net, floor, a plane
 //!   x = const) root-found inside a step, with the sensitivity of their time to the state.
 //! - [`predict`]: a whole predicted flight with its events, the base of every later prediction.
+//! - [`racket`]: the racket impact (Kawazoe, seeds 000 and 001): reduced mass, restitution,
+//!   rebound, spin from the rubber's friction, load on the grip.
+//! - [`contact`]: contact time, force and deformation of that impact, and the plate's vibration
+//!   loss.
 
 pub mod aero;
 pub mod bounce;
+pub mod contact;
 pub mod predict;
 pub mod propagate;
+pub mod racket;
 pub mod state;
 
 pub use aero::{AeroForces, FlightJacobian, FlightModel};
 pub use bounce::{Bounce, BounceRegime, TableBounce};
+pub use contact::{Contact, ContactError, RestoringCharacteristic};
 pub use predict::{PredictOptions, Sample, Trajectory, TrajectoryEnd, predict};
 pub use propagate::{
     Cursor, Event, EventKind, Flow, Observer, Outcome, Propagator, Tangent, Watch,
 };
+pub use racket::{Hit, ImpactError, NormalImpact, RacketModel, RacketState, WristLoad};
 pub use state::{BallState, StateMatrix, StateRow, StateVector};

@@ -1,0 +1,359 @@
+//! The racket impact: Kawazoe & Suzuki (seed 000) and Kawazoe et al. (seed 001), as stated in
+//! physics.md "Racket impact", in the racket's frame at the impact point.
+//!
+//! Normal direction (unit normal n of the face, toward the ball; V = -(v - V_R) . n > 0 the normal
+//! approach speed of the ball relative to the racket's impact point):
+//!
+//! ```text
+//! M_r  = I_GH M / (I_GH + M c^2)          reduced mass at the impact point (000 eq. 3, 5-6;
+//!                                         001 eq. 21, 23-26): M = M_R + M_H, c and I_GH about the
+//!                                         centre of gravity of racket and arm (M_H = 0: free racket)
+//! e_RB = clamp(0.77 - 0.0123 V, 0, 1)     ball on the clamped rubber (000 eq. 2), configured
+//! e    = (e_r - m/M_r) / (1 + m/M_r)      rebound power coefficient (000 eq. 13; 001 eq. 39),
+//!                                         e_r = e_RB without the plate's vibration loss
+//! v_n' = -e v_n                           relative normal velocity after (001 eq. 38, 40, 41)
+//! ```
+//!
+//! Contact time, forces and deformation come from [`super::contact`]. Tangentially, the
+//! shell-friction impulse of the table bounce ([`super::bounce`]) in the face's plane with the
+//! rubber's friction coefficient: slip u = v_t - V_R,t - r (w x n), Coulomb impulse mu m (1 + e) V
+//! against it, capped where the ball leaves rolling (alpha = 2/5); the racket's tangential
+//! response is neglected (the impulse is a few per cent of its momentum).
+//!
+//! Force on the grip (the robot's wrist), seed 001 eq. 10-14: S_1 = chi S_0 with
+//! chi = (M_R a b / J - 1) / (1 + (M_R / M_H)(1 - M_R b^2 / J)), a the impact point and b the
+//! racket's centre of gravity from the grip, J = I_G + M_R b^2 the racket's inertia about the grip.
+//! Shock acceleration of the grip, eq. 42: A = S_0 (1 / M - c X / I_GH), X the grip's distance
+//! from the combined centre of gravity (M_H A = |chi| S_0: the same physics seen twice).
+
+use nalgebra::Vector3;
+use thiserror::Error;
+
+use super::aero::Polynomial;
+use super::bounce::{BounceRegime, ROLLING_ALPHA};
+use super::contact::{Contact, ContactError, RestoringCharacteristic, VibrationMode};
+use super::contact::vibration_energy;
+use super::state::BallState;
+use crate::config::Config;
+
+/// How far the face normal's length may be from 1 before a hit is refused.
+pub const NORMAL_TOLERANCE: f64 = 1e-3;
+
+/// The racket at the instant of impact, in the `table` frame.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RacketState {
+    /// Velocity of the racket's impact point [m/s].
+    pub velocity: Vector3<f64>,
+    /// Unit normal of the hitting face, pointing toward the ball.
+    pub normal: Vector3<f64>,
+    /// Impact point from the racket's centre of gravity along its long axis, toward the tip [m].
+    pub impact_offset: f64,
+}
+
+/// The normal impact: masses, restitution, contact.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct NormalImpact {
+    /// Normal approach speed of the ball relative to the racket's impact point, V [m/s].
+    pub impact_speed: f64,
+    /// Reduced mass of the racket (and arm) at the impact point, M_r [kg].
+    pub reduced_mass: f64,
+    /// Ball-rubber coefficient of restitution at this speed, e_RB [-].
+    pub rubber_restitution: f64,
+    /// Ball-racket restitution after the plate's vibration loss, e_r (= e_RB without it) [-].
+    pub restitution: f64,
+    /// Rebound power coefficient e: relative normal speed after / before [-].
+    pub rebound_power_coefficient: f64,
+    /// Energy left in the racket plate's vibration [J] (0 without modes).
+    pub vibration_energy: f64,
+    /// Contact time, forces and deformation.
+    pub contact: Contact,
+}
+
+/// The load on what holds the racket (seed 001 eq. 10-14, 42).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct WristLoad {
+    /// Ratio chi of the grip force to the impact force, eq. 14 (0 for a free racket) [-].
+    pub transmission: f64,
+    /// Peak force transmitted to the grip / robot wrist, |chi| F_max [N].
+    pub peak_force: f64,
+    /// Peak shock acceleration of the grip, eq. 42 at F_max [m/s^2].
+    pub peak_acceleration: f64,
+}
+
+/// One hit of the ball by the racket.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Hit {
+    /// The ball just after the impact (position unchanged).
+    pub ball: BallState,
+    /// Velocity of the racket's impact point just after the impact [m/s].
+    pub racket_velocity: Vector3<f64>,
+    /// The normal impact.
+    pub normal: NormalImpact,
+    /// Whether the ball slid on the rubber throughout or left it rolling.
+    pub regime: BounceRegime,
+    /// The load on the grip.
+    pub wrist: WristLoad,
+}
+
+/// Why a hit cannot be predicted.
+#[derive(Debug, Clone, PartialEq, Error)]
+pub enum ImpactError {
+    /// A value of the ball or racket state is NaN or infinite.
+    #[error("the {what} has a non-finite value")]
+    NotFinite {
+        /// Which input.
+        what: &'static str,
+    },
+    /// The face normal is not a unit vector.
+    #[error(
+        "the racket normal has length {length:.6}: give a unit vector pointing from the face toward the ball"
+    )]
+    NotUnitNormal {
+        /// Its length.
+        length: f64,
+    },
+    /// The ball does not move toward the face.
+    #[error(
+        "the ball does not approach the face: its velocity relative to the racket along the normal is {relative_normal_speed:+.3} m/s (it must be negative; is the normal pointing toward the ball?)"
+    )]
+    NotApproaching {
+        /// (v - V_R) . n [m/s].
+        relative_normal_speed: f64,
+    },
+    /// The impact point is not on the face.
+    #[error(
+        "impact offset {offset:+.4} m is off the face: the face spans {min:+.4} to {max:+.4} m from the centre of gravity (racket.face_start_from_grip_end, racket.face_end_from_grip_end)"
+    )]
+    OffFace {
+        /// The offset asked for [m].
+        offset: f64,
+        /// Smallest offset on the face [m].
+        min: f64,
+        /// Largest offset on the face [m].
+        max: f64,
+    },
+    /// The contact cannot be solved with the configured restoring characteristic.
+    #[error(transparent)]
+    Contact(#[from] ContactError),
+}
+
+/// The racket-impact model of the configured ball, racket and arm.
+#[derive(Debug, Clone, PartialEq)]
+pub struct RacketModel {
+    ball_mass: f64,
+    ball_radius: f64,
+    racket_mass: f64,
+    center_of_gravity: f64,
+    inertia: f64,
+    arm_mass: f64,
+    grip: f64,
+    face_start: f64,
+    face_end: f64,
+    rubber_restitution: Polynomial,
+    friction: f64,
+    characteristic: RestoringCharacteristic,
+    modes: Vec<VibrationMode>,
+}
+
+impl RacketModel {
+    /// The model of the configured ball, racket and arm.
+    pub fn new(config: &Config) -> Self {
+        let r = &config.racket;
+        Self {
+            ball_mass: config.ball.mass,
+            ball_radius: config.ball.radius,
+            racket_mass: r.mass,
+            center_of_gravity: r.center_of_gravity_from_grip_end,
+            inertia: r.inertia_about_center_of_gravity,
+            arm_mass: config.arm.equivalent_mass,
+            grip: config.arm.grip_from_grip_end,
+            face_start: r.face_start_from_grip_end,
+            face_end: r.face_end_from_grip_end,
+            rubber_restitution: Polynomial::new(&r.rubber_restitution),
+            friction: r.rubber_friction,
+            characteristic: RestoringCharacteristic::new(&r.restoring_force_vs_stiffness),
+            modes: r
+                .vibration_mode_frequencies
+                .iter()
+                .zip(&r.vibration_mode_masses)
+                .map(|(&frequency, &modal_mass)| VibrationMode {
+                    frequency,
+                    modal_mass,
+                })
+                .collect(),
+        }
+    }
+
+    /// The same model with another equivalent mass at the grip [kg] (0: a free racket).
+    pub fn with_arm_mass(&self, arm_mass: f64) -> Self {
+        Self {
+            arm_mass,
+            ..self.clone()
+        }
+    }
+
+    /// The ball's mass [kg].
+    pub fn ball_mass(&self) -> f64 {
+        self.ball_mass
+    }
+
+    /// The impact offsets on the face, from the centre of gravity [m].
+    pub fn face_offsets(&self) -> (f64, f64) {
+        (
+            self.face_start - self.center_of_gravity,
+            self.face_end - self.center_of_gravity,
+        )
+    }
+
+    /// Shift of the centre of gravity toward the grip when the arm's mass is added, Delta G
+    /// (seed 001 eq. 26) [m].
+    fn center_shift(&self) -> f64 {
+        (self.center_of_gravity - self.grip) * self.arm_mass / (self.racket_mass + self.arm_mass)
+    }
+
+    /// Inertia of racket and arm about their common centre of gravity, I_GH (seed 000 eq. 6;
+    /// seed 001 eq. 25) [kg m^2].
+    fn combined_inertia(&self) -> f64 {
+        let shift = self.center_shift();
+        self.inertia
+            + self.racket_mass * shift * shift
+            + self.arm_mass * (self.center_of_gravity - self.grip - shift).powi(2)
+    }
+
+    /// Reduced mass of racket and arm at the impact point `offset` [m] from the racket's centre
+    /// of gravity (seed 000 eq. 3, 5; seed 001 eq. 21, 23-24) [kg].
+    pub fn reduced_mass(&self, offset: f64) -> f64 {
+        let total = self.racket_mass + self.arm_mass;
+        let inertia = self.combined_inertia();
+        let c = offset + self.center_shift();
+        inertia * total / (inertia + total * c * c)
+    }
+
+    /// Ball-rubber coefficient of restitution at normal impact speed `speed` [m/s], e_RB
+    /// (seed 000 eq. 2), clamped to [0, 1].
+    pub fn rubber_restitution(&self, speed: f64) -> f64 {
+        self.rubber_restitution.value(speed).clamp(0.0, 1.0)
+    }
+
+    /// The normal impact at approach speed `speed` [m/s] on the point `offset` [m].
+    pub fn normal_impact(&self, speed: f64, offset: f64) -> Result<NormalImpact, ContactError> {
+        let m = self.ball_mass;
+        let reduced_mass = self.reduced_mass(offset);
+        let rubber_restitution = self.rubber_restitution(speed);
+        let contact = self
+            .characteristic
+            .contact(speed, m, reduced_mass, rubber_restitution)?;
+        let vibration = vibration_energy(&self.modes, contact.peak_force, contact.contact_time);
+        let restitution = if vibration > 0.0 {
+            // Seed 000 eq. 18-19: the rubber's and the plate's losses together.
+            let loss = 2.0 * vibration * (m + reduced_mass) / (m * reduced_mass * speed * speed);
+            (rubber_restitution.powi(2) - loss).max(0.0).sqrt()
+        } else {
+            rubber_restitution
+        };
+        Ok(NormalImpact {
+            impact_speed: speed,
+            reduced_mass,
+            rubber_restitution,
+            restitution,
+            rebound_power_coefficient: rebound_power_coefficient(restitution, m / reduced_mass),
+            vibration_energy: vibration,
+            contact,
+        })
+    }
+
+    /// The load on the grip for an impact on `offset` [m] with peak force `peak_force` [N].
+    pub fn wrist_load(&self, offset: f64, peak_force: f64) -> WristLoad {
+        let a = self.center_of_gravity + offset - self.grip;
+        let b = self.center_of_gravity - self.grip;
+        let j = self.inertia + self.racket_mass * b * b;
+        let transmission = if self.arm_mass > 0.0 {
+            (self.racket_mass * a * b / j - 1.0)
+                / (1.0
+                    + self.racket_mass / self.arm_mass * (1.0 - self.racket_mass * b * b / j))
+        } else {
+            0.0
+        };
+        let total = self.racket_mass + self.arm_mass;
+        let c = offset + self.center_shift();
+        let grip_from_center = b - self.center_shift();
+        let acceleration =
+            peak_force * (1.0 / total - c * grip_from_center / self.combined_inertia());
+        WristLoad {
+            transmission,
+            peak_force: transmission.abs() * peak_force,
+            peak_acceleration: acceleration.abs(),
+        }
+    }
+
+    /// The ball and racket just after `racket` hits `ball`.
+    pub fn hit(&self, ball: &BallState, racket: &RacketState) -> Result<Hit, ImpactError> {
+        if !ball.is_finite() {
+            return Err(ImpactError::NotFinite { what: "ball state" });
+        }
+        let racket_finite = racket.velocity.iter().chain(racket.normal.iter()).all(|v| v.is_finite())
+            && racket.impact_offset.is_finite();
+        if !racket_finite {
+            return Err(ImpactError::NotFinite {
+                what: "racket state",
+            });
+        }
+        let length = racket.normal.norm();
+        if (length - 1.0).abs() > NORMAL_TOLERANCE {
+            return Err(ImpactError::NotUnitNormal { length });
+        }
+        let (min, max) = self.face_offsets();
+        if !(min..=max).contains(&racket.impact_offset) {
+            return Err(ImpactError::OffFace {
+                offset: racket.impact_offset,
+                min,
+                max,
+            });
+        }
+        let n = racket.normal / length;
+        let relative = ball.velocity - racket.velocity;
+        let relative_normal_speed = relative.dot(&n);
+        if relative_normal_speed >= 0.0 {
+            return Err(ImpactError::NotApproaching {
+                relative_normal_speed,
+            });
+        }
+        let speed = -relative_normal_speed;
+        let normal = self.normal_impact(speed, racket.impact_offset)?;
+        // Normal velocity change of the ball: the impulse per unit ball mass.
+        let normal_change = (1.0 + normal.rebound_power_coefficient) * speed;
+
+        let r = self.ball_radius;
+        let slip = relative - n * relative_normal_speed - r * ball.spin.cross(&n);
+        let slip_speed = slip.norm();
+        let sliding_alpha = if slip_speed > 0.0 {
+            self.friction * normal_change / slip_speed
+        } else {
+            f64::INFINITY
+        };
+        let (regime, alpha) = if sliding_alpha >= ROLLING_ALPHA {
+            (BounceRegime::Rolling, ROLLING_ALPHA)
+        } else {
+            (BounceRegime::Sliding, sliding_alpha)
+        };
+        let tangential_change = -alpha * slip;
+        let velocity = ball.velocity + n * normal_change + tangential_change;
+        let spin = ball.spin - 1.5 / r * n.cross(&tangential_change);
+        let racket_velocity =
+            racket.velocity - n * (self.ball_mass / normal.reduced_mass * normal_change);
+        Ok(Hit {
+            ball: BallState::new(ball.position, velocity, spin),
+            racket_velocity,
+            normal,
+            regime,
+            wrist: self.wrist_load(racket.impact_offset, normal.contact.peak_force),
+        })
+    }
+}
+
+/// The rebound power coefficient e = (e_r - m/M_r) / (1 + m/M_r) of a ball on a racket of
+/// restitution `restitution` and mass ratio `mass_ratio` = m / M_r (seed 000 eq. 13; seed 001
+/// eq. 39).
+pub fn rebound_power_coefficient(restitution: f64, mass_ratio: f64) -> f64 {
+    (restitution - mass_ratio) / (1.0 + mass_ratio)
+}

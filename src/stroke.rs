@@ -1,0 +1,600 @@
+//! The robot's stroke: what a hit does to the ball and where the ball goes, and the racket
+//! command that sends it to a target. Pure: the racket impact of [`crate::physics::racket`], then
+//! the flight of [`crate::physics::propagate`] to the first bounce.
+//!
+//! - [`Stroke::rebound`]: ball and racket state at impact -> the ball after the hit, contact time,
+//!   forces, wrist load, and its return flight to the landing point (net clearance included).
+//! - [`Stroke::plan`]: the inverse. The racket moves along its face normal n at speed s, plus an
+//!   optional brushing speed along the face (upward in the face's plane); the unknowns (s, n) are
+//!   solved by Newton's method with a finite-difference Jacobian so that the return, through the
+//!   full rebound and flight models, lands on the target (x, y) and meets a third condition: a net
+//!   clearance or a flight time. The start is the drag-free parabola through the target and the
+//!   frictionless inverse of the rebound. While solving, the table is taken as unbounded and the
+//!   net as transparent so that every candidate has a landing point; the solution is then flown
+//!   again through the real table and net.
+
+use nalgebra::{Matrix3, Vector2, Vector3};
+use thiserror::Error;
+
+use crate::config::Config;
+use crate::physics::propagate::{
+    Cursor, Event, EventKind, Flow, Observer, Outcome, Propagator, Watch,
+};
+use crate::physics::racket::{Hit, ImpactError, RacketModel, RacketState};
+use crate::physics::state::BallState;
+
+/// Landing distance to the target at which the plan is converged [m].
+pub const LANDING_TOLERANCE: f64 = 1e-6;
+/// Clearance [m] or flight time [s] error at which the plan is converged.
+pub const CONDITION_TOLERANCE: f64 = 1e-6;
+/// Largest number of Newton iterations of a plan.
+const MAX_ITERATIONS: usize = 40;
+/// Halvings of a Newton step before the plan gives up.
+const MAX_HALVINGS: usize = 12;
+/// Table outline margin of the solver's unbounded table [m].
+const UNBOUNDED_TABLE: f64 = 1.0e3;
+
+/// How the return flight ended.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ReturnOutcome {
+    /// The ball bounces on the opponent's half (x > 0): a good return.
+    Lands,
+    /// The ball bounces on the robot's own half first.
+    OwnHalf,
+    /// The ball hits the net.
+    Net,
+    /// The ball misses the table and reaches the floor.
+    MissesTable,
+    /// The ball is still flying at the end of the horizon.
+    StillFlying,
+}
+
+impl ReturnOutcome {
+    /// A few words for messages.
+    pub fn describe(&self) -> &'static str {
+        match self {
+            Self::Lands => "lands on the opponent's half",
+            Self::OwnHalf => "bounces on the robot's own half",
+            Self::Net => "hits the net",
+            Self::MissesTable => "misses the table",
+            Self::StillFlying => "is still flying at the end of the prediction horizon",
+        }
+    }
+}
+
+/// The flight of the returned ball up to its first bounce.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ReturnFlight {
+    /// How it ended.
+    pub outcome: ReturnOutcome,
+    /// The first bounce on the table (time after the hit [s], state just before it).
+    pub landing: Option<(f64, BallState)>,
+    /// The crossing of the net plane: time after the hit [s] and the height of the ball's bottom
+    /// over the net top [m].
+    pub net: Option<(f64, f64)>,
+}
+
+/// A hit and the flight that follows it.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Rebound {
+    /// The impact.
+    pub hit: Hit,
+    /// The return flight.
+    pub flight: ReturnFlight,
+}
+
+/// The third condition on a return, besides its landing point.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum ReturnCondition {
+    /// Height of the ball's bottom over the net top when it crosses the net [m].
+    NetClearance(f64),
+    /// Time from the hit to the landing [s].
+    FlightTime(f64),
+}
+
+/// What the controller asks for.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Aim {
+    /// Landing point of the ball centre on the opponent's half (x, y) [m].
+    pub target: Vector2<f64>,
+    /// The third condition.
+    pub condition: ReturnCondition,
+    /// Impact point from the racket's centre of gravity along its long axis [m].
+    pub impact_offset: f64,
+    /// Racket speed along the face, upward in the face's plane (topspin when positive) [m/s].
+    pub brush_speed: f64,
+}
+
+/// A racket command and what it does.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Plan {
+    /// The racket at impact: velocity of the impact point, face normal, impact offset.
+    pub racket: RacketState,
+    /// The hit and the return flight it gives, through the real table and net.
+    pub rebound: Rebound,
+    /// Distance from the predicted landing point to the target [m].
+    pub landing_error: f64,
+    /// Newton iterations used.
+    pub iterations: usize,
+}
+
+/// Why no racket command was found.
+#[derive(Debug, Clone, PartialEq, Error)]
+pub enum PlanError {
+    /// The request itself is invalid.
+    #[error("{0}")]
+    BadRequest(String),
+    /// The ball state cannot be hit (e.g. non-finite).
+    #[error(transparent)]
+    Impact(#[from] ImpactError),
+    /// The solver found no racket command that meets the target.
+    #[error(
+        "target unreachable: no racket command returns the ball there ({reason}); the closest candidate landed {closest:.3} m from it"
+    )]
+    NoSolution {
+        /// What went wrong.
+        reason: &'static str,
+        /// Landing distance of the best candidate [m].
+        closest: f64,
+    },
+    /// The command exists but the racket would have to move too fast.
+    #[error(
+        "target unreachable within the racket speed limit: it needs {needed:.2} m/s, the limit (stroke.max_racket_speed) is {limit:.2} m/s; a longer flight time or a higher net clearance needs less"
+    )]
+    TooFast {
+        /// Racket speed the command needs [m/s].
+        needed: f64,
+        /// The configured limit [m/s].
+        limit: f64,
+    },
+}
+
+/// The stroke model: racket impact, flight and the table.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Stroke {
+    racket: RacketModel,
+    propagator: Propagator,
+    solver_propagator: Propagator,
+    horizon: f64,
+    gravity: f64,
+    radius: f64,
+    net_height: f64,
+    half_length: f64,
+    half_width: f64,
+    max_racket_speed: f64,
+    net_clearance: f64,
+    impact_offset: f64,
+}
+
+/// Stops at the first table bounce, remembering it and the net-plane crossing.
+#[derive(Default)]
+struct FirstBounce {
+    landing: Option<Event>,
+    net_plane: Option<Event>,
+}
+
+impl Observer for FirstBounce {
+    fn on_event(&mut self, event: &Event) -> Flow {
+        match event.kind {
+            EventKind::TableBounce { .. } => {
+                self.landing = Some(*event);
+                return Flow::Stop;
+            }
+            EventKind::Net { .. } | EventKind::Plane { .. } if self.net_plane.is_none() => {
+                self.net_plane = Some(*event);
+            }
+            _ => {}
+        }
+        Flow::Continue
+    }
+}
+
+impl Stroke {
+    /// The stroke model of the configured ball, racket, arm, table and planner limits.
+    pub fn new(config: &Config) -> Self {
+        let propagator = Propagator::new(config);
+        Self {
+            racket: RacketModel::new(config),
+            solver_propagator: propagator.with_edge_margin(UNBOUNDED_TABLE),
+            propagator,
+            horizon: config.prediction.horizon,
+            gravity: config.gravity,
+            radius: config.ball.radius,
+            net_height: config.table.net_height,
+            half_length: 0.5 * config.table.length,
+            half_width: 0.5 * config.table.width,
+            max_racket_speed: config.stroke.max_racket_speed,
+            net_clearance: config.stroke.net_clearance,
+            impact_offset: config.stroke.impact_offset,
+        }
+    }
+
+    /// The racket-impact model.
+    pub fn racket(&self) -> &RacketModel {
+        &self.racket
+    }
+
+    /// The configured net clearance of a return when a request names no condition [m].
+    pub fn default_net_clearance(&self) -> f64 {
+        self.net_clearance
+    }
+
+    /// The configured impact offset when a request names none [m].
+    pub fn default_impact_offset(&self) -> f64 {
+        self.impact_offset
+    }
+
+    /// The hit of `ball` by `racket` and the return flight to its first bounce.
+    pub fn rebound(&self, ball: &BallState, racket: &RacketState) -> Result<Rebound, ImpactError> {
+        let hit = self.racket.hit(ball, racket)?;
+        Ok(Rebound {
+            hit,
+            flight: self.return_flight(&hit.ball),
+        })
+    }
+
+    /// The flight of a ball just hit, through the real table and net, to its first bounce.
+    pub fn return_flight(&self, after: &BallState) -> ReturnFlight {
+        let mut cursor = Cursor::new(0.0, after);
+        let mut observer = FirstBounce::default();
+        let outcome = self
+            .propagator
+            .advance(&mut cursor, self.horizon, Watch::FLIGHT, &mut observer);
+        let net = observer.net_plane.and_then(|e| match e.kind {
+            EventKind::Net { clearance, .. } => Some((e.t, clearance)),
+            _ => None,
+        });
+        let landing = observer
+            .landing
+            .map(|e| (e.t, BallState::from_vector(&e.before)));
+        let outcome = match (outcome, &landing) {
+            (Outcome::Stopped, Some((_, state))) if state.position.x > 0.0 => ReturnOutcome::Lands,
+            (Outcome::Stopped, Some(_)) => ReturnOutcome::OwnHalf,
+            (Outcome::Terminated(EventKind::Floor), _) => ReturnOutcome::MissesTable,
+            (Outcome::Terminated(_), _) => ReturnOutcome::Net,
+            _ => ReturnOutcome::StillFlying,
+        };
+        ReturnFlight {
+            outcome,
+            landing,
+            net,
+        }
+    }
+
+    /// The racket command that returns `ball` (its state just before impact) as `aim` asks.
+    pub fn plan(&self, ball: &BallState, aim: &Aim) -> Result<Plan, PlanError> {
+        self.check_aim(aim)?;
+        if !ball.is_finite() {
+            return Err(ImpactError::NotFinite { what: "ball state" }.into());
+        }
+        let (min, max) = self.racket.face_offsets();
+        if !(min..=max).contains(&aim.impact_offset) {
+            return Err(ImpactError::OffFace {
+                offset: aim.impact_offset,
+                min,
+                max,
+            }
+            .into());
+        }
+        let target_velocity = self.ballistic_guess(ball, aim)?;
+        let (speed, normal) = self.frictionless_inverse(ball, &target_velocity, aim)?;
+        let frictionless = Command {
+            speed,
+            normal,
+            brush: aim.brush_speed,
+            offset: aim.impact_offset,
+        };
+        // With the rubber's friction and the ball's spin, the same command sends the ball
+        // elsewhere: first match the outgoing velocity itself (a cheap, smooth map).
+        let mut command = self
+            .match_outgoing(ball, &target_velocity, frictionless)
+            .unwrap_or(frictionless);
+        let mut residual = self.residual(ball, &command, aim);
+        let mut closest = residual.map_or(f64::INFINITY, |r| r.fixed_rows::<2>(0).norm());
+        let mut iterations = 0;
+        loop {
+            let Some(r) = residual else {
+                return Err(PlanError::NoSolution {
+                    reason: "the first guess does not cross the net plane or reach the table",
+                    closest,
+                });
+            };
+            closest = closest.min(r.fixed_rows::<2>(0).norm());
+            if r.fixed_rows::<2>(0).norm() <= LANDING_TOLERANCE && r[2].abs() <= CONDITION_TOLERANCE
+            {
+                break;
+            }
+            if iterations == MAX_ITERATIONS {
+                return Err(PlanError::NoSolution {
+                    reason: "Newton's method did not converge",
+                    closest,
+                });
+            }
+            iterations += 1;
+            let jacobian = central_differences(&command, |c| self.residual(ball, c, aim)).ok_or(PlanError::NoSolution {
+                reason: "a neighbouring command does not reach the table",
+                closest,
+            })?;
+            let step = jacobian
+                .lu()
+                .solve(&(-r))
+                .ok_or(PlanError::NoSolution {
+                    reason: "the landing point does not depend on the racket command here",
+                    closest,
+                })?;
+            let accepted = damped_step(&command, &step, &r, |c| self.residual(ball, c, aim));
+            let Some((candidate, next)) = accepted else {
+                return Err(PlanError::NoSolution {
+                    reason: "no Newton step brings the landing point closer",
+                    closest,
+                });
+            };
+            command = candidate;
+            residual = Some(next);
+        }
+        let racket = command.racket();
+        let needed = racket.velocity.norm();
+        if needed > self.max_racket_speed {
+            return Err(PlanError::TooFast {
+                needed,
+                limit: self.max_racket_speed,
+            });
+        }
+        let rebound = self.rebound(ball, &racket)?;
+        let landing_error = rebound.flight.landing.map_or(f64::INFINITY, |(_, s)| {
+            (s.position.xy() - aim.target).norm()
+        });
+        Ok(Plan {
+            racket,
+            rebound,
+            landing_error,
+            iterations,
+        })
+    }
+
+    fn check_aim(&self, aim: &Aim) -> Result<(), PlanError> {
+        let t = aim.target;
+        if !(t.x.is_finite() && t.y.is_finite()) {
+            return Err(PlanError::BadRequest(
+                "the target has a non-finite coordinate".into(),
+            ));
+        }
+        if !(t.x > 0.0 && t.x < self.half_length && t.y.abs() < self.half_width) {
+            return Err(PlanError::BadRequest(format!(
+                "target ({:.3}, {:.3}) m is not on the opponent's half: give 0 < x < {:.3} and |y| < {:.4} (table frame, metres)",
+                t.x, t.y, self.half_length, self.half_width
+            )));
+        }
+        match aim.condition {
+            ReturnCondition::NetClearance(c) if !(0.0..=3.0).contains(&c) => {
+                Err(PlanError::BadRequest(format!(
+                    "net clearance {c} m is out of range: give 0 to 3 m"
+                )))
+            }
+            ReturnCondition::FlightTime(t) if !(t > 0.0 && t <= self.horizon) => {
+                Err(PlanError::BadRequest(format!(
+                    "flight time {t} s is out of range: give more than 0 and at most the prediction horizon, {} s",
+                    self.horizon
+                )))
+            }
+            _ if !aim.brush_speed.is_finite() || !aim.impact_offset.is_finite() => Err(
+                PlanError::BadRequest("the brush speed or impact offset is not finite".into()),
+            ),
+            _ => Ok(()),
+        }
+    }
+
+    /// The outgoing velocity of the drag-free parabola from the ball to the target that meets
+    /// the condition.
+    fn ballistic_guess(&self, ball: &BallState, aim: &Aim) -> Result<Vector3<f64>, PlanError> {
+        let g = self.gravity;
+        let start = ball.position;
+        let to_target = aim.target - start.xy();
+        let distance = to_target.norm();
+        let drop = self.radius - start.z;
+        let (horizontal_speed, vertical_speed) = match aim.condition {
+            ReturnCondition::FlightTime(t) => (distance / t, (drop + 0.5 * g * t * t) / t),
+            ReturnCondition::NetClearance(c) => {
+                // The parabola through the net point (at the fraction of the way where x = 0)
+                // and the landing point, both reached at horizontal speed u.
+                let fraction = -start.x / (aim.target.x - start.x);
+                if !(fraction > 0.0 && fraction < 1.0) {
+                    return Err(PlanError::BadRequest(format!(
+                        "the ball at x = {:.3} m is not on the robot's side of the net",
+                        start.x
+                    )));
+                }
+                let d1 = fraction * distance;
+                let rise = self.net_height + self.radius + c - start.z;
+                let slope_gap = rise / d1 - drop / distance;
+                if slope_gap <= 0.0 {
+                    return Err(PlanError::NoSolution {
+                        reason: "the net point lies below the straight line to the target",
+                        closest: f64::INFINITY,
+                    });
+                }
+                let u = (g * (distance - d1) / (2.0 * slope_gap)).sqrt();
+                (u, drop * u / distance + 0.5 * g * distance / u)
+            }
+        };
+        let direction = to_target / distance;
+        Ok(Vector3::new(
+            direction.x * horizontal_speed,
+            direction.y * horizontal_speed,
+            vertical_speed,
+        ))
+    }
+
+    /// Racket speed and normal that turn the incoming velocity into `outgoing`, without friction:
+    /// the velocity change is along n, (1 + e(V)) V with V = s - v . n the approach speed.
+    fn frictionless_inverse(
+        &self,
+        ball: &BallState,
+        outgoing: &Vector3<f64>,
+        aim: &Aim,
+    ) -> Result<(f64, Vector3<f64>), PlanError> {
+        let change = outgoing - ball.velocity;
+        let magnitude = change.norm();
+        if magnitude == 0.0 {
+            return Err(PlanError::BadRequest(
+                "the ball already flies to the target: no hit needed".into(),
+            ));
+        }
+        let normal = change / magnitude;
+        let mut approach = magnitude / 1.7;
+        for _ in 0..20 {
+            let impact = self
+                .racket
+                .normal_impact(approach, aim.impact_offset)
+                .map_err(ImpactError::from)?;
+            approach = magnitude / (1.0 + impact.rebound_power_coefficient);
+        }
+        Ok((approach + ball.velocity.dot(&normal), normal))
+    }
+
+    /// The command whose hit sends the ball off at `outgoing`, by Newton's method from `start`
+    /// on the rebound alone; `None` when it does not converge.
+    fn match_outgoing(
+        &self,
+        ball: &BallState,
+        outgoing: &Vector3<f64>,
+        start: Command,
+    ) -> Option<Command> {
+        let error = |command: &Command| {
+            self.racket
+                .hit(ball, &command.racket())
+                .ok()
+                .map(|hit| hit.ball.velocity - outgoing)
+        };
+        let mut command = start;
+        let mut r = error(&command)?;
+        for _ in 0..MAX_ITERATIONS {
+            if r.norm() < 1e-9 {
+                return Some(command);
+            }
+            let jacobian = central_differences(&command, |c| error(c))?;
+            let step = jacobian.lu().solve(&(-r))?;
+            let (next, next_r) = damped_step(&command, &step, &r, |c| error(c))?;
+            command = next;
+            r = next_r;
+        }
+        None
+    }
+
+    /// (landing x - target x, landing y - target y, condition error) of a command, through the
+    /// unbounded table and transparent net; `None` when the command does not make a return.
+    fn residual(&self, ball: &BallState, command: &Command, aim: &Aim) -> Option<Vector3<f64>> {
+        let hit = self.racket.hit(ball, &command.racket()).ok()?;
+        let mut cursor = Cursor::new(0.0, &hit.ball);
+        let mut observer = FirstBounce::default();
+        let watch = Watch {
+            net: false,
+            floor: false,
+            plane_x: Some(0.0),
+        };
+        self.solver_propagator
+            .advance(&mut cursor, self.horizon, watch, &mut observer);
+        let landing = observer.landing?;
+        let condition = match aim.condition {
+            ReturnCondition::NetClearance(c) => {
+                let net = observer.net_plane?;
+                net.before[2] - self.radius - self.net_height - c
+            }
+            ReturnCondition::FlightTime(t) => landing.t - t,
+        };
+        Some(Vector3::new(
+            landing.before[0] - aim.target.x,
+            landing.before[1] - aim.target.y,
+            condition,
+        ))
+    }
+
+}
+
+/// d(f)/d(speed, two tilts of the normal) at `command`, by central differences.
+fn central_differences(
+    command: &Command,
+    f: impl Fn(&Command) -> Option<Vector3<f64>>,
+) -> Option<Matrix3<f64>> {
+    let mut jacobian = Matrix3::zeros();
+    for k in 0..3 {
+        let h = if k == 0 {
+            1e-6 * command.speed.abs().max(1.0)
+        } else {
+            1e-6
+        };
+        let mut delta = Vector3::zeros();
+        delta[k] = h;
+        let plus = f(&command.moved(&delta))?;
+        let minus = f(&command.moved(&(-delta)))?;
+        jacobian.set_column(k, &((plus - minus) / (2.0 * h)));
+    }
+    Some(jacobian)
+}
+
+/// The Newton step `step` from `command`, halved until |f| falls below |r|.
+fn damped_step(
+    command: &Command,
+    step: &Vector3<f64>,
+    r: &Vector3<f64>,
+    f: impl Fn(&Command) -> Option<Vector3<f64>>,
+) -> Option<(Command, Vector3<f64>)> {
+    let mut scale = 1.0;
+    for _ in 0..=MAX_HALVINGS {
+        let candidate = command.moved(&(step * scale));
+        if let Some(next) = f(&candidate)
+            && next.norm() < r.norm()
+        {
+            return Some((candidate, next));
+        }
+        scale *= 0.5;
+    }
+    None
+}
+
+/// The planner's unknowns: racket speed along the normal and the normal, with the brushing
+/// speed and impact offset held.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct Command {
+    speed: f64,
+    normal: Vector3<f64>,
+    brush: f64,
+    offset: f64,
+}
+
+impl Command {
+    /// Unit vector in the face's plane pointing up (or along x for a horizontal face).
+    fn brush_direction(normal: &Vector3<f64>) -> Vector3<f64> {
+        let up = Vector3::z() - normal * normal.z;
+        if up.norm() > 1e-9 {
+            up.normalize()
+        } else {
+            (Vector3::x() - normal * normal.x).normalize()
+        }
+    }
+
+    /// Two unit vectors orthogonal to the normal and to each other.
+    fn tilt_axes(&self) -> (Vector3<f64>, Vector3<f64>) {
+        let first = Self::brush_direction(&self.normal);
+        (first, self.normal.cross(&first))
+    }
+
+    /// The command moved by (speed change, tilt along the first axis, tilt along the second).
+    fn moved(&self, delta: &Vector3<f64>) -> Self {
+        let (a, b) = self.tilt_axes();
+        Self {
+            speed: self.speed + delta[0],
+            normal: (self.normal + a * delta[1] + b * delta[2]).normalize(),
+            ..*self
+        }
+    }
+
+    /// The racket state this command describes.
+    fn racket(&self) -> RacketState {
+        RacketState {
+            velocity: self.normal * self.speed + Self::brush_direction(&self.normal) * self.brush,
+            normal: self.normal,
+            impact_offset: self.offset,
+        }
+    }
+}

@@ -1,0 +1,424 @@
+//! The racket impact model against the numbers of its sources (Kawazoe & Suzuki, seed 000;
+//! Kawazoe et al., seed 001; physics.md "Racket impact") and against its invariants.
+
+use approx::assert_relative_eq;
+use nalgebra::{Vector2, Vector3};
+use ttball::config::Config;
+use ttball::physics::bounce::BounceRegime;
+use ttball::physics::racket::{RacketModel, RacketState, rebound_power_coefficient};
+use ttball::physics::state::BallState;
+use ttball::stroke::{Aim, PlanError, ReturnCondition, ReturnOutcome, Stroke};
+
+/// The seed's own ball: 38 mm, 2.5 g.
+fn seed_config() -> Config {
+    let mut config = Config::default();
+    config.ball.mass = 0.0025;
+    config.ball.radius = 0.019;
+    config
+}
+
+/// The seed racket hanging free (no arm), as in the paper's figures.
+fn free_racket(config: &Config) -> RacketModel {
+    RacketModel::new(config).with_arm_mass(0.0)
+}
+
+/// Top point A of the seed racket: 132 mm from its centre of gravity.
+const POINT_A: f64 = 0.132;
+
+#[test]
+fn reduced_mass_at_the_top_point_is_the_papers_78_1_g() {
+    let model = free_racket(&seed_config());
+    let mr = model.reduced_mass(POINT_A);
+    assert!((mr - 0.0781).abs() < 0.0002, "M_r = {mr} kg");
+    // At the centre of gravity a free racket's reduced mass is its whole mass.
+    assert_relative_eq!(model.reduced_mass(0.0), 0.171, max_relative = 1e-12);
+    // Holding the racket (1 kg at the grip) makes it larger everywhere on the face, much larger
+    // near the face centre, 18 mm above the centre of gravity (seed 000 Fig. 10 and 19); at the
+    // tip the racket turns about a point near the hand, where the arm's mass adds little.
+    let held = RacketModel::new(&seed_config());
+    let (min, max) = held.face_offsets();
+    for i in 0..=50 {
+        let b = min + (max - min) * f64::from(i) / 50.0;
+        assert!(held.reduced_mass(b) >= model.reduced_mass(b), "at {b}");
+    }
+    assert!(held.reduced_mass(0.018) > 1.5 * model.reduced_mass(0.018));
+}
+
+#[test]
+fn rebound_power_coefficients_are_the_papers_at_8_16_24_30_m_s() {
+    let config = seed_config();
+    let model = free_racket(&config);
+    let ratio = 0.0025 / 0.0781;
+    for (speed, expected) in [(8.0, 0.620), (16.0, 0.524), (24.0, 0.429), (30.0, 0.358)] {
+        let e = rebound_power_coefficient(model.rubber_restitution(speed), ratio);
+        assert!((e - expected).abs() < 0.0006, "e({speed}) = {e}, paper {expected}");
+        // The same through the whole normal impact at point A (M_r = 78.2 g).
+        let impact = model.normal_impact(speed, POINT_A).expect("contact");
+        assert!(
+            (impact.rebound_power_coefficient - expected).abs() < 0.001,
+            "e({speed}) = {}",
+            impact.rebound_power_coefficient
+        );
+    }
+}
+
+#[test]
+fn e_falls_with_impact_speed() {
+    let model = free_racket(&seed_config());
+    let mut last = f64::INFINITY;
+    for speed in [2.0, 5.0, 10.0, 15.0, 20.0, 25.0, 30.0] {
+        let e = model
+            .normal_impact(speed, 0.0)
+            .expect("contact")
+            .rebound_power_coefficient;
+        assert!(e < last, "e({speed}) = {e} does not fall");
+        last = e;
+    }
+}
+
+/// Seed 000 Fig. 13: e falls with a smaller reduced mass, steeply below about 20 g and hardly
+/// above it.
+#[test]
+fn e_falls_with_smaller_reduced_mass_little_above_20_g() {
+    let model = free_racket(&seed_config());
+    for speed in [8.0, 16.0, 24.0] {
+        let e_rb = model.rubber_restitution(speed);
+        let e = |mr: f64| rebound_power_coefficient(e_rb, 0.0025 / mr);
+        let masses = [0.002, 0.005, 0.01, 0.02, 0.05, 0.0781, 0.171, 1.0];
+        for pair in masses.windows(2) {
+            assert!(e(pair[0]) < e(pair[1]), "e not rising with M_r at {speed} m/s");
+        }
+        // The knee: from 20 g down to 5 g e loses more than twice what it gains from 20 g up to
+        // the seed racket's smallest reduced mass (78.1 g) ...
+        let above = e(0.0781) - e(0.02);
+        let below = e(0.02) - e(0.005);
+        assert!(below > 2.5 * above, "{below} vs {above}");
+        // ... and from there a held racket or even a rigid wall adds little (conclusion 2).
+        assert!(e(1.0) - e(0.0781) < 0.06);
+        assert!(e_rb - e(0.0781) < 0.06);
+    }
+}
+
+/// Seed 000 Fig. 19: along the long axis, e peaks where the reduced mass is largest.
+#[test]
+fn e_peaks_where_the_reduced_mass_is_largest_along_the_long_axis() {
+    for arm_mass in [0.0, 1.0] {
+        let model = RacketModel::new(&seed_config()).with_arm_mass(arm_mass);
+        let (min, max) = model.face_offsets();
+        let offsets: Vec<f64> = (0..=200)
+            .map(|i| min + (max - min) * f64::from(i) / 200.0)
+            .collect();
+        let argmax = |f: &dyn Fn(f64) -> f64| {
+            offsets
+                .iter()
+                .copied()
+                .max_by(|a, b| f(*a).total_cmp(&f(*b)))
+                .expect("offsets")
+        };
+        let peak_e = argmax(&|b| {
+            model
+                .normal_impact(30.0, b)
+                .expect("contact")
+                .rebound_power_coefficient
+        });
+        let peak_mass = argmax(&|b| model.reduced_mass(b));
+        assert_eq!(peak_e, peak_mass, "arm {arm_mass} kg");
+        if arm_mass == 0.0 {
+            // A free racket: at its centre of gravity.
+            assert!(peak_e.abs() <= (max - min) / 200.0);
+        }
+    }
+}
+
+#[test]
+fn contact_lasts_about_a_millisecond_at_rally_speeds_and_shortens_with_speed() {
+    let model = RacketModel::new(&Config::default());
+    let mut last = f64::INFINITY;
+    for speed in [3.0, 5.0, 10.0, 15.0, 20.0, 30.0] {
+        let impact = model.normal_impact(speed, 0.0).expect("contact");
+        let c = impact.contact;
+        assert!(
+            (0.5e-3..2.0e-3).contains(&c.contact_time),
+            "T_c({speed}) = {}",
+            c.contact_time
+        );
+        assert!(c.contact_time < last);
+        last = c.contact_time;
+        // The impulse is the ball's momentum change (seed 000 eq. 8) and F_max = pi/2 F_mean.
+        let change = 0.0027 * (1.0 + impact.rebound_power_coefficient) * speed;
+        assert_relative_eq!(c.impulse, change, max_relative = 1e-9);
+        assert_relative_eq!(
+            c.peak_force,
+            std::f64::consts::FRAC_PI_2 * c.mean_force,
+            max_relative = 1e-12
+        );
+    }
+    // The default characteristic is set to 1.0 ms at 10 m/s on the held racket's centre of
+    // gravity (config/ttball.yaml).
+    let tc = model.normal_impact(10.0, 0.0).expect("contact").contact.contact_time;
+    assert!((tc - 1.0e-3).abs() < 5e-6, "{tc}");
+}
+
+#[test]
+fn the_transcribed_eq1_is_refused_with_a_clear_message() {
+    let mut config = Config::default();
+    let kgf = 9.80665;
+    let kgf_per_mm: f64 = 9806.65;
+    config.racket.restoring_force_vs_stiffness = [-0.0999, 0.1098, 0.1433, -0.066]
+        .iter()
+        .enumerate()
+        .map(|(i, c)| c * kgf / kgf_per_mm.powi(i as i32))
+        .collect();
+    let stroke = Stroke::new(&config);
+    let err = stroke
+        .rebound(&incoming(), &racket_at_rest(Vector3::x()))
+        .expect_err("no contact");
+    let text = err.to_string();
+    assert!(text.contains("no contact solution"), "{text}");
+    assert!(text.contains("racket.restoring_force_vs_stiffness"), "{text}");
+}
+
+fn incoming() -> BallState {
+    BallState::new(
+        Vector3::new(-1.6, 0.1, 0.25),
+        Vector3::new(-5.0, 0.4, -1.0),
+        Vector3::new(20.0, -150.0, 30.0),
+    )
+}
+
+fn racket_at_rest(normal: Vector3<f64>) -> RacketState {
+    RacketState {
+        velocity: Vector3::zeros(),
+        normal,
+        impact_offset: 0.05,
+    }
+}
+
+fn tilted_stroke() -> RacketState {
+    RacketState {
+        velocity: Vector3::new(4.0, -0.5, 2.5),
+        normal: Vector3::new(0.9, -0.1, 0.4).normalize(),
+        impact_offset: 0.03,
+    }
+}
+
+/// Normal momentum of ball and racket (reduced mass at the impact point) is conserved; the
+/// tangential impulse is bounded by mu times the normal one; total energy does not grow.
+#[test]
+fn normal_momentum_is_conserved_and_energy_does_not_grow() {
+    let config = Config::default();
+    let model = RacketModel::new(&config);
+    let m = config.ball.mass;
+    for racket in [racket_at_rest(Vector3::x()), tilted_stroke()] {
+        let ball = incoming();
+        let hit = model.hit(&ball, &racket).expect("hit");
+        let n = racket.normal;
+        let mr = hit.normal.reduced_mass;
+        let before = m * ball.velocity.dot(&n) + mr * racket.velocity.dot(&n);
+        let after = m * hit.ball.velocity.dot(&n) + mr * hit.racket_velocity.dot(&n);
+        assert_relative_eq!(before, after, max_relative = 1e-12);
+        // Energy in the racket's frame before the impact.
+        let energy = |b: &BallState, racket_velocity: Vector3<f64>| {
+            let rel = BallState::new(b.position, b.velocity - racket.velocity, b.spin);
+            rel.kinetic_energy(m, config.ball.radius)
+                + 0.5 * mr * (racket_velocity - racket.velocity).norm_squared()
+        };
+        let e0 = energy(&ball, racket.velocity);
+        let e1 = energy(&hit.ball, hit.racket_velocity);
+        assert!(e1 < e0, "energy grew: {e0} -> {e1}");
+        let normal_change = (hit.ball.velocity - ball.velocity).dot(&n);
+        let tangential = (hit.ball.velocity - ball.velocity) - n * normal_change;
+        assert!(tangential.norm() <= config.racket.rubber_friction * normal_change + 1e-12);
+    }
+}
+
+/// With e_RB = 1, no friction and a rigid holder, the impact is perfectly elastic.
+#[test]
+fn an_elastic_frictionless_hit_keeps_the_energy() {
+    let mut config = Config::default();
+    config.racket.rubber_restitution = vec![1.0];
+    config.racket.rubber_friction = 0.0;
+    let model = RacketModel::new(&config);
+    let m = config.ball.mass;
+    let ball = incoming();
+    let racket = tilted_stroke();
+    let hit = model.hit(&ball, &racket).expect("hit");
+    let mr = hit.normal.reduced_mass;
+    let energy = |v: Vector3<f64>, vr: Vector3<f64>| {
+        0.5 * m * v.norm_squared() + 0.5 * mr * vr.dot(&racket.normal).powi(2)
+    };
+    assert_relative_eq!(
+        energy(ball.velocity, racket.velocity),
+        energy(hit.ball.velocity, hit.racket_velocity),
+        max_relative = 1e-12
+    );
+    assert_eq!(hit.ball.spin, ball.spin);
+}
+
+/// A racket at rest, face along +x: seed 000 eq. (12) for the normal velocity, and a rolling
+/// impact leaves no slip at the contact point.
+#[test]
+fn a_racket_at_rest_rebounds_as_eq12_and_rolling_leaves_no_slip() {
+    let config = Config::default();
+    let model = RacketModel::new(&config);
+    let ball = BallState::new(
+        Vector3::new(-1.6, 0.0, 0.2),
+        Vector3::new(-8.0, 0.0, 0.0),
+        Vector3::new(0.0, 0.0, 0.0),
+    );
+    let hit = model.hit(&ball, &racket_at_rest(Vector3::x())).expect("hit");
+    let (m, mr) = (config.ball.mass, hit.normal.reduced_mass);
+    let e_rb = model.rubber_restitution(8.0);
+    assert_relative_eq!(
+        hit.ball.velocity.x,
+        8.0 * (e_rb * mr - m) / (m + mr),
+        max_relative = 1e-12
+    );
+    // A spinning ball grips the rubber and leaves rolling: contact-point velocity zero.
+    let spinning = BallState::new(ball.position, ball.velocity, Vector3::new(0.0, -60.0, 40.0));
+    let hit = model
+        .hit(&spinning, &racket_at_rest(Vector3::x()))
+        .expect("hit");
+    assert_eq!(hit.regime, BounceRegime::Rolling);
+    let n = Vector3::x();
+    let v = hit.ball.velocity;
+    let slip = v - n * v.dot(&n) - config.ball.radius * hit.ball.spin.cross(&n);
+    assert!(slip.norm() < 1e-12, "slip {slip}");
+}
+
+/// Seed 001: the grip force of eq. (14) and the grip's shock acceleration of eq. (42) are the
+/// same physics: M_H A = |chi| F. A free racket loads nothing.
+#[test]
+fn wrist_force_and_grip_acceleration_agree() {
+    let config = Config::default();
+    for arm in [0.3, 1.0, 5.0] {
+        let model = RacketModel::new(&config).with_arm_mass(arm);
+        for offset in [-0.04, 0.0, 0.05, 0.1, 0.13] {
+            let load = model.wrist_load(offset, 100.0);
+            assert_relative_eq!(arm * load.peak_acceleration, load.peak_force, max_relative = 1e-9);
+        }
+    }
+    let free = RacketModel::new(&config).with_arm_mass(0.0).wrist_load(0.1, 100.0);
+    assert_eq!(free.peak_force, 0.0);
+}
+
+/// The plate's vibration (seed 000 eq. 14-20): the energy left in the modes lowers the
+/// restitution as eq. (19) says, and a mode far above 1 / T_c takes almost nothing.
+#[test]
+fn vibration_loss_follows_eq19() {
+    let mut config = Config::default();
+    let plain = RacketModel::new(&config).normal_impact(20.0, 0.1).expect("contact");
+    assert_eq!(plain.vibration_energy, 0.0);
+    config.racket.vibration_mode_frequencies = vec![400.0, 900.0];
+    config.racket.vibration_mode_masses = vec![0.08, 0.05];
+    let with_modes = RacketModel::new(&config).normal_impact(20.0, 0.1).expect("contact");
+    let (m, mr, v) = (config.ball.mass, with_modes.reduced_mass, 20.0);
+    let loss = 2.0 * with_modes.vibration_energy * (m + mr) / (m * mr * v * v);
+    assert!(loss > 0.0);
+    assert_relative_eq!(
+        with_modes.restitution.powi(2),
+        with_modes.rubber_restitution.powi(2) - loss,
+        max_relative = 1e-12
+    );
+    assert!(with_modes.rebound_power_coefficient < plain.rebound_power_coefficient);
+    config.racket.vibration_mode_frequencies = vec![50_000.0];
+    config.racket.vibration_mode_masses = vec![0.05];
+    let stiff = RacketModel::new(&config).normal_impact(20.0, 0.1).expect("contact");
+    assert!(plain.rebound_power_coefficient - stiff.rebound_power_coefficient < 1e-4);
+}
+
+#[test]
+fn bad_racket_states_are_refused_with_reasons() {
+    let model = RacketModel::new(&Config::default());
+    let ball = incoming();
+    let cases = [
+        (racket_at_rest(Vector3::new(2.0, 0.0, 0.0)), "unit vector"),
+        (racket_at_rest(-Vector3::x()), "does not approach"),
+        (
+            RacketState {
+                impact_offset: 0.3,
+                ..racket_at_rest(Vector3::x())
+            },
+            "off the face",
+        ),
+        (
+            RacketState {
+                velocity: Vector3::new(f64::NAN, 0.0, 0.0),
+                ..racket_at_rest(Vector3::x())
+            },
+            "non-finite",
+        ),
+    ];
+    for (racket, words) in cases {
+        let text = model.hit(&ball, &racket).expect_err(words).to_string();
+        assert!(text.contains(words), "{text}");
+    }
+}
+
+fn aim(target: (f64, f64), condition: ReturnCondition) -> Aim {
+    Aim {
+        target: Vector2::new(target.0, target.1),
+        condition,
+        impact_offset: 0.0,
+        brush_speed: 0.0,
+    }
+}
+
+/// The planner's command, fed to the forward model, lands within 1 mm of the target.
+#[test]
+fn the_planned_command_lands_on_the_target() {
+    let stroke = Stroke::new(&Config::default());
+    let balls = [
+        incoming(),
+        BallState::new(
+            Vector3::new(-1.6, -0.3, 0.15),
+            Vector3::new(-7.0, 0.8, 0.5),
+            Vector3::new(0.0, 200.0, 0.0),
+        ),
+    ];
+    let aims = [
+        aim((0.9, 0.3), ReturnCondition::NetClearance(0.15)),
+        aim((1.2, -0.5), ReturnCondition::NetClearance(0.3)),
+        aim((0.6, 0.0), ReturnCondition::FlightTime(0.6)),
+        Aim {
+            brush_speed: 2.0,
+            impact_offset: 0.06,
+            ..aim((1.0, 0.5), ReturnCondition::NetClearance(0.1))
+        },
+    ];
+    for ball in &balls {
+        for a in &aims {
+            let plan = stroke.plan(ball, a).unwrap_or_else(|e| panic!("{a:?}: {e}"));
+            // The command through the public forward model, as a controller would check it.
+            let rebound = stroke.rebound(ball, &plan.racket).expect("rebound");
+            assert_eq!(rebound.flight.outcome, ReturnOutcome::Lands, "{a:?}");
+            let (t, landing) = rebound.flight.landing.expect("landing");
+            let miss = (landing.position.xy() - a.target).norm();
+            assert!(miss < 1e-3, "{a:?}: missed by {miss} m");
+            match a.condition {
+                ReturnCondition::NetClearance(c) => {
+                    let (_, clearance) = rebound.flight.net.expect("net crossing");
+                    assert!((clearance - c).abs() < 1e-3, "clearance {clearance}");
+                }
+                ReturnCondition::FlightTime(f) => assert!((t - f).abs() < 1e-3, "time {t}"),
+            }
+            assert!(plan.racket.velocity.norm() <= 8.0);
+        }
+    }
+}
+
+#[test]
+fn unreachable_targets_are_reported() {
+    let mut config = Config::default();
+    config.stroke.max_racket_speed = 2.0;
+    let stroke = Stroke::new(&config);
+    let err = stroke
+        .plan(&incoming(), &aim((1.2, 0.0), ReturnCondition::FlightTime(0.25)))
+        .expect_err("too fast");
+    assert!(matches!(err, PlanError::TooFast { .. }), "{err}");
+    assert!(err.to_string().contains("stroke.max_racket_speed"));
+    let off = stroke
+        .plan(&incoming(), &aim((-0.5, 0.0), ReturnCondition::NetClearance(0.1)))
+        .expect_err("own half");
+    assert!(off.to_string().contains("opponent's half"), "{off}");
+}
