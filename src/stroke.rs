@@ -163,7 +163,6 @@ pub struct Stroke {
     half_width: f64,
     max_racket_speed: f64,
     net_clearance: f64,
-    impact_offset: f64,
 }
 
 /// Stops at the first table bounce, remembering it and the net-plane crossing.
@@ -205,7 +204,6 @@ impl Stroke {
             half_width: 0.5 * config.table.width,
             max_racket_speed: config.stroke.max_racket_speed,
             net_clearance: config.stroke.net_clearance,
-            impact_offset: config.stroke.impact_offset,
         }
     }
 
@@ -217,11 +215,6 @@ impl Stroke {
     /// The configured net clearance of a return when a request names no condition [m].
     pub fn default_net_clearance(&self) -> f64 {
         self.net_clearance
-    }
-
-    /// The configured impact offset when a request names none [m].
-    pub fn default_impact_offset(&self) -> f64 {
-        self.impact_offset
     }
 
     /// The hit of `ball` by `racket` and the return flight to its first bounce.

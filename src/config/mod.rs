@@ -226,9 +226,6 @@ pub struct StrokeParams {
     /// Height of the ball's bottom over the net top when the request asks for neither a
     /// clearance nor a flight time [m].
     pub net_clearance: f64,
-    /// Impact point from the racket's centre of gravity along its long axis, toward the tip,
-    /// when the request gives none [m].
-    pub impact_offset: f64,
 }
 
 impl Default for StrokeParams {
@@ -236,7 +233,6 @@ impl Default for StrokeParams {
         Self {
             max_racket_speed: 8.0,
             net_clearance: 0.15,
-            impact_offset: 0.0,
         }
     }
 }

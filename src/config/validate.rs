@@ -491,17 +491,6 @@ impl Config {
             |v| (0.0..=3.0).contains(&v),
             "between 0 and 3 (metres)",
         );
-        c.real(
-            "stroke.impact_offset",
-            s.impact_offset,
-            |v| {
-                (r.face_start_from_grip_end - r.center_of_gravity_from_grip_end
-                    ..=r.face_end_from_grip_end - r.center_of_gravity_from_grip_end)
-                    .contains(&v)
-            },
-            "on the face: between face_start_from_grip_end and face_end_from_grip_end, \
-             measured from the centre of gravity (metres)",
-        );
 
         let p = &self.prediction;
         c.real(
