@@ -9,6 +9,7 @@ pub mod node;
 pub mod play;
 pub mod plot;
 pub mod predict;
+pub mod racket;
 pub mod replay;
 pub mod report;
 pub mod simulate;
@@ -101,6 +102,33 @@ pub enum Command {
         ttball plot out.mcap --output w.png --window 1.0,2.5")]
     Plot(plot::PlotArgs),
 
+    /// Predict what a racket hit does: rebound, spin, contact time and forces, wrist load, landing.
+    ///
+    /// The racket impact model (Kawazoe & Suzuki, seeds 000 and 001): reduced mass of the racket
+    /// and arm at the impact point, velocity-dependent restitution, contact time and force from
+    /// the ball-rubber restoring characteristic, spin from the rubber's friction, the force on
+    /// the grip; then the return flight to its first bounce. The default ball is a real rally
+    /// ball at the hitting plane; the default stroke a flat drive. --chart draws e along the
+    /// racket and against impact speed.
+    #[command(after_help = "Examples:\n  \
+        ttball rebound                                                   # a drive on a real ball\n  \
+        ttball rebound --racket-velocity 3,0,3 --normal 0.9,0,0.45 --offset 0.06\n  \
+        ttball rebound --json -p arm.equivalent_mass:=0          # a free racket\n  \
+        ttball rebound --chart racket_e.svg")]
+    Rebound(racket::ReboundArgs),
+
+    /// Plan the racket command that returns the ball to a target on the opponent's half.
+    ///
+    /// Solves for the racket velocity (along the face normal, plus an optional brush along the
+    /// face) and the face normal so that the ball, through the full rebound and flight models,
+    /// lands on --target with the given net clearance or flight time. Reports the target as
+    /// unreachable when the racket would exceed stroke.max_racket_speed.
+    #[command(after_help = "Examples:\n  \
+        ttball aim --target 0.9,0.3                          # default clearance (stroke.net_clearance)\n  \
+        ttball aim --target 1.1,-0.5 --net-clearance 0.3 --brush 2\n  \
+        ttball aim --target 0.6,0 --flight-time 0.5 --json")]
+    Aim(racket::AimArgs),
+
     /// Import recorded ball flights from other formats as a bag of detections.
     #[command(subcommand)]
     Import(import::ImportCommand),
@@ -154,6 +182,8 @@ impl Command {
             Self::Plot(args) => args.run(),
             Self::Node(args) => args.run(),
             Self::Play(args) => args.run(),
+            Self::Rebound(args) => args.run(),
+            Self::Aim(args) => args.run(),
         }
     }
 }

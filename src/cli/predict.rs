@@ -54,7 +54,7 @@ pub struct PredictArgs {
 }
 
 /// Parses `X,Y,Z` into a vector of three finite numbers.
-fn parse_vector(text: &str) -> Result<Vector3<f64>, String> {
+pub(crate) fn parse_vector(text: &str) -> Result<Vector3<f64>, String> {
     let parts: Vec<&str> = text.split(',').map(str::trim).collect();
     let [x, y, z] = parts.as_slice() else {
         return Err(format!(

@@ -9,12 +9,19 @@
 //! nothing needs to be installed and the output is the same on every machine.
 
 mod data;
+mod rebound;
 mod render;
 
 use std::sync::OnceLock;
 
+use plotters::coord::Shift;
 use plotters::prelude::*;
 use plotters::style::{FontStyle, register_font};
+
+use crate::config::Config;
+use crate::physics::RacketModel;
+
+pub use rebound::ChartOptions;
 
 pub use data::{
     PlotCrossing, PlotData, PlotDetection, PlotEstimate, PlotIntercept, PlotTrajectory, PlotTruth,
@@ -135,11 +142,52 @@ pub fn render_png(
     options: &PlotOptions,
 ) -> Result<Vec<u8>, PlotError> {
     let figure = prepare(data, selection, options)?;
-    let (width, height) = (options.width, options.height);
+    encode_png((options.width, options.height), |root| {
+        render::draw(root, &figure)
+    })
+}
+
+/// The racket's rebound chart (e along the long axis and against impact speed, free and held;
+/// like seed 000 Fig. 19 and 20) as an SVG document.
+pub fn render_rebound_chart_svg(
+    model: &RacketModel,
+    config: &Config,
+    options: &ChartOptions,
+) -> Result<String, PlotError> {
+    check_size(options.width, options.height)?;
+    register_fonts()?;
+    let chart = rebound::ReboundChart::new(model, config);
+    let mut svg = String::new();
+    {
+        let root =
+            SVGBackend::with_string(&mut svg, (options.width, options.height)).into_drawing_area();
+        chart.draw(&root)?;
+        root.present()?;
+    }
+    Ok(svg)
+}
+
+/// The racket's rebound chart as an encoded PNG image (8-bit RGB).
+pub fn render_rebound_chart_png(
+    model: &RacketModel,
+    config: &Config,
+    options: &ChartOptions,
+) -> Result<Vec<u8>, PlotError> {
+    check_size(options.width, options.height)?;
+    register_fonts()?;
+    let chart = rebound::ReboundChart::new(model, config);
+    encode_png((options.width, options.height), |root| chart.draw(root))
+}
+
+/// Draws on an RGB bitmap of `size` and encodes it as PNG.
+fn encode_png(
+    (width, height): (u32, u32),
+    draw: impl FnOnce(&DrawingArea<BitMapBackend<'_>, Shift>) -> Result<(), PlotError>,
+) -> Result<Vec<u8>, PlotError> {
     let mut pixels = vec![0u8; width as usize * height as usize * 3];
     {
         let root = BitMapBackend::with_buffer(&mut pixels, (width, height)).into_drawing_area();
-        render::draw(&root, &figure)?;
+        draw(&root)?;
         root.present()?;
     }
     let png_error = |e: png::EncodingError| PlotError::Png(e.to_string());
@@ -153,6 +201,14 @@ pub fn render_png(
     Ok(bytes)
 }
 
+/// Refuses figure sizes outside [`MIN_SIZE`]..[`MAX_SIZE`].
+fn check_size(width: u32, height: u32) -> Result<(), PlotError> {
+    if !(MIN_SIZE.0..=MAX_SIZE.0).contains(&width) || !(MIN_SIZE.1..=MAX_SIZE.1).contains(&height) {
+        return Err(PlotError::BadSize { width, height });
+    }
+    Ok(())
+}
+
 /// Checks the size, registers the font, selects the data and writes the titles.
 fn prepare(
     data: &PlotData,
@@ -160,9 +216,7 @@ fn prepare(
     options: &PlotOptions,
 ) -> Result<render::Figure, PlotError> {
     let (width, height) = (options.width, options.height);
-    if !(MIN_SIZE.0..=MAX_SIZE.0).contains(&width) || !(MIN_SIZE.1..=MAX_SIZE.1).contains(&height) {
-        return Err(PlotError::BadSize { width, height });
-    }
+    check_size(width, height)?;
     register_fonts()?;
     let selected = data.select(selection)?;
     let origin = options
