@@ -269,20 +269,7 @@ impl Stroke {
             }
             .into());
         }
-        let target_velocity = self.ballistic_guess(ball, aim)?;
-        let (speed, normal) = self.frictionless_inverse(ball, &target_velocity, aim)?;
-        let frictionless = Command {
-            speed,
-            normal,
-            brush: aim.brush_speed,
-            offset: aim.impact_offset,
-        };
-        // With the rubber's friction and the ball's spin, the same command sends the ball
-        // elsewhere: first match the outgoing velocity itself (a cheap, smooth map).
-        let mut command = self
-            .match_outgoing(ball, &target_velocity, frictionless)
-            .unwrap_or(frictionless);
-        let mut residual = self.residual(ball, &command, aim);
+        let (mut command, mut residual) = self.first_guess(ball, aim)?;
         let mut closest = residual.map_or(f64::INFINITY, |r| r.fixed_rows::<2>(0).norm());
         let mut iterations = 0;
         loop {
@@ -374,6 +361,50 @@ impl Stroke {
             ),
             _ => Ok(()),
         }
+    }
+
+    /// The start of the Newton solve: the command that sends the ball off along the drag-free
+    /// parabola to the target. Drag and spin make the real flight fall short of it; when it does
+    /// not even reach the net, higher parabolas (more clearance) are tried, and the solve then
+    /// walks down to the one asked for.
+    fn first_guess(
+        &self,
+        ball: &BallState,
+        aim: &Aim,
+    ) -> Result<(Command, Option<Vector3<f64>>), PlanError> {
+        let mut first = None;
+        for extra in [0.0, 0.1, 0.2, 0.4, 0.8] {
+            let lifted = match aim.condition {
+                ReturnCondition::NetClearance(c) => Aim {
+                    condition: ReturnCondition::NetClearance(c + extra),
+                    ..*aim
+                },
+                ReturnCondition::FlightTime(_) if extra > 0.0 => break,
+                ReturnCondition::FlightTime(_) => *aim,
+            };
+            let target_velocity = self.ballistic_guess(ball, &lifted)?;
+            let (speed, normal) = self.frictionless_inverse(ball, &target_velocity, aim)?;
+            let frictionless = Command {
+                speed,
+                normal,
+                brush: aim.brush_speed,
+                offset: aim.impact_offset,
+            };
+            // With the rubber's friction and the ball's spin the same command sends the ball
+            // elsewhere: match the outgoing velocity itself first (a cheap, smooth map).
+            let command = self
+                .match_outgoing(ball, &target_velocity, frictionless)
+                .unwrap_or(frictionless);
+            let residual = self.residual(ball, &command, aim);
+            if residual.is_some() {
+                return Ok((command, residual));
+            }
+            first.get_or_insert((command, residual));
+        }
+        first.ok_or_else(|| PlanError::NoSolution {
+            reason: "no first guess",
+            closest: f64::INFINITY,
+        })
     }
 
     /// The outgoing velocity of the drag-free parabola from the ball to the target that meets

@@ -457,3 +457,134 @@ fn unreachable_targets_are_reported() {
         .expect_err("own half");
     assert!(off.to_string().contains("opponent's half"), "{off}");
 }
+
+mod properties {
+    use super::*;
+    use proptest::prelude::*;
+    use ttball::physics::racket::ImpactError;
+
+    fn racket_state() -> impl Strategy<Value = RacketState> {
+        (
+            prop::array::uniform3(-3.0f64..8.0),
+            (-0.8f64..0.8, -0.6f64..0.6),
+            -0.04f64..0.13,
+        )
+            .prop_map(|(v, (yaw, pitch), offset)| RacketState {
+                velocity: v.into(),
+                normal: Vector3::new(
+                    pitch.cos() * yaw.cos(),
+                    pitch.cos() * yaw.sin(),
+                    pitch.sin(),
+                ),
+                impact_offset: offset,
+            })
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(2000))]
+
+        /// Any hit of any incoming ball: finite, normal momentum conserved, energy not created,
+        /// friction within mu, the contact point's slip reduced but never reversed, about a
+        /// millisecond of contact at rally speeds; a ball that does not approach the face is refused.
+        #[test]
+        fn every_hit_obeys_the_impact_laws(
+            v in (-15.0f64..-0.5, -3.0f64..3.0, -4.0f64..4.0),
+            w in prop::array::uniform3(-700.0f64..700.0),
+            racket in racket_state(),
+        ) {
+            let config = Config::default();
+            let model = RacketModel::new(&config);
+            let ball = BallState::new(Vector3::new(-1.6, 0.0, 0.3), Vector3::new(v.0, v.1, v.2), w.into());
+            let n = racket.normal;
+            let relative = ball.velocity - racket.velocity;
+            match model.hit(&ball, &racket) {
+                Err(ImpactError::NotApproaching { .. }) => prop_assert!(relative.dot(&n) >= 0.0),
+                Err(e) => prop_assert!(false, "{e}"),
+                Ok(hit) => {
+                    prop_assert!(hit.ball.is_finite());
+                    let (m, mr) = (config.ball.mass, hit.normal.reduced_mass);
+                    let p0 = m * ball.velocity.dot(&n) + mr * racket.velocity.dot(&n);
+                    let p1 = m * hit.ball.velocity.dot(&n) + mr * hit.racket_velocity.dot(&n);
+                    prop_assert!((p0 - p1).abs() <= 1e-12 * p0.abs().max(1e-3));
+                    let r = config.ball.radius;
+                    let energy = |b: &BallState, vr: Vector3<f64>| {
+                        BallState::new(b.position, b.velocity - racket.velocity, b.spin)
+                            .kinetic_energy(m, r)
+                            + 0.5 * mr * (vr - racket.velocity).norm_squared()
+                    };
+                    prop_assert!(energy(&hit.ball, hit.racket_velocity) <= energy(&ball, racket.velocity) * (1.0 + 1e-12));
+                    let change = hit.ball.velocity - ball.velocity;
+                    let normal_change = change.dot(&n);
+                    prop_assert!(normal_change > 0.0);
+                    prop_assert!((change - n * normal_change).norm() <= config.racket.rubber_friction * normal_change * (1.0 + 1e-9));
+                    let slip = |v: Vector3<f64>, w: Vector3<f64>| {
+                        let rel = v - racket.velocity;
+                        rel - n * rel.dot(&n) - r * w.cross(&n)
+                    };
+                    let before = slip(ball.velocity, ball.spin);
+                    let after = slip(hit.ball.velocity, hit.ball.spin);
+                    prop_assert!(after.norm() <= before.norm() * (1.0 + 1e-9) + 1e-12);
+                    prop_assert!(after.dot(&before) >= -1e-9);
+                    // Hertz: T_c grows as V^-1/5 at gentle touches; about a millisecond above 1 m/s.
+                    let tc = hit.normal.contact.contact_time;
+                    prop_assert!(tc > 0.4e-3, "T_c {tc}");
+                    if hit.normal.impact_speed >= 1.0 {
+                        prop_assert!(tc < 1.6e-3, "T_c {tc}");
+                    }
+                }
+            }
+        }
+    }
+
+    /// Random incoming balls and reachable targets: every plan found lands within 1 mm, and
+    /// nearly all are found.
+    #[test]
+    fn random_plans_land_on_their_targets() {
+        let stroke = Stroke::new(&Config::default());
+        let mut state = 0x2545_f491_4f6c_dd1du64;
+        let mut uniform = |lo: f64, hi: f64| {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            lo + (hi - lo) * (state >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let (mut found, total) = (0, 60);
+        for _ in 0..total {
+            let ball = BallState::new(
+                Vector3::new(-1.6, uniform(-0.5, 0.5), uniform(0.1, 0.5)),
+                Vector3::new(uniform(-8.0, -2.0), uniform(-1.0, 1.0), uniform(-1.5, 1.5)),
+                Vector3::new(
+                    uniform(-50.0, 50.0),
+                    uniform(-300.0, 300.0),
+                    uniform(-80.0, 80.0),
+                ),
+            );
+            let condition = if uniform(0.0, 1.0) < 0.5 {
+                ReturnCondition::NetClearance(uniform(0.05, 0.4))
+            } else {
+                ReturnCondition::FlightTime(uniform(0.4, 0.9))
+            };
+            let a = Aim {
+                target: Vector2::new(uniform(0.3, 1.2), uniform(-0.6, 0.6)),
+                condition,
+                impact_offset: uniform(-0.04, 0.12),
+                brush_speed: uniform(-1.0, 3.0),
+            };
+            match stroke.plan(&ball, &a) {
+                Ok(plan) => {
+                    found += 1;
+                    let rebound = stroke.rebound(&ball, &plan.racket).expect("rebound");
+                    let (_, landing) = rebound.flight.landing.expect("lands");
+                    let miss = (landing.position.xy() - a.target).norm();
+                    assert!(miss < 1e-3, "{a:?}: {miss}");
+                    assert_eq!(rebound.flight.outcome, ReturnOutcome::Lands);
+                }
+                Err(e) => eprintln!("{a:?}: {e}"),
+            }
+        }
+        assert!(
+            found * 10 >= total * 9,
+            "only {found} of {total} plans found"
+        );
+    }
+}
