@@ -401,7 +401,7 @@ impl Stroke {
             }
             first.get_or_insert((command, residual));
         }
-        first.ok_or_else(|| PlanError::NoSolution {
+        first.ok_or(PlanError::NoSolution {
             reason: "no first guess",
             closest: f64::INFINITY,
         })
