@@ -6,7 +6,8 @@
 //!   forces, wrist load, and its return flight to the landing point (net clearance included).
 //! - [`Stroke::plan`]: the inverse. The racket moves along its face normal n at speed s, plus an
 //!   optional brushing speed along the face (upward in the face's plane); the unknowns (s, n) are
-//!   solved by Newton's method with a finite-difference Jacobian so that the return, through the
+//!   solved by Levenberg-Marquardt (Newton's method when undamped) with a central-difference
+//!   Jacobian so that the return, through the
 //!   full rebound and flight models, lands on the target (x, y) and meets a third condition: a net
 //!   clearance or a flight time. The start is the drag-free parabola through the target and the
 //!   frictionless inverse of the rebound. While solving, the table is taken as unbounded and the
@@ -27,10 +28,10 @@ use crate::physics::state::BallState;
 pub const LANDING_TOLERANCE: f64 = 1e-6;
 /// Clearance [m] or flight time [s] error at which the plan is converged.
 pub const CONDITION_TOLERANCE: f64 = 1e-6;
-/// Largest number of Newton iterations of a plan.
+/// Largest number of iterations of a solve.
 const MAX_ITERATIONS: usize = 40;
-/// Halvings of a Newton step before the plan gives up.
-const MAX_HALVINGS: usize = 12;
+/// Increases of the Levenberg-Marquardt damping before a step is given up.
+const MAX_DAMPINGS: usize = 24;
 /// Table outline margin of the solver's unbounded table [m].
 const UNBOUNDED_TABLE: f64 = 1.0e3;
 
@@ -114,7 +115,7 @@ pub struct Plan {
     pub rebound: Rebound,
     /// Distance from the predicted landing point to the target [m].
     pub landing_error: f64,
-    /// Newton iterations used.
+    /// Levenberg-Marquardt iterations used.
     pub iterations: usize,
 }
 
@@ -272,6 +273,7 @@ impl Stroke {
         let (mut command, mut residual) = self.first_guess(ball, aim)?;
         let mut closest = residual.map_or(f64::INFINITY, |r| r.fixed_rows::<2>(0).norm());
         let mut iterations = 0;
+        let mut lambda = 1e-6;
         loop {
             let Some(r) = residual else {
                 return Err(PlanError::NoSolution {
@@ -286,7 +288,7 @@ impl Stroke {
             }
             if iterations == MAX_ITERATIONS {
                 return Err(PlanError::NoSolution {
-                    reason: "Newton's method did not converge",
+                    reason: "the solve did not converge",
                     closest,
                 });
             }
@@ -297,14 +299,12 @@ impl Stroke {
                     closest,
                 },
             )?;
-            let step = jacobian.lu().solve(&(-r)).ok_or(PlanError::NoSolution {
-                reason: "the landing point does not depend on the racket command here",
-                closest,
-            })?;
-            let accepted = damped_step(&command, &step, &r, |c| self.residual(ball, c, aim));
+            let accepted = levenberg_marquardt_step(&command, &jacobian, &r, &mut lambda, |c| {
+                self.residual(ball, c, aim)
+            });
             let Some((candidate, next)) = accepted else {
                 return Err(PlanError::NoSolution {
-                    reason: "no Newton step brings the landing point closer",
+                    reason: "no step brings the landing point closer: a local minimum",
                     closest,
                 });
             };
@@ -363,7 +363,7 @@ impl Stroke {
         }
     }
 
-    /// The start of the Newton solve: the command that sends the ball off along the drag-free
+    /// The start of the solve: the command that sends the ball off along the drag-free
     /// parabola to the target. Drag and spin make the real flight fall short of it; when it does
     /// not even reach the net, higher parabolas (more clearance) are tried, and the solve then
     /// walks down to the one asked for.
@@ -475,8 +475,8 @@ impl Stroke {
         Ok((approach + ball.velocity.dot(&normal), normal))
     }
 
-    /// The command whose hit sends the ball off at `outgoing`, by Newton's method from `start`
-    /// on the rebound alone; `None` when it does not converge.
+    /// The command whose hit sends the ball off at `outgoing`, by Levenberg-Marquardt from
+    /// `start` on the rebound alone; `None` when it does not converge.
     fn match_outgoing(
         &self,
         ball: &BallState,
@@ -491,13 +491,14 @@ impl Stroke {
         };
         let mut command = start;
         let mut r = error(&command)?;
+        let mut lambda = 1e-6;
         for _ in 0..MAX_ITERATIONS {
             if r.norm() < 1e-9 {
                 return Some(command);
             }
             let jacobian = central_differences(&command, |c| error(c))?;
-            let step = jacobian.lu().solve(&(-r))?;
-            let (next, next_r) = damped_step(&command, &step, &r, |c| error(c))?;
+            let (next, next_r) =
+                levenberg_marquardt_step(&command, &jacobian, &r, &mut lambda, |c| error(c))?;
             command = next;
             r = next_r;
         }
@@ -519,10 +520,12 @@ impl Stroke {
             .advance(&mut cursor, self.horizon, watch, &mut observer);
         let landing = observer.landing?;
         let condition = match aim.condition {
-            ReturnCondition::NetClearance(c) => {
-                let net = observer.net_plane?;
-                net.before[2] - self.radius - self.net_height - c
-            }
+            // A ball that lands before the net plane counts the shortfall as missing height,
+            // which meets the real clearance continuously (-net height) at x = 0.
+            ReturnCondition::NetClearance(c) => match observer.net_plane {
+                Some(net) => net.before[2] - self.radius - self.net_height - c,
+                None => landing.before[0].min(0.0) - self.net_height - c,
+            },
             ReturnCondition::FlightTime(t) => landing.t - t,
         };
         Some(Vector3::new(
@@ -554,22 +557,30 @@ fn central_differences(
     Some(jacobian)
 }
 
-/// The Newton step `step` from `command`, halved until |f| falls below |r|.
-fn damped_step(
+/// One Levenberg-Marquardt step from `command` on f with residual `r` and Jacobian `jacobian`:
+/// (J^T J + lambda diag(J^T J)) step = -J^T r, with lambda raised until |f| falls below |r| and
+/// lowered after a success (small lambda: Newton's step; large: a short gradient step).
+fn levenberg_marquardt_step(
     command: &Command,
-    step: &Vector3<f64>,
+    jacobian: &Matrix3<f64>,
     r: &Vector3<f64>,
+    lambda: &mut f64,
     f: impl Fn(&Command) -> Option<Vector3<f64>>,
 ) -> Option<(Command, Vector3<f64>)> {
-    let mut scale = 1.0;
-    for _ in 0..=MAX_HALVINGS {
-        let candidate = command.moved(&(step * scale));
-        if let Some(next) = f(&candidate)
-            && next.norm() < r.norm()
-        {
-            return Some((candidate, next));
+    let normal = jacobian.transpose() * jacobian;
+    let gradient = jacobian.transpose() * r;
+    let scale = Matrix3::from_diagonal(&normal.diagonal().map(|d| d.max(1e-12)));
+    for _ in 0..MAX_DAMPINGS {
+        if let Some(step) = (normal + scale * *lambda).lu().solve(&(-gradient)) {
+            let candidate = command.moved(&step);
+            if let Some(next) = f(&candidate)
+                && next.norm() < r.norm()
+            {
+                *lambda = (*lambda / 3.0).max(1e-12);
+                return Some((candidate, next));
+            }
         }
-        scale *= 0.5;
+        *lambda *= 4.0;
     }
     None
 }

@@ -219,7 +219,7 @@ impl AimArgs {
             let mut out = String::new();
             let _ = writeln!(
                 out,
-                "Racket command for a landing at ({:.3}, {:.3}) m, {} ({} Newton iterations)",
+                "Racket command for a landing at ({:.3}, {:.3}) m, {} ({} iterations)",
                 aim.target.x,
                 aim.target.y,
                 match condition {
