@@ -659,6 +659,36 @@ mod tests {
     }
 
     #[test]
+    fn racket_arm_and_stroke_keys_are_checked() {
+        let mut c = Config::default();
+        c.racket.vibration_mode_frequencies = vec![400.0, -1.0];
+        c.racket.vibration_mode_masses = vec![0.05];
+        c.racket.rubber_friction = -0.1;
+        c.racket.restoring_force_vs_stiffness.clear();
+        c.racket.face_start_from_grip_end = 0.3;
+        c.arm.equivalent_mass = 0.0;
+        c.arm.grip_from_grip_end = 0.2;
+        c.stroke.max_racket_speed = 0.0;
+        assert_eq!(
+            keys(&c),
+            [
+                "racket.face_start_from_grip_end",
+                "racket.rubber_friction",
+                "racket.restoring_force_vs_stiffness",
+                "racket.vibration_mode_frequencies[1]",
+                "racket.vibration_mode_masses",
+                "arm.grip_from_grip_end",
+                "stroke.max_racket_speed",
+            ]
+        );
+        let text = c.validate().expect_err("invalid").to_string();
+        assert!(
+            text.contains("`racket.vibration_mode_masses` has 1 elements but `racket.vibration_mode_frequencies` has 2"),
+            "{text}"
+        );
+    }
+
+    #[test]
     fn defaults_are_valid() {
         assert_eq!(Config::default().validate(), Ok(()));
     }
