@@ -12,13 +12,7 @@ mod common;
 use common::run as ttball;
 
 fn json(args: &[&str]) -> serde_json::Value {
-    let out = ttball(args);
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    serde_json::from_slice(&out.stdout).unwrap()
+    serde_json::from_str(&common::ok(args)).unwrap()
 }
 
 fn vector(value: &serde_json::Value) -> String {

@@ -43,22 +43,13 @@ impl BallArgs {
     }
 }
 
-/// Arguments of `ttball rebound`.
+/// What `rebound` and `aim` share: the ball, the impact point, the output form, the
+/// configuration.
 #[derive(Debug, Args)]
-pub struct ReboundArgs {
+pub struct StrokeArgs {
     /// The ball.
     #[command(flatten)]
     pub ball: BallArgs,
-
-    /// Velocity of the racket's impact point at impact [m/s].
-    #[arg(long, value_name = "VX,VY,VZ", value_parser = parse_vector, allow_hyphen_values = true,
-          default_value = "2.7,0,0")]
-    pub racket_velocity: Vector3<f64>,
-
-    /// Normal of the hitting face, pointing toward the ball (normalised here).
-    #[arg(long, value_name = "NX,NY,NZ", value_parser = parse_vector, allow_hyphen_values = true,
-          default_value = "1,0,0")]
-    pub normal: Vector3<f64>,
 
     /// Impact point from the racket's centre of gravity along its long axis, toward the tip [m].
     #[arg(
@@ -73,23 +64,37 @@ pub struct ReboundArgs {
     #[arg(long)]
     pub json: bool,
 
+    /// The configuration (ball, racket, arm, table, prediction, `stroke.*` limits).
+    #[command(flatten)]
+    pub config: ConfigArgs,
+}
+
+/// Arguments of `ttball rebound`.
+#[derive(Debug, Args)]
+pub struct ReboundArgs {
+    /// Velocity of the racket's impact point at impact [m/s].
+    #[arg(long, value_name = "VX,VY,VZ", value_parser = parse_vector, allow_hyphen_values = true,
+          default_value = "2.7,0,0")]
+    pub racket_velocity: Vector3<f64>,
+
+    /// Normal of the hitting face, pointing toward the ball (normalised here).
+    #[arg(long, value_name = "NX,NY,NZ", value_parser = parse_vector, allow_hyphen_values = true,
+          default_value = "1,0,0")]
+    pub normal: Vector3<f64>,
+
     /// Also draw the racket's rebound power coefficient along its long axis and against impact
     /// speed (like Kawazoe & Suzuki's Fig. 19 and 20) to this SVG or PNG file.
     #[arg(long, value_name = "FILE")]
     pub chart: Option<PathBuf>,
 
-    /// The configuration (ball, racket, arm, table, prediction).
+    /// Ball, impact point, output, configuration.
     #[command(flatten)]
-    pub config: ConfigArgs,
+    pub common: StrokeArgs,
 }
 
 /// Arguments of `ttball aim`.
 #[derive(Debug, Args)]
 pub struct AimArgs {
-    /// The ball.
-    #[command(flatten)]
-    pub ball: BallArgs,
-
     /// Where the ball centre should land on the opponent's half, X,Y [m] (x > 0).
     #[arg(long, value_name = "X,Y", value_parser = parse_target, allow_hyphen_values = true,
           default_value = "0.9,0.3")]
@@ -104,15 +109,6 @@ pub struct AimArgs {
     #[arg(long, value_name = "SECONDS")]
     pub flight_time: Option<f64>,
 
-    /// Impact point from the racket's centre of gravity along its long axis, toward the tip [m].
-    #[arg(
-        long,
-        value_name = "METRES",
-        default_value_t = 0.0,
-        allow_hyphen_values = true
-    )]
-    pub offset: f64,
-
     /// Racket speed along the face, upward in its plane [m/s]: > 0 brushes topspin, < 0 backspin.
     #[arg(
         long,
@@ -122,13 +118,9 @@ pub struct AimArgs {
     )]
     pub brush: f64,
 
-    /// Print the result as JSON instead of text.
-    #[arg(long)]
-    pub json: bool,
-
-    /// The configuration (ball, racket, arm, table, prediction, `stroke.*` limits).
+    /// Ball, impact point, output, configuration.
     #[command(flatten)]
-    pub config: ConfigArgs,
+    pub common: StrokeArgs,
 }
 
 /// Parses `X,Y` into a target of two finite numbers.
@@ -149,7 +141,7 @@ fn parse_target(text: &str) -> Result<Vector2<f64>, String> {
 impl ReboundArgs {
     /// Predicts the rebound and prints it.
     pub fn run(self) -> anyhow::Result<ExitCode> {
-        let config = self.config.load()?;
+        let config = self.common.config.load()?;
         let length = self.normal.norm();
         if length <= 1e-9 {
             return Err(BadUsage("--normal must not be the zero vector".into()).into());
@@ -157,14 +149,14 @@ impl ReboundArgs {
         let racket = RacketState {
             velocity: self.racket_velocity,
             normal: self.normal / length,
-            impact_offset: self.offset,
+            impact_offset: self.common.offset,
         };
         let stroke = Stroke::new(&config);
-        let ball = self.ball.state();
+        let ball = self.common.ball.state();
         let rebound = stroke
             .rebound(&ball, &racket)
             .map_err(|e| BadUsage(format!("cannot predict this hit: {e}")))?;
-        if self.json {
+        if self.common.json {
             let value = serde_json::json!({
                 "racket": racket_json(&racket),
                 "rebound": rebound_json(&rebound),
@@ -189,7 +181,7 @@ impl ReboundArgs {
 impl AimArgs {
     /// Plans the racket command and prints it.
     pub fn run(self) -> anyhow::Result<ExitCode> {
-        let config = self.config.load()?;
+        let config = self.common.config.load()?;
         let stroke = Stroke::new(&config);
         let condition = match (self.flight_time, self.net_clearance) {
             (Some(t), _) => ReturnCondition::FlightTime(t),
@@ -199,14 +191,14 @@ impl AimArgs {
         let aim = Aim {
             target: self.target,
             condition,
-            impact_offset: self.offset,
+            impact_offset: self.common.offset,
             brush_speed: self.brush,
         };
-        let ball = self.ball.state();
+        let ball = self.common.ball.state();
         let plan = stroke
             .plan(&ball, &aim)
             .map_err(|e| BadUsage(e.to_string()))?;
-        if self.json {
+        if self.common.json {
             let value = serde_json::json!({
                 "racket": racket_json(&plan.racket),
                 "racket_speed": plan.racket.velocity.norm(),

@@ -91,7 +91,7 @@ impl RestoringCharacteristic {
         let unloaded = if force.value(0.0) >= 0.0 {
             0.0
         } else {
-            first_rise_through_zero(|k| force.value(k)).unwrap_or(f64::INFINITY)
+            rise_through_zero(|k| force.value(k), MIN_STIFFNESS).unwrap_or(f64::INFINITY)
         };
         Self {
             force,
@@ -148,32 +148,13 @@ impl RestoringCharacteristic {
         if !start.is_finite() {
             return Err(no_solution());
         }
-        let (mut low, mut high) = bracket_rise(gap, start).ok_or_else(no_solution)?;
-        for _ in 0..BISECTIONS {
-            let mid = 0.5 * (low + high);
-            if gap(mid) < 0.0 {
-                low = mid;
-            } else {
-                high = mid;
-            }
-        }
-        let stiffness = 0.5 * (low + high);
+        let stiffness = rise_through_zero(gap, start).ok_or_else(no_solution)?;
         let mean_force = slope * stiffness.sqrt();
         let contact_time = PI * (effective_mass / stiffness).sqrt();
         let peak_force = 0.5 * PI * mean_force;
-        let deformation_at_peak_force = bracket_rise(|k| self.force(k) - peak_force, stiffness)
-            .map(|(lo, hi)| {
-                let (mut lo, mut hi) = (lo, hi);
-                for _ in 0..BISECTIONS {
-                    let mid = 0.5 * (lo + hi);
-                    if self.force(mid) < peak_force {
-                        lo = mid;
-                    } else {
-                        hi = mid;
-                    }
-                }
-                self.deformation(0.5 * (lo + hi))
-            });
+        let deformation_at_peak_force =
+            rise_through_zero(|k| self.force(k) - peak_force, stiffness)
+                .map(|k| self.deformation(k));
         Ok(Contact {
             stiffness,
             contact_time,
@@ -186,10 +167,10 @@ impl RestoringCharacteristic {
     }
 }
 
-/// The first stiffness where `g` rises through zero, searched on a geometric grid from
-/// [`MIN_STIFFNESS`] to [`MAX_STIFFNESS`] and bisected.
-fn first_rise_through_zero(g: impl Fn(f64) -> f64) -> Option<f64> {
-    let (mut low, mut high) = bracket_rise(&g, MIN_STIFFNESS)?;
+/// The first stiffness from `start` where `g` rises through zero, searched on a geometric grid up
+/// to [`MAX_STIFFNESS`] and bisected.
+fn rise_through_zero(g: impl Fn(f64) -> f64, start: f64) -> Option<f64> {
+    let (mut low, mut high) = bracket_rise(&g, start)?;
     for _ in 0..BISECTIONS {
         let mid = 0.5 * (low + high);
         if g(mid) < 0.0 {
