@@ -230,9 +230,9 @@ impl Stroke {
     pub fn return_flight(&self, after: &BallState) -> ReturnFlight {
         let mut cursor = Cursor::new(0.0, after);
         let mut observer = FirstBounce::default();
-        let outcome = self
-            .propagator
-            .advance(&mut cursor, self.horizon, Watch::FLIGHT, &mut observer);
+        let outcome =
+            self.propagator
+                .advance(&mut cursor, self.horizon, Watch::FLIGHT, &mut observer);
         let net = observer.net_plane.and_then(|e| match e.kind {
             EventKind::Net { clearance, .. } => Some((e.t, clearance)),
             _ => None,
@@ -304,17 +304,16 @@ impl Stroke {
                 });
             }
             iterations += 1;
-            let jacobian = central_differences(&command, |c| self.residual(ball, c, aim)).ok_or(PlanError::NoSolution {
-                reason: "a neighbouring command does not reach the table",
+            let jacobian = central_differences(&command, |c| self.residual(ball, c, aim)).ok_or(
+                PlanError::NoSolution {
+                    reason: "a neighbouring command does not reach the table",
+                    closest,
+                },
+            )?;
+            let step = jacobian.lu().solve(&(-r)).ok_or(PlanError::NoSolution {
+                reason: "the landing point does not depend on the racket command here",
                 closest,
             })?;
-            let step = jacobian
-                .lu()
-                .solve(&(-r))
-                .ok_or(PlanError::NoSolution {
-                    reason: "the landing point does not depend on the racket command here",
-                    closest,
-                })?;
             let accepted = damped_step(&command, &step, &r, |c| self.residual(ball, c, aim));
             let Some((candidate, next)) = accepted else {
                 return Err(PlanError::NoSolution {
@@ -501,7 +500,6 @@ impl Stroke {
             condition,
         ))
     }
-
 }
 
 /// d(f)/d(speed, two tilts of the normal) at `command`, by central differences.

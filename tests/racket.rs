@@ -51,7 +51,10 @@ fn rebound_power_coefficients_are_the_papers_at_8_16_24_30_m_s() {
     let ratio = 0.0025 / 0.0781;
     for (speed, expected) in [(8.0, 0.620), (16.0, 0.524), (24.0, 0.429), (30.0, 0.358)] {
         let e = rebound_power_coefficient(model.rubber_restitution(speed), ratio);
-        assert!((e - expected).abs() < 0.0006, "e({speed}) = {e}, paper {expected}");
+        assert!(
+            (e - expected).abs() < 0.0006,
+            "e({speed}) = {e}, paper {expected}"
+        );
         // The same through the whole normal impact at point A (M_r = 78.2 g).
         let impact = model.normal_impact(speed, POINT_A).expect("contact");
         assert!(
@@ -86,7 +89,10 @@ fn e_falls_with_smaller_reduced_mass_little_above_20_g() {
         let e = |mr: f64| rebound_power_coefficient(e_rb, 0.0025 / mr);
         let masses = [0.002, 0.005, 0.01, 0.02, 0.05, 0.0781, 0.171, 1.0];
         for pair in masses.windows(2) {
-            assert!(e(pair[0]) < e(pair[1]), "e not rising with M_r at {speed} m/s");
+            assert!(
+                e(pair[0]) < e(pair[1]),
+                "e not rising with M_r at {speed} m/s"
+            );
         }
         // The knee: from 20 g down to 5 g e loses more than twice what it gains from 20 g up to
         // the seed racket's smallest reduced mass (78.1 g) ...
@@ -155,7 +161,11 @@ fn contact_lasts_about_a_millisecond_at_rally_speeds_and_shortens_with_speed() {
     }
     // The default characteristic is set to 1.0 ms at 10 m/s on the held racket's centre of
     // gravity (config/ttball.yaml).
-    let tc = model.normal_impact(10.0, 0.0).expect("contact").contact.contact_time;
+    let tc = model
+        .normal_impact(10.0, 0.0)
+        .expect("contact")
+        .contact
+        .contact_time;
     assert!((tc - 1.0e-3).abs() < 5e-6, "{tc}");
 }
 
@@ -175,7 +185,10 @@ fn the_transcribed_eq1_is_refused_with_a_clear_message() {
         .expect_err("no contact");
     let text = err.to_string();
     assert!(text.contains("no contact solution"), "{text}");
-    assert!(text.contains("racket.restoring_force_vs_stiffness"), "{text}");
+    assert!(
+        text.contains("racket.restoring_force_vs_stiffness"),
+        "{text}"
+    );
 }
 
 fn incoming() -> BallState {
@@ -266,7 +279,9 @@ fn a_racket_at_rest_rebounds_as_eq12_and_rolling_leaves_no_slip() {
         Vector3::new(-8.0, 0.0, 0.0),
         Vector3::new(0.0, 0.0, 0.0),
     );
-    let hit = model.hit(&ball, &racket_at_rest(Vector3::x())).expect("hit");
+    let hit = model
+        .hit(&ball, &racket_at_rest(Vector3::x()))
+        .expect("hit");
     let (m, mr) = (config.ball.mass, hit.normal.reduced_mass);
     let e_rb = model.rubber_restitution(8.0);
     assert_relative_eq!(
@@ -295,10 +310,16 @@ fn wrist_force_and_grip_acceleration_agree() {
         let model = RacketModel::new(&config).with_arm_mass(arm);
         for offset in [-0.04, 0.0, 0.05, 0.1, 0.13] {
             let load = model.wrist_load(offset, 100.0);
-            assert_relative_eq!(arm * load.peak_acceleration, load.peak_force, max_relative = 1e-9);
+            assert_relative_eq!(
+                arm * load.peak_acceleration,
+                load.peak_force,
+                max_relative = 1e-9
+            );
         }
     }
-    let free = RacketModel::new(&config).with_arm_mass(0.0).wrist_load(0.1, 100.0);
+    let free = RacketModel::new(&config)
+        .with_arm_mass(0.0)
+        .wrist_load(0.1, 100.0);
     assert_eq!(free.peak_force, 0.0);
 }
 
@@ -307,11 +328,15 @@ fn wrist_force_and_grip_acceleration_agree() {
 #[test]
 fn vibration_loss_follows_eq19() {
     let mut config = Config::default();
-    let plain = RacketModel::new(&config).normal_impact(20.0, 0.1).expect("contact");
+    let plain = RacketModel::new(&config)
+        .normal_impact(20.0, 0.1)
+        .expect("contact");
     assert_eq!(plain.vibration_energy, 0.0);
     config.racket.vibration_mode_frequencies = vec![400.0, 900.0];
     config.racket.vibration_mode_masses = vec![0.08, 0.05];
-    let with_modes = RacketModel::new(&config).normal_impact(20.0, 0.1).expect("contact");
+    let with_modes = RacketModel::new(&config)
+        .normal_impact(20.0, 0.1)
+        .expect("contact");
     let (m, mr, v) = (config.ball.mass, with_modes.reduced_mass, 20.0);
     let loss = 2.0 * with_modes.vibration_energy * (m + mr) / (m * mr * v * v);
     assert!(loss > 0.0);
@@ -323,7 +348,9 @@ fn vibration_loss_follows_eq19() {
     assert!(with_modes.rebound_power_coefficient < plain.rebound_power_coefficient);
     config.racket.vibration_mode_frequencies = vec![50_000.0];
     config.racket.vibration_mode_masses = vec![0.05];
-    let stiff = RacketModel::new(&config).normal_impact(20.0, 0.1).expect("contact");
+    let stiff = RacketModel::new(&config)
+        .normal_impact(20.0, 0.1)
+        .expect("contact");
     assert!(plain.rebound_power_coefficient - stiff.rebound_power_coefficient < 1e-4);
 }
 
@@ -388,7 +415,9 @@ fn the_planned_command_lands_on_the_target() {
     ];
     for ball in &balls {
         for a in &aims {
-            let plan = stroke.plan(ball, a).unwrap_or_else(|e| panic!("{a:?}: {e}"));
+            let plan = stroke
+                .plan(ball, a)
+                .unwrap_or_else(|e| panic!("{a:?}: {e}"));
             // The command through the public forward model, as a controller would check it.
             let rebound = stroke.rebound(ball, &plan.racket).expect("rebound");
             assert_eq!(rebound.flight.outcome, ReturnOutcome::Lands, "{a:?}");
@@ -413,12 +442,18 @@ fn unreachable_targets_are_reported() {
     config.stroke.max_racket_speed = 2.0;
     let stroke = Stroke::new(&config);
     let err = stroke
-        .plan(&incoming(), &aim((1.2, 0.0), ReturnCondition::FlightTime(0.25)))
+        .plan(
+            &incoming(),
+            &aim((1.2, 0.0), ReturnCondition::FlightTime(0.25)),
+        )
         .expect_err("too fast");
     assert!(matches!(err, PlanError::TooFast { .. }), "{err}");
     assert!(err.to_string().contains("stroke.max_racket_speed"));
     let off = stroke
-        .plan(&incoming(), &aim((-0.5, 0.0), ReturnCondition::NetClearance(0.1)))
+        .plan(
+            &incoming(),
+            &aim((-0.5, 0.0), ReturnCondition::NetClearance(0.1)),
+        )
         .expect_err("own half");
     assert!(off.to_string().contains("opponent's half"), "{off}");
 }

@@ -75,7 +75,9 @@ pub enum Violation {
         reason: &'static str,
     },
     /// Two lists that pair up element by element have different lengths.
-    #[error("`{key}` has {len} elements but `{other_key}` has {other_len}: give one per element of `{other_key}`")]
+    #[error(
+        "`{key}` has {len} elements but `{other_key}` has {other_len}: give one per element of `{other_key}`"
+    )]
     LengthMismatch {
         /// Dotted key of the list.
         key: String,

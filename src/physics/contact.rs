@@ -244,7 +244,9 @@ pub fn pulse_spectrum(frequency: f64, peak_force: f64, contact_time: f64) -> f64
 pub fn vibration_energy(modes: &[VibrationMode], peak_force: f64, contact_time: f64) -> f64 {
     modes
         .iter()
-        .map(|m| pulse_spectrum(m.frequency, peak_force, contact_time).powi(2) / (2.0 * m.modal_mass))
+        .map(|m| {
+            pulse_spectrum(m.frequency, peak_force, contact_time).powi(2) / (2.0 * m.modal_mass)
+        })
         .fold(0.0, |total, energy| total + energy)
 }
 
@@ -272,9 +274,14 @@ mod tests {
         let c = transcribed_eq1();
         // Its unloaded stiffness, f(K_0) = 0, is about 0.55 kgf/mm.
         assert_relative_eq!(c.unloaded / KGF_PER_MM, 0.55, epsilon = 0.02);
-        let err = c.contact(10.0, 0.0025, 0.0781, 0.647).expect_err("no solution");
+        let err = c
+            .contact(10.0, 0.0025, 0.0781, 0.647)
+            .expect_err("no solution");
         let text = err.to_string();
-        assert!(text.contains("racket.restoring_force_vs_stiffness"), "{text}");
+        assert!(
+            text.contains("racket.restoring_force_vs_stiffness"),
+            "{text}"
+        );
         // About 4 kgf for a 1 ms contact at 10 m/s (physics.md).
         assert_relative_eq!(err.needed_at_1ms / KGF, 4.1, epsilon = 0.1);
     }

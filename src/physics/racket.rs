@@ -31,8 +31,8 @@ use thiserror::Error;
 
 use super::aero::Polynomial;
 use super::bounce::{BounceRegime, ROLLING_ALPHA};
-use super::contact::{Contact, ContactError, RestoringCharacteristic, VibrationMode};
 use super::contact::vibration_energy;
+use super::contact::{Contact, ContactError, RestoringCharacteristic, VibrationMode};
 use super::state::BallState;
 use crate::config::Config;
 
@@ -269,8 +269,7 @@ impl RacketModel {
         let j = self.inertia + self.racket_mass * b * b;
         let transmission = if self.arm_mass > 0.0 {
             (self.racket_mass * a * b / j - 1.0)
-                / (1.0
-                    + self.racket_mass / self.arm_mass * (1.0 - self.racket_mass * b * b / j))
+                / (1.0 + self.racket_mass / self.arm_mass * (1.0 - self.racket_mass * b * b / j))
         } else {
             0.0
         };
@@ -291,7 +290,11 @@ impl RacketModel {
         if !ball.is_finite() {
             return Err(ImpactError::NotFinite { what: "ball state" });
         }
-        let racket_finite = racket.velocity.iter().chain(racket.normal.iter()).all(|v| v.is_finite())
+        let racket_finite = racket
+            .velocity
+            .iter()
+            .chain(racket.normal.iter())
+            .all(|v| v.is_finite())
             && racket.impact_offset.is_finite();
         if !racket_finite {
             return Err(ImpactError::NotFinite {
