@@ -413,7 +413,10 @@ fn rust_mirrors() -> (BTreeMap<String, String>, Registry) {
         trace::<PredictReboundResponse>(&mut tracer),
     );
     add("PlanReturnRequest", trace::<PlanReturnRequest>(&mut tracer));
-    add("PlanReturnResponse", trace::<PlanReturnResponse>(&mut tracer));
+    add(
+        "PlanReturnResponse",
+        trace::<PlanReturnResponse>(&mut tracer),
+    );
     (top, tracer.registry().unwrap())
 }
 
