@@ -1,19 +1,28 @@
-//! The node minus its transport: one `BallDetection` message in, the messages to publish out.
-//! The ROS 2 node and the MCAP replay both drive this, so a replay runs exactly the code path of
-//! the live node. Time comes from the messages only (the trajectory's rate limit too), so a
-//! replay is deterministic.
+//! The node minus its transport: one `BallDetection` message in, the messages to publish out,
+//! and the answers of the node's services (`~/predict_trajectory`, `~/predict_rebound`,
+//! `~/plan_return`). The ROS 2 node and the MCAP replay both drive this, so a replay runs exactly
+//! the code path of the live node. Time comes from the messages only (the trajectory's rate limit
+//! too), so a replay is deterministic.
+
+use nalgebra::Vector2;
 
 use crate::config::Config;
-use crate::estimator::{Counters, Estimator, Output, Rejection, Verdict};
+use crate::estimator::{Counters, Estimator, InterceptEstimate, Output, Rejection, Verdict};
+use crate::msgs::builtin_interfaces::Time;
 use crate::msgs::convert::{
-    ConvertError, detection_from_msg, intercept_msg, markers, state_from_msg, state_msg,
-    trajectory_msg,
+    ConvertError, detection_from_msg, intercept_msg, markers, offset, plan_response,
+    rebound_request, rebound_response, state_from_msg, state_msg, trajectory_msg,
 };
 use crate::msgs::ttball_msgs::msg::{
     BallDetection, BallState, InterceptPrediction, PredictedTrajectory,
 };
-use crate::msgs::ttball_msgs::srv::{PredictTrajectoryRequest, PredictTrajectoryResponse};
+use crate::msgs::ttball_msgs::srv::{
+    PlanReturnRequest, PlanReturnResponse, PredictReboundRequest, PredictReboundResponse,
+    PredictTrajectoryRequest, PredictTrajectoryResponse,
+};
 use crate::msgs::visualization_msgs::MarkerArray;
+use crate::physics;
+use crate::stroke::{Aim, ReturnCondition, Stroke};
 
 /// The messages to publish after one detection.
 #[derive(Debug, Clone, PartialEq, Default)]
@@ -39,14 +48,18 @@ pub struct Step {
     pub published: Published,
 }
 
-/// The estimator with the node's publishing rules.
+/// The estimator with the node's publishing rules, and the stroke model its racket services
+/// answer with.
 #[derive(Debug, Clone)]
 pub struct Pipeline {
     estimator: Estimator,
+    stroke: Stroke,
     trajectory_period: i64,
     trajectory_dt: f64,
     horizon: f64,
     last_trajectory: Option<(u32, i64)>,
+    /// The interception last published on `/ball/intercept`.
+    last_intercept: Option<InterceptEstimate>,
 }
 
 impl Pipeline {
@@ -54,10 +67,12 @@ impl Pipeline {
     pub fn new(config: &Config) -> Self {
         Self {
             estimator: Estimator::new(config),
+            stroke: Stroke::new(config),
             trajectory_period: (1e9 / config.prediction.trajectory_rate).round() as i64,
             trajectory_dt: config.prediction.trajectory_dt,
             horizon: config.prediction.horizon,
             last_trajectory: None,
+            last_intercept: None,
         }
     }
 
@@ -85,6 +100,9 @@ impl Pipeline {
             }
         };
         let out = self.estimator.handle(&detection);
+        if out.intercept.is_some() {
+            self.last_intercept = out.intercept;
+        }
         let mut published = Published {
             state: out.estimate.as_ref().map(state_msg),
             intercept: out.intercept.as_ref().map(intercept_msg),
@@ -167,21 +185,104 @@ impl Pipeline {
             let trajectory = self.estimator.predict_flight(&start, dt, horizon);
             return Ok(trajectory_msg(stamp, 0, &trajectory));
         }
+        let live = self.live_track(request.track_id, "an initial state")?;
+        let (stamp, trajectory) = self
+            .estimator
+            .predicted_trajectory(dt, horizon)
+            .ok_or_else(|| format!("track {} ended", request.track_id))?;
+        Ok(trajectory_msg(stamp, live, &trajectory))
+    }
+
+    /// `track_id` when it is the live track's id; otherwise why not, pointing at track 0 and
+    /// `alternative` (what the request gives instead of a track).
+    fn live_track(&self, track_id: u32, alternative: &str) -> Result<u32, String> {
         match self.estimator.estimate() {
-            Some(e) if e.track_id == request.track_id => {
-                let (stamp, trajectory) = self
-                    .estimator
-                    .predicted_trajectory(dt, horizon)
-                    .ok_or_else(|| format!("track {} ended", request.track_id))?;
-                Ok(trajectory_msg(stamp, e.track_id, &trajectory))
-            }
+            Some(e) if e.track_id == track_id => Ok(track_id),
             Some(e) => Err(format!(
-                "track {} is not live; the live track is {} (or use track_id 0 with an initial state)",
-                request.track_id, e.track_id
+                "track {track_id} is not live; the live track is {} (or use track_id 0 with {alternative})",
+                e.track_id
             )),
             None => Err(format!(
-                "track {} is not live: no ball is tracked now (use track_id 0 with an initial state)",
-                request.track_id
+                "track {track_id} is not live: no ball is tracked now (use track_id 0 with {alternative})"
+            )),
+        }
+    }
+
+    /// Answers `~/predict_rebound`: the hit of the request's ball by its racket and the return
+    /// flight to the first bounce. A return that does not land on the opponent's half is still a
+    /// prediction (`success` true, `lands_on_table` false) with a message saying what the ball
+    /// does; a hit that cannot be predicted (non-unit normal, impact point off the face, ball not
+    /// approaching the face, non-finite value) gets `success = false` and the reason.
+    pub fn predict_rebound(&self, request: &PredictReboundRequest) -> PredictReboundResponse {
+        let (ball, racket) = rebound_request(request);
+        match self.stroke.rebound(&ball, &racket) {
+            Ok(rebound) => rebound_response(&rebound),
+            Err(e) => PredictReboundResponse {
+                success: false,
+                message: e.to_string(),
+                ..PredictReboundResponse::default()
+            },
+        }
+    }
+
+    /// Answers `~/plan_return`: the racket command that returns the ball to `target` on the
+    /// opponent's half, from the live track's interception (`track_id` its id, the same
+    /// prediction as the last `/ball/intercept`) or from the request's `ball` (`track_id` 0).
+    /// The third condition is the flight time when it is not 0, else the net clearance (0 = the
+    /// configured `stroke.net_clearance`). A request that cannot be answered (no such live track,
+    /// no valid interception, target off the opponent's half, impact point off the face,
+    /// unreachable target, racket too fast) gets `success = false` and a message saying why.
+    pub fn plan_return(&self, request: &PlanReturnRequest) -> PlanReturnResponse {
+        match self.answer_plan_return(request) {
+            Ok(response) => response,
+            Err(message) => PlanReturnResponse {
+                success: false,
+                message,
+                ..PlanReturnResponse::default()
+            },
+        }
+    }
+
+    fn answer_plan_return(
+        &self,
+        request: &PlanReturnRequest,
+    ) -> Result<PlanReturnResponse, String> {
+        let (impact_stamp, ball) = if request.track_id == 0 {
+            let (_, _, ball) = state_from_msg(&request.ball);
+            (request.ball.header.stamp, ball)
+        } else {
+            self.interception(request.track_id)?
+        };
+        let condition = if request.flight_time != 0.0 {
+            ReturnCondition::FlightTime(request.flight_time)
+        } else if request.net_clearance != 0.0 {
+            ReturnCondition::NetClearance(request.net_clearance)
+        } else {
+            ReturnCondition::NetClearance(self.stroke.default_net_clearance())
+        };
+        let aim = Aim {
+            target: Vector2::new(request.target.x, request.target.y),
+            condition,
+            impact_offset: request.impact_offset,
+            brush_speed: request.brush_speed,
+        };
+        let plan = self.stroke.plan(&ball, &aim).map_err(|e| e.to_string())?;
+        Ok(plan_response(impact_stamp, &plan))
+    }
+
+    /// The stamp and ball state of the live track's predicted interception, when `track_id` is
+    /// the live track and its interception is valid.
+    fn interception(&self, track_id: u32) -> Result<(Time, physics::BallState), String> {
+        self.live_track(track_id, "a ball state")?;
+        let intercept = self
+            .last_intercept
+            .filter(|i| i.track_id == track_id)
+            .ok_or_else(|| format!("track {track_id} has no interception prediction yet"))?;
+        match intercept.intercept.crossing {
+            Ok(crossing) => Ok((offset(intercept.stamp, crossing.time), crossing.state)),
+            Err(why) => Err(format!(
+                "track {track_id} has no valid interception: {} (use track_id 0 with a ball state)",
+                why.describe()
             )),
         }
     }
@@ -197,6 +298,7 @@ mod tests {
     use super::*;
     use crate::detection::seconds_to_ns;
     use crate::msgs::convert::detection_to_msg;
+    use crate::msgs::geometry_msgs::{Point, Vector3};
     use crate::sim::{SimOptions, simulate};
 
     fn request(track_id: u32, horizon: f64, dt: f64) -> PredictTrajectoryRequest {
@@ -288,5 +390,278 @@ mod tests {
         bad.initial.velocity.y = f64::INFINITY;
         let r = pipeline.predict_trajectory(&bad);
         assert!(!r.success && r.message.contains("non-finite"));
+    }
+
+    /// The ball of the racket tests (tests/racket.rs), just before impact, at 2 s.
+    fn ball() -> BallState {
+        let mut b = BallState::default();
+        b.header.stamp = crate::msgs::builtin_interfaces::Time::from_nanos(seconds_to_ns(2.0));
+        b.header.frame_id = "table".to_owned();
+        b.position = Point {
+            x: -1.6,
+            y: 0.1,
+            z: 0.25,
+        };
+        b.velocity = Vector3 {
+            x: -5.0,
+            y: 0.4,
+            z: -1.0,
+        };
+        b.spin = Vector3 {
+            x: 20.0,
+            y: -150.0,
+            z: 30.0,
+        };
+        b
+    }
+
+    fn plan_request(x: f64, y: f64) -> PlanReturnRequest {
+        PlanReturnRequest {
+            track_id: 0,
+            ball: ball(),
+            target: Point { x, y, z: 0.0 },
+            ..PlanReturnRequest::default()
+        }
+    }
+
+    /// `~/predict_rebound` for `ball` hit by the racket of a `~/plan_return` answer.
+    fn rebound_request(
+        ball: &BallState,
+        plan: &PlanReturnResponse,
+        offset: f64,
+    ) -> PredictReboundRequest {
+        PredictReboundRequest {
+            ball_position: ball.position,
+            ball_velocity: ball.velocity,
+            ball_spin: ball.spin,
+            racket_velocity: plan.racket_velocity,
+            racket_normal: plan.racket_normal,
+            impact_offset: offset,
+        }
+    }
+
+    fn distance(a: &Point, b: &Point) -> f64 {
+        (a.x - b.x).hypot(a.y - b.y)
+    }
+
+    #[test]
+    fn plan_return_and_predict_rebound_from_a_given_state() {
+        let config = Config::default();
+        let pipeline = Pipeline::new(&config);
+        let requests = [
+            plan_request(0.9, 0.3),
+            PlanReturnRequest {
+                flight_time: 0.6,
+                ..plan_request(0.6, 0.0)
+            },
+            PlanReturnRequest {
+                net_clearance: 0.1,
+                impact_offset: 0.06,
+                brush_speed: 2.0,
+                ..plan_request(1.0, 0.5)
+            },
+        ];
+        for request in &requests {
+            let plan = pipeline.plan_return(request);
+            assert!(
+                plan.success && plan.message.is_empty(),
+                "{request:?}: {}",
+                plan.message
+            );
+            assert_eq!(plan.impact_stamp, request.ball.header.stamp);
+            assert_eq!(plan.impact_position, request.ball.position);
+            assert!(plan.landing_error < 1e-3, "{}", plan.landing_error);
+            assert_eq!(
+                distance(&plan.landing_position, &request.target),
+                plan.landing_error
+            );
+            if request.flight_time != 0.0 {
+                assert!((plan.flight_time - request.flight_time).abs() < 1e-3);
+            } else {
+                assert!(
+                    (plan.net_clearance
+                        - if request.net_clearance == 0.0 {
+                            config.stroke.net_clearance
+                        } else {
+                            request.net_clearance
+                        })
+                    .abs()
+                        < 1e-3
+                );
+            }
+            assert!(plan.contact_time > 0.0 && plan.peak_force > 0.0 && plan.wrist_force > 0.0);
+            // The planned command through ~/predict_rebound lands within 1 mm of the target.
+            let rebound = pipeline.predict_rebound(&rebound_request(
+                &request.ball,
+                &plan,
+                request.impact_offset,
+            ));
+            assert!(
+                rebound.success && rebound.message.is_empty(),
+                "{}",
+                rebound.message
+            );
+            assert!(rebound.lands_on_table);
+            let miss = distance(&rebound.landing_position, &request.target);
+            assert!(miss < 1e-3, "{request:?}: missed by {miss} m");
+            assert_eq!(rebound.landing_position, plan.landing_position);
+            assert_eq!(
+                (rebound.ball_velocity, rebound.ball_spin),
+                (plan.ball_velocity, plan.ball_spin)
+            );
+            assert_eq!(
+                (
+                    rebound.contact_time,
+                    rebound.peak_force,
+                    rebound.wrist_force
+                ),
+                (plan.contact_time, plan.peak_force, plan.wrist_force)
+            );
+            assert!(rebound.mean_force > 0.0 && rebound.mean_force < rebound.peak_force);
+            assert!(
+                rebound.rebound_power_coefficient > 0.0 && rebound.rebound_power_coefficient < 1.0
+            );
+            assert!(rebound.reduced_mass > 0.0);
+        }
+        // No condition: the configured net clearance.
+        let configured = PlanReturnRequest {
+            net_clearance: config.stroke.net_clearance,
+            ..requests[0].clone()
+        };
+        assert_eq!(
+            pipeline.plan_return(&requests[0]),
+            pipeline.plan_return(&configured)
+        );
+    }
+
+    #[test]
+    fn racket_services_refuse_bad_requests_with_a_reason() {
+        let pipeline = Pipeline::new(&Config::default());
+        let good = pipeline.plan_return(&plan_request(0.9, 0.3));
+        let rebound = |change: &dyn Fn(&mut PredictReboundRequest)| {
+            let mut request = rebound_request(&ball(), &good, 0.0);
+            change(&mut request);
+            pipeline.predict_rebound(&request)
+        };
+        let off_face = rebound(&|r| r.impact_offset = 0.3);
+        let not_unit = rebound(&|r| r.racket_normal.x *= 2.0);
+        let not_finite = rebound(&|r| r.ball_spin.z = f64::NAN);
+        for (r, words) in [
+            (&off_face, "off the face"),
+            (&not_unit, "unit vector"),
+            (&not_finite, "non-finite"),
+        ] {
+            assert!(!r.success && r.message.contains(words), "{words}: {r:?}");
+            assert!(!r.lands_on_table);
+        }
+        // A racket at rest returns the ball short: a prediction, with what happens.
+        let short = rebound(&|r| {
+            r.racket_velocity = Vector3::default();
+            r.racket_normal = Vector3 {
+                x: 1.0,
+                y: 0.0,
+                z: 0.0,
+            };
+        });
+        assert!(short.success && !short.lands_on_table, "{short:?}");
+        assert!(
+            short.message.starts_with("the returned ball "),
+            "{}",
+            short.message
+        );
+        assert_eq!(short.landing_position, Point::default());
+        assert!(short.contact_time > 0.0);
+
+        let plan = |change: &dyn Fn(&mut PlanReturnRequest)| {
+            let mut request = plan_request(0.9, 0.3);
+            change(&mut request);
+            pipeline.plan_return(&request)
+        };
+        for (r, words) in [
+            (plan(&|r| r.impact_offset = 0.3), "off the face"),
+            (plan(&|r| r.target.x = -0.5), "opponent's half"),
+            (plan(&|r| r.flight_time = -1.0), "flight time"),
+            (plan(&|r| r.net_clearance = 5.0), "net clearance"),
+            (plan(&|r| r.ball.velocity.x = f64::INFINITY), "non-finite"),
+            (plan(&|r| r.track_id = 5), "no ball is tracked"),
+        ] {
+            assert!(!r.success && r.message.contains(words), "{words}: {r:?}");
+            assert_eq!(
+                r,
+                PlanReturnResponse {
+                    success: false,
+                    message: r.message.clone(),
+                    ..PlanReturnResponse::default()
+                }
+            );
+        }
+    }
+
+    #[test]
+    fn plan_return_from_the_live_tracks_interception() {
+        let config = Config::default();
+        let mut pipeline = Pipeline::new(&config);
+        let options = SimOptions {
+            shots: 1,
+            ..SimOptions::default()
+        };
+        let session = simulate(&config, &options).expect("simulated");
+        let mut detections = session.stream.iter().enumerate();
+        // Past the start of the track, up to a valid interception as /ball/intercept publishes it.
+        let intercept = detections
+            .by_ref()
+            .find_map(|(n, d)| {
+                let step = pipeline.on_detection(&detection_to_msg(&d.detection));
+                step.published.intercept.filter(|i| i.valid && n >= 60)
+            })
+            .expect("a valid interception");
+        let track = intercept.track_id;
+        let request = PlanReturnRequest {
+            track_id: track,
+            ..plan_request(0.9, -0.2)
+        };
+        let plan = pipeline.plan_return(&request);
+        assert!(plan.success, "{}", plan.message);
+        assert_eq!(plan.impact_stamp, intercept.intercept_stamp);
+        assert_eq!(plan.impact_position, intercept.position);
+        // The same as planning from the published interception given as the ball.
+        let mut given = request.clone();
+        given.track_id = 0;
+        given.ball.header.stamp = intercept.intercept_stamp;
+        given.ball.position = intercept.position;
+        given.ball.velocity = intercept.velocity;
+        given.ball.spin = intercept.spin;
+        assert_eq!(pipeline.plan_return(&given), plan);
+        let rebound = pipeline.predict_rebound(&rebound_request(&given.ball, &plan, 0.0));
+        assert!(rebound.lands_on_table);
+        assert!(distance(&rebound.landing_position, &request.target) < 1e-3);
+        // Another track id is refused.
+        let other = pipeline.plan_return(&PlanReturnRequest {
+            track_id: track + 1,
+            ..request.clone()
+        });
+        assert!(
+            !other.success
+                && other
+                    .message
+                    .contains(&format!("the live track is {track}")),
+            "{}",
+            other.message
+        );
+        // Once the ball has passed the hitting plane the interception is no longer valid.
+        detections
+            .find_map(|(_, d)| {
+                let step = pipeline.on_detection(&detection_to_msg(&d.detection));
+                step.published
+                    .intercept
+                    .filter(|i| !i.valid && i.track_id == track)
+            })
+            .expect("an invalid interception of the same track");
+        let r = pipeline.plan_return(&request);
+        assert!(
+            !r.success && r.message.contains("no valid interception"),
+            "{}",
+            r.message
+        );
     }
 }

@@ -138,6 +138,13 @@ pub enum PlanError {
         /// Landing distance of the best candidate [m].
         closest: f64,
     },
+    /// The command meets the target through the solver's unbounded table and transparent net,
+    /// but the real return does not land (e.g. a flight time too short to clear the net).
+    #[error(
+        "target unreachable as asked: through the real net and table, the planned return {}; give a longer flight time or a net clearance instead",
+        .0.describe()
+    )]
+    Blocked(ReturnOutcome),
     /// The command exists but the racket would have to move too fast.
     #[error(
         "target unreachable within the racket speed limit: it needs {needed:.2} m/s, the limit (stroke.max_racket_speed) is {limit:.2} m/s; a longer flight time or a higher net clearance needs less"
@@ -320,6 +327,9 @@ impl Stroke {
             });
         }
         let rebound = self.rebound(ball, &racket)?;
+        if rebound.flight.outcome != ReturnOutcome::Lands {
+            return Err(PlanError::Blocked(rebound.flight.outcome));
+        }
         let landing_error = rebound.flight.landing.map_or(f64::INFINITY, |(_, s)| {
             (s.position.xy() - aim.target).norm()
         });

@@ -27,8 +27,8 @@ use ttball::msgs::ttball_msgs::msg::{
     BallDetection, BallState, InterceptPrediction, PredictedTrajectory,
 };
 use ttball::msgs::ttball_msgs::srv::{
-    PredictReboundRequest, PredictReboundResponse, PredictTrajectoryRequest,
-    PredictTrajectoryResponse,
+    PlanReturnRequest, PlanReturnResponse, PredictReboundRequest, PredictReboundResponse,
+    PredictTrajectoryRequest, PredictTrajectoryResponse,
 };
 
 // ---------------------------------------------------------------------------------------------
@@ -412,6 +412,11 @@ fn rust_mirrors() -> (BTreeMap<String, String>, Registry) {
         "PredictReboundResponse",
         trace::<PredictReboundResponse>(&mut tracer),
     );
+    add("PlanReturnRequest", trace::<PlanReturnRequest>(&mut tracer));
+    add(
+        "PlanReturnResponse",
+        trace::<PlanReturnResponse>(&mut tracer),
+    );
     (top, tracer.registry().unwrap())
 }
 
@@ -571,6 +576,8 @@ fn every_interface_file_matches_its_rust_mirror() {
             "ttball_msgs/BallState",
             "ttball_msgs/InterceptPrediction",
             "ttball_msgs/PredictedTrajectory",
+            "ttball_msgs/PlanReturnRequest",
+            "ttball_msgs/PlanReturnResponse",
             "ttball_msgs/PredictReboundRequest",
             "ttball_msgs/PredictReboundResponse",
             "ttball_msgs/PredictTrajectoryRequest",
@@ -1102,7 +1109,7 @@ fn every_mirror_round_trips_through_cdr() {
     round_trip(&trajectory);
     round_trip(&PredictTrajectoryRequest {
         track_id: 0,
-        initial: state,
+        initial: state.clone(),
         horizon: 1.0,
         dt: 0.01,
     });
@@ -1132,6 +1139,42 @@ fn every_mirror_round_trips_through_cdr() {
         wrist_force: 5.0,
         lands_on_table: true,
         landing_position: p(0.9),
+    });
+    round_trip(&PlanReturnRequest {
+        track_id: 0,
+        ball: state,
+        target: p(0.9),
+        flight_time: 0.0,
+        net_clearance: 0.15,
+        impact_offset: 0.05,
+        brush_speed: -1.5,
+    });
+    round_trip(&PlanReturnRequest {
+        track_id: 7,
+        flight_time: 0.45,
+        ..PlanReturnRequest::default()
+    });
+    round_trip(&PlanReturnResponse {
+        success: true,
+        message: String::new(),
+        impact_stamp: Time::from_nanos(1_700_000_000_500_000_000),
+        impact_position: p(-1.6),
+        racket_velocity: v(3.5),
+        racket_normal: v(0.25),
+        ball_velocity: v(6.0),
+        ball_spin: v(-80.0),
+        landing_position: p(0.9),
+        flight_time: 0.41,
+        net_clearance: 0.15,
+        landing_error: 2e-7,
+        contact_time: 0.0011,
+        peak_force: 52.0,
+        wrist_force: 6.5,
+    });
+    round_trip(&PlanReturnResponse {
+        success: false,
+        message: "target unreachable".to_owned(),
+        ..PlanReturnResponse::default()
     });
 }
 

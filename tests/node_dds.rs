@@ -8,8 +8,11 @@
 //!   same bag (same code path). Detections lost on the wire are counted and reported; then only
 //!   the outputs before the first difference are compared. The end-to-end latency (detection
 //!   written by the peer to state read by the peer) is printed.
-//! - The peer calls `~/predict_trajectory` (rmw_cyclonedds' service framing) for a given state
-//!   and for a track that does not exist.
+//! - The peer calls `~/predict_trajectory`, `~/predict_rebound` and `~/plan_return`
+//!   (rmw_cyclonedds' service framing) for given states, and `~/predict_trajectory` and
+//!   `~/plan_return` for a track that does not exist: every reply equals, bit for bit, what the
+//!   pipeline answers in process; the planned racket command, sent back to `~/predict_rebound`,
+//!   lands on the target.
 //! - `ttball play` publishes the bag and the peer receives every detection, byte for byte.
 //!
 //! Needs a Python with `cyclonedds` and `mcap` (`.ci/run` sets `TTBALL_PYTHON`) and permission
@@ -26,13 +29,19 @@
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
+use byteorder::LittleEndian;
+use serde::Serialize;
+use serde::de::DeserializeOwned;
 use serde_json::Value;
 use ttball::bag::{decode, read_bag_file};
 use ttball::config::Config;
 use ttball::msgs::builtin_interfaces::Time;
 use ttball::msgs::geometry_msgs::{Point, Vector3};
 use ttball::msgs::ttball_msgs::msg::{BallDetection, BallState, InterceptPrediction};
-use ttball::msgs::ttball_msgs::srv::{PredictTrajectoryRequest, PredictTrajectoryResponse};
+use ttball::msgs::ttball_msgs::srv::{
+    PlanReturnRequest, PlanReturnResponse, PredictReboundRequest, PredictReboundResponse,
+    PredictTrajectoryRequest, PredictTrajectoryResponse,
+};
 use ttball::pipeline::Pipeline;
 
 mod common;
@@ -88,6 +97,46 @@ fn cdr_of(record: &Value) -> Vec<u8> {
     hex(record["cdr"].as_str().unwrap())
 }
 
+/// The reply a `call-*` command of the peer recorded: its CDR without rmw_cyclonedds' request id
+/// (encapsulation header, then the 16-byte request id, then the response).
+fn service_reply<T: DeserializeOwned>(call: &Value) -> T {
+    let bytes = cdr_of(call);
+    decode(&[&bytes[..4], &bytes[20..]].concat()).unwrap()
+}
+
+/// `got` equals `expected` field for field, and bit for bit (floats included: their CDR).
+fn assert_same<T: Serialize + PartialEq + std::fmt::Debug>(what: &str, got: &T, expected: &T) {
+    assert_eq!(got, expected, "{what}");
+    let cdr = |value: &T| cdr_encoding::to_vec::<T, LittleEndian>(value).unwrap();
+    assert_eq!(cdr(got), cdr(expected), "{what}: not bit for bit");
+}
+
+/// Ball centre, velocity and spin as a `BallState` message's fields.
+fn set_state(msg: &mut BallState, values: [f64; 9]) {
+    let [x, y, z, vx, vy, vz, wx, wy, wz] = values;
+    msg.position = Point { x, y, z };
+    msg.velocity = Vector3 {
+        x: vx,
+        y: vy,
+        z: vz,
+    };
+    msg.spin = Vector3 {
+        x: wx,
+        y: wy,
+        z: wz,
+    };
+}
+
+/// Values as command-line arguments: shortest round-trip decimals, so the peer's Python parses
+/// the very same bits.
+fn args(values: &[f64]) -> String {
+    values
+        .iter()
+        .map(ToString::to_string)
+        .collect::<Vec<_>>()
+        .join(" ")
+}
+
 /// Nearest-rank quantile of sorted values.
 fn quantile(sorted: &[f64], q: f64) -> f64 {
     sorted[((sorted.len() - 1) as f64 * q).round() as usize]
@@ -134,7 +183,26 @@ fn node_and_play_interoperate_with_cyclone_dds() {
     let initial = [
         1.0178, -0.0184, 0.4448, -5.4122, -0.1333, 1.5129, 7.051, -40.643, -3.915,
     ];
-    let initial_args: Vec<String> = initial.iter().map(ToString::to_string).collect();
+    // A ball at the hitting plane, the racket command that returns it to a target (planned in
+    // process, then asked of the node), and that command for `~/predict_rebound`.
+    let incoming = [-1.6, 0.1, 0.25, -5.0, 0.4, -1.0, 20.0, -150.0, 30.0];
+    let pipeline = Pipeline::new(&Config::default());
+    let mut plan_request = PlanReturnRequest {
+        track_id: 0,
+        target: Point {
+            x: 0.9,
+            y: 0.3,
+            z: 0.0,
+        },
+        impact_offset: 0.05,
+        brush_speed: 1.0,
+        ..PlanReturnRequest::default()
+    };
+    set_state(&mut plan_request.ball, incoming);
+    let plan = pipeline.plan_return(&plan_request);
+    assert!(plan.success, "{}", plan.message);
+    let (v, n) = (plan.racket_velocity, plan.racket_normal);
+    let racket = [v.x, v.y, v.z, n.x, n.y, n.z];
     let detections: Vec<(u64, Vec<u8>)> = {
         let contents = read_bag_file(&bag).unwrap();
         let channel = contents.channel("/ball/detections").unwrap();
@@ -155,6 +223,9 @@ node=$!
 "{python}" "{peer}" publish "{bag}" --wait-match 30 --out peer.json 2> peer.err
 "{python}" "{peer}" call-predict --initial {initial} --horizon 0.5 --dt 0.01 --timeout 20 --out call.json 2>> peer.err
 "{python}" "{peer}" call-predict --track-id 999 --timeout 20 --out call_bad.json 2>> peer.err
+"{python}" "{peer}" call-plan --ball {incoming} --target 0.9 0.3 --impact-offset 0.05 --brush-speed 1 --timeout 20 --out plan.json 2>> peer.err
+"{python}" "{peer}" call-plan --track-id 999 --target 0.9 0.3 --timeout 20 --out plan_bad.json 2>> peer.err
+"{python}" "{peer}" call-rebound --ball {incoming} --racket {racket} --impact-offset 0.05 --timeout 20 --out rebound.json 2>> peer.err
 kill -TERM $node
 wait $node
 echo $? > node.rc
@@ -168,7 +239,9 @@ wait $listener
         python = python.display(),
         peer = peer.display(),
         bag = bag.display(),
-        initial = initial_args.join(" "),
+        initial = args(&initial),
+        incoming = args(&incoming),
+        racket = args(&racket),
         count = detections.len(),
     );
     let status = Command::new("unshare")
@@ -260,11 +333,7 @@ wait $listener
     // ~/predict_trajectory over rmw_cyclonedds' framing: the reply equals the in-process answer.
     let call = read_json(&dir.join("call.json"));
     assert_eq!(call["success"], Value::Bool(true), "{call}");
-    let bytes = cdr_of(&call);
-    // Encapsulation header, then rmw_cyclonedds' 16-byte request id, then the response.
-    let response: PredictTrajectoryResponse =
-        decode(&[&bytes[..4], &bytes[20..]].concat()).unwrap();
-    let [x, y, z, vx, vy, vz, wx, wy, wz] = initial;
+    let response: PredictTrajectoryResponse = service_reply(&call);
     let mut request = PredictTrajectoryRequest {
         track_id: 0,
         horizon: 0.5,
@@ -272,19 +341,9 @@ wait $listener
         ..PredictTrajectoryRequest::default()
     };
     request.initial.header.stamp = response.trajectory.header.stamp;
-    request.initial.position = Point { x, y, z };
-    request.initial.velocity = Vector3 {
-        x: vx,
-        y: vy,
-        z: vz,
-    };
-    request.initial.spin = Vector3 {
-        x: wx,
-        y: wy,
-        z: wz,
-    };
-    let expected = Pipeline::new(&Config::default()).predict_trajectory(&request);
-    assert_eq!(response, expected);
+    set_state(&mut request.initial, initial);
+    let expected = pipeline.predict_trajectory(&request);
+    assert_same("predict_trajectory", &response, &expected);
     assert_eq!(response.trajectory.stamps.len(), 51);
     assert_ne!(response.trajectory.header.stamp, Time::default());
     let bad = read_json(&dir.join("call_bad.json"));
@@ -292,6 +351,58 @@ wait $listener
     assert!(
         bad["message"].as_str().unwrap().contains("not live"),
         "{bad}"
+    );
+
+    // ~/plan_return for the given ball (stamped by the peer): the in-process command.
+    let response: PlanReturnResponse = service_reply(&read_json(&dir.join("plan.json")));
+    plan_request.ball.header.stamp = response.impact_stamp;
+    assert_ne!(response.impact_stamp, Time::default());
+    assert_same(
+        "plan_return",
+        &response,
+        &pipeline.plan_return(&plan_request),
+    );
+    assert!(
+        response.success && response.landing_error < 1e-3,
+        "{response:?}"
+    );
+    let bad: PlanReturnResponse = service_reply(&read_json(&dir.join("plan_bad.json")));
+    assert!(
+        !bad.success && bad.message.contains("track 999 is not live"),
+        "{bad:?}"
+    );
+    // ~/predict_rebound for that command: the in-process rebound, landing on the target.
+    let response: PredictReboundResponse = service_reply(&read_json(&dir.join("rebound.json")));
+    let [x, y, z, vx, vy, vz, wx, wy, wz] = incoming;
+    let request = PredictReboundRequest {
+        ball_position: Point { x, y, z },
+        ball_velocity: Vector3 {
+            x: vx,
+            y: vy,
+            z: vz,
+        },
+        ball_spin: Vector3 {
+            x: wx,
+            y: wy,
+            z: wz,
+        },
+        racket_velocity: v,
+        racket_normal: n,
+        impact_offset: 0.05,
+    };
+    assert_same(
+        "predict_rebound",
+        &response,
+        &pipeline.predict_rebound(&request),
+    );
+    assert!(response.success && response.lands_on_table, "{response:?}");
+    let miss = (response.landing_position.x - 0.9).hypot(response.landing_position.y - 0.3);
+    assert!(
+        miss < 1e-3,
+        "the planned command missed the target by {miss} m"
+    );
+    eprintln!(
+        "services: predict_trajectory, plan_return and predict_rebound over Cyclone equal the in-process answers bit for bit; the planned return lands {miss:.1e} m from the target"
     );
 
     // `ttball play`: the Cyclone listener got the bag's detections, byte for byte, in order.

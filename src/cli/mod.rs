@@ -138,8 +138,8 @@ pub enum Command {
     /// A ROS 2 node (ros2-client on RustDDS; no ROS 2 installation needed) on the domain from
     /// ROS_DOMAIN_ID. Subscribes topics.detections (ttball_msgs/msg/BallDetection, best effort);
     /// publishes /ball/state, /ball/intercept, /ball/trajectory, /ball/markers and /diagnostics
-    /// (reliable) and serves ~/predict_trajectory. Every detection runs through exactly the code
-    /// `ttball replay` runs. Stops cleanly on Ctrl-C or SIGTERM and prints what it did.
+    /// (reliable) and serves ~/predict_trajectory, ~/predict_rebound and ~/plan_return. Every
+    /// detection runs through exactly the code `ttball replay` runs. Stops cleanly on Ctrl-C or SIGTERM and prints what it did.
     /// Logs go to stderr; set their level with RUST_LOG (e.g. RUST_LOG=debug).
     #[command(after_help = "Examples:\n  \
         ttball node\n  \

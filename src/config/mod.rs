@@ -433,9 +433,10 @@ pub struct NodeParams {
     /// full, the oldest detection is dropped and counted. 256 is about 0.25 s of both cameras
     /// (150 + 900 detections per second).
     pub queue_capacity: u32,
-    /// How the `~/predict_trajectory` service frames requests and replies on DDS: `enhanced`
-    /// (RPC over DDS enhanced mapping: rmw_fastrtps, ROS 2's default, and rmw_connextdds),
-    /// `cyclone` (rmw_cyclonedds) or `basic` (RPC over DDS basic mapping). Topics need no choice.
+    /// How the node's services (`~/predict_trajectory`, `~/predict_rebound`, `~/plan_return`)
+    /// frame requests and replies on DDS: `enhanced` (RPC over DDS enhanced mapping:
+    /// rmw_fastrtps, ROS 2's default, and rmw_connextdds), `cyclone` (rmw_cyclonedds) or `basic`
+    /// (RPC over DDS basic mapping). Topics need no choice.
     pub service_mapping: ServiceMapping,
     /// Use only the loopback interface (127.0.0.1) for DDS, as ROS 2's `ROS_LOCALHOST_ONLY=1` or
     /// `ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST`, which also turn this on.

@@ -1,5 +1,6 @@
 //! The boundary between ROS messages and the core: detections in, estimates, interceptions,
-//! trajectories and RViz/Foxglove markers out. Stamps become integer nanoseconds; an all-zero
+//! trajectories and RViz/Foxglove markers out; the racket services' requests in, rebounds and
+//! racket commands out. Stamps become integer nanoseconds; an all-zero
 //! covariance becomes "use the configured noise".
 
 use nalgebra::{Matrix3, Vector3};
@@ -8,10 +9,12 @@ use super::builtin_interfaces::{Duration, Time};
 use super::geometry_msgs::{Point, Pose, Quaternion, Vector3 as RosVector3};
 use super::std_msgs::{ColorRGBA, Header};
 use super::ttball_msgs::msg::{BallDetection, BallState, InterceptPrediction, PredictedTrajectory};
+use super::ttball_msgs::srv::{PlanReturnResponse, PredictReboundRequest, PredictReboundResponse};
 use super::visualization_msgs::{Marker, MarkerArray};
 use crate::detection::{Detection, Source, seconds_to_ns};
 use crate::estimator::{Estimate, InterceptEstimate, TrackStatus};
-use crate::physics::{self, StateMatrix, Trajectory};
+use crate::physics::{self, RacketState, StateMatrix, Trajectory};
+use crate::stroke::{Plan, Rebound, ReturnOutcome};
 
 /// The one frame every ttball message is in.
 pub const TABLE_FRAME: &str = "table";
@@ -192,7 +195,8 @@ pub fn truth_intercept_from_msg(msg: &InterceptPrediction) -> (u32, i64, Vector3
     )
 }
 
-fn offset(stamp: i64, seconds: f64) -> Time {
+/// `stamp` [ns] plus `seconds`, as a message time: the stamp of a prediction made at `stamp`.
+pub fn offset(stamp: i64, seconds: f64) -> Time {
     Time::from_nanos(stamp + seconds_to_ns(seconds))
 }
 
@@ -232,6 +236,83 @@ pub fn trajectory_msg(stamp: i64, track_id: u32, t: &Trajectory) -> PredictedTra
             .map(|s| vector(&s.state.velocity))
             .collect(),
         spins: t.samples.iter().map(|s| vector(&s.state.spin)).collect(),
+    }
+}
+
+/// The ball and racket states of a `PredictRebound` request.
+pub fn rebound_request(r: &PredictReboundRequest) -> (physics::BallState, RacketState) {
+    (
+        physics::BallState::new(
+            from_point(&r.ball_position),
+            from_vector(&r.ball_velocity),
+            from_vector(&r.ball_spin),
+        ),
+        RacketState {
+            velocity: from_vector(&r.racket_velocity),
+            normal: from_vector(&r.racket_normal),
+            impact_offset: r.impact_offset,
+        },
+    )
+}
+
+/// A rebound as a `PredictRebound` response (`success` true): the hit, and the landing when the
+/// return lands on the opponent's half; otherwise `lands_on_table` false, the landing position
+/// zero and `message` saying what the returned ball does.
+pub fn rebound_response(rebound: &Rebound) -> PredictReboundResponse {
+    let hit = &rebound.hit;
+    let lands = rebound.flight.outcome == ReturnOutcome::Lands;
+    let landing = rebound
+        .flight
+        .landing
+        .filter(|_| lands)
+        .map(|(_, state)| point(&state.position))
+        .unwrap_or_default();
+    PredictReboundResponse {
+        success: true,
+        message: if lands {
+            String::new()
+        } else {
+            format!("the returned ball {}", rebound.flight.outcome.describe())
+        },
+        ball_velocity: vector(&hit.ball.velocity),
+        ball_spin: vector(&hit.ball.spin),
+        rebound_power_coefficient: hit.normal.rebound_power_coefficient,
+        contact_time: hit.normal.contact.contact_time,
+        mean_force: hit.normal.contact.mean_force,
+        peak_force: hit.normal.contact.peak_force,
+        reduced_mass: hit.normal.reduced_mass,
+        wrist_force: hit.wrist.peak_force,
+        lands_on_table: lands,
+        landing_position: landing,
+    }
+}
+
+/// A racket command as a `PlanReturn` response (`success` true), the impact at `impact_stamp`.
+/// Landing, flight time and net clearance are those of the command's return through the real
+/// table and net (zero when it has none).
+pub fn plan_response(impact_stamp: Time, plan: &Plan) -> PlanReturnResponse {
+    let hit = &plan.rebound.hit;
+    let flight = &plan.rebound.flight;
+    let (flight_time, landing) = flight
+        .landing
+        .map(|(t, state)| (t, point(&state.position)))
+        .unwrap_or_default();
+    PlanReturnResponse {
+        success: true,
+        message: String::new(),
+        impact_stamp,
+        impact_position: point(&hit.ball.position),
+        racket_velocity: vector(&plan.racket.velocity),
+        racket_normal: vector(&plan.racket.normal),
+        ball_velocity: vector(&hit.ball.velocity),
+        ball_spin: vector(&hit.ball.spin),
+        landing_position: landing,
+        flight_time,
+        net_clearance: flight.net.map_or(0.0, |(_, clearance)| clearance),
+        landing_error: plan.landing_error,
+        contact_time: hit.normal.contact.contact_time,
+        peak_force: hit.normal.contact.peak_force,
+        wrist_force: hit.wrist.peak_force,
     }
 }
 

@@ -19,7 +19,7 @@ pub struct TransportCounters {
     pub dropped_queue_full: u64,
     /// Messages that DDS refused to publish.
     pub publish_errors: u64,
-    /// `~/predict_trajectory` requests answered.
+    /// Service requests answered (`~/predict_trajectory`, `~/predict_rebound`, `~/plan_return`).
     pub service_requests: u64,
     /// Requests refused because the estimator had too many waiting.
     pub service_busy: u64,

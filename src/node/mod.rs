@@ -1,20 +1,28 @@
 //! The live ROS 2 node (`ttball node`), on ros2-client (pure-Rust ROS 2 on RustDDS): detections
 //! in from `topics.detections`, [`Pipeline::on_detection`] (the code path `ttball replay` runs),
-//! state, intercept, trajectory, markers and diagnostics out, and the `~/predict_trajectory`
-//! service.
+//! state, intercept, trajectory, markers and diagnostics out, and three services, private to the
+//! node:
+//! - `~/predict_trajectory` (`ttball_msgs/srv/PredictTrajectory`): the flight of the live track
+//!   or of a given state ([`Pipeline::predict_trajectory`]);
+//! - `~/predict_rebound` (`ttball_msgs/srv/PredictRebound`): the ball's rebound off the racket
+//!   for a given stroke and its return flight ([`Pipeline::predict_rebound`]);
+//! - `~/plan_return` (`ttball_msgs/srv/PlanReturn`): the racket command that returns the live
+//!   track's ball (at its predicted interception) or a given ball to a target
+//!   ([`Pipeline::plan_return`]).
 //!
 //! Threads: the DDS thread takes detections and service requests off DDS and never waits for the
 //! estimator: detections go through a bounded crossbeam channel (`node.queue_capacity`; when
 //! full the oldest is dropped and counted) to the one estimator thread, which runs the pipeline
-//! and publishes its outputs and the diagnostics. Service requests go to the estimator thread
-//! through a second small channel and their replies come back to the DDS thread, which sends
-//! them. A third thread spins ros2-client's node (graph discovery, `ros_discovery_info`).
-//! [`NodeHandle::stop`] stops the DDS side first, lets the estimator finish what was queued,
-//! then shuts DDS down.
+//! and publishes its outputs and the diagnostics. Service requests, of every service, go to the
+//! estimator thread through a second small channel (so that they see the live track) and their
+//! replies come back to the DDS thread, which sends them. A third thread spins ros2-client's
+//! node (graph discovery, `ros_discovery_info`). [`NodeHandle::stop`] stops the DDS side first,
+//! lets the estimator finish what was queued, then shuts DDS down.
 
 mod dds;
 mod diagnostics;
 mod play;
+mod services;
 
 use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -24,7 +32,7 @@ use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 use crossbeam::channel::{self, Receiver, Sender, TrySendError};
 use futures::channel::{mpsc, oneshot};
 use futures::{FutureExt, StreamExt};
-use ros2_client::{Node, Publisher, RmwRequestId, Server, Subscription};
+use ros2_client::{Node, Publisher, RmwRequestId, Subscription};
 use serde::Serialize;
 use tracing::{debug, info, warn};
 
@@ -38,14 +46,12 @@ use crate::msgs::diagnostic_msgs::DiagnosticArray;
 use crate::msgs::ttball_msgs::msg::{
     BallDetection, BallState, InterceptPrediction, PredictedTrajectory,
 };
-use crate::msgs::ttball_msgs::srv::{PredictTrajectoryRequest, PredictTrajectoryResponse};
 use crate::msgs::visualization_msgs::MarkerArray;
 use crate::pipeline::{Pipeline, Published};
 use crate::replay::{DETECTION_TYPE, INTERCEPT_TYPE, MARKERS_TYPE, STATE_TYPE, TRAJECTORY_TYPE};
+use services::{Reply, Servers, Service};
 
 impl ros2_client::Message for BallDetection {}
-impl ros2_client::Message for PredictTrajectoryRequest {}
-impl ros2_client::Message for PredictTrajectoryResponse {}
 
 /// ROS 2 type of `/diagnostics`.
 pub const DIAGNOSTICS_TYPE: &str = "diagnostic_msgs/msg/DiagnosticArray";
@@ -53,6 +59,14 @@ pub const DIAGNOSTICS_TYPE: &str = "diagnostic_msgs/msg/DiagnosticArray";
 pub const PREDICT_TRAJECTORY_TYPE: &str = "ttball_msgs/srv/PredictTrajectory";
 /// Base name of the trajectory service, private to the node (`~/predict_trajectory`).
 pub const PREDICT_TRAJECTORY_SERVICE: &str = "predict_trajectory";
+/// ROS 2 type of the `~/predict_rebound` service.
+pub const PREDICT_REBOUND_TYPE: &str = "ttball_msgs/srv/PredictRebound";
+/// Base name of the rebound service, private to the node (`~/predict_rebound`).
+pub const PREDICT_REBOUND_SERVICE: &str = "predict_rebound";
+/// ROS 2 type of the `~/plan_return` service.
+pub const PLAN_RETURN_TYPE: &str = "ttball_msgs/srv/PlanReturn";
+/// Base name of the racket command service, private to the node (`~/plan_return`).
+pub const PLAN_RETURN_SERVICE: &str = "plan_return";
 
 /// Service requests that may wait for the estimator thread; more are refused as busy.
 const REQUEST_QUEUE: usize = 16;
@@ -198,9 +212,9 @@ impl Shared {
 
 /// A detection in the queue, with the instant DDS handed it over.
 type Queued = (BallDetection, Instant);
-/// A service request in the queue, and its reply.
-type Request = (RmwRequestId, PredictTrajectoryRequest);
-type Reply = (RmwRequestId, PredictTrajectoryResponse);
+/// A service request in the queue to the estimator thread, and its reply on the way back.
+type PendingRequest = (RmwRequestId, services::Request);
+type PendingReply = (RmwRequestId, Reply);
 
 /// The node's publishers.
 struct Outputs {
@@ -212,7 +226,7 @@ struct Outputs {
 }
 
 /// Starts the node with a validated configuration: creates the participant, the node, its
-/// subscription, publishers and service, then starts its threads.
+/// subscription, publishers and services, then starts its threads.
 pub fn start(config: &Config, placement: &Placement) -> Result<NodeHandle, NodeError> {
     let context = dds::context(placement.domain, placement.interfaces.as_deref())?;
     let node_name = dds::node_name(config)?;
@@ -237,22 +251,14 @@ pub fn start(config: &Config, placement: &Placement) -> Result<NodeHandle, NodeE
             &output_qos,
         )?,
     };
-    let server: Server<PredictTrajectoryRequest, PredictTrajectoryResponse> = node
-        .create_server(
-            dds::service_mapping(config.node.service_mapping),
-            &dds::private_name(&node_name, PREDICT_TRAJECTORY_SERVICE)?,
-            &dds::service_type(PREDICT_TRAJECTORY_TYPE),
-            dds::services(),
-            dds::services(),
-        )
-        .map_err(dds::error)?;
+    let servers = Servers::new(&mut node, &node_name, config.node.service_mapping)?;
     dds::spawn_spinner(&mut node)?;
 
     let shared = Arc::new(Shared::default());
     let capacity = usize::try_from(config.node.queue_capacity).unwrap_or(usize::MAX);
     let (detection_tx, detection_rx) = channel::bounded::<Queued>(capacity);
-    let (request_tx, request_rx) = channel::bounded::<Request>(REQUEST_QUEUE);
-    let (reply_tx, reply_rx) = mpsc::unbounded::<Reply>();
+    let (request_tx, request_rx) = channel::bounded::<PendingRequest>(REQUEST_QUEUE);
+    let (reply_tx, reply_rx) = mpsc::unbounded::<PendingReply>();
     let (stop_tx, stop_rx) = oneshot::channel::<()>();
     let (ended_tx, ended_rx) = channel::bounded::<()>(0);
 
@@ -271,8 +277,13 @@ pub fn start(config: &Config, placement: &Placement) -> Result<NodeHandle, NodeE
         .spawn(move || estimator.run(&detection_rx, &request_rx, &reply_tx))
         .map_err(|e| NodeError::Thread(e.to_string()))?;
 
+    let service_names = Service::ALL
+        .iter()
+        .map(|s| format!("{fq_name}/{}", s.name()))
+        .collect::<Vec<_>>()
+        .join(", ");
     info!(
-        "node {fq_name} on DDS domain {}, {}: detections from {} (best effort, depth {}), outputs on {}, {}, {}, {}, {} (reliable, depth {}), service {fq_name}/{PREDICT_TRAJECTORY_SERVICE} ({:?} mapping)",
+        "node {fq_name} on DDS domain {}, {}: detections from {} (best effort, depth {}), outputs on {}, {}, {}, {}, {} (reliable, depth {}), services {service_names} ({:?} mapping)",
         placement.domain,
         placement.describe_interfaces(),
         topics.detections,
@@ -297,7 +308,7 @@ pub fn start(config: &Config, placement: &Placement) -> Result<NodeHandle, NodeE
             };
             dds_loop(
                 &subscription,
-                &server,
+                &servers,
                 queue,
                 &request_tx,
                 reply_rx,
@@ -311,7 +322,7 @@ pub fn start(config: &Config, placement: &Placement) -> Result<NodeHandle, NodeE
                 .map_err(|_| NodeError::Thread("the estimator thread panicked".to_owned()))?;
             // Readers and writers go before their node, the node before its participant.
             drop(subscription);
-            drop(server);
+            drop(servers);
             drop(node); // stops its spinner too
             drop(context);
             drop(ended_tx);
@@ -378,16 +389,16 @@ impl DetectionQueue<'_> {
 /// Takes detections and requests off DDS until `stop` fires.
 fn dds_loop(
     subscription: &Subscription<BallDetection>,
-    server: &Server<PredictTrajectoryRequest, PredictTrajectoryResponse>,
+    servers: &Servers,
     queue: DetectionQueue<'_>,
-    requests: &Sender<Request>,
-    mut replies: mpsc::UnboundedReceiver<Reply>,
+    requests: &Sender<PendingRequest>,
+    mut replies: mpsc::UnboundedReceiver<PendingReply>,
     stop: oneshot::Receiver<()>,
     shared: &Shared,
 ) {
     futures::executor::block_on(async {
         let detections = subscription.async_stream();
-        let incoming = server.receive_request_stream();
+        let incoming = servers.requests();
         futures::pin_mut!(detections, incoming);
         let mut stop = stop.fuse();
         loop {
@@ -406,17 +417,17 @@ fn dds_loop(
                 }
                 request = incoming.select_next_some() => match request {
                     Ok((id, request)) => {
-                        if let Err(TrySendError::Full((id, _))) = requests.try_send((id, request)) {
+                        if let Err(TrySendError::Full((id, request))) = requests.try_send((id, request)) {
                             Shared::add(&shared.service_busy);
-                            send_reply(server, id, busy_response(), shared);
+                            send_reply(servers, id, busy_reply(request.service()), shared);
                         }
                     }
-                    Err(e) => warn!("a predict_trajectory request did not decode: {e:?}"),
+                    Err((service, e)) => warn!("a {} request did not decode: {e}", service.name()),
                 },
                 reply = replies.select_next_some() => {
-                    let (id, response) = reply;
+                    let (id, reply) = reply;
                     Shared::add(&shared.service_requests);
-                    send_reply(server, id, response, shared);
+                    send_reply(servers, id, reply, shared);
                 }
                 _ = stop => break,
             }
@@ -424,24 +435,20 @@ fn dds_loop(
     });
 }
 
-fn send_reply(
-    server: &Server<PredictTrajectoryRequest, PredictTrajectoryResponse>,
-    id: RmwRequestId,
-    response: PredictTrajectoryResponse,
-    shared: &Shared,
-) {
-    if let Err(e) = server.send_response(id, response) {
+fn send_reply(servers: &Servers, id: RmwRequestId, reply: Reply, shared: &Shared) {
+    let service = reply.service();
+    if let Err(e) = servers.send(id, reply) {
         Shared::add(&shared.publish_errors);
-        warn!("cannot send a predict_trajectory reply: {e:?}");
+        warn!("cannot send a {} reply: {e}", service.name());
     }
 }
 
-fn busy_response() -> PredictTrajectoryResponse {
-    PredictTrajectoryResponse {
-        success: false,
-        message: format!("busy: {REQUEST_QUEUE} requests are waiting; try again"),
-        trajectory: PredictedTrajectory::default(),
-    }
+/// The refusal of a request when [`REQUEST_QUEUE`] requests already wait for the estimator.
+fn busy_reply(service: Service) -> Reply {
+    Reply::refusal(
+        service,
+        format!("busy: {REQUEST_QUEUE} requests are waiting; try again"),
+    )
 }
 
 /// What the estimator thread owns.
@@ -466,8 +473,8 @@ impl EstimatorThread {
     fn run(
         mut self,
         detections: &Receiver<Queued>,
-        requests: &Receiver<Request>,
-        replies: &mpsc::UnboundedSender<Reply>,
+        requests: &Receiver<PendingRequest>,
+        replies: &mpsc::UnboundedSender<PendingReply>,
     ) -> EstimatorResult {
         let ticker = channel::tick(self.period);
         let mut window = Window::with_capacity(self.capacity.max(1024));
@@ -491,9 +498,10 @@ impl EstimatorThread {
                 }
                 recv(if requests_open { requests } else { &never }) -> request => match request {
                     Ok((id, request)) => {
-                        let response = self.pipeline.predict_trajectory(&request);
-                        debug!("predict_trajectory: track {} -> {} samples", request.track_id, response.trajectory.stamps.len());
-                        let _ = replies.unbounded_send((id, response));
+                        let reply = request.answer(&self.pipeline);
+                        let (success, message) = reply.outcome();
+                        debug!("{}: success {success} {message}", request.service().name());
+                        let _ = replies.unbounded_send((id, reply));
                     }
                     Err(_) => requests_open = false,
                 },

@@ -6,11 +6,13 @@ did not write: it proves the node interoperates over DDS, and lets you try the n
     python dds_peer.py publish bags/sim_rally_2cams.mcap --out results.json
     python dds_peer.py listen --count 100           # e.g. against `ttball play BAG`
     python dds_peer.py call-predict --horizon 0.5   # needs `-p node.service_mapping:=cyclone`
+    python dds_peer.py call-plan --target 0.9 0.3   # likewise
+    python dds_peer.py call-rebound --racket 1.6 0 0.15 1 0 0
 
 `publish` plays a bag's detections to /ball/detections at their recorded times and records the
 node's /ball/state and /ball/intercept (with latency); `listen` records detections published by
-someone else; `call-predict` calls the node's PredictTrajectory service. `python dds_peer.py
-COMMAND --help` has the details.
+someone else; `call-predict`, `call-rebound` and `call-plan` call the node's PredictTrajectory,
+PredictRebound and PlanReturn services. `python dds_peer.py COMMAND --help` has the details.
 
 The ROS 2 messages are declared below as plain (final) Cyclone IDL structs under their ROS 2 DDS
 type names, so Cyclone speaks plain CDR (encapsulation 00 01 00 00) like ROS 2 and RustDDS. DDS
@@ -151,6 +153,70 @@ class PredictTrajectory_Response_(IdlStruct, typename="ttball_msgs::srv::dds_::P
     success: bool
     message: str
     trajectory: PredictedTrajectory_
+
+
+@dataclass
+class PredictRebound_Request_(IdlStruct, typename="ttball_msgs::srv::dds_::PredictRebound_Request_"):
+    client_guid: t.uint64
+    sequence_number: t.int64
+    ball_position: Point_
+    ball_velocity: Vector3_
+    ball_spin: Vector3_
+    racket_velocity: Vector3_
+    racket_normal: Vector3_
+    impact_offset: t.float64
+
+
+@dataclass
+class PredictRebound_Response_(IdlStruct, typename="ttball_msgs::srv::dds_::PredictRebound_Response_"):
+    client_guid: t.uint64
+    sequence_number: t.int64
+    success: bool
+    message: str
+    ball_velocity: Vector3_
+    ball_spin: Vector3_
+    rebound_power_coefficient: t.float64
+    contact_time: t.float64
+    mean_force: t.float64
+    peak_force: t.float64
+    reduced_mass: t.float64
+    wrist_force: t.float64
+    lands_on_table: bool
+    landing_position: Point_
+
+
+@dataclass
+class PlanReturn_Request_(IdlStruct, typename="ttball_msgs::srv::dds_::PlanReturn_Request_"):
+    client_guid: t.uint64
+    sequence_number: t.int64
+    track_id: t.uint32
+    ball: BallState_
+    target: Point_
+    flight_time: t.float64
+    net_clearance: t.float64
+    impact_offset: t.float64
+    brush_speed: t.float64
+
+
+@dataclass
+class PlanReturn_Response_(IdlStruct, typename="ttball_msgs::srv::dds_::PlanReturn_Response_"):
+    client_guid: t.uint64
+    sequence_number: t.int64
+    success: bool
+    message: str
+    impact_stamp: Time_
+    impact_position: Point_
+    racket_velocity: Vector3_
+    racket_normal: Vector3_
+    ball_velocity: Vector3_
+    ball_spin: Vector3_
+    landing_position: Point_
+    flight_time: t.float64
+    net_clearance: t.float64
+    landing_error: t.float64
+    contact_time: t.float64
+    peak_force: t.float64
+    wrist_force: t.float64
 
 
 # ---- DDS plumbing ------------------------------------------------------------------------------
@@ -329,11 +395,13 @@ def cmd_listen(args):
     return 0
 
 
-def cmd_call_predict(args):
+def call(args, request_type, reply_type, **fields):
+    """Calls the service args.service once with request_type(**fields) (rmw_cyclonedds mapping)
+    and returns (exit code, reply): 3 when the service did not match, 4 when no reply came."""
     dp = participant()
     service = args.service.strip("/")
-    request_writer = writer(dp, ros_topic("rq", service, "Request"), PredictTrajectory_Request_, True, 10)
-    replies = Recorder(dp, ros_topic("rr", service, "Reply"), PredictTrajectory_Response_, True, 10)
+    request_writer = writer(dp, ros_topic("rq", service, "Request"), request_type, True, 10)
+    replies = Recorder(dp, ros_topic("rr", service, "Reply"), reply_type, True, 10)
 
     # Both directions must be matched before the (volatile) request is sent.
     deadline = time.monotonic() + args.timeout
@@ -341,18 +409,10 @@ def cmd_call_predict(args):
                       and replies.reader.get_matched_publications(), deadline):
         print(f"dds_peer: service {args.service} not matched within {args.timeout} s (is `ttball node` "
               "running with -p node.service_mapping:=cyclone?)", file=sys.stderr)
-        return 3
+        return 3, None
 
-    x, y, z, vx, vy, vz, wx, wy, wz = args.initial
-    now = time.time_ns()
-    initial = BallState_(
-        header=Header_(stamp=Time_(sec=now // 1_000_000_000, nanosec=now % 1_000_000_000), frame_id="table"),
-        track_id=0, status=2, position=Point_(x=x, y=y, z=z), velocity=Vector3_(x=vx, y=vy, z=vz),
-        spin=Vector3_(x=wx, y=wy, z=wz), covariance=[0.0] * 81, bounces=0, nis=0.0)
     guid, seq = random.getrandbits(64), 1
-    request_writer.write(PredictTrajectory_Request_(
-        client_guid=guid, sequence_number=seq, track_id=args.track_id, initial=initial,
-        horizon=args.horizon, dt=args.dt))
+    request_writer.write(request_type(client_guid=guid, sequence_number=seq, **fields))
 
     def ours():
         return next((r for r in replies.samples if (r.client_guid, r.sequence_number) == (guid, seq)), None)
@@ -362,13 +422,66 @@ def cmd_call_predict(args):
     reply = ours()
     if reply is None:
         print(f"dds_peer: no reply from {args.service} within {args.timeout} s", file=sys.stderr)
-        return 4
-    points = len(reply.trajectory.stamps)
+        return 4, None
+    return 0, reply
+
+
+def report(args, reply, **extra):
+    """Writes the reply as JSON {success, message, cdr, **extra} and says what it was."""
     write_json(args.out, {"success": reply.success, "message": reply.message,
-                          "cdr": reply.serialize().hex(), "points": points})
-    print(f"dds_peer: {args.service}: success={reply.success} points={points}"
+                          "cdr": reply.serialize().hex(), **extra})
+    print(f"dds_peer: {args.service}: success={reply.success}"
+          + "".join(f" {key}={value}" for key, value in extra.items())
           + (f" message={reply.message!r}" if reply.message else ""), file=sys.stderr)
     return 0
+
+
+def ball_state(values):
+    """A BallState_ stamped now, in the table frame, from (x, y, z, vx, vy, vz, wx, wy, wz)."""
+    x, y, z, vx, vy, vz, wx, wy, wz = values
+    now = time.time_ns()
+    return BallState_(
+        header=Header_(stamp=Time_(sec=now // 1_000_000_000, nanosec=now % 1_000_000_000), frame_id="table"),
+        track_id=0, status=2, position=Point_(x=x, y=y, z=z), velocity=Vector3_(x=vx, y=vy, z=vz),
+        spin=Vector3_(x=wx, y=wy, z=wz), covariance=[0.0] * 81, bounces=0, nis=0.0)
+
+
+def cmd_call_predict(args):
+    code, reply = call(args, PredictTrajectory_Request_, PredictTrajectory_Response_, track_id=args.track_id,
+                       initial=ball_state(args.initial), horizon=args.horizon, dt=args.dt)
+    return code if reply is None else report(args, reply, points=len(reply.trajectory.stamps))
+
+
+def cmd_call_rebound(args):
+    x, y, z, vx, vy, vz, wx, wy, wz = args.ball
+    rvx, rvy, rvz, nx, ny, nz = args.racket
+    code, reply = call(args, PredictRebound_Request_, PredictRebound_Response_,
+                       ball_position=Point_(x=x, y=y, z=z), ball_velocity=Vector3_(x=vx, y=vy, z=vz),
+                       ball_spin=Vector3_(x=wx, y=wy, z=wz), racket_velocity=Vector3_(x=rvx, y=rvy, z=rvz),
+                       racket_normal=Vector3_(x=nx, y=ny, z=nz), impact_offset=args.impact_offset)
+    return code if reply is None else report(args, reply, lands_on_table=reply.lands_on_table)
+
+
+def cmd_call_plan(args):
+    tx, ty = args.target
+    code, reply = call(args, PlanReturn_Request_, PlanReturn_Response_, track_id=args.track_id,
+                       ball=ball_state(args.ball), target=Point_(x=tx, y=ty, z=0.0),
+                       flight_time=args.flight_time, net_clearance=args.net_clearance,
+                       impact_offset=args.impact_offset, brush_speed=args.brush_speed)
+    return code if reply is None else report(args, reply, landing_error=reply.landing_error)
+
+
+STATE = ("X", "Y", "Z", "VX", "VY", "VZ", "WX", "WY", "WZ")
+# A ball at the robot's hitting plane after its bounce, flying toward the robot.
+INCOMING = [-1.6, 0.1, 0.25, -5.0, 0.4, -1.0, 20.0, -150.0, 30.0]
+
+
+def call_options(p, run):
+    """The options every call-* command shares."""
+    p.add_argument("--timeout", type=float, default=10.0, metavar="SECONDS",
+                   help="for matching and for the reply, each (default %(default)s)")
+    p.add_argument("--out", metavar="FILE.json", help="write the reply here")
+    p.set_defaults(run=run)
 
 
 def main(argv=None):
@@ -413,14 +526,45 @@ def main(argv=None):
     p.add_argument("--track-id", type=int, default=0, help="track to predict from; 0 = --initial (default 0)")
     p.add_argument("--horizon", type=float, default=0.5, metavar="SECONDS", help="default %(default)s")
     p.add_argument("--dt", type=float, default=0.01, metavar="SECONDS", help="default %(default)s")
-    p.add_argument("--initial", type=float, nargs=9, metavar=("X", "Y", "Z", "VX", "VY", "VZ", "WX", "WY", "WZ"),
+    p.add_argument("--initial", type=float, nargs=9, metavar=STATE,
                    default=[1.0178, -0.0184, 0.4448, -5.4122, -0.1333, 1.5129, 7.051, -40.643, -3.915],
                    help="initial state in the table frame [m, m/s, rad/s] (default: the rally ball of "
                         "`ttball predict`)")
-    p.add_argument("--timeout", type=float, default=10.0, metavar="SECONDS",
-                   help="for matching and for the reply, each (default %(default)s)")
-    p.add_argument("--out", metavar="FILE.json", help="write the reply here")
-    p.set_defaults(run=cmd_call_predict)
+    call_options(p, cmd_call_predict)
+
+    p = sub.add_parser("call-rebound", help="call the node's PredictRebound service",
+                       description="Call ttball_msgs/srv/PredictRebound over DDS (rmw_cyclonedds mapping, as "
+                                   "call-predict): the ball's rebound off the racket and where it lands. Writes "
+                                   "JSON {success, message, cdr, lands_on_table}; exit codes as call-predict.")
+    p.add_argument("--service", default="/ttball/predict_rebound", help="default %(default)s")
+    p.add_argument("--ball", type=float, nargs=9, metavar=STATE, default=INCOMING,
+                   help="ball just before impact, table frame [m, m/s, rad/s] (default %(default)s)")
+    p.add_argument("--racket", type=float, nargs=6, metavar=("VX", "VY", "VZ", "NX", "NY", "NZ"), required=True,
+                   help="velocity of the racket's impact point [m/s] and unit normal of its face, toward the ball")
+    p.add_argument("--impact-offset", type=float, default=0.0, metavar="METRES",
+                   help="impact point from the racket's centre of gravity along its long axis (default 0)")
+    call_options(p, cmd_call_rebound)
+
+    p = sub.add_parser("call-plan", help="call the node's PlanReturn service",
+                       description="Call ttball_msgs/srv/PlanReturn over DDS (rmw_cyclonedds mapping, as "
+                                   "call-predict): the racket command that returns the ball to --target. Writes "
+                                   "JSON {success, message, cdr, landing_error}; exit codes as call-predict.")
+    p.add_argument("--service", default="/ttball/plan_return", help="default %(default)s")
+    p.add_argument("--track-id", type=int, default=0,
+                   help="plan against this track's interception; 0 = --ball (default 0)")
+    p.add_argument("--ball", type=float, nargs=9, metavar=STATE, default=INCOMING,
+                   help="ball just before impact, table frame [m, m/s, rad/s] (default %(default)s)")
+    p.add_argument("--target", type=float, nargs=2, metavar=("X", "Y"), default=[0.9, 0.0],
+                   help="landing point on the opponent's half [m] (default %(default)s)")
+    p.add_argument("--flight-time", type=float, default=0.0, metavar="SECONDS",
+                   help="time from impact to landing; 0 = use --net-clearance (default 0)")
+    p.add_argument("--net-clearance", type=float, default=0.0, metavar="METRES",
+                   help="ball bottom over the net top; 0 = the node's stroke.net_clearance (default 0)")
+    p.add_argument("--impact-offset", type=float, default=0.0, metavar="METRES",
+                   help="impact point from the racket's centre of gravity along its long axis (default 0)")
+    p.add_argument("--brush-speed", type=float, default=0.0, metavar="M/S",
+                   help="racket speed along the face, upward (> 0 topspin) (default 0)")
+    call_options(p, cmd_call_plan)
 
     args = parser.parse_args(argv)
     return args.run(args)

@@ -6,6 +6,7 @@
 use serde::{Deserialize, Serialize};
 
 use super::msg::{BallState, PredictedTrajectory};
+use crate::msgs::builtin_interfaces::Time;
 use crate::msgs::geometry_msgs::{Point, Vector3};
 
 /// Request of `ttball_msgs/srv/PredictTrajectory`: predict the flight of a tracked ball, or of a
@@ -78,4 +79,63 @@ pub struct PredictReboundResponse {
     pub lands_on_table: bool,
     /// Ball centre at that landing [m]; valid only when `lands_on_table`.
     pub landing_position: Point,
+}
+
+/// Request of `ttball_msgs/srv/PlanReturn`: plan the racket command that returns the ball to a
+/// target on the opponent's half. The racket moves along its face normal, plus an optional
+/// brushing speed along the face.
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+pub struct PlanReturnRequest {
+    /// Plan against this track's predicted interception (as on `/ball/intercept`); 0 = use
+    /// `ball`.
+    pub track_id: u32,
+    /// Ball state just before impact, used only when `track_id` is 0.
+    pub ball: BallState,
+    /// Landing point of the ball centre on the opponent's half [m]; z is ignored.
+    pub target: Point,
+    /// Time from impact to landing [s]; 0 = not constrained (`net_clearance` is used).
+    pub flight_time: f64,
+    /// Height of the ball's bottom over the net top at the net [m], used when `flight_time` is 0;
+    /// 0 = the configured `stroke.net_clearance`.
+    pub net_clearance: f64,
+    /// Impact point from the racket's centre of gravity along its long axis, toward the tip [m].
+    pub impact_offset: f64,
+    /// Racket speed along the face, upward in its plane (> 0 topspin, < 0 backspin) [m/s]; 0 =
+    /// along the normal only.
+    pub brush_speed: f64,
+}
+
+/// Response of `ttball_msgs/srv/PlanReturn`.
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+pub struct PlanReturnResponse {
+    /// True when the other fields hold a command.
+    pub success: bool,
+    /// Why not (unreachable target, bad request), when `success` is false; empty otherwise.
+    pub message: String,
+    /// When racket and ball meet (the interception's stamp, or `ball.header.stamp`) [s, ns].
+    pub impact_stamp: Time,
+    /// Ball centre at impact [m].
+    pub impact_position: Point,
+    /// Velocity of the racket's impact point at impact [m/s].
+    pub racket_velocity: Vector3,
+    /// Unit normal of the hitting face, pointing toward the ball (dimensionless).
+    pub racket_normal: Vector3,
+    /// Ball velocity just after impact [m/s].
+    pub ball_velocity: Vector3,
+    /// Ball angular velocity just after impact [rad/s].
+    pub ball_spin: Vector3,
+    /// Ball centre at the predicted landing on the opponent's half [m].
+    pub landing_position: Point,
+    /// Time from impact to that landing [s].
+    pub flight_time: f64,
+    /// Height of the ball's bottom over the net top at the net [m].
+    pub net_clearance: f64,
+    /// Distance from the predicted landing to the target [m].
+    pub landing_error: f64,
+    /// Ball-racket contact time [s].
+    pub contact_time: f64,
+    /// Peak normal contact force (half-sine pulse) [N].
+    pub peak_force: f64,
+    /// Peak force transmitted to the grip / robot wrist [N].
+    pub wrist_force: f64,
 }
