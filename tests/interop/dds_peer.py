@@ -411,14 +411,24 @@ def call(args, request_type, reply_type, **fields):
               "running with -p node.service_mapping:=cyclone?)", file=sys.stderr)
         return 3, None
 
-    guid, seq = random.getrandbits(64), 1
-    request_writer.write(request_type(client_guid=guid, sequence_number=seq, **fields))
+    # Discovery is asymmetric: the node's reply writer may match our reply reader a little after
+    # we see it, and a reply written before that is lost (volatile). Give it a moment, and should
+    # a reply still be lost, ask again (a new sequence number; either answer will do).
+    time.sleep(0.5)
+    guid, attempts = random.getrandbits(64), 3
+    sent = []
 
     def ours():
-        return next((r for r in replies.samples if (r.client_guid, r.sequence_number) == (guid, seq)), None)
+        return next((r for r in replies.samples if (r.client_guid, r.sequence_number) in sent), None)
 
-    with replies.arrived:
-        replies.arrived.wait_for(ours, args.timeout)
+    for seq in range(1, attempts + 1):
+        sent.append((guid, seq))
+        request_writer.write(request_type(client_guid=guid, sequence_number=seq, **fields))
+        with replies.arrived:
+            replies.arrived.wait_for(ours, args.timeout / attempts)
+        if ours() is not None:
+            break
+        print(f"dds_peer: no reply from {args.service} to request {seq} yet", file=sys.stderr)
     reply = ours()
     if reply is None:
         print(f"dds_peer: no reply from {args.service} within {args.timeout} s", file=sys.stderr)
