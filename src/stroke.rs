@@ -14,7 +14,7 @@
 //!   net as transparent so that every candidate has a landing point; the solution is then flown
 //!   again through the real table and net.
 
-use nalgebra::{Matrix3, Vector2, Vector3};
+use nalgebra::{Matrix3, SMatrix, Vector2, Vector3};
 use thiserror::Error;
 
 use crate::config::Config;
@@ -22,7 +22,7 @@ use crate::physics::propagate::{
     Cursor, Event, EventKind, Flow, Observer, Outcome, Propagator, Watch,
 };
 use crate::physics::racket::{Hit, ImpactError, RacketModel, RacketState};
-use crate::physics::state::BallState;
+use crate::physics::state::{BallState, SPIN, StateMatrix, StateVector};
 
 /// Landing distance to the target at which the plan is converged [m].
 pub const LANDING_TOLERANCE: f64 = 1e-6;
@@ -485,6 +485,53 @@ impl Stroke {
         Ok((approach + ball.velocity.dot(&normal), normal))
     }
 
+    /// The flight after `racket` hits `ball` over the unbounded table with a transparent net, to
+    /// its first bounce; `None` when the hit is impossible.
+    fn unbounded_flight(&self, ball: &BallState, racket: &RacketState) -> Option<FirstBounce> {
+        let hit = self.racket.hit(ball, racket).ok()?;
+        let mut cursor = Cursor::new(0.0, &hit.ball);
+        let mut observer = FirstBounce::default();
+        let watch = Watch {
+            net: false,
+            floor: false,
+            plane_x: Some(0.0),
+        };
+        self.solver_propagator
+            .advance(&mut cursor, self.horizon, watch, &mut observer);
+        Some(observer)
+    }
+
+    /// First-order covariance of the landing of the return, over (x [m], y [m], flight time
+    /// [s]), from the covariance `covariance` of the ball state just before `racket` hits it:
+    /// J P J^T with J = d(landing)/d(ball state) by central differences through the hit and the
+    /// return flight (over the unbounded table, as the planner). `None` when a neighbouring ball
+    /// state cannot be hit or does not land within the horizon.
+    pub fn landing_covariance(
+        &self,
+        ball: &BallState,
+        covariance: &StateMatrix,
+        racket: &RacketState,
+    ) -> Option<Matrix3<f64>> {
+        let landing = |x: &StateVector| {
+            let event = self
+                .unbounded_flight(&BallState::from_vector(x), racket)?
+                .landing?;
+            Some(Vector3::new(event.before[0], event.before[1], event.t))
+        };
+        let x0 = ball.to_vector();
+        let mut jacobian = SMatrix::<f64, 3, 9>::zeros();
+        for k in 0..9 {
+            // 1 um, 1 um/s, 1 mrad/s: the hit and flight are smooth far beyond these.
+            let h = if k < SPIN { 1e-6 } else { 1e-3 };
+            let mut plus = x0;
+            plus[k] += h;
+            let mut minus = x0;
+            minus[k] -= h;
+            jacobian.set_column(k, &((landing(&plus)? - landing(&minus)?) / (2.0 * h)));
+        }
+        Some(jacobian * covariance * jacobian.transpose())
+    }
+
     /// The command whose hit sends the ball off at `outgoing`, by Levenberg-Marquardt from
     /// `start` on the rebound alone; `None` when it does not converge.
     fn match_outgoing(
@@ -518,16 +565,7 @@ impl Stroke {
     /// (landing x - target x, landing y - target y, condition error) of a command, through the
     /// unbounded table and transparent net; `None` when the command does not make a return.
     fn residual(&self, ball: &BallState, command: &Command, aim: &Aim) -> Option<Vector3<f64>> {
-        let hit = self.racket.hit(ball, &command.racket()).ok()?;
-        let mut cursor = Cursor::new(0.0, &hit.ball);
-        let mut observer = FirstBounce::default();
-        let watch = Watch {
-            net: false,
-            floor: false,
-            plane_x: Some(0.0),
-        };
-        self.solver_propagator
-            .advance(&mut cursor, self.horizon, watch, &mut observer);
+        let observer = self.unbounded_flight(ball, &command.racket())?;
         let landing = observer.landing?;
         let condition = match aim.condition {
             // A ball that lands before the net plane counts the shortfall as missing height,

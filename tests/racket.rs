@@ -588,3 +588,52 @@ mod properties {
         );
     }
 }
+
+/// The landing covariance of a planned return, to first order, matches a Monte Carlo over the
+/// ball state's uncertainty at impact (2000 samples; standard deviations within 10 %).
+#[test]
+fn landing_covariance_matches_monte_carlo() {
+    use ttball::physics::state::StateMatrix;
+    let stroke = Stroke::new(&Config::default());
+    let ball = incoming();
+    let plan = stroke
+        .plan(&ball, &aim((0.9, 0.2), ReturnCondition::NetClearance(0.2)))
+        .expect("plan");
+    let sigmas = [0.002, 0.002, 0.002, 0.05, 0.05, 0.05, 20.0, 20.0, 20.0];
+    let covariance = StateMatrix::from_diagonal(&sigmas.map(|s| s * s).into());
+    let linear = stroke
+        .landing_covariance(&ball, &covariance, &plan.racket)
+        .expect("covariance");
+    let mut state = 0x9e37_79b9_7f4a_7c15u64;
+    let mut uniform = || {
+        state ^= state << 13;
+        state ^= state >> 7;
+        state ^= state << 17;
+        ((state >> 11) as f64 + 0.5) / (1u64 << 53) as f64
+    };
+    let mut samples = Vec::new();
+    while samples.len() < 2000 {
+        let mut x = ball.to_vector();
+        for (k, s) in sigmas.iter().enumerate() {
+            let (u1, u2) = (uniform(), uniform());
+            x[k] += s * (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos();
+        }
+        let rebound = stroke
+            .rebound(&BallState::from_vector(&x), &plan.racket)
+            .expect("rebound");
+        if let Some((t, landing)) = rebound.flight.landing {
+            samples.push([landing.position.x, landing.position.y, t]);
+        }
+    }
+    for k in 0..3 {
+        let mean = samples.iter().map(|s| s[k]).sum::<f64>() / samples.len() as f64;
+        let var = samples.iter().map(|s| (s[k] - mean).powi(2)).sum::<f64>()
+            / (samples.len() - 1) as f64;
+        let (sampled, predicted) = (var.sqrt(), linear[(k, k)].sqrt());
+        eprintln!("landing component {k}: Monte Carlo sigma {sampled:.5}, linear {predicted:.5}");
+        assert!(
+            (sampled / predicted - 1.0).abs() < 0.1,
+            "component {k}: Monte Carlo {sampled}, linear {predicted}"
+        );
+    }
+}
