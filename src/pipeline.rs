@@ -21,7 +21,7 @@ use crate::msgs::ttball_msgs::srv::{
     PredictTrajectoryRequest, PredictTrajectoryResponse,
 };
 use crate::msgs::visualization_msgs::MarkerArray;
-use crate::physics;
+use crate::physics::{self, StateMatrix};
 use crate::stroke::{Aim, ReturnCondition, Stroke};
 
 /// The messages to publish after one detection.
@@ -247,9 +247,13 @@ impl Pipeline {
         &self,
         request: &PlanReturnRequest,
     ) -> Result<PlanReturnResponse, String> {
-        let (impact_stamp, ball) = if request.track_id == 0 {
+        let (impact_stamp, ball, covariance) = if request.track_id == 0 {
             let (_, _, ball) = state_from_msg(&request.ball);
-            (request.ball.header.stamp, ball)
+            let covariance = StateMatrix::from_row_slice(&request.ball.covariance);
+            if covariance.iter().any(|v| !v.is_finite()) {
+                return Err("the ball's covariance has a non-finite value".to_owned());
+            }
+            (request.ball.header.stamp, ball, covariance)
         } else {
             self.interception(request.track_id)?
         };
@@ -267,19 +271,32 @@ impl Pipeline {
             brush_speed: request.brush_speed,
         };
         let plan = self.stroke.plan(&ball, &aim).map_err(|e| e.to_string())?;
-        Ok(plan_response(impact_stamp, &plan))
+        let landing_covariance = if covariance.iter().all(|v| *v == 0.0) {
+            None
+        } else {
+            self.stroke
+                .landing_covariance(&ball, &covariance, &plan.racket)
+        };
+        Ok(plan_response(impact_stamp, &plan, &landing_covariance))
     }
 
-    /// The stamp and ball state of the live track's predicted interception, when `track_id` is
+    /// The stamp, ball state and covariance of the live track's predicted interception, when `track_id` is
     /// the live track and its interception is valid.
-    fn interception(&self, track_id: u32) -> Result<(Time, physics::BallState), String> {
+    fn interception(
+        &self,
+        track_id: u32,
+    ) -> Result<(Time, physics::BallState, StateMatrix), String> {
         self.live_track(track_id, "a ball state")?;
         let intercept = self
             .last_intercept
             .filter(|i| i.track_id == track_id)
             .ok_or_else(|| format!("track {track_id} has no interception prediction yet"))?;
         match intercept.intercept.crossing {
-            Ok(crossing) => Ok((offset(intercept.stamp, crossing.time), crossing.state)),
+            Ok(crossing) => Ok((
+                offset(intercept.stamp, crossing.time),
+                crossing.state,
+                crossing.covariance,
+            )),
             Err(why) => Err(format!(
                 "track {track_id} has no valid interception: {} (use track_id 0 with a ball state)",
                 why.describe()
@@ -631,7 +648,15 @@ mod tests {
         given.ball.position = intercept.position;
         given.ball.velocity = intercept.velocity;
         given.ball.spin = intercept.spin;
+        given.ball.covariance = intercept.covariance;
         assert_eq!(pipeline.plan_return(&given), plan);
+        // The interception's uncertainty carried to the landing: a positive variance of x, y
+        // and the flight time, a symmetric matrix; none without a covariance.
+        let c = plan.landing_covariance;
+        assert!(c[0] > 0.0 && c[4] > 0.0 && c[8] > 0.0, "{c:?}");
+        assert_eq!((c[1], c[2], c[5]), (c[3], c[6], c[7]));
+        given.ball.covariance = [0.0; 81];
+        assert_eq!(pipeline.plan_return(&given).landing_covariance, [0.0; 9]);
         let rebound = pipeline.predict_rebound(&rebound_request(&given.ball, &plan, 0.0));
         assert!(rebound.lands_on_table);
         assert!(distance(&rebound.landing_position, &request.target) < 1e-3);

@@ -529,7 +529,8 @@ impl Stroke {
             minus[k] -= h;
             jacobian.set_column(k, &((landing(&plus)? - landing(&minus)?) / (2.0 * h)));
         }
-        Some(jacobian * covariance * jacobian.transpose())
+        let landing = jacobian * covariance * jacobian.transpose();
+        Some((landing + landing.transpose()) * 0.5)
     }
 
     /// The command whose hit sends the ball off at `outgoing`, by Levenberg-Marquardt from

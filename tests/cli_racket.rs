@@ -71,6 +71,26 @@ fn the_aimed_command_lands_on_the_target_through_rebound() {
     assert_eq!(rebound["rebound"]["lands_on_table"], true);
     let clearance = rebound["rebound"]["net"]["clearance"].as_f64().unwrap();
     assert!((clearance - 0.2).abs() < 1e-3, "{clearance}");
+    // With the ball's uncertainty, the landing's: positive variances of x, y and time.
+    let uncertain = json(&[
+        "aim",
+        "--target",
+        "1.0,-0.4",
+        "--sigma",
+        "0.002,0.05,20",
+        "--json",
+    ]);
+    let c: Vec<f64> = uncertain["landing_covariance"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v.as_f64().unwrap())
+        .collect();
+    assert!(
+        c.len() == 9 && c[0] > 0.0 && c[4] > 0.0 && c[8] > 0.0,
+        "{c:?}"
+    );
+    assert_eq!(plan["landing_covariance"], serde_json::Value::Null);
 }
 
 #[test]

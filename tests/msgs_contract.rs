@@ -1167,6 +1167,7 @@ fn every_mirror_round_trips_through_cdr() {
         flight_time: 0.41,
         net_clearance: 0.15,
         landing_error: 2e-7,
+        landing_covariance: [4e-4, 1e-5, 2e-5, 1e-5, 9e-4, 0.0, 2e-5, 0.0, 1e-4],
         contact_time: 0.0011,
         peak_force: 52.0,
         wrist_force: 6.5,

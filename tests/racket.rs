@@ -627,8 +627,8 @@ fn landing_covariance_matches_monte_carlo() {
     }
     for k in 0..3 {
         let mean = samples.iter().map(|s| s[k]).sum::<f64>() / samples.len() as f64;
-        let var = samples.iter().map(|s| (s[k] - mean).powi(2)).sum::<f64>()
-            / (samples.len() - 1) as f64;
+        let var =
+            samples.iter().map(|s| (s[k] - mean).powi(2)).sum::<f64>() / (samples.len() - 1) as f64;
         let (sampled, predicted) = (var.sqrt(), linear[(k, k)].sqrt());
         eprintln!("landing component {k}: Monte Carlo sigma {sampled:.5}, linear {predicted:.5}");
         assert!(

@@ -126,7 +126,8 @@ pub enum Command {
     #[command(after_help = "Examples:\n  \
         ttball aim --target 0.9,0.3                          # default clearance (stroke.net_clearance)\n  \
         ttball aim --target 1.1,-0.5 --net-clearance 0.3 --brush 2\n  \
-        ttball aim --target 0.6,0 --flight-time 0.5 --json")]
+        ttball aim --target 0.6,0 --flight-time 0.5 --json\n  \
+        ttball aim --sigma 0.002,0.05,20       # and the landing's uncertainty")]
     Aim(racket::AimArgs),
 
     /// Import recorded ball flights from other formats as a bag of detections.

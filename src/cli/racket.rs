@@ -11,7 +11,7 @@ use anyhow::Context;
 use clap::Args;
 use nalgebra::{Vector2, Vector3};
 use ttball::config::Config;
-use ttball::physics::{BallState, BounceRegime, RacketState};
+use ttball::physics::{BallState, BounceRegime, RacketState, StateMatrix, StateVector};
 use ttball::stroke::{Aim, Plan, Rebound, ReturnCondition, Stroke};
 
 use super::predict::parse_vector;
@@ -118,6 +118,12 @@ pub struct AimArgs {
     )]
     pub brush: f64,
 
+    /// Uncertainty of the ball at impact, per-axis standard deviations of its position [m],
+    /// velocity [m/s] and spin [rad/s] (e.g. the interception's): also prints the landing's
+    /// uncertainty, carried through the hit and the flight.
+    #[arg(long, value_name = "P,V,W", value_parser = parse_vector)]
+    pub sigma: Option<Vector3<f64>>,
+
     /// Ball, impact point, output, configuration.
     #[command(flatten)]
     pub common: StrokeArgs,
@@ -198,12 +204,17 @@ impl AimArgs {
         let plan = stroke
             .plan(&ball, &aim)
             .map_err(|e| BadUsage(e.to_string()))?;
+        let landing_covariance = self.sigma.and_then(|sigma| {
+            let variances = StateVector::from_fn(|k, _| sigma[k / 3].powi(2));
+            stroke.landing_covariance(&ball, &StateMatrix::from_diagonal(&variances), &plan.racket)
+        });
         if self.common.json {
             let value = serde_json::json!({
                 "racket": racket_json(&plan.racket),
                 "racket_speed": plan.racket.velocity.norm(),
                 "landing_error": plan.landing_error,
                 "iterations": plan.iterations,
+                "landing_covariance": landing_covariance.map(|c| c.transpose().as_slice().to_vec()),
                 "rebound": rebound_json(&plan.rebound),
             });
             write_stdout(&format!("{}\n", serde_json::to_string_pretty(&value)?))?;
@@ -221,6 +232,15 @@ impl AimArgs {
                 plan.iterations
             );
             describe_plan(&mut out, &plan);
+            if let Some(c) = landing_covariance {
+                let _ = writeln!(
+                    out,
+                    "  landing uncertainty     sigma x {:.3} m, y {:.3} m, flight time {:.1} ms",
+                    c[(0, 0)].sqrt(),
+                    c[(1, 1)].sqrt(),
+                    c[(2, 2)].sqrt() * 1e3
+                );
+            }
             describe_rebound(&mut out, &config, &ball, &plan.racket, &plan.rebound);
             write_stdout(&out)?;
         }

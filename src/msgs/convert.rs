@@ -289,8 +289,13 @@ pub fn rebound_response(rebound: &Rebound) -> PredictReboundResponse {
 
 /// A racket command as a `PlanReturn` response (`success` true), the impact at `impact_stamp`.
 /// Landing, flight time and net clearance are those of the command's return through the real
-/// table and net (zero when it has none).
-pub fn plan_response(impact_stamp: Time, plan: &Plan) -> PlanReturnResponse {
+/// table and net (zero when it has none); `landing_covariance` over (x, y, flight time), zero when
+/// `None`.
+pub fn plan_response(
+    impact_stamp: Time,
+    plan: &Plan,
+    landing_covariance: &Option<Matrix3<f64>>,
+) -> PlanReturnResponse {
     let hit = &plan.rebound.hit;
     let flight = &plan.rebound.flight;
     let (flight_time, landing) = flight
@@ -310,6 +315,7 @@ pub fn plan_response(impact_stamp: Time, plan: &Plan) -> PlanReturnResponse {
         flight_time,
         net_clearance: flight.net.map_or(0.0, |(_, clearance)| clearance),
         landing_error: plan.landing_error,
+        landing_covariance: row_major3(landing_covariance),
         contact_time: hit.normal.contact.contact_time,
         peak_force: hit.normal.contact.peak_force,
         wrist_force: hit.wrist.peak_force,

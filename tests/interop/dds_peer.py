@@ -214,6 +214,7 @@ class PlanReturn_Response_(IdlStruct, typename="ttball_msgs::srv::dds_::PlanRetu
     flight_time: t.float64
     net_clearance: t.float64
     landing_error: t.float64
+    landing_covariance: t.array[t.float64, 9]
     contact_time: t.float64
     peak_force: t.float64
     wrist_force: t.float64

@@ -132,6 +132,10 @@ pub struct PlanReturnResponse {
     pub net_clearance: f64,
     /// Distance from the predicted landing to the target [m].
     pub landing_error: f64,
+    /// Row-major 3x3 over (landing x [m], landing y [m], flight time [s]): the interception's
+    /// (or the given ball's) covariance through the hit and the flight, first order; zero when
+    /// that covariance is zero.
+    pub landing_covariance: [f64; 9],
     /// Ball-racket contact time [s].
     pub contact_time: f64,
     /// Peak normal contact force (half-sine pulse) [N].
