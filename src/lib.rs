@@ -4,6 +4,8 @@
 //! - [`physics`]: flight (spin-parameter aerodynamic model), table bounce, event-aware propagation.
 //! - [`estimator`]: the one entry point, `Estimator::handle(detection)`: tracking, out-of-order
 //!   fusion, gating, initialisation, interception after every update.
+//! - [`batch`]: the batch (maximum a posteriori, robust) fit of one whole flight: the offline
+//!   smoother and the base of calibration.
 //! - [`eval`]: accuracy of the estimator on a simulated session against its truth.
 //! - [`ekf`]: the extended Kalman filter over (position, velocity, spin).
 //! - [`intercept`]: the predicted crossing of the robot's hitting plane, with its covariance.
@@ -27,6 +29,7 @@
 
 #[cfg(feature = "bag")]
 pub mod bag;
+pub mod batch;
 pub mod config;
 pub mod detection;
 pub mod ekf;

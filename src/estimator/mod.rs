@@ -236,7 +236,7 @@ pub(crate) struct Settings {
 }
 
 impl Settings {
-    fn new(config: &Config) -> Self {
+    pub(crate) fn new(config: &Config) -> Self {
         let p = config.gating.probability;
         Self {
             noise: ProcessNoise {
@@ -276,9 +276,59 @@ impl Settings {
     clippy::large_enum_variant,
     reason = "kept inline: no heap allocation per detection"
 )]
-enum Measurement {
+pub(crate) enum Measurement {
     Position { z: Vector3<f64>, r: Matrix3<f64> },
     PositionSpin { z: SVector<f64, 6>, r: Matrix6<f64> },
+}
+
+/// A detection as a measurement with its noise (its own covariance, else its source's), or why
+/// it is rejected. Shared by the filter and the batch fit ([`crate::batch`]).
+pub(crate) fn measurement(settings: &Settings, d: &Detection) -> Result<Measurement, Rejection> {
+    let finite = d.position.iter().all(|v| v.is_finite())
+        && d.spin.is_none_or(|w| w.iter().all(|v| v.is_finite()))
+        && d.position_covariance
+            .is_none_or(|c| c.iter().all(|v| v.is_finite()))
+        && d.spin_covariance
+            .is_none_or(|c| c.iter().all(|v| v.is_finite()));
+    if !finite {
+        return Err(Rejection::NonFinite);
+    }
+    let confidence = f64::from(d.confidence);
+    if !(0.0..=1.0).contains(&confidence) {
+        return Err(Rejection::BadConfidence);
+    }
+    if confidence < settings.min_confidence {
+        return Err(Rejection::LowConfidence);
+    }
+    let noise = settings.source(d.source);
+    let r_position = match d.position_covariance {
+        Some(c) if !is_spd(&c) => return Err(Rejection::BadCovariance),
+        Some(c) => c,
+        None => Matrix3::identity() * noise.position_var,
+    };
+    let r_spin = match (d.spin, d.spin_covariance, noise.spin_var) {
+        (None, _, _) => None,
+        (Some(_), Some(c), _) if !is_spd(&c) => return Err(Rejection::BadCovariance),
+        (Some(_), Some(c), _) => Some(c),
+        (Some(_), None, Some(var)) => Some(Matrix3::identity() * var),
+        // A source that does not measure spin: its spin values are ignored.
+        (Some(_), None, None) => None,
+    };
+    Ok(match (d.spin, r_spin) {
+        (Some(w), Some(rs)) => {
+            let mut z = SVector::<f64, 6>::zeros();
+            z.fixed_rows_mut::<3>(0).copy_from(&d.position);
+            z.fixed_rows_mut::<3>(3).copy_from(&w);
+            let mut r = Matrix6::zeros();
+            r.fixed_view_mut::<3, 3>(0, 0).copy_from(&r_position);
+            r.fixed_view_mut::<3, 3>(3, 3).copy_from(&rs);
+            Measurement::PositionSpin { z, r }
+        }
+        _ => Measurement::Position {
+            z: d.position,
+            r: r_position,
+        },
+    })
 }
 
 /// A ball on the robot's half, moving toward the robot and rising, has bounced there already
@@ -518,51 +568,7 @@ impl Estimator {
 
     /// Checks a detection and turns it into a measurement with its noise.
     fn measurement(&self, d: &Detection) -> Result<Measurement, Rejection> {
-        let finite = d.position.iter().all(|v| v.is_finite())
-            && d.spin.is_none_or(|w| w.iter().all(|v| v.is_finite()))
-            && d.position_covariance
-                .is_none_or(|c| c.iter().all(|v| v.is_finite()))
-            && d.spin_covariance
-                .is_none_or(|c| c.iter().all(|v| v.is_finite()));
-        if !finite {
-            return Err(Rejection::NonFinite);
-        }
-        let confidence = f64::from(d.confidence);
-        if !(0.0..=1.0).contains(&confidence) {
-            return Err(Rejection::BadConfidence);
-        }
-        if confidence < self.settings.min_confidence {
-            return Err(Rejection::LowConfidence);
-        }
-        let noise = self.settings.source(d.source);
-        let r_position = match d.position_covariance {
-            Some(c) if !is_spd(&c) => return Err(Rejection::BadCovariance),
-            Some(c) => c,
-            None => Matrix3::identity() * noise.position_var,
-        };
-        let r_spin = match (d.spin, d.spin_covariance, noise.spin_var) {
-            (None, _, _) => None,
-            (Some(_), Some(c), _) if !is_spd(&c) => return Err(Rejection::BadCovariance),
-            (Some(_), Some(c), _) => Some(c),
-            (Some(_), None, Some(var)) => Some(Matrix3::identity() * var),
-            // A source that does not measure spin: its spin values are ignored.
-            (Some(_), None, None) => None,
-        };
-        Ok(match (d.spin, r_spin) {
-            (Some(w), Some(rs)) => {
-                let mut z = SVector::<f64, 6>::zeros();
-                z.fixed_rows_mut::<3>(0).copy_from(&d.position);
-                z.fixed_rows_mut::<3>(3).copy_from(&w);
-                let mut r = Matrix6::zeros();
-                r.fixed_view_mut::<3, 3>(0, 0).copy_from(&r_position);
-                r.fixed_view_mut::<3, 3>(3, 3).copy_from(&rs);
-                Measurement::PositionSpin { z, r }
-            }
-            _ => Measurement::Position {
-                z: d.position,
-                r: r_position,
-            },
-        })
+        measurement(&self.settings, d)
     }
 
     fn process(&mut self, d: &Detection, m: Measurement) -> Verdict {
