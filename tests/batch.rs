@@ -1,0 +1,75 @@
+//! The batch fit of whole flights against the simulator's truth, beside the online filter on the
+//! same detections: seeing the whole flight, the fit knows the velocity and spin at every
+//! detection better than the filter did when that detection arrived.
+
+use nalgebra::Vector3;
+use ttball::batch::fit_flight;
+use ttball::config::Config;
+use ttball::estimator::Estimator;
+use ttball::physics::BallState;
+use ttball::real::fit::fit_ballistic;
+use ttball::sim::{SimOptions, simulate};
+
+#[test]
+fn the_batch_fit_beats_the_online_filter_on_simulated_flights() {
+    let config = Config::default();
+    let session = simulate(
+        &config,
+        &SimOptions {
+            shots: 6,
+            seed: 11,
+            ..SimOptions::default()
+        },
+    )
+    .expect("simulated");
+    let (mut batch_v, mut online_v, mut batch_w, mut online_w, mut n) = (0.0, 0.0, 0.0, 0.0, 0);
+    for (index, shot) in session.shots.iter().enumerate() {
+        let stream: Vec<_> = session.stream.iter().filter(|d| d.shot == index).collect();
+        let detections: Vec<_> = stream.iter().map(|d| d.detection).collect();
+        // A guess from the first 8 detections: a parabola, no spin.
+        let t0 = detections
+            .iter()
+            .map(|d| d.stamp)
+            .min()
+            .expect("detections");
+        let mut early: Vec<_> = detections
+            .iter()
+            .map(|d| ((d.stamp - t0) as f64 * 1e-9, d.position))
+            .collect();
+        early.sort_by(|a, b| a.0.total_cmp(&b.0));
+        early.truncate(8);
+        let parabola = fit_ballistic(&early, 0.0, config.gravity).expect("parabola");
+        let guess = BallState::new(parabola.position, parabola.velocity, Vector3::zeros());
+        let fit = fit_flight(&config, &detections, &guess).expect("fit");
+        assert!(fit.normalised_rms < 1.5, "shot {index}: {fit:?}");
+
+        let mut estimator = Estimator::new(&config);
+        for d in &stream {
+            let output = estimator.handle(&d.detection);
+            let (Some(estimate), Some(truth)) = (output.estimate, shot.state_at(d.detection.stamp))
+            else {
+                continue;
+            };
+            if estimate.stamp != d.detection.stamp || d.outlier {
+                continue;
+            }
+            let (smoothed, _) = fit.state_at(&config, d.detection.stamp).expect("state");
+            batch_v += (smoothed.velocity - truth.velocity).norm_squared();
+            online_v += (estimate.state.velocity - truth.velocity).norm_squared();
+            batch_w += (smoothed.spin - truth.spin).norm_squared();
+            online_w += (estimate.state.spin - truth.spin).norm_squared();
+            n += 1;
+        }
+    }
+    let rms = |s: f64| (s / f64::from(n)).sqrt();
+    eprintln!(
+        "{n} detections: velocity RMS batch {:.4} m/s, online {:.4} m/s; spin RMS batch {:.1} rad/s, online {:.1} rad/s",
+        rms(batch_v),
+        rms(online_v),
+        rms(batch_w),
+        rms(online_w)
+    );
+    assert!(n > 500);
+    assert!(rms(batch_v) < 0.5 * rms(online_v));
+    assert!(rms(batch_w) < 0.5 * rms(online_w));
+}
