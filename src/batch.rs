@@ -368,10 +368,8 @@ mod tests {
         out
     }
 
-    /// The gradient of the normal equations (J^T r from the state-transition matrix, through a
-    /// bounce) equals half the finite-difference gradient of the cost.
-    #[test]
-    fn gradient_from_the_transition_matrix_matches_finite_differences() {
+    /// A topspin ball on its way to a bounce on the robot's half, with the default physics.
+    fn topspin_flight() -> (Config, Propagator, BallState) {
         let config = Config::default();
         let propagator = Propagator::new(&config);
         let truth = BallState::new(
@@ -379,6 +377,14 @@ mod tests {
             Vector3::new(-6.0, -0.3, 1.0),
             Vector3::new(10.0, -150.0, 20.0),
         );
+        (config, propagator, truth)
+    }
+
+    /// The gradient of the normal equations (J^T r from the state-transition matrix, through a
+    /// bounce) equals half the finite-difference gradient of the cost.
+    #[test]
+    fn gradient_from_the_transition_matrix_matches_finite_differences() {
+        let (config, propagator, truth) = topspin_flight();
         let obs = observations(&truth, &propagator);
         let mut x = truth.to_vector();
         x[3] += 0.02;
@@ -418,13 +424,7 @@ mod tests {
     /// gross outlier is down-weighted and changes almost nothing.
     #[test]
     fn recovers_the_flight_through_a_bounce_and_shrugs_off_an_outlier() {
-        let config = Config::default();
-        let propagator = Propagator::new(&config);
-        let truth = BallState::new(
-            Vector3::new(1.2, 0.1, 0.3),
-            Vector3::new(-6.0, -0.3, 1.0),
-            Vector3::new(10.0, -150.0, 20.0),
-        );
+        let (config, propagator, truth) = topspin_flight();
         let mut cursor = Cursor::new(0.0, &truth);
         let mut detections = Vec::new();
         for k in 0..90 {
