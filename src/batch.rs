@@ -384,7 +384,7 @@ mod tests {
     /// bounce) equals half the finite-difference gradient of the cost.
     #[test]
     fn gradient_from_the_transition_matrix_matches_finite_differences() {
-        let (config, propagator, truth) = topspin_flight();
+        let (_, propagator, truth) = topspin_flight();
         let obs = observations(&truth, &propagator);
         let mut x = truth.to_vector();
         x[3] += 0.02;
