@@ -216,14 +216,19 @@ fn levenberg_marquardt(
 
 impl FlightFit {
     /// The fitted state and its covariance at `stamp` [ns] (at or after the start), through the
-    /// bounces; `None` before the start.
-    pub fn state_at(&self, config: &Config, stamp: i64) -> Option<(BallState, StateMatrix)> {
+    /// bounces, with the fit's physics (`Propagator::new` of the fitted configuration); `None`
+    /// before the start.
+    pub fn state_at(
+        &self,
+        propagator: &Propagator,
+        stamp: i64,
+    ) -> Option<(BallState, StateMatrix)> {
         if stamp < self.start_stamp {
             return None;
         }
         let mut cursor = Cursor::with_jacobian(0.0, &self.start);
         let t = (stamp - self.start_stamp) as f64 / NS_PER_S;
-        Propagator::new(config).advance(&mut cursor, t, Watch::BOUNCES, &mut ());
+        propagator.advance(&mut cursor, t, Watch::BOUNCES, &mut ());
         let phi = cursor
             .tangent
             .map_or(StateMatrix::identity(), |t| t.transition);

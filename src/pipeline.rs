@@ -22,7 +22,7 @@ use crate::msgs::ttball_msgs::srv::{
 };
 use crate::msgs::visualization_msgs::MarkerArray;
 use crate::physics::{self, StateMatrix};
-use crate::stroke::{Aim, ReturnCondition, Stroke};
+use crate::stroke::{Aim, Stroke};
 
 /// The messages to publish after one detection.
 #[derive(Debug, Clone, PartialEq, Default)]
@@ -257,13 +257,11 @@ impl Pipeline {
         } else {
             self.interception(request.track_id)?
         };
-        let condition = if request.flight_time != 0.0 {
-            ReturnCondition::FlightTime(request.flight_time)
-        } else if request.net_clearance != 0.0 {
-            ReturnCondition::NetClearance(request.net_clearance)
-        } else {
-            ReturnCondition::NetClearance(self.stroke.default_net_clearance())
-        };
+        // 0 = not given, as PlanReturn.srv says.
+        let given = |v: f64| (v != 0.0).then_some(v);
+        let condition = self
+            .stroke
+            .condition(given(request.flight_time), given(request.net_clearance));
         let aim = Aim {
             target: Vector2::new(request.target.x, request.target.y),
             condition,

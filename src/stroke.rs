@@ -220,9 +220,18 @@ impl Stroke {
         &self.racket
     }
 
-    /// The configured net clearance of a return when a request names no condition [m].
-    pub fn default_net_clearance(&self) -> f64 {
-        self.net_clearance
+    /// The third condition of a request: its flight time if it names one, else its net
+    /// clearance, else the configured `stroke.net_clearance`.
+    pub fn condition(
+        &self,
+        flight_time: Option<f64>,
+        net_clearance: Option<f64>,
+    ) -> ReturnCondition {
+        match (flight_time, net_clearance) {
+            (Some(t), _) => ReturnCondition::FlightTime(t),
+            (None, Some(c)) => ReturnCondition::NetClearance(c),
+            (None, None) => ReturnCondition::NetClearance(self.net_clearance),
+        }
     }
 
     /// The hit of `ball` by `racket` and the return flight to its first bounce.
@@ -236,11 +245,7 @@ impl Stroke {
 
     /// The flight of a ball just hit, through the real table and net, to its first bounce.
     pub fn return_flight(&self, after: &BallState) -> ReturnFlight {
-        let mut cursor = Cursor::new(0.0, after);
-        let mut observer = FirstBounce::default();
-        let outcome =
-            self.propagator
-                .advance(&mut cursor, self.horizon, Watch::FLIGHT, &mut observer);
+        let (outcome, observer) = self.first_bounce(&self.propagator, Watch::FLIGHT, after);
         let net = observer.net_plane.and_then(|e| match e.kind {
             EventKind::Net { clearance, .. } => Some((e.t, clearance)),
             _ => None,
@@ -268,15 +273,7 @@ impl Stroke {
         if !ball.is_finite() {
             return Err(ImpactError::NotFinite { what: "ball state" }.into());
         }
-        let (min, max) = self.racket.face_offsets();
-        if !(min..=max).contains(&aim.impact_offset) {
-            return Err(ImpactError::OffFace {
-                offset: aim.impact_offset,
-                min,
-                max,
-            }
-            .into());
-        }
+        self.racket.check_on_face(aim.impact_offset)?;
         let (mut command, mut residual) = self.first_guess(ball, aim)?;
         let mut closest = residual.map_or(f64::INFINITY, |r| r.fixed_rows::<2>(0).norm());
         let mut iterations = 0;
@@ -489,16 +486,28 @@ impl Stroke {
     /// its first bounce; `None` when the hit is impossible.
     fn unbounded_flight(&self, ball: &BallState, racket: &RacketState) -> Option<FirstBounce> {
         let hit = self.racket.hit(ball, racket).ok()?;
-        let mut cursor = Cursor::new(0.0, &hit.ball);
-        let mut observer = FirstBounce::default();
         let watch = Watch {
             net: false,
             floor: false,
             plane_x: Some(0.0),
         };
-        self.solver_propagator
-            .advance(&mut cursor, self.horizon, watch, &mut observer);
-        Some(observer)
+        Some(
+            self.first_bounce(&self.solver_propagator, watch, &hit.ball)
+                .1,
+        )
+    }
+
+    /// The flight of a ball just hit, over the horizon, to its first bounce (or the end).
+    fn first_bounce(
+        &self,
+        propagator: &Propagator,
+        watch: Watch,
+        after: &BallState,
+    ) -> (Outcome, FirstBounce) {
+        let mut cursor = Cursor::new(0.0, after);
+        let mut observer = FirstBounce::default();
+        let outcome = propagator.advance(&mut cursor, self.horizon, watch, &mut observer);
+        (outcome, observer)
     }
 
     /// First-order covariance of the landing of the return, over (x [m], y [m], flight time

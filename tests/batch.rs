@@ -6,13 +6,14 @@ use nalgebra::Vector3;
 use ttball::batch::fit_flight;
 use ttball::config::Config;
 use ttball::estimator::Estimator;
-use ttball::physics::BallState;
+use ttball::physics::{BallState, Propagator};
 use ttball::real::fit::fit_ballistic;
 use ttball::sim::{SimOptions, simulate};
 
 #[test]
 fn the_batch_fit_beats_the_online_filter_on_simulated_flights() {
     let config = Config::default();
+    let propagator = Propagator::new(&config);
     let session = simulate(
         &config,
         &SimOptions {
@@ -53,7 +54,7 @@ fn the_batch_fit_beats_the_online_filter_on_simulated_flights() {
             if estimate.stamp != d.detection.stamp || d.outlier {
                 continue;
             }
-            let (smoothed, _) = fit.state_at(&config, d.detection.stamp).expect("state");
+            let (smoothed, _) = fit.state_at(&propagator, d.detection.stamp).expect("state");
             batch_v += (smoothed.velocity - truth.velocity).norm_squared();
             online_v += (estimate.state.velocity - truth.velocity).norm_squared();
             batch_w += (smoothed.spin - truth.spin).norm_squared();

@@ -218,6 +218,19 @@ fn the_noise_is_about_a_millimetre_and_largest_along_the_flight() {
     assert!(n.along.robust_sigma > 1.5 * n.across.robust_sigma, "{n:?}");
 }
 
+/// The full model and the drag-only model on every real flight, the setup printed.
+fn full_and_drag(data: &Data, options: &RealEvalOptions) -> (RealReport, RealReport) {
+    let config = real_config(data);
+    let full = evaluate_flights(&config, &data.flights, options);
+    let drag = evaluate_flights(&drag_only(&config), &data.flights, options);
+    println!(
+        "position_sigma {:.4} m; plane {}",
+        config.sources.wide_150fps.position_sigma,
+        options.plane.describe()
+    );
+    (full, drag)
+}
+
 fn print_report(title: &str, report: &RealReport) {
     println!("\n{title}\n");
     println!("{}", report.to_markdown());
@@ -282,15 +295,7 @@ fn print_flights(report: &RealReport) {
 #[test]
 fn the_estimator_predicts_real_flights_through_their_bounce() {
     let Some(data) = data() else { return };
-    let config = real_config(data);
-    let options = RealEvalOptions::default();
-    let full = evaluate_flights(&config, &data.flights, &options);
-    let drag = evaluate_flights(&drag_only(&config), &data.flights, &options);
-    println!(
-        "position_sigma {:.4} m; plane {}",
-        config.sources.wide_150fps.position_sigma,
-        options.plane.describe()
-    );
+    let (full, drag) = full_and_drag(data, &RealEvalOptions::default());
     print_report("full model (drag + Magnus, spin learned online):", &full);
     print_flights(&full);
     print_report("drag only, no spin:", &drag);
@@ -325,18 +330,11 @@ fn the_estimator_predicts_real_flights_through_their_bounce() {
 #[test]
 fn a_fixed_hitting_plane_near_the_robots_end_line() {
     let Some(data) = data() else { return };
-    let config = real_config(data);
     let options = RealEvalOptions {
         plane: Plane::Fixed(-1.2),
         ..RealEvalOptions::default()
     };
-    let full = evaluate_flights(&config, &data.flights, &options);
-    let drag = evaluate_flights(&drag_only(&config), &data.flights, &options);
-    println!(
-        "position_sigma {:.4} m; plane {}",
-        config.sources.wide_150fps.position_sigma,
-        options.plane.describe()
-    );
+    let (full, drag) = full_and_drag(data, &options);
     print_report("full model:", &full);
     print_flights(&full);
     print_report("drag only, no spin:", &drag);

@@ -55,14 +55,23 @@ pub struct PredictArgs {
 
 /// Parses `X,Y,Z` into a vector of three finite numbers.
 pub(crate) fn parse_vector(text: &str) -> Result<Vector3<f64>, String> {
+    parse_numbers::<3>(text, "three", "1.0,-0.2,0.3").map(Vector3::from)
+}
+
+/// Parses `N` comma-separated finite numbers (`count` says N in words, `example` shows them).
+pub(crate) fn parse_numbers<const N: usize>(
+    text: &str,
+    count: &str,
+    example: &str,
+) -> Result<[f64; N], String> {
     let parts: Vec<&str> = text.split(',').map(str::trim).collect();
-    let [x, y, z] = parts.as_slice() else {
+    if parts.len() != N {
         return Err(format!(
-            "expected three comma-separated numbers like 1.0,-0.2,0.3, got `{text}`"
+            "expected {count} comma-separated numbers like {example}, got `{text}`"
         ));
-    };
-    let mut out = [0.0; 3];
-    for (slot, part) in out.iter_mut().zip([x, y, z]) {
+    }
+    let mut out = [0.0; N];
+    for (slot, part) in out.iter_mut().zip(parts) {
         let value: f64 = part
             .parse()
             .map_err(|_| format!("`{part}` is not a number (in `{text}`)"))?;
@@ -71,7 +80,7 @@ pub(crate) fn parse_vector(text: &str) -> Result<Vector3<f64>, String> {
         }
         *slot = value;
     }
-    Ok(out.into())
+    Ok(out)
 }
 
 impl PredictArgs {

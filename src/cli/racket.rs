@@ -14,7 +14,7 @@ use ttball::config::Config;
 use ttball::physics::{BallState, BounceRegime, RacketState, StateMatrix, StateVector};
 use ttball::stroke::{Aim, Plan, Rebound, ReturnCondition, Stroke};
 
-use super::predict::parse_vector;
+use super::predict::{parse_numbers, parse_vector};
 use super::{BadUsage, ConfigArgs, write_stdout};
 
 /// The ball just before impact. The default is the real rally ball of `ttball predict` (Google
@@ -131,17 +131,7 @@ pub struct AimArgs {
 
 /// Parses `X,Y` into a target of two finite numbers.
 fn parse_target(text: &str) -> Result<Vector2<f64>, String> {
-    let parts: Vec<f64> = text
-        .split(',')
-        .map(|p| p.trim().parse::<f64>())
-        .collect::<Result<_, _>>()
-        .map_err(|_| format!("expected two comma-separated numbers like 0.9,0.3, got `{text}`"))?;
-    match parts.as_slice() {
-        [x, y] if x.is_finite() && y.is_finite() => Ok(Vector2::new(*x, *y)),
-        _ => Err(format!(
-            "expected two finite comma-separated numbers like 0.9,0.3, got `{text}`"
-        )),
-    }
+    parse_numbers::<2>(text, "two", "0.9,0.3").map(Vector2::from)
 }
 
 impl ReboundArgs {
@@ -189,11 +179,7 @@ impl AimArgs {
     pub fn run(self) -> anyhow::Result<ExitCode> {
         let config = self.common.config.load()?;
         let stroke = Stroke::new(&config);
-        let condition = match (self.flight_time, self.net_clearance) {
-            (Some(t), _) => ReturnCondition::FlightTime(t),
-            (None, Some(c)) => ReturnCondition::NetClearance(c),
-            (None, None) => ReturnCondition::NetClearance(stroke.default_net_clearance()),
-        };
+        let condition = stroke.condition(self.flight_time, self.net_clearance);
         let aim = Aim {
             target: self.target,
             condition,

@@ -205,6 +205,16 @@ impl RacketModel {
         )
     }
 
+    /// Refuses an impact point off the face.
+    pub fn check_on_face(&self, offset: f64) -> Result<(), ImpactError> {
+        let (min, max) = self.face_offsets();
+        if (min..=max).contains(&offset) {
+            Ok(())
+        } else {
+            Err(ImpactError::OffFace { offset, min, max })
+        }
+    }
+
     /// Shift of the centre of gravity toward the grip when the arm's mass is added, Delta G
     /// (seed 001 eq. 26) [m].
     fn center_shift(&self) -> f64 {
@@ -305,14 +315,7 @@ impl RacketModel {
         if (length - 1.0).abs() > NORMAL_TOLERANCE {
             return Err(ImpactError::NotUnitNormal { length });
         }
-        let (min, max) = self.face_offsets();
-        if !(min..=max).contains(&racket.impact_offset) {
-            return Err(ImpactError::OffFace {
-                offset: racket.impact_offset,
-                min,
-                max,
-            });
-        }
+        self.check_on_face(racket.impact_offset)?;
         let n = racket.normal / length;
         let relative = ball.velocity - racket.velocity;
         let relative_normal_speed = relative.dot(&n);
