@@ -1,7 +1,8 @@
 //! Batch fit of one flight: the state at the first detection (position, velocity, spin) that best
 //! explains every detection of the flight, through its bounces, with the physics core. The
-//! offline counterpart of the filter (it sees the whole flight) and the base of calibration
-//! (seed 004 eq. 8-9 fit flights this way).
+//! offline counterpart of the filter (it sees the whole flight), the smoother of `ttball smooth`
+//! ([`crate::smooth`]) and the inner problem of calibration ([`crate::calibrate`]; seed 004
+//! eq. 8-9 fit flights this way).
 //!
 //! Maximum a posteriori with a weak prior on spin (`ekf.spin_prior_sigma` about 0, the filter's
 //! own prior; without it a flight seen by the 150 fps camera alone leaves spin nearly
@@ -13,28 +14,35 @@
 //!
 //! with L_i the Cholesky factor of detection i's noise (its own covariance, else its source's, as
 //! the filter takes it), h the position (and the spin when measured), rho Huber's loss on the
-//! whitened residual's length (threshold [`HUBER_THRESHOLD`]), solved by Levenberg-Marquardt with
+//! whitened residual's length (threshold: the [`HUBER_PROBABILITY`] quantile of the residual's
+//! chi distribution, 3.76 sigma for a position, 4.48 with a spin), solved by Levenberg-Marquardt with
 //! iteratively reweighted least squares. The Jacobian of every prediction is the propagator's
 //! state-transition matrix, bounces included (the saltation terms of [`crate::physics::propagate`]).
 //! The covariance of the fit is the inverse of the weighted Gauss-Newton matrix at the solution.
 
-use nalgebra::{SMatrix, Vector3};
+use nalgebra::{SMatrix, SVector, Vector3};
 use thiserror::Error;
 
 use crate::config::Config;
 use crate::detection::Detection;
 use crate::estimator::{Measurement, Rejection, Settings, measurement};
-use crate::physics::propagate::{Cursor, Propagator, Watch};
+use crate::physics::propagate::{Cursor, EventKind, Observer, Propagator, Watch};
+use crate::physics::propagate::{Event, Flow};
 use crate::physics::state::{BallState, SPIN, StateMatrix, StateVector};
+use crate::real::fit::fit_ballistic;
+use crate::stats::chi_square_quantile;
 
 /// Nanoseconds per second.
 const NS_PER_S: f64 = 1e9;
-/// Whitened residual length beyond which a detection's weight falls (Huber), in sigmas.
-pub const HUBER_THRESHOLD: f64 = 3.0;
+/// Probability of a correct detection's whitened residual within the Huber threshold (that of
+/// 3 sigma in one dimension); beyond it the detection's weight falls.
+pub const HUBER_PROBABILITY: f64 = 0.9973;
 /// Largest number of Levenberg-Marquardt iterations.
 const MAX_ITERATIONS: usize = 60;
 /// Relative cost change at which the fit has converged.
 const COST_TOLERANCE: f64 = 1e-12;
+/// Detections the first guess of a flight is fitted to ([`initial_guess`]).
+const GUESS_DETECTIONS: usize = 8;
 
 /// A fitted flight.
 #[derive(Debug, Clone, PartialEq)]
@@ -56,6 +64,9 @@ pub struct FlightFit {
     pub normalised_rms: f64,
     /// Iterations used.
     pub iterations: usize,
+    /// Each used detection's index in the fitted slice and its squared whitened residual at the
+    /// solution (its normalised innovation squared against the smoothed state), in stamp order.
+    pub residuals: Vec<(usize, f64)>,
 }
 
 /// Why a flight cannot be fitted.
@@ -72,67 +83,250 @@ pub enum FitError {
     Singular,
 }
 
-/// One usable detection: time since the first [s] and its measurement.
-struct Observation {
-    t: f64,
-    measurement: Measurement,
+/// One usable detection, whitened: its time since the flight's start and measurement vector
+/// (position, then spin when measured) with the inverse Cholesky factor of its noise.
+#[derive(Debug, Clone, PartialEq)]
+pub(crate) struct Observation {
+    /// Index of the detection in the caller's slice.
+    pub index: usize,
+    /// Time since the flight's first detection [s].
+    pub t: f64,
+    /// Measured position [m] and spin [rad/s] (zero when not measured).
+    z: SVector<f64, 6>,
+    /// L^-1, zero outside the measured dimensions: the whitened residual is `white (z - h)`.
+    white: SMatrix<f64, 6, 6>,
+    /// Measured dimensions: 3 (position) or 6 (position and spin).
+    dims: usize,
+    /// Whitened residual length where Huber's loss turns linear.
+    threshold: f64,
 }
 
-/// The weighted normal equations of one linearisation.
-struct Linearised {
-    normal: StateMatrix,
-    gradient: StateVector,
-    cost: f64,
-    outliers: usize,
-    inlier_squares: f64,
-    inlier_dims: usize,
+/// The usable detections of one flight, in stamp order, and the rejected ones' reasons.
+#[derive(Debug, Clone, PartialEq)]
+pub(crate) struct Observations {
+    /// Stamp of the first detection [ns].
+    pub start_stamp: i64,
+    /// The usable detections.
+    pub list: Vec<Observation>,
+    /// Why the others are not usable.
+    pub rejected: Vec<Rejection>,
 }
 
-/// Fits the flight of `detections` (one ball, any order) from the guess `initial` of the state at
-/// the earliest detection.
-pub fn fit_flight(
-    config: &Config,
-    detections: &[Detection],
-    initial: &BallState,
-) -> Result<FlightFit, FitError> {
-    let settings = Settings::new(config);
-    let propagator = Propagator::new(config);
-    let spin_prior = config.ekf.spin_prior_sigma;
-    let mut sorted: Vec<&Detection> = detections.iter().collect();
-    sorted.sort_by_key(|d| d.stamp);
-    let start_stamp = sorted.first().map_or(0, |d| d.stamp);
-    let mut observations = Vec::with_capacity(sorted.len());
-    let mut rejected = Vec::new();
-    for d in sorted {
-        match measurement(&settings, d) {
-            Ok(m) => observations.push(Observation {
-                t: (d.stamp - start_stamp) as f64 / NS_PER_S,
-                measurement: m,
-            }),
-            Err(why) => rejected.push(why),
+impl Observations {
+    /// The detections of one flight (any order) as the filter would measure them.
+    pub fn new(config: &Config, detections: &[Detection]) -> Self {
+        let settings = Settings::new(config);
+        let mut order: Vec<usize> = (0..detections.len()).collect();
+        order.sort_by_key(|&i| detections[i].stamp);
+        let start_stamp = order.first().map_or(0, |&i| detections[i].stamp);
+        let mut list = Vec::with_capacity(order.len());
+        let mut rejected = Vec::new();
+        let threshold = |dims: usize| chi_square_quantile(HUBER_PROBABILITY, dims as u32).sqrt();
+        let thresholds = [threshold(3), threshold(6)];
+        for index in order {
+            let d = &detections[index];
+            let whitened = measurement(&settings, d).and_then(|m| whiten(&m));
+            match whitened {
+                Ok((z, white, dims)) => list.push(Observation {
+                    index,
+                    t: (d.stamp - start_stamp) as f64 / NS_PER_S,
+                    z,
+                    white,
+                    dims,
+                    threshold: thresholds[usize::from(dims == 6)],
+                }),
+                Err(why) => rejected.push(why),
+            }
+        }
+        Self {
+            start_stamp,
+            list,
+            rejected,
         }
     }
-    if observations.len() < 3 {
-        return Err(FitError::TooFew(observations.len()));
+}
+
+/// A measurement as (z, L^-1) padded to six dimensions, and its dimensions.
+fn whiten(m: &Measurement) -> Result<(SVector<f64, 6>, SMatrix<f64, 6, 6>, usize), Rejection> {
+    let mut z = SVector::<f64, 6>::zeros();
+    let mut white = SMatrix::<f64, 6, 6>::zeros();
+    match m {
+        Measurement::Position { z: p, r } => {
+            let inverse = r
+                .cholesky()
+                .and_then(|c| c.l().try_inverse())
+                .ok_or(Rejection::BadCovariance)?;
+            z.fixed_rows_mut::<3>(0).copy_from(p);
+            white.fixed_view_mut::<3, 3>(0, 0).copy_from(&inverse);
+            Ok((z, white, 3))
+        }
+        Measurement::PositionSpin { z: measured, r } => {
+            let inverse = r
+                .cholesky()
+                .and_then(|c| c.l().try_inverse())
+                .ok_or(Rejection::BadCovariance)?;
+            z = *measured;
+            white = inverse;
+            Ok((z, white, 6))
+        }
     }
-    let mut x = initial.to_vector();
-    if x.iter().any(|v| !v.is_finite()) {
-        return Err(FitError::BadGuess);
+}
+
+/// One observation's whitened residual and its Jacobian with respect to the start state.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct Residual {
+    /// `white (z - h(x(t)))`, zero beyond the measured dimensions.
+    pub value: SVector<f64, 6>,
+    /// `-d value / d x_0`, i.e. `white H Phi(t)`, when asked for.
+    pub jacobian: SMatrix<f64, 6, 9>,
+}
+
+/// The whitened residuals of `observations` for the start state `x`, in one propagation through
+/// the bounces (with the state-transition matrix when `jacobian`), into `out`.
+pub(crate) fn residuals(
+    propagator: &Propagator,
+    observations: &[Observation],
+    x: &StateVector,
+    jacobian: bool,
+    out: &mut Vec<Residual>,
+) {
+    out.clear();
+    let mut cursor = if jacobian {
+        Cursor::tracking(0.0, *x)
+    } else {
+        Cursor::new(0.0, &BallState::from_vector(x))
+    };
+    for o in observations {
+        let duration = o.t - cursor.t;
+        propagator.advance(&mut cursor, duration, Watch::BOUNCES, &mut ());
+        let state = cursor.state;
+        let mut predicted = SVector::<f64, 6>::zeros();
+        predicted
+            .fixed_rows_mut::<3>(0)
+            .copy_from(&state.fixed_rows::<3>(0));
+        predicted
+            .fixed_rows_mut::<3>(3)
+            .copy_from(&state.fixed_rows::<3>(SPIN));
+        let mut h = SMatrix::<f64, 6, 9>::zeros();
+        if let Some(tangent) = &cursor.tangent {
+            let phi = tangent.transition;
+            h.fixed_rows_mut::<3>(0).copy_from(&phi.fixed_rows::<3>(0));
+            h.fixed_rows_mut::<3>(3).copy_from(&phi.fixed_rows::<3>(SPIN));
+        }
+        out.push(Residual {
+            value: o.white * (o.z - predicted),
+            jacobian: o.white * h,
+        });
     }
-    // Least squares first (a far guess would make most detections look like outliers), from
-    // several spins: a wrong spin moves the bounce and can trap the fit in a local minimum, so
-    // the guess is also tried with 150 and 300 rad/s of topspin and of backspin and 150 rad/s of
-    // sidespin either way added, and the best start kept. Then Huber's loss from there.
-    let least_squares =
-        |x: &StateVector| linearise(&propagator, &observations, spin_prior, f64::INFINITY, x);
-    let velocity = initial.velocity;
+}
+
+/// Huber's loss on a whitened residual of length `length`: the IRLS weight and the cost
+/// (quadratic within `threshold`, linear beyond).
+pub(crate) fn huber(length: f64, threshold: f64) -> (f64, f64) {
+    if length <= threshold {
+        (1.0, length * length)
+    } else {
+        (
+            threshold / length,
+            2.0 * threshold * length - threshold * threshold,
+        )
+    }
+}
+
+/// The weighted normal equations of one flight at one start state.
+#[derive(Debug, Clone, PartialEq)]
+pub(crate) struct Linearised {
+    /// J^T W J.
+    pub normal: StateMatrix,
+    /// J^T W r: minus half the cost's gradient (a Gauss-Newton step solves `normal dx =
+    /// gradient`).
+    pub gradient: StateVector,
+    /// The robust cost, spin prior included.
+    pub cost: f64,
+    /// Observations beyond their Huber threshold.
+    pub outliers: usize,
+    /// Sum of the inliers' squared whitened residuals.
+    pub inlier_squares: f64,
+    /// Their dimensions.
+    pub inlier_dims: usize,
+}
+
+impl Linearised {
+    /// The normal equations of `residuals` under Huber's loss (`robust`) or least squares, with
+    /// the spin prior of standard deviation `spin_prior` [rad/s] on `x` (0: none).
+    pub fn new(
+        observations: &[Observation],
+        residuals: &[Residual],
+        robust: bool,
+        spin_prior: f64,
+        x: &StateVector,
+    ) -> Self {
+        let mut out = Self {
+            normal: StateMatrix::zeros(),
+            gradient: StateVector::zeros(),
+            cost: 0.0,
+            outliers: 0,
+            inlier_squares: 0.0,
+            inlier_dims: 0,
+        };
+        for (o, r) in observations.iter().zip(residuals) {
+            let length = r.value.norm();
+            let threshold = if robust { o.threshold } else { f64::INFINITY };
+            let (weight, cost) = huber(length, threshold);
+            if weight < 1.0 {
+                out.outliers += 1;
+            } else {
+                out.inlier_squares += length * length;
+                out.inlier_dims += o.dims;
+            }
+            out.normal += r.jacobian.transpose() * r.jacobian * weight;
+            out.gradient += r.jacobian.transpose() * r.value * weight;
+            out.cost += cost;
+        }
+        // The spin prior: w_0 ~ N(0, sigma^2 I).
+        if spin_prior > 0.0 {
+            let information = 1.0 / (spin_prior * spin_prior);
+            for k in SPIN..SPIN + 3 {
+                out.normal[(k, k)] += information;
+                out.gradient[k] -= information * x[k];
+                out.cost += information * x[k] * x[k];
+            }
+        }
+        out
+    }
+}
+
+/// A first guess of the state at the earliest of `detections`: position and velocity of a
+/// parabola through the first few (gravity only), the first measured spin or none. `None` with
+/// fewer than two distinct stamps.
+pub fn initial_guess(detections: &[Detection], gravity: f64) -> Option<BallState> {
+    let mut sorted: Vec<&Detection> = detections
+        .iter()
+        .filter(|d| d.position.iter().all(|v| v.is_finite()))
+        .collect();
+    sorted.sort_by_key(|d| d.stamp);
+    let t0 = sorted.first()?.stamp;
+    let early: Vec<(f64, Vector3<f64>)> = sorted
+        .iter()
+        .take(GUESS_DETECTIONS)
+        .map(|d| ((d.stamp - t0) as f64 / NS_PER_S, d.position))
+        .collect();
+    let parabola = fit_ballistic(&early, 0.0, gravity)?;
+    let spin = sorted
+        .iter()
+        .find_map(|d| d.spin.filter(|w| w.iter().all(|v| v.is_finite())))
+        .unwrap_or_default();
+    let guess = BallState::new(parabola.position, parabola.velocity, spin);
+    guess.to_vector().iter().all(|v| v.is_finite()).then_some(guess)
+}
+
+/// The spins added to a guess to start the least-squares phase from (see [`fit_flight`]).
+pub(crate) fn spin_starts(velocity: &Vector3<f64>) -> [Vector3<f64>; 7] {
     let topspin_axis = Vector3::z()
-        .cross(&velocity)
+        .cross(velocity)
         .try_normalize(1e-9)
         .unwrap_or_default();
-    let mut iterations = 0;
-    let mut best: Option<(StateVector, f64)> = None;
-    for extra in [
+    [
         Vector3::zeros(),
         topspin_axis * 150.0,
         topspin_axis * -150.0,
@@ -140,12 +334,59 @@ pub fn fit_flight(
         topspin_axis * -300.0,
         Vector3::z() * 150.0,
         Vector3::z() * -150.0,
-    ] {
+    ]
+}
+
+/// Fits the flight of `detections` (one ball, any order) from the guess `initial` of the state at
+/// the earliest detection, with the physics of `config`.
+pub fn fit_flight(
+    config: &Config,
+    detections: &[Detection],
+    initial: &BallState,
+) -> Result<FlightFit, FitError> {
+    let propagator = Propagator::new(config);
+    let observations = Observations::new(config, detections);
+    fit_observations(
+        &propagator,
+        &observations,
+        config.ekf.spin_prior_sigma,
+        initial,
+    )
+}
+
+/// [`fit_flight`] on prepared observations with a given propagator and spin prior [rad/s].
+pub(crate) fn fit_observations(
+    propagator: &Propagator,
+    observations: &Observations,
+    spin_prior: f64,
+    initial: &BallState,
+) -> Result<FlightFit, FitError> {
+    let list = &observations.list;
+    if list.len() < 3 {
+        return Err(FitError::TooFew(list.len()));
+    }
+    let mut x = initial.to_vector();
+    if x.iter().any(|v| !v.is_finite()) {
+        return Err(FitError::BadGuess);
+    }
+    let mut scratch = Vec::with_capacity(list.len());
+    let mut linearise = |x: &StateVector, robust: bool| {
+        residuals(propagator, list, x, true, &mut scratch);
+        Linearised::new(list, &scratch, robust, spin_prior, x)
+    };
+    // Least squares first (a far guess would make most detections look like outliers), from
+    // several spins: a wrong spin moves the bounce and can trap the fit in a local minimum, so
+    // the guess is also tried with 150 and 300 rad/s of topspin and of backspin and 150 rad/s of
+    // sidespin either way added, and the best start kept. Then Huber's loss from there.
+    let mut iterations = 0;
+    let mut best: Option<(StateVector, f64)> = None;
+    for extra in spin_starts(&initial.velocity) {
         let mut start = x;
         for k in 0..3 {
             start[SPIN + k] += extra[k];
         }
-        let (solution, at, used) = levenberg_marquardt(&least_squares, start);
+        let (solution, at, used) =
+            levenberg_marquardt(&mut |x| linearise(x, false), start);
         iterations += used;
         if best.is_none_or(|(_, cost)| at.cost < cost) {
             best = Some((solution, at.cost));
@@ -154,28 +395,33 @@ pub fn fit_flight(
     if let Some((solution, _)) = best {
         x = solution;
     }
-    let robust =
-        |x: &StateVector| linearise(&propagator, &observations, spin_prior, HUBER_THRESHOLD, x);
-    let (solution, current, used) = levenberg_marquardt(&robust, x);
+    let (solution, current, used) =
+        levenberg_marquardt(&mut |x| linearise(x, true), x);
     x = solution;
     iterations += used;
     let covariance = current.normal.try_inverse().ok_or(FitError::Singular)?;
+    residuals(propagator, list, &x, false, &mut scratch);
     Ok(FlightFit {
-        start_stamp,
+        start_stamp: observations.start_stamp,
         start: BallState::from_vector(&x),
         covariance: (covariance + covariance.transpose()) * 0.5,
-        used: observations.len(),
-        rejected,
+        used: list.len(),
+        rejected: observations.rejected.clone(),
         outliers: current.outliers,
         normalised_rms: (current.inlier_squares / current.inlier_dims.max(1) as f64).sqrt(),
         iterations,
+        residuals: list
+            .iter()
+            .zip(&scratch)
+            .map(|(o, r)| (o.index, r.value.norm_squared()))
+            .collect(),
     })
 }
 
 /// Minimises the cost `linearise` describes from `x`: the solution, the linearisation there and
 /// the iterations used.
 fn levenberg_marquardt(
-    linearise: &impl Fn(&StateVector) -> Linearised,
+    linearise: &mut impl FnMut(&StateVector) -> Linearised,
     start: StateVector,
 ) -> (StateVector, Linearised, usize) {
     let mut x = start;
@@ -188,7 +434,7 @@ fn levenberg_marquardt(
             for k in 0..9 {
                 damped[(k, k)] += lambda * current.normal[(k, k)].max(1e-12);
             }
-            let Some(step) = damped.cholesky().map(|c| c.solve(&(-current.gradient))) else {
+            let Some(step) = damped.cholesky().map(|c| c.solve(&current.gradient)) else {
                 lambda *= 10.0;
                 continue;
             };
@@ -214,6 +460,29 @@ fn levenberg_marquardt(
     (x, current, MAX_ITERATIONS)
 }
 
+/// A state of the fitted flight at one stamp.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FittedState {
+    /// The state.
+    pub state: BallState,
+    /// Its covariance (the fit's, carried by the state-transition matrix).
+    pub covariance: StateMatrix,
+    /// Table bounces since the start.
+    pub bounces: u32,
+}
+
+/// Counts table bounces.
+struct BounceCounter(u32);
+
+impl Observer for BounceCounter {
+    fn on_event(&mut self, event: &Event) -> Flow {
+        if matches!(event.kind, EventKind::TableBounce { .. }) {
+            self.0 += 1;
+        }
+        Flow::Continue
+    }
+}
+
 impl FlightFit {
     /// The fitted state and its covariance at `stamp` [ns] (at or after the start), through the
     /// bounces, with the fit's physics (`Propagator::new` of the fitted configuration); `None`
@@ -223,116 +492,39 @@ impl FlightFit {
         propagator: &Propagator,
         stamp: i64,
     ) -> Option<(BallState, StateMatrix)> {
-        if stamp < self.start_stamp {
-            return None;
-        }
+        self.states_at(propagator, &[stamp])
+            .pop()
+            .flatten()
+            .map(|s| (s.state, s.covariance))
+    }
+
+    /// The fitted states at `stamps` [ns] (any order), in one walk along the flight; `None` for
+    /// a stamp before the start.
+    pub fn states_at(&self, propagator: &Propagator, stamps: &[i64]) -> Vec<Option<FittedState>> {
+        let mut order: Vec<usize> = (0..stamps.len()).collect();
+        order.sort_by_key(|&i| stamps[i]);
+        let mut out = vec![None; stamps.len()];
         let mut cursor = Cursor::with_jacobian(0.0, &self.start);
-        let t = (stamp - self.start_stamp) as f64 / NS_PER_S;
-        propagator.advance(&mut cursor, t, Watch::BOUNCES, &mut ());
-        let phi = cursor
-            .tangent
-            .map_or(StateMatrix::identity(), |t| t.transition);
-        Some((cursor.ball(), phi * self.covariance * phi.transpose()))
-    }
-}
-
-/// The robust, weighted normal equations at `x`: every observation's whitened residual and
-/// Jacobian from one propagation with the state-transition matrix, plus the spin prior.
-fn linearise(
-    propagator: &Propagator,
-    observations: &[Observation],
-    spin_prior: f64,
-    threshold: f64,
-    x: &StateVector,
-) -> Linearised {
-    let mut out = Linearised {
-        normal: StateMatrix::zeros(),
-        gradient: StateVector::zeros(),
-        cost: 0.0,
-        outliers: 0,
-        inlier_squares: 0.0,
-        inlier_dims: 0,
-    };
-    let mut cursor = Cursor::tracking(0.0, *x);
-    for o in observations {
-        let duration = o.t - cursor.t;
-        propagator.advance(&mut cursor, duration, Watch::BOUNCES, &mut ());
-        let phi = cursor
-            .tangent
-            .map_or(StateMatrix::identity(), |t| t.transition);
-        let state = cursor.state;
-        match &o.measurement {
-            Measurement::Position { z, r } => {
-                let residual = z - state.fixed_rows::<3>(0);
-                let jacobian: SMatrix<f64, 3, 9> = phi.fixed_rows::<3>(0).into_owned();
-                accumulate(&mut out, threshold, r, &residual, &jacobian);
+        let mut bounces = BounceCounter(0);
+        for i in order {
+            if stamps[i] < self.start_stamp {
+                continue;
             }
-            Measurement::PositionSpin { z, r } => {
-                let mut predicted = SMatrix::<f64, 6, 1>::zeros();
-                predicted
-                    .fixed_rows_mut::<3>(0)
-                    .copy_from(&state.fixed_rows::<3>(0));
-                predicted
-                    .fixed_rows_mut::<3>(3)
-                    .copy_from(&state.fixed_rows::<3>(SPIN));
-                let mut jacobian = SMatrix::<f64, 6, 9>::zeros();
-                jacobian
-                    .fixed_rows_mut::<3>(0)
-                    .copy_from(&phi.fixed_rows::<3>(0));
-                jacobian
-                    .fixed_rows_mut::<3>(3)
-                    .copy_from(&phi.fixed_rows::<3>(SPIN));
-                accumulate(&mut out, threshold, r, &(z - predicted), &jacobian);
-            }
+            let t = (stamps[i] - self.start_stamp) as f64 / NS_PER_S;
+            let duration = t - cursor.t;
+            propagator.advance(&mut cursor, duration, Watch::BOUNCES, &mut bounces);
+            let phi = cursor
+                .tangent
+                .map_or(StateMatrix::identity(), |t| t.transition);
+            let covariance = phi * self.covariance * phi.transpose();
+            out[i] = Some(FittedState {
+                state: cursor.ball(),
+                covariance: (covariance + covariance.transpose()) * 0.5,
+                bounces: bounces.0,
+            });
         }
+        out
     }
-    // The spin prior: w_0 ~ N(0, sigma^2 I).
-    if spin_prior > 0.0 {
-        let information = 1.0 / (spin_prior * spin_prior);
-        for k in SPIN..SPIN + 3 {
-            out.normal[(k, k)] += information;
-            out.gradient[k] += information * x[k];
-            out.cost += information * x[k] * x[k];
-        }
-    }
-    out
-}
-
-/// Adds one observation (noise `r`, residual z - h, Jacobian dh/dx_0) with its Huber weight.
-fn accumulate<const D: usize>(
-    out: &mut Linearised,
-    threshold: f64,
-    r: &SMatrix<f64, D, D>,
-    residual: &SMatrix<f64, D, 1>,
-    jacobian: &SMatrix<f64, D, 9>,
-) {
-    let Some(cholesky) = r.cholesky() else {
-        return;
-    };
-    let l = cholesky.l();
-    let (Some(white), Some(white_jacobian)) = (
-        l.solve_lower_triangular(residual),
-        l.solve_lower_triangular(jacobian),
-    ) else {
-        return;
-    };
-    let length = white.norm();
-    // Huber: quadratic within the threshold, linear beyond; IRLS weight k / |r| there.
-    let (weight, cost) = if length <= threshold {
-        out.inlier_squares += length * length;
-        out.inlier_dims += D;
-        (1.0, length * length)
-    } else {
-        out.outliers += 1;
-        (
-            threshold / length,
-            2.0 * threshold * length - threshold * threshold,
-        )
-    };
-    out.normal += white_jacobian.transpose() * white_jacobian * weight;
-    // d(cost)/dx_0 / 2 = -J^T r (the residual falls as h rises).
-    out.gradient -= white_jacobian.transpose() * white * weight;
-    out.cost += cost;
 }
 
 #[cfg(test)]
@@ -341,8 +533,9 @@ mod tests {
     use crate::detection::Source;
     use nalgebra::{Matrix3, Vector3};
 
-    /// A flight through a bounce, seen every 10 ms, with a spin-measuring detection every 30 ms.
-    fn observations(truth: &BallState, propagator: &Propagator) -> Vec<Observation> {
+    /// A flight through a bounce seen every 10 ms, with a spin-measuring detection every 30 ms,
+    /// each a little off the truth.
+    fn detections(truth: &BallState, propagator: &Propagator) -> Vec<Detection> {
         let mut cursor = Cursor::new(0.0, truth);
         let mut out = Vec::new();
         for k in 0..60 {
@@ -350,25 +543,23 @@ mod tests {
             let duration = t - cursor.t;
             propagator.advance(&mut cursor, duration, Watch::BOUNCES, &mut ());
             let p = cursor.state.fixed_rows::<3>(0).into_owned();
-            let measurement = if k % 3 == 0 {
-                let mut z = SMatrix::<f64, 6, 1>::zeros();
-                z.fixed_rows_mut::<3>(0)
-                    .copy_from(&(p + Vector3::new(1e-3, -2e-3, 1e-3)));
-                z.fixed_rows_mut::<3>(3).copy_from(
-                    &(cursor.state.fixed_rows::<3>(SPIN) + Vector3::new(5.0, -3.0, 2.0)),
-                );
-                let mut r = SMatrix::<f64, 6, 6>::identity() * 1e-6;
-                for i in 3..6 {
-                    r[(i, i)] = 144.0;
+            let stamp = (t * 1e9).round() as i64;
+            out.push(if k % 3 == 0 {
+                Detection {
+                    source: Source::HighSpeed900Fps,
+                    position_covariance: Some(Matrix3::identity() * 1e-6),
+                    spin: Some(
+                        cursor.state.fixed_rows::<3>(SPIN) + Vector3::new(5.0, -3.0, 2.0),
+                    ),
+                    spin_covariance: Some(Matrix3::identity() * 144.0),
+                    ..detection(stamp, p + Vector3::new(1e-3, -2e-3, 1e-3))
                 }
-                Measurement::PositionSpin { z, r }
             } else {
-                Measurement::Position {
-                    z: p + Vector3::new(-1e-3, 1e-3, 2e-3),
-                    r: Matrix3::identity() * 4e-6,
+                Detection {
+                    position_covariance: Some(Matrix3::identity() * 4e-6),
+                    ..detection(stamp, p + Vector3::new(-1e-3, 1e-3, 2e-3))
                 }
-            };
-            out.push(Observation { t, measurement });
+            });
         }
         out
     }
@@ -389,12 +580,18 @@ mod tests {
     /// bounce) equals half the finite-difference gradient of the cost.
     #[test]
     fn gradient_from_the_transition_matrix_matches_finite_differences() {
-        let (_, propagator, truth) = topspin_flight();
-        let obs = observations(&truth, &propagator);
+        let (config, propagator, truth) = topspin_flight();
+        let obs = Observations::new(&config, &detections(&truth, &propagator)).list;
+        assert_eq!(obs.iter().filter(|o| o.dims == 6).count(), 20);
+        let mut scratch = Vec::new();
+        let mut linearise = |x: &StateVector| {
+            residuals(&propagator, &obs, x, true, &mut scratch);
+            Linearised::new(&obs, &scratch, true, 300.0, x)
+        };
         let mut x = truth.to_vector();
         x[3] += 0.02;
         x[7] += 15.0;
-        let at = linearise(&propagator, &obs, 300.0, HUBER_THRESHOLD, &x);
+        let at = linearise(&x);
         assert!(at.outliers > 0, "the Huber branch is checked too");
         for k in 0..9 {
             let h = if k < SPIN { 1e-6 } else { 1e-3 };
@@ -402,10 +599,8 @@ mod tests {
             plus[k] += h;
             let mut minus = x;
             minus[k] -= h;
-            let fd = (linearise(&propagator, &obs, 300.0, HUBER_THRESHOLD, &plus).cost
-                - linearise(&propagator, &obs, 300.0, HUBER_THRESHOLD, &minus).cost)
-                / (2.0 * h);
-            let analytic = 2.0 * at.gradient[k];
+            let fd = (linearise(&plus).cost - linearise(&minus).cost) / (2.0 * h);
+            let analytic = -2.0 * at.gradient[k];
             assert!(
                 (fd - analytic).abs() <= 1e-4 * analytic.abs().max(1.0),
                 "component {k}: finite differences {fd}, analytic {analytic}"

@@ -6,6 +6,8 @@
 //!   fusion, gating, initialisation, interception after every update.
 //! - [`batch`]: the batch (maximum a posteriori, robust) fit of one whole flight: the offline
 //!   smoother and the base of calibration.
+//! - [`smooth`]: a recording cut into flights by the estimator's tracks, each fitted whole: the
+//!   smoothed state at every detection.
 //! - [`eval`]: accuracy of the estimator on a simulated session against its truth.
 //! - [`ekf`]: the extended Kalman filter over (position, velocity, spin).
 //! - [`intercept`]: the predicted crossing of the robot's hitting plane, with its covariance.
@@ -51,5 +53,6 @@ pub mod record;
 #[cfg(feature = "bag")]
 pub mod replay;
 pub mod sim;
+pub mod smooth;
 pub mod stats;
 pub mod stroke;

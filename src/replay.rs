@@ -15,11 +15,14 @@ use std::time::Instant;
 
 use crate::bag::{BagContents, BagError, BagWriter, decode, read_bag_file};
 use crate::config::Config;
-use crate::estimator::Counters;
+use crate::estimator::{Counters, Estimate, TrackStatus};
 use crate::eval::{EvalReport, Scorer, ShotTruth};
-use crate::msgs::convert::{detection_from_msg, state_from_msg, truth_intercept_from_msg};
+use crate::msgs::convert::{
+    detection_from_msg, state_from_msg, state_msg, truth_intercept_from_msg,
+};
 use crate::msgs::ttball_msgs::msg::{BallDetection, BallState, InterceptPrediction};
 use crate::pipeline::Pipeline;
+use crate::smooth::{SmoothedState, Smoothing, smooth};
 use crate::stats::DurationSummary;
 
 /// The type of the detection topic.
@@ -316,5 +319,148 @@ pub fn replay(
         damage: contents.damage,
         interrupted,
         accuracy: scorer.map(|s| s.report(counters)),
+    })
+}
+
+/// What `ttball smooth` did with one bag.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SmoothSummary {
+    /// The input bag.
+    pub input: PathBuf,
+    /// The output bag.
+    pub output: PathBuf,
+    /// Detection messages read.
+    pub detections: u64,
+    /// Detection messages whose payload could not be decoded.
+    pub undecodable: u64,
+    /// Detection messages not in the `table` frame.
+    pub unknown_frame: u64,
+    /// What the smoother did (flights, failures, outliers, the estimator's counters).
+    pub smoothing: Smoothing,
+    /// Messages written to the output bag.
+    pub written: u64,
+    /// Why the input was read only in part, if it was.
+    pub damage: Option<String>,
+    /// Errors of the smoothed states against the bag's truth, when it has one.
+    pub truth_errors: Option<TruthErrors>,
+}
+
+/// Root-mean-square errors of estimates against the simulator's truth.
+#[derive(Debug, Clone, Copy, PartialEq, Default, serde::Serialize)]
+pub struct TruthErrors {
+    /// States compared.
+    pub count: usize,
+    /// Position [m].
+    pub position: f64,
+    /// Velocity [m/s].
+    pub velocity: f64,
+    /// Spin [rad/s].
+    pub spin: f64,
+}
+
+/// Smooths `input` into `output`: the input's messages unchanged plus, on `topics.smoothed`
+/// (`ttball_msgs/msg/BallState`), the whole-flight fit at every detection the estimator took
+/// ([`crate::smooth`]), each with its detection's log time. `progress` gets (flights done,
+/// flights); setting `cancel` stops fitting and writes what is done, finished.
+pub fn smooth_bag(
+    input: &Path,
+    output: &Path,
+    config: &Config,
+    progress: &mut dyn FnMut(usize, usize),
+    cancel: &AtomicBool,
+) -> Result<SmoothSummary, ReplayError> {
+    let contents = read_bag_file(input)?;
+    let detection_channel = detection_channel(&contents, &config.topics.detections, input)?;
+    let truth = read_truth(&contents, config);
+    let mut detections = Vec::new();
+    // For every detection message, the index of its detection in `detections`.
+    let mut message_detection: Vec<Option<usize>> = Vec::with_capacity(contents.messages.len());
+    let (mut count, mut undecodable, mut unknown_frame) = (0u64, 0u64, 0u64);
+    for m in &contents.messages {
+        let mut index = None;
+        if m.channel == detection_channel {
+            count += 1;
+            match decode::<BallDetection>(&m.data).map(|msg| detection_from_msg(&msg)) {
+                Err(_) => undecodable += 1,
+                Ok(Err(_)) => unknown_frame += 1,
+                Ok(Ok(d)) => {
+                    index = Some(detections.len());
+                    detections.push(d);
+                }
+            }
+        }
+        message_detection.push(index);
+    }
+    let smoothing = smooth(config, &detections, progress, cancel);
+    let mut by_detection: Vec<Option<&SmoothedState>> = vec![None; detections.len()];
+    for s in &smoothing.states {
+        by_detection[s.index] = Some(s);
+    }
+
+    let mut writer = BagWriter::create(output)?;
+    let mut written = 0u64;
+    let result = (|| -> Result<(), ReplayError> {
+        let mut copied = Vec::with_capacity(contents.channels.len());
+        for channel in &contents.channels {
+            copied.push(writer.add_channel(channel)?);
+        }
+        let smoothed = writer.channel(&config.topics.smoothed, STATE_TYPE)?;
+        for (m, index) in contents.messages.iter().zip(&message_detection) {
+            writer.write_raw(copied[m.channel], m.log_time, m.publish_time, &m.data)?;
+            written += 1;
+            if let Some(s) = index.and_then(|i| by_detection[i]) {
+                writer.write(smoothed, STATE_TYPE, m.log_time, &smoothed_msg(s))?;
+                written += 1;
+            }
+        }
+        Ok(())
+    })();
+    let finished = writer.finish();
+    result?;
+    finished?;
+
+    let truth_errors = truth.map(|truth| {
+        let mut sums = TruthErrors::default();
+        for s in &smoothing.states {
+            if let Some((_, t)) = truth.states.get(&s.stamp) {
+                let e = &s.fitted.state;
+                sums.count += 1;
+                sums.position += (e.position - t.position).norm_squared();
+                sums.velocity += (e.velocity - t.velocity).norm_squared();
+                sums.spin += (e.spin - t.spin).norm_squared();
+            }
+        }
+        let n = sums.count.max(1) as f64;
+        TruthErrors {
+            count: sums.count,
+            position: (sums.position / n).sqrt(),
+            velocity: (sums.velocity / n).sqrt(),
+            spin: (sums.spin / n).sqrt(),
+        }
+    });
+    Ok(SmoothSummary {
+        input: input.to_path_buf(),
+        output: output.to_path_buf(),
+        detections: count,
+        undecodable,
+        unknown_frame,
+        smoothing,
+        written,
+        damage: contents.damage,
+        truth_errors,
+    })
+}
+
+/// A smoothed state as a `BallState` message: status TRACKING, `nis` the detection's squared
+/// whitened residual against the smoothed state.
+fn smoothed_msg(s: &SmoothedState) -> BallState {
+    state_msg(&Estimate {
+        stamp: s.stamp,
+        track_id: s.track_id,
+        status: TrackStatus::Tracking,
+        state: s.fitted.state,
+        covariance: s.fitted.covariance,
+        bounces: s.fitted.bounces,
+        nis: s.nis,
     })
 }

@@ -43,6 +43,7 @@ fn the_batch_fit_beats_the_online_filter_on_simulated_flights() {
         let guess = BallState::new(parabola.position, parabola.velocity, Vector3::zeros());
         let fit = fit_flight(&config, &detections, &guess).expect("fit");
         assert!(fit.normalised_rms < 1.5, "shot {index}: {fit:?}");
+        eprintln!("iterations {} used {}", fit.iterations, fit.used);
 
         let mut estimator = Estimator::new(&config);
         for d in &stream {

@@ -13,6 +13,7 @@ pub mod racket;
 pub mod replay;
 pub mod report;
 pub mod simulate;
+pub mod smooth;
 
 use std::io::Write;
 use std::path::PathBuf;
@@ -87,6 +88,20 @@ pub enum Command {
         ttball replay bags/*.mcap --output-dir out/ --report out/report.json\n  \
         ttball replay my_rally.mcap -o out.mcap -p topics.detections:=/vision/ball -p intercept.plane_x:=-1.45")]
     Replay(replay::ReplayArgs),
+
+    /// Smooth a bag: fit every flight as a whole and write the state at each detection.
+    ///
+    /// Cuts the detections into flights with the estimator's own tracks, fits each flight's
+    /// state (position, velocity, spin) to all its detections through its bounces (robust
+    /// maximum likelihood with the physics core) and writes the fitted state and covariance at
+    /// every detection on topics.smoothed (/ball/smoothed, ttball_msgs/msg/BallState) beside the
+    /// input's messages. Seeing the whole flight, it is far more accurate than the online
+    /// filter: use it as reference for tuning, or to label recorded rallies.
+    #[command(after_help = "Examples:\n  \
+        ttball smooth bags/sim_rally_2cams.mcap --output smoothed.mcap\n  \
+        ttball smooth rally.mcap -o smoothed.mcap --config calibrated.yaml\n  \
+        ttball dump smoothed.mcap --topic /ball/smoothed | head")]
+    Smooth(smooth::SmoothArgs),
 
     /// Print every message of a bag as JSON lines (topic, log time, decoded message).
     #[command(after_help = "Examples:\n  \
@@ -178,6 +193,7 @@ impl Command {
             Self::Evaluate(args) => args.run(),
             Self::Replay(args) => args.run(),
             Self::Simulate(args) => args.run(),
+            Self::Smooth(args) => args.run(),
             Self::Dump(args) => args.run(),
             Self::Import(command) => command.run(),
             Self::Plot(args) => args.run(),

@@ -491,6 +491,8 @@ pub struct TopicsParams {
     pub diagnostics: String,
     /// Input (simulation and replay): the true ball state, for error statistics.
     pub truth: String,
+    /// Output of `ttball smooth`: the batch-fitted (smoothed) state at every detection.
+    pub smoothed: String,
 }
 
 impl Default for TopicsParams {
@@ -503,6 +505,7 @@ impl Default for TopicsParams {
             markers: "/ball/markers".to_owned(),
             diagnostics: "/diagnostics".to_owned(),
             truth: "/ball/truth".to_owned(),
+            smoothed: "/ball/smoothed".to_owned(),
         }
     }
 }

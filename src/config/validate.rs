@@ -618,6 +618,7 @@ impl Config {
             ("topics.markers", &tp.markers),
             ("topics.diagnostics", &tp.diagnostics),
             ("topics.truth", &tp.truth),
+            ("topics.smoothed", &tp.smoothed),
         ] {
             c.name(key, value, "topic name", topic_problem(value));
         }

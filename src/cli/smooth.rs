@@ -1,0 +1,135 @@
+//! `ttball smooth`: the whole-flight fit of every track of a bag, as `/ball/smoothed`.
+
+use std::fmt::Write as _;
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+
+use anyhow::{Context, bail};
+use clap::Args;
+use indicatif::{ProgressBar, ProgressStyle};
+use std::io::IsTerminal;
+use ttball::estimator::Rejection;
+use ttball::replay::{SmoothSummary, smooth_bag};
+
+use super::{BadUsage, ConfigArgs, write_stdout};
+
+/// Arguments of `ttball smooth`.
+#[derive(Debug, Args)]
+pub struct SmoothArgs {
+    /// The input bag: an MCAP file, or a rosbag2 directory (MCAP storage).
+    #[arg(value_name = "INPUT.mcap")]
+    pub input: PathBuf,
+
+    /// The output bag: the input's messages plus the smoothed states.
+    #[arg(long, short, value_name = "OUT.mcap")]
+    pub output: PathBuf,
+
+    /// The physics the flights are fitted with, the noise of the cameras and the topics.
+    #[command(flatten)]
+    pub config: ConfigArgs,
+}
+
+impl SmoothArgs {
+    /// Smooths the bag and prints what was done.
+    pub fn run(self) -> anyhow::Result<ExitCode> {
+        let config = self.config.load()?;
+        if self.output == self.input {
+            bail!(BadUsage(format!(
+                "{} would overwrite its input; choose another --output",
+                self.output.display()
+            )));
+        }
+        let cancel = Arc::new(AtomicBool::new(false));
+        {
+            let cancel = Arc::clone(&cancel);
+            // A second handler cannot be installed in tests that run several commands: ignore.
+            let _ = ctrlc::set_handler(move || cancel.store(true, Ordering::Relaxed));
+        }
+        let bar = if std::io::stderr().is_terminal() {
+            let bar = ProgressBar::new(0);
+            if let Ok(style) =
+                ProgressStyle::with_template("{msg} [{bar:30}] {pos}/{len} flights (eta {eta})")
+            {
+                bar.set_style(style.progress_chars("=> "));
+            }
+            bar.set_message(format!("smoothing {}", self.input.display()));
+            bar
+        } else {
+            ProgressBar::hidden()
+        };
+        let mut progress = |done: usize, total: usize| {
+            bar.set_length(total as u64);
+            bar.set_position(done as u64);
+        };
+        let summary = smooth_bag(&self.input, &self.output, &config, &mut progress, &cancel)
+            .with_context(|| format!("cannot smooth {}", self.input.display()))?;
+        bar.finish_and_clear();
+        write_stdout(&summary_text(&summary, &config.topics.smoothed))?;
+        Ok(if summary.smoothing.skipped > 0 {
+            ExitCode::FAILURE
+        } else {
+            ExitCode::SUCCESS
+        })
+    }
+}
+
+/// The summary a user reads at the end.
+fn summary_text(s: &SmoothSummary, topic: &str) -> String {
+    let m = &s.smoothing;
+    let c = &m.counters;
+    let mut out = format!("{} -> {}\n", s.input.display(), s.output.display());
+    if let Some(damage) = &s.damage {
+        let _ = writeln!(out, "  warning: the input is damaged; {damage}");
+    }
+    if m.skipped > 0 {
+        let _ = writeln!(
+            out,
+            "  interrupted: {} flights not smoothed; the output holds the others, properly finished",
+            m.skipped
+        );
+    }
+    let _ = writeln!(
+        out,
+        "  detections read {}: smoothed {} on {} ({} flights fitted, {} marked outliers by the fit), undecodable {}, not in the table frame {}",
+        s.detections,
+        m.states.len(),
+        topic,
+        m.flights,
+        m.outliers,
+        s.undecodable,
+        s.unknown_frame
+    );
+    let reasons: Vec<String> = Rejection::ALL
+        .iter()
+        .filter(|r| c.rejected(**r) > 0)
+        .map(|r| format!("{} {}", r.name(), c.rejected(*r)))
+        .collect();
+    if !reasons.is_empty() {
+        let _ = writeln!(
+            out,
+            "  not smoothed, rejected by the estimator: {}",
+            reasons.join(", ")
+        );
+    }
+    for f in &m.failed {
+        let _ = writeln!(
+            out,
+            "  track {} ({} detections) not smoothed: {}",
+            f.track_id, f.detections, f.error
+        );
+    }
+    if let Some(e) = &s.truth_errors {
+        let _ = writeln!(
+            out,
+            "  against the bag's truth ({} states): position {:.2} mm, velocity {:.4} m/s, spin {:.1} rad/s RMS",
+            e.count,
+            e.position * 1e3,
+            e.velocity,
+            e.spin
+        );
+    }
+    let _ = writeln!(out, "  {} messages written", s.written);
+    out
+}
