@@ -1,6 +1,6 @@
 //! Interoperability with MCAP clients ttball did not write: Python `mcap` + `mcap-ros2-support`
-//! and `rosbags` decode every message of a replay's output to the same values ttball wrote, and
-//! a bag written by `mcap-ros2-support` replays in ttball.
+//! and `rosbags` decode every message of a replay's output, smoothed (`ttball smooth`), to the
+//! same values ttball wrote, and a bag written by `mcap-ros2-support` replays in ttball.
 //!
 //! Needs a Python with those packages: `.ci/run` makes a virtual environment and sets
 //! `TTBALL_PYTHON` to its interpreter. Without it the test says so and passes, except under CI
@@ -61,7 +61,10 @@ fn python_clients_decode_every_message_ttball_writes_to_the_same_values() {
         "--seed",
         "5",
     ]);
-    ttball(&["replay", &s(&sim), "--output", &s(&out)]);
+    let replayed = d.join("replayed.mcap");
+    ttball(&["replay", &s(&sim), "--output", &s(&replayed)]);
+    // Smoothing the replay's output adds /ball/smoothed to everything above.
+    ttball(&["smooth", &s(&replayed), "--output", &s(&out)]);
     let dump = ttball(&["dump", &s(&out)]);
     let dump_path = d.join("out.jsonl");
     std::fs::write(&dump_path, &dump).unwrap();
@@ -84,6 +87,7 @@ fn python_clients_decode_every_message_ttball_writes_to_the_same_values() {
         "/ball/trajectory",
         "/ball/markers",
         "/ball/truth",
+        "/ball/smoothed",
     ] {
         assert!(
             report.contains(&format!("{topic}: ")),
