@@ -26,8 +26,8 @@ use thiserror::Error;
 use crate::config::Config;
 use crate::detection::Detection;
 use crate::estimator::{Measurement, Rejection, Settings, measurement};
-use crate::physics::propagate::{Cursor, EventKind, Observer, Propagator, Watch};
-use crate::physics::propagate::{Event, Flow};
+use crate::ekf::PredictReport;
+use crate::physics::propagate::{Cursor, Propagator, Watch};
 use crate::physics::state::{BallState, SPIN, StateMatrix, StateVector};
 use crate::real::fit::fit_ballistic;
 use crate::stats::chi_square_quantile;
@@ -469,18 +469,8 @@ pub struct FittedState {
     pub covariance: StateMatrix,
     /// Table bounces since the start.
     pub bounces: u32,
-}
-
-/// Counts table bounces.
-struct BounceCounter(u32);
-
-impl Observer for BounceCounter {
-    fn on_event(&mut self, event: &Event) -> Flow {
-        if matches!(event.kind, EventKind::TableBounce { .. }) {
-            self.0 += 1;
-        }
-        Flow::Continue
-    }
+    /// Those on the robot's half (x < 0).
+    pub robot_half_bounces: u32,
 }
 
 impl FlightFit {
@@ -505,7 +495,7 @@ impl FlightFit {
         order.sort_by_key(|&i| stamps[i]);
         let mut out = vec![None; stamps.len()];
         let mut cursor = Cursor::with_jacobian(0.0, &self.start);
-        let mut bounces = BounceCounter(0);
+        let mut bounces = PredictReport::default();
         for i in order {
             if stamps[i] < self.start_stamp {
                 continue;
@@ -520,7 +510,8 @@ impl FlightFit {
             out[i] = Some(FittedState {
                 state: cursor.ball(),
                 covariance: (covariance + covariance.transpose()) * 0.5,
-                bounces: bounces.0,
+                bounces: bounces.bounces,
+                robot_half_bounces: bounces.robot_half_bounces,
             });
         }
         out

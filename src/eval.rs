@@ -15,10 +15,12 @@
 
 use nalgebra::{Matrix2, Vector2, Vector3};
 
+use crate::batch::{fit_flight, initial_guess};
 use crate::config::Config;
 use crate::detection::{Detection, Source, seconds_to_ns};
 use crate::estimator::{Counters, Estimator, Output, TrackStatus};
-use crate::physics::BallState;
+use crate::intercept::{InterceptQuery, predict_intercept};
+use crate::physics::{BallState, Propagator};
 use crate::sim::Session;
 
 /// The leads before the true crossing at which interceptions are scored [s].
@@ -142,8 +144,9 @@ struct ShotRecord {
     track_start: Option<i64>,
     scored_at_age: bool,
     high_speed_start: Option<i64>,
-    /// The output of the latest estimate before each lead's time.
-    at_lead: [Option<Output>; 3],
+    /// The output of the latest estimate before each lead's time, with the number of
+    /// detections scored when it came out.
+    at_lead: [Option<(usize, Output)>; 3],
 }
 
 /// Scores the estimator's outputs one detection at a time against the truth.
@@ -199,7 +202,7 @@ impl Scorer {
         for (slot, lead) in LEADS.iter().enumerate() {
             let deadline = truth_shot.intercept_stamp - seconds_to_ns(*lead);
             if estimate.stamp <= deadline {
-                record.at_lead[slot] = Some(*out);
+                record.at_lead[slot] = Some((self.detections, *out));
             }
         }
         // State errors only where the estimate is at the detection's own stamp (its truth).
@@ -290,7 +293,7 @@ impl Scorer {
         let mut valid = 0usize;
         for (shot, record) in self.shots.iter().zip(&self.records) {
             let Some((stamp, crossing)) = record.at_lead[slot]
-                .and_then(|out| out.intercept)
+                .and_then(|(_, out)| out.intercept)
                 .and_then(|i| i.intercept.crossing.ok().map(|c| (i.stamp, c)))
             else {
                 continue;
@@ -336,11 +339,121 @@ impl Scorer {
 
 /// Runs the estimator over a simulated session in arrival order and scores it.
 pub fn evaluate(config: &Config, session: &Session) -> EvalReport {
+    run(config, session).report()
+}
+
+/// The estimator run over a session, scored.
+struct Run {
+    scorer: Scorer,
+    counters: Counters,
+}
+
+impl Run {
+    fn report(&self) -> EvalReport {
+        self.scorer.report(self.counters)
+    }
+}
+
+fn run(config: &Config, session: &Session) -> Run {
     let mut estimator = Estimator::new(config);
     let mut scorer = Scorer::new(session.shots.iter().map(ShotTruth::from).collect());
     for sim in &session.stream {
         let out = estimator.handle(&sim.detection);
         scorer.score(sim.shot, &sim.detection, &sim.truth, sim.outlier, &out);
     }
-    scorer.report(estimator.counters())
+    Run {
+        scorer,
+        counters: estimator.counters(),
+    }
+}
+
+/// The online filter's interception error at one lead against the batch fit's over the same
+/// detections.
+#[derive(Debug, Clone, Copy, PartialEq, Default, serde::Serialize)]
+pub struct LeadEfficiency {
+    /// Time before the true crossing [s].
+    pub lead: f64,
+    /// Shots where both predicted a crossing.
+    pub shots: usize,
+    /// Distance in the plane of the filter's predicted crossing from the true one [m].
+    pub online: ErrorStats,
+    /// The same for the batch fit [m].
+    pub batch: ErrorStats,
+    /// Ratio of the RMS errors, online / batch: 1 is the best any estimator with this model can
+    /// do.
+    pub ratio: f64,
+    /// Ratio of the median errors.
+    pub median_ratio: f64,
+}
+
+/// The filter's efficiency: at each of [`LEADS`], for every shot, the interception the filter
+/// published last before that lead against the one predicted from the batch fit
+/// ([`crate::batch`]) of the same detections (all of the shot's that had arrived when the filter
+/// published, outliers included), from the fitted state at the same stamp, with the same
+/// physics. The fit is the maximum a posteriori estimate given everything the filter had seen,
+/// so `ratio` measures what the filter's recursion (linearisation, process noise, gating,
+/// initialisation) costs.
+pub fn efficiency(config: &Config, session: &Session) -> Vec<LeadEfficiency> {
+    let run = run(config, session);
+    let propagator = Propagator::new(config);
+    let query = |bounced| InterceptQuery {
+        plane_x: config.intercept.plane_x,
+        horizon: config.prediction.horizon,
+        bounced_on_robot_half: bounced,
+    };
+    let mut out = Vec::with_capacity(LEADS.len());
+    for (slot, &lead) in LEADS.iter().enumerate() {
+        let (mut online, mut batch) = (Vec::new(), Vec::new());
+        for (index, (truth, record)) in run.scorer.shots.iter().zip(&run.scorer.records).enumerate()
+        {
+            let Some((arrived, published)) = record.at_lead[slot] else {
+                continue;
+            };
+            let Some(estimate) = published.intercept else {
+                continue;
+            };
+            let Ok(online_crossing) = estimate.intercept.crossing else {
+                continue;
+            };
+            let seen: Vec<Detection> = session.stream[..arrived]
+                .iter()
+                .filter(|d| d.shot == index)
+                .map(|d| d.detection)
+                .collect();
+            let fitted = initial_guess(&seen, config.gravity)
+                .and_then(|guess| fit_flight(config, &seen, &guess).ok())
+                .and_then(|fit| fit.states_at(&propagator, &[estimate.stamp]).pop().flatten());
+            let Some(fitted) = fitted else {
+                continue;
+            };
+            let predicted = predict_intercept(
+                &propagator,
+                &fitted.state.to_vector(),
+                &fitted.covariance,
+                &query(fitted.robot_half_bounces > 0),
+            );
+            let Ok(batch_crossing) = predicted.crossing else {
+                continue;
+            };
+            let miss = |p: &Vector3<f64>| {
+                Vector2::new(
+                    p.y - truth.intercept_position.y,
+                    p.z - truth.intercept_position.z,
+                )
+                .norm()
+            };
+            online.push(miss(&online_crossing.state.position));
+            batch.push(miss(&batch_crossing.state.position));
+        }
+        let (online, batch) = (ErrorStats::of(&online), ErrorStats::of(&batch));
+        out.push(LeadEfficiency {
+            lead,
+            shots: online.count,
+            online,
+            batch,
+            ratio: online.rms / batch.rms,
+            median_ratio: online.median / batch.median,
+        });
+    }
+    out
 }
