@@ -96,9 +96,9 @@ pub(crate) struct Observation {
     /// L^-1, zero outside the measured dimensions: the whitened residual is `white (z - h)`.
     white: SMatrix<f64, 6, 6>,
     /// Measured dimensions: 3 (position) or 6 (position and spin).
-    dims: usize,
+    pub dims: usize,
     /// Whitened residual length where Huber's loss turns linear.
-    threshold: f64,
+    pub threshold: f64,
 }
 
 /// The usable detections of one flight, in stamp order, and the rejected ones' reasons.
@@ -179,6 +179,8 @@ pub(crate) struct Residual {
     pub value: SVector<f64, 6>,
     /// `-d value / d x_0`, i.e. `white H Phi(t)`, when asked for.
     pub jacobian: SMatrix<f64, 6, 9>,
+    /// The measured minus the predicted position, not whitened [m].
+    pub miss: Vector3<f64>,
 }
 
 /// The whitened residuals of `observations` for the start state `x`, in one propagation through
@@ -213,9 +215,11 @@ pub(crate) fn residuals(
             h.fixed_rows_mut::<3>(0).copy_from(&phi.fixed_rows::<3>(0));
             h.fixed_rows_mut::<3>(3).copy_from(&phi.fixed_rows::<3>(SPIN));
         }
+        let difference = o.z - predicted;
         out.push(Residual {
-            value: o.white * (o.z - predicted),
+            value: o.white * difference,
             jacobian: o.white * h,
+            miss: difference.fixed_rows::<3>(0).into_owned(),
         });
     }
 }

@@ -6,6 +6,7 @@
 //!   fusion, gating, initialisation, interception after every update.
 //! - [`batch`]: the batch (maximum a posteriori, robust) fit of one whole flight: the offline
 //!   smoother and the base of calibration.
+//! - [`calibrate`]: the aero and bounce coefficients fitted to many recorded flights at once.
 //! - [`smooth`]: a recording cut into flights by the estimator's tracks, each fitted whole: the
 //!   smoothed state at every detection.
 //! - [`eval`]: accuracy of the estimator on a simulated session against its truth.
@@ -32,6 +33,7 @@
 #[cfg(feature = "bag")]
 pub mod bag;
 pub mod batch;
+pub mod calibrate;
 pub mod config;
 pub mod detection;
 pub mod ekf;
