@@ -27,6 +27,7 @@ use crate::batch::{
 };
 use crate::config::Config;
 use crate::detection::Detection;
+use crate::eval::ErrorStats;
 use crate::physics::propagate::{Cursor, Propagator, Watch};
 use crate::physics::state::{BallState, SPIN, StateMatrix, StateVector};
 use crate::physics::FlightModel;
@@ -45,9 +46,14 @@ pub const MAX_MAGNUS_ORDER: usize = 4;
 /// Most parameters fitted at once (besides the flights' states).
 const MAX_PARAMETERS: usize = MAX_DRAG_ORDER + MAX_MAGNUS_ORDER + 2 + 2;
 /// Largest number of Levenberg-Marquardt iterations of one fit.
-const MAX_ITERATIONS: usize = 40;
+const MAX_ITERATIONS: usize = 100;
 /// Relative cost change at which a fit has converged.
 const COST_TOLERANCE: f64 = 1e-8;
+/// sigma_e of AIC: the root of the robust cost per measured dimension.
+fn sigma_e(cost: &FlightCost) -> f64 {
+    (cost.cost / cost.dims.max(1) as f64).sqrt()
+}
+
 /// Table frictions the fit is restarted from (see [`calibrate`]).
 const FRICTION_STARTS: [f64; 5] = [0.1, 0.2, 0.3, 0.4, 0.6];
 /// The default polynomials are refitted at another order over Sp in [0, this].
@@ -198,7 +204,10 @@ pub struct OrderTrial {
     pub magnus_order: usize,
     /// Akaike's criterion, N ln(sigma_e) + 2k.
     pub aic: f64,
-    /// sigma_e, the RMS position residual per axis [m].
+    /// sigma_e: the root of the robust cost per measured dimension [-] (the seed's RMS position
+    /// error, whitened, when every detection has the same noise and none is an outlier).
+    pub sigma_e: f64,
+    /// The RMS position residual per axis [m].
     pub position_rms: f64,
 }
 
@@ -311,6 +320,8 @@ struct FlightCost {
 struct Model<'a> {
     base: &'a Config,
     parameters: Vec<Parameter>,
+    /// Huber's loss (else least squares).
+    robust: bool,
 }
 
 impl Model<'_> {
@@ -358,8 +369,8 @@ pub fn calibrate(
     let propagator = Propagator::new(config);
     let mut prepared = Vec::new();
     let mut skipped = Vec::new();
-    for (i, input) in flights.iter().enumerate() {
-        progress(&format!("fitting flight {} of {} alone", i + 1, flights.len()));
+    progress(&format!("fitting each of the {} flights alone", flights.len()));
+    for input in flights {
         let observations = Observations::new(config, &input.detections);
         let fit = if observations.list.len() < MIN_FLIGHT_DETECTIONS {
             Err(FitError::TooFew(observations.list.len()))
@@ -391,106 +402,101 @@ pub fn calibrate(
     }
     let before: Vec<FlightCost> = prepared
         .iter()
-        .map(|f| flight_cost(&propagator, f, &f.state))
+        .map(|f| flight_cost(&propagator, f, &f.state, true))
         .collect();
 
-    let mut iterations = 0;
+    // First at the configured orders (or the given ones), with the friction restarts: the
+    // flights' states and the bounce constants are then in the right basin for every other
+    // order tried, each started from these polynomials refitted to it.
+    let first_orders = (
+        options.drag_order.unwrap_or(configured.0),
+        options.magnus_order.unwrap_or(configured.1),
+    );
+    if options.aero {
+        progress(&format!(
+            "C_D order {}, C_M order {}",
+            first_orders.0, first_orders.1
+        ));
+    }
+    let (mut solution, mut prepared) =
+        fit_at_orders(config, config, options, first_orders, prepared, progress)?;
+    let mut iterations = solution.iterations;
+    let mut orders = first_orders;
     let mut order_trials = Vec::new();
-    let mut fit_orders = |orders: (usize, usize),
-                          flights: &mut Vec<Flight>,
-                          progress: &mut dyn FnMut(&str)|
-     -> Result<Solution, CalibrationError> {
-        let model = Model {
+    if options.aero && (options.drag_order.is_none() || options.magnus_order.is_none()) {
+        let start = Model {
             base: config,
-            parameters: parameters(options, orders),
-        };
-        let theta = start_values(config, &model.parameters, orders);
-        let solution = solve(&model, theta, flights, progress)?;
-        iterations += solution.iterations;
-        Ok(solution)
-    };
-
-    let orders = if options.aero && (options.drag_order.is_none() || options.magnus_order.is_none())
-    {
-        // Order search: C_D's order with C_M's fixed, then C_M's with the best C_D.
-        let best = |trials: &[OrderTrial]| {
-            trials
-                .iter()
-                .min_by(|a, b| a.aic.total_cmp(&b.aic))
-                .map(|t| (t.drag_order, t.magnus_order))
-        };
-        let mut consider = |orders: (usize, usize),
-                            flights: &mut Vec<Flight>,
-                            trials: &mut Vec<OrderTrial>,
-                            progress: &mut dyn FnMut(&str)|
+            parameters: parameters(options, first_orders),
+            robust: true,
+        }
+        .config(solution.theta.as_slice());
+        let mut candidates = vec![(first_orders, solution, prepared)];
+        let mut try_orders = |orders: (usize, usize),
+                              candidates: &mut Vec<((usize, usize), Solution, Vec<Flight>)>,
+                              progress: &mut dyn FnMut(&str)|
          -> Result<(), CalibrationError> {
-            if trials
-                .iter()
-                .any(|t| (t.drag_order, t.magnus_order) == orders)
-            {
+            if candidates.iter().any(|c| c.0 == orders) {
                 return Ok(());
             }
-            let mut trial_flights = clone_flights(flights);
-            let solution = fit_orders(orders, &mut trial_flights, progress)?;
-            let n = solution.cost.positions as f64;
-            let sigma = (solution.cost.miss_squares / (3.0 * n)).sqrt();
-            let k = (orders.0 + 1 + orders.1 + 1) as f64;
-            let aic = n * sigma.ln() + 2.0 * k;
-            trials.push(OrderTrial {
-                drag_order: orders.0,
-                magnus_order: orders.1,
-                aic,
-                position_rms: sigma,
-            });
-            Ok(())
+            progress(&format!("C_D order {}, C_M order {}", orders.0, orders.1));
+            let flights = clone_flights(&candidates[0].2);
+            match fit_at_orders(config, &start, options, orders, flights, progress) {
+                Ok((solution, flights)) => {
+                    iterations += solution.iterations;
+                    candidates.push((orders, solution, flights));
+                    Ok(())
+                }
+                // Orders the data cannot determine are not candidates.
+                Err(CalibrationError::Singular) => {
+                    progress("  the flights do not determine these orders; skipped");
+                    Ok(())
+                }
+                Err(e) => Err(e),
+            }
         };
-        let drag_orders: Vec<usize> = match options.drag_order {
-            Some(o) => vec![o],
-            None => (0..=MAX_DRAG_ORDER).collect(),
+        let aic = |c: &((usize, usize), Solution, Vec<Flight>)| {
+            let n = c.1.cost.positions as f64;
+            let k = (c.0.0 + 1 + c.0.1 + 1) as f64;
+            n * sigma_e(&c.1.cost).ln() + 2.0 * k
         };
-        let magnus_fixed = options.magnus_order.unwrap_or(configured.1);
-        for d in drag_orders {
-            consider((d, magnus_fixed), &mut prepared, &mut order_trials, progress)?;
-        }
-        let drag = best(&order_trials).map_or(configured.0, |o| o.0);
-        if options.magnus_order.is_none() {
-            for m in 0..=MAX_MAGNUS_ORDER {
-                consider((drag, m), &mut prepared, &mut order_trials, progress)?;
+        let best = |candidates: &[((usize, usize), Solution, Vec<Flight>)]| {
+            candidates
+                .iter()
+                .enumerate()
+                .min_by(|a, b| aic(a.1).total_cmp(&aic(b.1)))
+                .map_or(0, |(i, _)| i)
+        };
+        // C_D's order with C_M's fixed, then C_M's with the best C_D.
+        if options.drag_order.is_none() {
+            for d in 0..=MAX_DRAG_ORDER {
+                try_orders((d, first_orders.1), &mut candidates, progress)?;
             }
         }
-        best(&order_trials).unwrap_or(configured)
-    } else {
-        (
-            options.drag_order.unwrap_or(configured.0),
-            options.magnus_order.unwrap_or(configured.1),
-        )
-    };
-    let mut solution = fit_orders(orders, &mut prepared, progress)?;
+        let drag = candidates[best(&candidates)].0.0;
+        if options.magnus_order.is_none() {
+            for m in 0..=MAX_MAGNUS_ORDER {
+                try_orders((drag, m), &mut candidates, progress)?;
+            }
+        }
+        order_trials = candidates
+            .iter()
+            .map(|c| OrderTrial {
+                drag_order: c.0.0,
+                magnus_order: c.0.1,
+                aic: aic(c),
+                sigma_e: sigma_e(&c.1.cost),
+                position_rms: (c.1.cost.miss_squares / (3.0 * c.1.cost.positions.max(1) as f64))
+                    .sqrt(),
+            })
+            .collect();
+        let chosen = candidates.swap_remove(best(&candidates));
+        (orders, solution, prepared) = chosen;
+    }
     let model = Model {
         base: config,
         parameters: parameters(options, orders),
+        robust: true,
     };
-    // The cost is only piecewise smooth in the friction (each bounce slides or rolls out, and a
-    // rolling bounce does not depend on it), so the fit is restarted from a spread of frictions
-    // with everything else at the solution, and the best kept.
-    if let Some(index) = model
-        .parameters
-        .iter()
-        .position(|p| *p == Parameter::Friction)
-    {
-        for mu in FRICTION_STARTS {
-            progress(&format!("restarting from friction {mu}"));
-            let mut theta: Vec<f64> = solution.theta.iter().copied().collect();
-            theta[index] = mu;
-            let mut trial_flights = clone_flights(&prepared);
-            let trial = solve(&model, theta, &mut trial_flights, progress)?;
-            iterations += trial.iterations;
-            if trial.cost.cost < solution.cost.cost {
-                solution = trial;
-                prepared = trial_flights;
-            }
-        }
-    }
     let fitted = model.config(solution.theta.as_slice());
     let fitted_propagator = Propagator::new(&fitted);
     let scale = solution.reduced_chi_square;
@@ -511,7 +517,7 @@ pub fn calibrate(
     let model_flight = FlightModel::new(&fitted);
     let (mut before_squares, mut before_positions) = (0.0, 0usize);
     for (f, b) in prepared.iter().zip(&before) {
-        let after = flight_cost(&fitted_propagator, f, &f.state);
+        let after = flight_cost(&fitted_propagator, f, &f.state, true);
         before_squares += b.miss_squares;
         before_positions += b.positions;
         flights_out.push(FlightResidual {
@@ -552,6 +558,52 @@ pub fn calibrate(
         spin_parameter: [quantile(0.05), quantile(0.5), quantile(0.95)],
         iterations,
     })
+}
+
+/// The fit at fixed polynomial orders: least squares from the `start` configuration's constants
+/// (its polynomials refitted to `orders`; a robust loss from a poor start lets a flight give up
+/// on its detections), then Huber's loss from there, then restarts over the friction (the cost
+/// is only piecewise smooth in it: each bounce slides or rolls out, and a rolling bounce does
+/// not depend on it), keeping the best. Returns the solution and the flights at it.
+fn fit_at_orders(
+    base: &Config,
+    start: &Config,
+    options: &Options,
+    orders: (usize, usize),
+    mut flights: Vec<Flight>,
+    progress: &mut dyn FnMut(&str),
+) -> Result<(Solution, Vec<Flight>), CalibrationError> {
+    let mut model = Model {
+        base,
+        parameters: parameters(options, orders),
+        robust: false,
+    };
+    let theta = start_values(start, &model.parameters, orders);
+    let least_squares = solve(&model, theta, &mut flights, progress)?;
+    model.robust = true;
+    let theta = least_squares.theta.iter().copied().collect();
+    let mut solution = solve(&model, theta, &mut flights, progress)?;
+    let mut iterations = least_squares.iterations + solution.iterations;
+    if let Some(index) = model
+        .parameters
+        .iter()
+        .position(|p| *p == Parameter::Friction)
+    {
+        for mu in FRICTION_STARTS {
+            progress(&format!("  restarting from friction {mu}"));
+            let mut theta: Vec<f64> = solution.theta.iter().copied().collect();
+            theta[index] = mu;
+            let mut trial_flights = clone_flights(&flights);
+            let trial = solve(&model, theta, &mut trial_flights, progress)?;
+            iterations += trial.iterations;
+            if trial.cost.cost < solution.cost.cost {
+                solution = trial;
+                flights = trial_flights;
+            }
+        }
+    }
+    solution.iterations = iterations;
+    Ok((solution, flights))
 }
 
 fn clone_flights(flights: &[Flight]) -> Vec<Flight> {
@@ -622,13 +674,18 @@ fn refit(coefficients: &[f64], order: usize) -> Vec<f64> {
 }
 
 /// The cost of one flight at its state `x` with `propagator`'s physics.
-fn flight_cost(propagator: &Propagator, flight: &Flight, x: &StateVector) -> FlightCost {
+fn flight_cost(
+    propagator: &Propagator,
+    flight: &Flight,
+    x: &StateVector,
+    robust: bool,
+) -> FlightCost {
     let mut scratch = Vec::with_capacity(flight.observations.list.len());
     residuals(propagator, &flight.observations.list, x, false, &mut scratch);
     let mut out = FlightCost::default();
     for (o, r) in flight.observations.list.iter().zip(&scratch) {
         let length = r.value.norm();
-        let (weight, cost) = huber(length, o.threshold);
+        let (weight, cost) = huber(length, threshold(o.threshold, robust));
         out.cost += cost;
         out.squares += weight * length * length;
         out.dims += o.dims;
@@ -640,6 +697,11 @@ fn flight_cost(propagator: &Propagator, flight: &Flight, x: &StateVector) -> Fli
     }
     out.cost += spin_prior_cost(x);
     out
+}
+
+/// An observation's Huber threshold, or none (least squares).
+fn threshold(huber: f64, robust: bool) -> f64 {
+    if robust { huber } else { f64::INFINITY }
 }
 
 fn spin_prior_cost(x: &StateVector) -> f64 {
@@ -655,6 +717,7 @@ fn flight_blocks(
     steps: &[f64],
     flight: &Flight,
     x: &StateVector,
+    robust: bool,
 ) -> Blocks {
     let list = &flight.observations.list;
     let mut base: Vec<Residual> = Vec::with_capacity(list.len());
@@ -678,7 +741,7 @@ fn flight_blocks(
         cost: spin_prior_cost(x),
     };
     for ((o, r), jt) in list.iter().zip(&base).zip(&columns) {
-        let (weight, cost) = huber(r.value.norm(), o.threshold);
+        let (weight, cost) = huber(r.value.norm(), threshold(o.threshold, robust));
         out.cost += cost;
         out.v += r.jacobian.transpose() * r.jacobian * weight;
         out.g += r.jacobian.transpose() * r.value * weight;
@@ -726,7 +789,9 @@ struct Solution {
 fn total_cost(model: &Model, theta: &[f64], states: &[StateVector], flights: &[Flight]) -> FlightCost {
     let propagator = Propagator::new(&model.config(theta));
     let indices: Vec<usize> = (0..flights.len()).collect();
-    let costs = parallel_map(&indices, |&i| flight_cost(&propagator, &flights[i], &states[i]));
+    let costs = parallel_map(&indices, |&i| {
+        flight_cost(&propagator, &flights[i], &states[i], model.robust)
+    });
     costs.iter().fold(FlightCost::default(), |a, c| FlightCost {
         cost: a.cost + c.cost,
         squares: a.squares + c.squares,
@@ -774,7 +839,7 @@ fn solve(
             .collect();
         let indices: Vec<usize> = (0..flights.len()).collect();
         let blocks = parallel_map(&indices, |&i| {
-            flight_blocks(&nominal, &perturbed, &steps, &flights[i], &states[i])
+            flight_blocks(&nominal, &perturbed, &steps, &flights[i], &states[i], model.robust)
         });
         let mut u = DMatrix::<f64>::zeros(p, p);
         let mut gt = DVector::<f64>::zeros(p);
@@ -904,6 +969,45 @@ pub fn forecast_error(config: &Config, detections: &[Detection], fraction: f64) 
         }
     }
     (n > 0).then(|| (sum / n as f64).sqrt())
+}
+
+/// Forecast errors on flights left out of a calibration, with the starting and the calibrated
+/// configuration ([`forecast_error`]).
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct Holdout {
+    /// Fraction of each flight's duration fitted before forecasting the rest.
+    pub fraction: f64,
+    /// Flights forecast with both configurations.
+    pub flights: usize,
+    /// RMS forecast errors with the starting configuration [m].
+    pub before: ErrorStats,
+    /// The same with the calibrated configuration [m].
+    pub after: ErrorStats,
+}
+
+/// [`forecast_error`] of every flight with `start` and with `calibrated`.
+pub fn holdout(
+    start: &Config,
+    calibrated: &Config,
+    flights: &[FlightInput],
+    fraction: f64,
+) -> Holdout {
+    let (mut before, mut after) = (Vec::new(), Vec::new());
+    for f in flights {
+        if let (Some(b), Some(a)) = (
+            forecast_error(start, &f.detections, fraction),
+            forecast_error(calibrated, &f.detections, fraction),
+        ) {
+            before.push(b);
+            after.push(a);
+        }
+    }
+    Holdout {
+        fraction,
+        flights: before.len(),
+        before: ErrorStats::of(&before),
+        after: ErrorStats::of(&after),
+    }
 }
 
 /// Standard deviation of a fitted polynomial's value at `x` [-], from the calibration's

@@ -15,6 +15,7 @@ use std::time::Instant;
 
 use crate::bag::{BagContents, BagError, BagWriter, decode, read_bag_file};
 use crate::config::Config;
+use crate::detection::Detection;
 use crate::estimator::{Counters, Estimate, TrackStatus};
 use crate::eval::{EvalReport, Scorer, ShotTruth};
 use crate::msgs::convert::{
@@ -322,6 +323,51 @@ pub fn replay(
     })
 }
 
+/// The detections of a bag, decoded.
+#[derive(Debug, Clone)]
+pub struct BagDetections {
+    /// The whole bag.
+    pub contents: BagContents,
+    /// The detections in the `table` frame, in log-time (arrival) order.
+    pub detections: Vec<Detection>,
+    /// For every message of the bag, the index of its detection in `detections`.
+    pub message_detection: Vec<Option<usize>>,
+    /// Detection messages that could not be decoded.
+    pub undecodable: u64,
+    /// Detection messages not in the `table` frame.
+    pub unknown_frame: u64,
+}
+
+/// Reads `path` and decodes its detections (`topics.detections`).
+pub fn read_detections(path: &Path, config: &Config) -> Result<BagDetections, ReplayError> {
+    let contents = read_bag_file(path)?;
+    let channel = detection_channel(&contents, &config.topics.detections, path)?;
+    let mut detections = Vec::new();
+    let mut message_detection = Vec::with_capacity(contents.messages.len());
+    let (mut undecodable, mut unknown_frame) = (0u64, 0u64);
+    for m in &contents.messages {
+        let mut index = None;
+        if m.channel == channel {
+            match decode::<BallDetection>(&m.data).map(|msg| detection_from_msg(&msg)) {
+                Err(_) => undecodable += 1,
+                Ok(Err(_)) => unknown_frame += 1,
+                Ok(Ok(d)) => {
+                    index = Some(detections.len());
+                    detections.push(d);
+                }
+            }
+        }
+        message_detection.push(index);
+    }
+    Ok(BagDetections {
+        contents,
+        detections,
+        message_detection,
+        undecodable,
+        unknown_frame,
+    })
+}
+
 /// What `ttball smooth` did with one bag.
 #[derive(Debug, Clone, PartialEq)]
 pub struct SmoothSummary {
@@ -369,28 +415,15 @@ pub fn smooth_bag(
     progress: &mut dyn FnMut(usize, usize),
     cancel: &AtomicBool,
 ) -> Result<SmoothSummary, ReplayError> {
-    let contents = read_bag_file(input)?;
-    let detection_channel = detection_channel(&contents, &config.topics.detections, input)?;
+    let BagDetections {
+        contents,
+        detections,
+        message_detection,
+        undecodable,
+        unknown_frame,
+    } = read_detections(input, config)?;
+    let count = message_detection.iter().flatten().count() as u64 + undecodable + unknown_frame;
     let truth = read_truth(&contents, config);
-    let mut detections = Vec::new();
-    // For every detection message, the index of its detection in `detections`.
-    let mut message_detection: Vec<Option<usize>> = Vec::with_capacity(contents.messages.len());
-    let (mut count, mut undecodable, mut unknown_frame) = (0u64, 0u64, 0u64);
-    for m in &contents.messages {
-        let mut index = None;
-        if m.channel == detection_channel {
-            count += 1;
-            match decode::<BallDetection>(&m.data).map(|msg| detection_from_msg(&msg)) {
-                Err(_) => undecodable += 1,
-                Ok(Err(_)) => unknown_frame += 1,
-                Ok(Ok(d)) => {
-                    index = Some(detections.len());
-                    detections.push(d);
-                }
-            }
-        }
-        message_detection.push(index);
-    }
     let smoothing = smooth(config, &detections, progress, cancel);
     let mut by_detection: Vec<Option<&SmoothedState>> = vec![None; detections.len()];
     for s in &smoothing.states {

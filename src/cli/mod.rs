@@ -1,6 +1,7 @@
 //! The command-line interface: the [`Command`] enum, one file per subcommand, and the arguments
 //! shared between commands ([`ConfigArgs`]). Commands are thin adapters around the library.
 
+pub mod calibrate;
 pub mod config_cmd;
 pub mod dump;
 pub mod evaluate;
@@ -88,6 +89,21 @@ pub enum Command {
         ttball replay bags/*.mcap --output-dir out/ --report out/report.json\n  \
         ttball replay my_rally.mcap -o out.mcap -p topics.detections:=/vision/ball -p intercept.plane_x:=-1.45")]
     Replay(replay::ReplayArgs),
+
+    /// Calibrate the aero and bounce coefficients from recorded flights.
+    ///
+    /// Cuts the bags' detections into flights with the estimator's tracks and fits, over all
+    /// flights together, the C_D(Sp) and C_M(Sp) polynomial coefficients (orders chosen by AIC
+    /// unless given), the table's restitution and friction, or the air density, with every
+    /// flight's state (position, velocity, spin) as a nuisance parameter; measured spins are
+    /// used where the bags have them. Writes a configuration snippet (pass it to --config) with
+    /// standard errors, and optionally a chart and JSON.
+    #[command(after_help = "Examples:\n  \
+        ttball calibrate my_rallies/*.mcap --output calibrated.yaml --plot calibration.png\n  \
+        ttball calibrate bags/real_launcher.mcap -o launcher.yaml --holdout\n  \
+        ttball calibrate rally.mcap -o table.yaml --fit bounce\n  \
+        ttball calibrate rally.mcap -o aero.yaml --fit aero --drag-order 2 --magnus-order 4")]
+    Calibrate(calibrate::CalibrateArgs),
 
     /// Smooth a bag: fit every flight as a whole and write the state at each detection.
     ///
@@ -194,6 +210,7 @@ impl Command {
             Self::Replay(args) => args.run(),
             Self::Simulate(args) => args.run(),
             Self::Smooth(args) => args.run(),
+            Self::Calibrate(args) => args.run(),
             Self::Dump(args) => args.run(),
             Self::Import(command) => command.run(),
             Self::Plot(args) => args.run(),

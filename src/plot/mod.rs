@@ -8,6 +8,7 @@
 //! plotters' SVG and bitmap backends with the DejaVu Sans font compiled in (crate `dejavu`), so
 //! nothing needs to be installed and the output is the same on every machine.
 
+mod calibration;
 mod data;
 mod rebound;
 mod render;
@@ -177,6 +178,38 @@ pub fn render_rebound_chart_png(
     register_fonts()?;
     let chart = rebound::ReboundChart::new(model, config);
     encode_png((options.width, options.height), |root| chart.draw(root))
+}
+
+/// The calibration chart (fitted C_D(Sp) and C_M(Sp) against the starting curves, the Sp range
+/// of the data, residuals per flight) as an SVG document.
+pub fn render_calibration_svg(
+    calibration: &crate::calibrate::Calibration,
+    start: &Config,
+    options: &ChartOptions,
+) -> Result<String, PlotError> {
+    check_size(options.width, options.height)?;
+    register_fonts()?;
+    let mut svg = String::new();
+    {
+        let root =
+            SVGBackend::with_string(&mut svg, (options.width, options.height)).into_drawing_area();
+        calibration::draw(&root, calibration, start)?;
+        root.present()?;
+    }
+    Ok(svg)
+}
+
+/// The calibration chart as an encoded PNG image (8-bit RGB).
+pub fn render_calibration_png(
+    calibration: &crate::calibrate::Calibration,
+    start: &Config,
+    options: &ChartOptions,
+) -> Result<Vec<u8>, PlotError> {
+    check_size(options.width, options.height)?;
+    register_fonts()?;
+    encode_png((options.width, options.height), |root| {
+        calibration::draw(root, calibration, start)
+    })
 }
 
 /// Draws on an RGB bitmap of `size` and encodes it as PNG.

@@ -1,0 +1,314 @@
+//! `ttball calibrate`: the aero and bounce coefficients fitted to the flights of recorded bags,
+//! written as a configuration snippet with standard errors, plus a chart.
+
+use std::fmt::Write as _;
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+use anyhow::{Context, bail};
+use clap::{Args, ValueEnum};
+use ttball::calibrate::{
+    Calibration, FlightInput, FlightLabel, Holdout, Options, Parameter, calibrate, holdout,
+};
+use ttball::config::Config;
+use ttball::plot::ChartOptions;
+use ttball::replay::read_detections;
+use ttball::smooth::split_flights;
+
+use super::{BadUsage, ConfigArgs, write_stdout};
+
+/// A group of constants to fit.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum Group {
+    /// The C_D(Sp) and C_M(Sp) polynomial coefficients (aero.drag/magnus_coefficients).
+    Aero,
+    /// Table restitution and friction (table.restitution, table.friction).
+    Bounce,
+    /// Air density (air.density); not with aero, which absorbs it.
+    Density,
+}
+
+/// Arguments of `ttball calibrate`.
+#[derive(Debug, Args)]
+pub struct CalibrateArgs {
+    /// Bags of recorded flights (MCAP files or rosbag2 directories); their detections are cut
+    /// into flights by the estimator's tracks.
+    #[arg(required = true, value_name = "BAG")]
+    pub inputs: Vec<PathBuf>,
+
+    /// The configuration snippet to write (a ROS 2 parameters file: pass it to --config).
+    #[arg(long, short, value_name = "FILE.yaml")]
+    pub output: PathBuf,
+
+    /// What to fit, comma separated.
+    #[arg(long, value_enum, value_delimiter = ',', default_value = "aero,bounce")]
+    pub fit: Vec<Group>,
+
+    /// Order of the C_D polynomial (0-3) [default: chosen by AIC].
+    #[arg(long, value_name = "N")]
+    pub drag_order: Option<usize>,
+
+    /// Order of the C_M polynomial (0-4) [default: chosen by AIC].
+    #[arg(long, value_name = "N")]
+    pub magnus_order: Option<usize>,
+
+    /// Hold every other flight out of the fit and report how well the starting and the
+    /// calibrated configurations forecast them (the second half of each from its first half).
+    #[arg(long)]
+    pub holdout: bool,
+
+    /// Draw the fitted C_D(Sp), C_M(Sp) against the starting ones and the residual of every
+    /// flight (SVG or PNG by the file name).
+    #[arg(long, value_name = "FILE.svg|FILE.png")]
+    pub plot: Option<PathBuf>,
+
+    /// Also write everything as JSON.
+    #[arg(long, value_name = "FILE.json")]
+    pub json: Option<PathBuf>,
+
+    /// The starting configuration (camera noise, topics, the constants not fitted).
+    #[command(flatten)]
+    pub config: ConfigArgs,
+}
+
+/// Fraction of a held-out flight fitted before forecasting the rest.
+const HOLDOUT_FRACTION: f64 = 0.5;
+
+impl CalibrateArgs {
+    /// Reads the bags, calibrates and writes the outputs.
+    pub fn run(self) -> anyhow::Result<ExitCode> {
+        let config = self.config.load()?;
+        if let Some(plot) = &self.plot
+            && !matches!(
+                plot.extension().and_then(|e| e.to_str()),
+                Some("svg" | "png")
+            )
+        {
+            bail!(BadUsage(format!(
+                "--plot {}: give a file name ending in .svg or .png",
+                plot.display()
+            )));
+        }
+        let options = Options {
+            aero: self.fit.contains(&Group::Aero),
+            bounce: self.fit.contains(&Group::Bounce),
+            density: self.fit.contains(&Group::Density),
+            drag_order: self.drag_order,
+            magnus_order: self.magnus_order,
+        };
+        let mut flights = Vec::new();
+        for (recording, input) in self.inputs.iter().enumerate() {
+            let bag = read_detections(input, &config)
+                .with_context(|| format!("cannot read {}", input.display()))?;
+            let (tracks, _) = split_flights(&config, &bag.detections);
+            eprintln!("{}: {} flights", input.display(), tracks.len());
+            flights.extend(tracks.into_iter().map(|f| FlightInput {
+                label: FlightLabel {
+                    recording,
+                    track_id: f.track_id,
+                },
+                detections: f.members.iter().map(|&i| bag.detections[i]).collect(),
+            }));
+        }
+        let (fitted, held): (Vec<_>, Vec<_>) = if self.holdout {
+            let (a, b): (Vec<_>, Vec<_>) = flights.into_iter().enumerate().partition(|(i, _)| i % 2 == 0);
+            (
+                a.into_iter().map(|(_, f)| f).collect(),
+                b.into_iter().map(|(_, f)| f).collect(),
+            )
+        } else {
+            (flights, Vec::new())
+        };
+        let verbose = std::io::IsTerminal::is_terminal(&std::io::stderr());
+        let mut progress = |line: &str| {
+            if verbose || !line.starts_with("  ") || std::env::var_os("TTBALL_VERBOSE").is_some() {
+                eprintln!("{line}");
+            }
+        };
+        let calibration = calibrate(&config, &fitted, &options, &mut progress)
+            .map_err(|e| BadUsage(format!("cannot calibrate: {e}")))?;
+        let held_out = self
+            .holdout
+            .then(|| holdout(&config, &calibration.config, &held, HOLDOUT_FRACTION));
+
+        let inputs: Vec<String> = self.inputs.iter().map(|p| p.display().to_string()).collect();
+        std::fs::write(&self.output, snippet(&calibration, &inputs))
+            .with_context(|| format!("cannot write {}", self.output.display()))?;
+        if let Some(path) = &self.plot {
+            let options = ChartOptions {
+                width: 1800,
+                height: 650,
+            };
+            let bytes = if path.extension().is_some_and(|e| e == "svg") {
+                ttball::plot::render_calibration_svg(&calibration, &config, &options)?.into_bytes()
+            } else {
+                ttball::plot::render_calibration_png(&calibration, &config, &options)?
+            };
+            std::fs::write(path, bytes)
+                .with_context(|| format!("cannot write {}", path.display()))?;
+        }
+        if let Some(path) = &self.json {
+            let json = serde_json::json!({
+                "parameters": calibration.parameters,
+                "orders": { "drag": calibration.orders.0, "magnus": calibration.orders.1 },
+                "order_trials": calibration.order_trials,
+                "flights": calibration.flights,
+                "skipped": calibration.skipped,
+                "position_rms_before": calibration.position_rms_before,
+                "position_rms": calibration.position_rms,
+                "reduced_chi_square": calibration.reduced_chi_square,
+                "spin_parameter_5_50_95": calibration.spin_parameter,
+                "holdout": held_out,
+            });
+            std::fs::write(path, serde_json::to_string_pretty(&json)? + "\n")
+                .with_context(|| format!("cannot write {}", path.display()))?;
+        }
+        write_stdout(&report(&calibration, held_out.as_ref(), &self.output))?;
+        Ok(ExitCode::SUCCESS)
+    }
+}
+
+/// The configuration snippet: the fitted values, with the fit's numbers in comments.
+fn snippet(c: &Calibration, inputs: &[String]) -> String {
+    let mut out = String::new();
+    let detections: usize = c.flights.iter().map(|f| f.detections).sum();
+    let spins: usize = c.flights.iter().map(|f| f.measured_spins).sum();
+    let _ = writeln!(
+        out,
+        "# Written by `ttball calibrate` from {} flights ({} detections, {} with measured spin) in:",
+        c.flights.len(),
+        detections,
+        spins
+    );
+    for i in inputs {
+        let _ = writeln!(out, "#   {i}");
+    }
+    let _ = writeln!(
+        out,
+        "# RMS position residual per axis: {:.3} mm with the starting configuration, {:.3} mm \
+         calibrated; reduced chi-square {:.2}.",
+        c.position_rms_before * 1e3,
+        c.position_rms * 1e3,
+        c.reduced_chi_square
+    );
+    let [lo, mid, hi] = c.spin_parameter;
+    let _ = writeln!(
+        out,
+        "# Sp of the detections: 5 % {lo:.2}, median {mid:.2}, 95 % {hi:.2}; C_D and C_M are \
+         supported by data there only."
+    );
+    let _ = writeln!(
+        out,
+        "# Value +- standard error (starting value), per fitted parameter:"
+    );
+    for p in &c.parameters {
+        let _ = writeln!(
+            out,
+            "#   {} = {:.5} +- {:.5} ({:.5})",
+            p.name, p.value, p.std_error, p.initial
+        );
+    }
+    let fitted = |f: fn(&Parameter) -> bool| c.parameters.iter().any(|p| f(&p.parameter));
+    let list = |v: &[f64]| {
+        v.iter()
+            .map(|x| format!("{x:.6}"))
+            .collect::<Vec<_>>()
+            .join(", ")
+    };
+    let cfg: &Config = &c.config;
+    out.push_str("ttball:\n  ros__parameters:\n");
+    if fitted(|p| matches!(p, Parameter::AirDensity)) {
+        let _ = writeln!(out, "    air:\n      density: {:.6}", cfg.air.density);
+    }
+    if fitted(|p| matches!(p, Parameter::Drag(_) | Parameter::Magnus(_))) {
+        let _ = writeln!(
+            out,
+            "    aero:\n      drag_coefficients: [{}]\n      magnus_coefficients: [{}]",
+            list(&cfg.aero.drag_coefficients),
+            list(&cfg.aero.magnus_coefficients)
+        );
+    }
+    if fitted(|p| matches!(p, Parameter::Restitution | Parameter::Friction)) {
+        let _ = writeln!(
+            out,
+            "    table:\n      restitution: {:.6}\n      friction: {:.6}",
+            cfg.table.restitution, cfg.table.friction
+        );
+    }
+    out
+}
+
+/// What the user reads at the end.
+fn report(c: &Calibration, held_out: Option<&Holdout>, output: &std::path::Path) -> String {
+    let mut out = String::new();
+    let _ = writeln!(
+        out,
+        "calibrated from {} flights ({} left out), {} Levenberg-Marquardt iterations",
+        c.flights.len(),
+        c.skipped.len(),
+        c.iterations
+    );
+    for s in &c.skipped {
+        let _ = writeln!(
+            out,
+            "  left out: bag {} track {}: {}",
+            s.label.recording, s.label.track_id, s.reason
+        );
+    }
+    if !c.order_trials.is_empty() {
+        out.push_str(
+            "polynomial orders by AIC = N ln(sigma_e) + 2k (sigma_e: RMS whitened residual):\n",
+        );
+        for t in &c.order_trials {
+            let chosen = (t.drag_order, t.magnus_order) == c.orders;
+            let _ = writeln!(
+                out,
+                "  C_D {} C_M {}: AIC {:>10.1}, sigma_e {:.4}, RMS position residual {:.3} mm{}",
+                t.drag_order,
+                t.magnus_order,
+                t.aic,
+                t.sigma_e,
+                t.position_rms * 1e3,
+                if chosen { "  <- chosen" } else { "" }
+            );
+        }
+    }
+    out.push_str("parameter                         fitted      +- std error   start\n");
+    for p in &c.parameters {
+        let _ = writeln!(
+            out,
+            "  {:<30} {:>10.5}  {:>10.5}   {:>9.5}",
+            p.name, p.value, p.std_error, p.initial
+        );
+    }
+    let _ = writeln!(
+        out,
+        "RMS position residual per axis: {:.3} mm -> {:.3} mm (reduced chi-square {:.2})",
+        c.position_rms_before * 1e3,
+        c.position_rms * 1e3,
+        c.reduced_chi_square
+    );
+    let [lo, mid, hi] = c.spin_parameter;
+    let _ = writeln!(
+        out,
+        "Sp of the detections: 5 % {lo:.2}, median {mid:.2}, 95 % {hi:.2}"
+    );
+    if let Some(h) = held_out {
+        let _ = writeln!(
+            out,
+            "held-out flights ({}), second half forecast from the first: RMS {:.1} mm -> {:.1} mm, median {:.1} mm -> {:.1} mm",
+            h.flights,
+            h.before.rms * 1e3,
+            h.after.rms * 1e3,
+            h.before.median * 1e3,
+            h.after.median * 1e3
+        );
+    }
+    let _ = writeln!(
+        out,
+        "written to {} (use it with --config {})",
+        output.display(),
+        output.display()
+    );
+    out
+}
