@@ -25,8 +25,8 @@ use thiserror::Error;
 
 use crate::config::Config;
 use crate::detection::Detection;
-use crate::estimator::{Measurement, Rejection, Settings, measurement};
 use crate::ekf::PredictReport;
+use crate::estimator::{Measurement, Rejection, Settings, measurement};
 use crate::physics::propagate::{Cursor, Propagator, Watch};
 use crate::physics::state::{BallState, SPIN, StateMatrix, StateVector};
 use crate::real::fit::fit_ballistic;
@@ -213,7 +213,8 @@ pub(crate) fn residuals(
         if let Some(tangent) = &cursor.tangent {
             let phi = tangent.transition;
             h.fixed_rows_mut::<3>(0).copy_from(&phi.fixed_rows::<3>(0));
-            h.fixed_rows_mut::<3>(3).copy_from(&phi.fixed_rows::<3>(SPIN));
+            h.fixed_rows_mut::<3>(3)
+                .copy_from(&phi.fixed_rows::<3>(SPIN));
         }
         let difference = o.z - predicted;
         out.push(Residual {
@@ -321,7 +322,11 @@ pub fn initial_guess(detections: &[Detection], gravity: f64) -> Option<BallState
         .find_map(|d| d.spin.filter(|w| w.iter().all(|v| v.is_finite())))
         .unwrap_or_default();
     let guess = BallState::new(parabola.position, parabola.velocity, spin);
-    guess.to_vector().iter().all(|v| v.is_finite()).then_some(guess)
+    guess
+        .to_vector()
+        .iter()
+        .all(|v| v.is_finite())
+        .then_some(guess)
 }
 
 /// The spins added to a guess to start the least-squares phase from (see [`fit_flight`]).
@@ -389,8 +394,7 @@ pub(crate) fn fit_observations(
         for k in 0..3 {
             start[SPIN + k] += extra[k];
         }
-        let (solution, at, used) =
-            levenberg_marquardt(&mut |x| linearise(x, false), start);
+        let (solution, at, used) = levenberg_marquardt(&mut |x| linearise(x, false), start);
         iterations += used;
         if best.is_none_or(|(_, cost)| at.cost < cost) {
             best = Some((solution, at.cost));
@@ -399,8 +403,7 @@ pub(crate) fn fit_observations(
     if let Some((solution, _)) = best {
         x = solution;
     }
-    let (solution, current, used) =
-        levenberg_marquardt(&mut |x| linearise(x, true), x);
+    let (solution, current, used) = levenberg_marquardt(&mut |x| linearise(x, true), x);
     x = solution;
     iterations += used;
     let covariance = current.normal.try_inverse().ok_or(FitError::Singular)?;
@@ -543,9 +546,7 @@ mod tests {
                 Detection {
                     source: Source::HighSpeed900Fps,
                     position_covariance: Some(Matrix3::identity() * 1e-6),
-                    spin: Some(
-                        cursor.state.fixed_rows::<3>(SPIN) + Vector3::new(5.0, -3.0, 2.0),
-                    ),
+                    spin: Some(cursor.state.fixed_rows::<3>(SPIN) + Vector3::new(5.0, -3.0, 2.0)),
                     spin_covariance: Some(Matrix3::identity() * 144.0),
                     ..detection(stamp, p + Vector3::new(1e-3, -2e-3, 1e-3))
                 }

@@ -14,9 +14,10 @@
 //! so the work grows linearly with the flights. Standard errors are the square roots of the
 //! diagonal of the inverse reduced normal matrix times the reduced chi-square.
 //!
-//! The polynomial orders are fixed by the user or chosen by Akaike's criterion, AIC = N ln(sigma_e)
-//! + 2k (N detections, sigma_e the RMS position residual per axis, k aero coefficients): C_D's
-//! order with C_M at the configured one, then C_M's with that C_D. Air density and the aero
+//! The polynomial orders are fixed by the user or chosen by Akaike's criterion,
+//! `AIC = N ln(sigma_e) + 2k` (N detections, sigma_e the root of the robust cost per measured
+//! dimension, k aero coefficients): C_D's order with C_M at the configured one, then C_M's with
+//! that C_D, each started from the configured orders' solution. Air density and the aero
 //! coefficients scale the same forces, so they are not fitted together.
 
 use nalgebra::{DMatrix, DVector, SMatrix, SVector};
@@ -28,10 +29,10 @@ use crate::batch::{
 use crate::config::Config;
 use crate::detection::Detection;
 use crate::eval::ErrorStats;
-use crate::physics::propagate::{Cursor, Propagator, Watch};
-use crate::physics::state::{BallState, SPIN, StateMatrix, StateVector};
 use crate::physics::FlightModel;
 use crate::physics::aero::Polynomial;
+use crate::physics::propagate::{Cursor, Propagator, Watch};
+use crate::physics::state::{BallState, SPIN, StateMatrix, StateVector};
 
 /// Standard deviation of the prior on each flight's spin during calibration [rad/s]: weak
 /// enough not to pull real spins (up to about 600 rad/s) toward zero, strong enough to bound the
@@ -89,8 +90,18 @@ impl Parameter {
     /// Its value in `config` (0 for a coefficient beyond the polynomial's length).
     pub fn value(&self, config: &Config) -> f64 {
         match self {
-            Self::Drag(k) => config.aero.drag_coefficients.get(*k).copied().unwrap_or(0.0),
-            Self::Magnus(k) => config.aero.magnus_coefficients.get(*k).copied().unwrap_or(0.0),
+            Self::Drag(k) => config
+                .aero
+                .drag_coefficients
+                .get(*k)
+                .copied()
+                .unwrap_or(0.0),
+            Self::Magnus(k) => config
+                .aero
+                .magnus_coefficients
+                .get(*k)
+                .copied()
+                .unwrap_or(0.0),
             Self::Restitution => config.table.restitution,
             Self::Friction => config.table.friction,
             Self::AirDensity => config.air.density,
@@ -325,8 +336,25 @@ struct Model<'a> {
 }
 
 impl Model<'_> {
+    /// The base configuration with `theta`; a fitted polynomial has exactly the fitted
+    /// coefficients (none of the base's higher ones).
     fn config(&self, theta: &[f64]) -> Config {
         let mut c = self.base.clone();
+        let length = |of: fn(&Parameter) -> Option<usize>| {
+            self.parameters.iter().filter_map(of).max().map(|k| k + 1)
+        };
+        if let Some(n) = length(|p| match p {
+            Parameter::Drag(k) => Some(*k),
+            _ => None,
+        }) {
+            c.aero.drag_coefficients.resize(n, 0.0);
+        }
+        if let Some(n) = length(|p| match p {
+            Parameter::Magnus(k) => Some(*k),
+            _ => None,
+        }) {
+            c.aero.magnus_coefficients.resize(n, 0.0);
+        }
         for (p, v) in self.parameters.iter().zip(theta) {
             p.set(&mut c, *v);
         }
@@ -361,20 +389,41 @@ pub fn calibrate(
         }
     }
     let configured = (
-        config.aero.drag_coefficients.len().saturating_sub(1).min(MAX_DRAG_ORDER),
-        config.aero.magnus_coefficients.len().saturating_sub(1).min(MAX_MAGNUS_ORDER),
+        config
+            .aero
+            .drag_coefficients
+            .len()
+            .saturating_sub(1)
+            .min(MAX_DRAG_ORDER),
+        config
+            .aero
+            .magnus_coefficients
+            .len()
+            .saturating_sub(1)
+            .min(MAX_MAGNUS_ORDER),
     );
 
     // Each flight fitted alone with the starting physics: the nuisance states' first values.
     let propagator = Propagator::new(config);
     let mut prepared = Vec::new();
     let mut skipped = Vec::new();
-    progress(&format!("fitting each of the {} flights alone", flights.len()));
+    progress(&format!(
+        "fitting each of the {} flights alone",
+        flights.len()
+    ));
     for input in flights {
         let observations = Observations::new(config, &input.detections);
-        let fit = if observations.list.len() < MIN_FLIGHT_DETECTIONS {
-            Err(FitError::TooFew(observations.list.len()))
-        } else {
+        if observations.list.len() < MIN_FLIGHT_DETECTIONS {
+            skipped.push(SkippedFlight {
+                label: input.label,
+                reason: format!(
+                    "{} usable detections, fewer than the {MIN_FLIGHT_DETECTIONS} calibration needs",
+                    observations.list.len()
+                ),
+            });
+            continue;
+        }
+        let fit = {
             initial_guess(&input.detections, config.gravity)
                 .ok_or(FitError::TooFew(observations.list.len()))
                 .and_then(|guess| {
@@ -681,7 +730,13 @@ fn flight_cost(
     robust: bool,
 ) -> FlightCost {
     let mut scratch = Vec::with_capacity(flight.observations.list.len());
-    residuals(propagator, &flight.observations.list, x, false, &mut scratch);
+    residuals(
+        propagator,
+        &flight.observations.list,
+        x,
+        false,
+        &mut scratch,
+    );
     let mut out = FlightCost::default();
     for (o, r) in flight.observations.list.iter().zip(&scratch) {
         let length = r.value.norm();
@@ -786,7 +841,12 @@ struct Solution {
 }
 
 /// Total cost of all flights at theta and their states.
-fn total_cost(model: &Model, theta: &[f64], states: &[StateVector], flights: &[Flight]) -> FlightCost {
+fn total_cost(
+    model: &Model,
+    theta: &[f64],
+    states: &[StateVector],
+    flights: &[Flight],
+) -> FlightCost {
     let propagator = Propagator::new(&model.config(theta));
     let indices: Vec<usize> = (0..flights.len()).collect();
     let costs = parallel_map(&indices, |&i| {
@@ -839,7 +899,14 @@ fn solve(
             .collect();
         let indices: Vec<usize> = (0..flights.len()).collect();
         let blocks = parallel_map(&indices, |&i| {
-            flight_blocks(&nominal, &perturbed, &steps, &flights[i], &states[i], model.robust)
+            flight_blocks(
+                &nominal,
+                &perturbed,
+                &steps,
+                &flights[i],
+                &states[i],
+                model.robust,
+            )
         });
         let mut u = DMatrix::<f64>::zeros(p, p);
         let mut gt = DVector::<f64>::zeros(p);
@@ -1040,7 +1107,10 @@ mod tests {
     #[test]
     fn refitting_a_polynomial_at_its_own_order_keeps_it_and_at_another_stays_close() {
         let c = Config::default();
-        assert_eq!(refit(&c.aero.drag_coefficients, 2), c.aero.drag_coefficients);
+        assert_eq!(
+            refit(&c.aero.drag_coefficients, 2),
+            c.aero.drag_coefficients
+        );
         let cubic = refit(&c.aero.magnus_coefficients, 3);
         assert_eq!(cubic.len(), 4);
         for sp in [0.0, 0.3, 0.8, 1.4] {

@@ -422,7 +422,11 @@ pub fn efficiency(config: &Config, session: &Session) -> Vec<LeadEfficiency> {
                 .collect();
             let fitted = initial_guess(&seen, config.gravity)
                 .and_then(|guess| fit_flight(config, &seen, &guess).ok())
-                .and_then(|fit| fit.states_at(&propagator, &[estimate.stamp]).pop().flatten());
+                .and_then(|fit| {
+                    fit.states_at(&propagator, &[estimate.stamp])
+                        .pop()
+                        .flatten()
+                });
             let Some(fitted) = fitted else {
                 continue;
             };

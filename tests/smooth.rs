@@ -2,7 +2,11 @@
 //! that detection's stamp and on its track, close to the truth; deterministic; bad usage gets
 //! a clear error.
 #![cfg(feature = "cli")]
-#![allow(clippy::unwrap_used, clippy::expect_used, reason = "test code: fail loudly")]
+#![allow(
+    clippy::unwrap_used,
+    clippy::expect_used,
+    reason = "test code: fail loudly"
+)]
 
 mod common;
 

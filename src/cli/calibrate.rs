@@ -111,7 +111,10 @@ impl CalibrateArgs {
             }));
         }
         let (fitted, held): (Vec<_>, Vec<_>) = if self.holdout {
-            let (a, b): (Vec<_>, Vec<_>) = flights.into_iter().enumerate().partition(|(i, _)| i % 2 == 0);
+            let (a, b): (Vec<_>, Vec<_>) = flights
+                .into_iter()
+                .enumerate()
+                .partition(|(i, _)| i % 2 == 0);
             (
                 a.into_iter().map(|(_, f)| f).collect(),
                 b.into_iter().map(|(_, f)| f).collect(),
@@ -131,7 +134,11 @@ impl CalibrateArgs {
             .holdout
             .then(|| holdout(&config, &calibration.config, &held, HOLDOUT_FRACTION));
 
-        let inputs: Vec<String> = self.inputs.iter().map(|p| p.display().to_string()).collect();
+        let inputs: Vec<String> = self
+            .inputs
+            .iter()
+            .map(|p| p.display().to_string())
+            .collect();
         std::fs::write(&self.output, snippet(&calibration, &inputs))
             .with_context(|| format!("cannot write {}", self.output.display()))?;
         if let Some(path) = &self.plot {

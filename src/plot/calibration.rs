@@ -100,18 +100,27 @@ pub(crate) fn draw<DB: DrawingBackend>(
                 RGBColor(230, 240, 250).filled(),
             )])?
             .label("Sp of 90 % of the detections")
-            .legend(|(x, y)| Rectangle::new([(x, y - 6), (x + 24, y + 6)], RGBColor(230, 240, 250).filled()));
+            .legend(|(x, y)| {
+                Rectangle::new(
+                    [(x, y - 6), (x + 24, y + 6)],
+                    RGBColor(230, 240, 250).filled(),
+                )
+            });
         let mut outline: Vec<(f64, f64)> = band.iter().map(|b| (b.0, b.2)).collect();
         outline.extend(band.iter().rev().map(|b| (b.0, b.1)));
         chart
             .draw_series([Polygon::new(outline, FITTED.mix(0.25).filled())])?
             .label("fitted +- 2 standard errors")
-            .legend(|(x, y)| Rectangle::new([(x, y - 6), (x + 24, y + 6)], FITTED.mix(0.25).filled()));
+            .legend(|(x, y)| {
+                Rectangle::new([(x, y - 6), (x + 24, y + 6)], FITTED.mix(0.25).filled())
+            });
         let lw = px(3.0);
         chart
             .draw_series(LineSeries::new(fitted_points, FITTED.stroke_width(lw)))?
             .label("fitted")
-            .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 24, y)], FITTED.stroke_width(lw)));
+            .legend(move |(x, y)| {
+                PathElement::new(vec![(x, y), (x + 24, y)], FITTED.stroke_width(lw))
+            });
         chart
             .draw_series([DashedPathElement::new(
                 initial_points,
