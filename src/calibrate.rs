@@ -1116,7 +1116,7 @@ mod tests {
         for sp in [0.0, 0.3, 0.8, 1.4] {
             let error = Polynomial::new(&cubic).value(sp)
                 - Polynomial::new(&c.aero.magnus_coefficients).value(sp);
-            assert!(error.abs() < 0.01, "at {sp}: {error}");
+            assert!(error.abs() < 0.02, "at {sp}: {error}");
         }
     }
 
