@@ -148,28 +148,25 @@ impl Observations {
 
 /// A measurement as (z, L^-1) padded to six dimensions, and its dimensions.
 fn whiten(m: &Measurement) -> Result<(SVector<f64, 6>, SMatrix<f64, 6, 6>, usize), Rejection> {
-    let mut z = SVector::<f64, 6>::zeros();
-    let mut white = SMatrix::<f64, 6, 6>::zeros();
     match m {
         Measurement::Position { z: p, r } => {
-            let inverse = r
-                .cholesky()
-                .and_then(|c| c.l().try_inverse())
-                .ok_or(Rejection::BadCovariance)?;
+            let mut z = SVector::<f64, 6>::zeros();
+            let mut white = SMatrix::<f64, 6, 6>::zeros();
             z.fixed_rows_mut::<3>(0).copy_from(p);
-            white.fixed_view_mut::<3, 3>(0, 0).copy_from(&inverse);
+            white
+                .fixed_view_mut::<3, 3>(0, 0)
+                .copy_from(&inverse_factor(r)?);
             Ok((z, white, 3))
         }
-        Measurement::PositionSpin { z: measured, r } => {
-            let inverse = r
-                .cholesky()
-                .and_then(|c| c.l().try_inverse())
-                .ok_or(Rejection::BadCovariance)?;
-            z = *measured;
-            white = inverse;
-            Ok((z, white, 6))
-        }
+        Measurement::PositionSpin { z, r } => Ok((*z, inverse_factor(r)?, 6)),
     }
+}
+
+/// L^-1 of a noise covariance R = L L^T.
+fn inverse_factor<const D: usize>(r: &SMatrix<f64, D, D>) -> Result<SMatrix<f64, D, D>, Rejection> {
+    r.cholesky()
+        .and_then(|c| c.l().try_inverse())
+        .ok_or(Rejection::BadCovariance)
 }
 
 /// One observation's whitened residual and its Jacobian with respect to the start state.
@@ -227,7 +224,7 @@ pub(crate) fn residuals(
 
 /// Huber's loss on a whitened residual of length `length`: the IRLS weight and the cost
 /// (quadratic within `threshold`, linear beyond).
-pub(crate) fn huber(length: f64, threshold: f64) -> (f64, f64) {
+fn huber(length: f64, threshold: f64) -> (f64, f64) {
     if length <= threshold {
         (1.0, length * length)
     } else {
@@ -236,6 +233,26 @@ pub(crate) fn huber(length: f64, threshold: f64) -> (f64, f64) {
             2.0 * threshold * length - threshold * threshold,
         )
     }
+}
+
+impl Observation {
+    /// The IRLS weight and cost of this observation's whitened residual of length `length`:
+    /// Huber's loss at its threshold when `robust`, else least squares.
+    pub fn loss(&self, length: f64, robust: bool) -> (f64, f64) {
+        huber(
+            length,
+            if robust {
+                self.threshold
+            } else {
+                f64::INFINITY
+            },
+        )
+    }
+}
+
+/// The cost of the prior w_0 ~ N(0, sigma^2 I) on the spin of the start state `x`.
+pub(crate) fn spin_prior_cost(x: &StateVector, sigma: f64) -> f64 {
+    x.fixed_rows::<3>(SPIN).norm_squared() / (sigma * sigma)
 }
 
 /// The weighted normal equations of one flight at one start state.
@@ -276,8 +293,7 @@ impl Linearised {
         };
         for (o, r) in observations.iter().zip(residuals) {
             let length = r.value.norm();
-            let threshold = if robust { o.threshold } else { f64::INFINITY };
-            let (weight, cost) = huber(length, threshold);
+            let (weight, cost) = o.loss(length, robust);
             if weight < 1.0 {
                 out.outliers += 1;
             } else {
@@ -294,8 +310,8 @@ impl Linearised {
             for k in SPIN..SPIN + 3 {
                 out.normal[(k, k)] += information;
                 out.gradient[k] -= information * x[k];
-                out.cost += information * x[k] * x[k];
             }
+            out.cost += spin_prior_cost(x, spin_prior);
         }
         out
     }
@@ -344,6 +360,32 @@ pub(crate) fn spin_starts(velocity: &Vector3<f64>) -> [Vector3<f64>; 7] {
         Vector3::z() * 150.0,
         Vector3::z() * -150.0,
     ]
+}
+
+/// Fits the flight of `detections` (one ball, any order) from its own first guess
+/// ([`initial_guess`]), with the physics of `config`.
+pub fn fit_whole_flight(config: &Config, detections: &[Detection]) -> Result<FlightFit, FitError> {
+    fit_from_guess(
+        &Propagator::new(config),
+        &Observations::new(config, detections),
+        detections,
+        config.gravity,
+        config.ekf.spin_prior_sigma,
+    )
+}
+
+/// [`fit_observations`] of `observations` (prepared from `detections`) from the first guess
+/// of `detections`; too few detections for a guess is [`FitError::TooFew`].
+pub(crate) fn fit_from_guess(
+    propagator: &Propagator,
+    observations: &Observations,
+    detections: &[Detection],
+    gravity: f64,
+    spin_prior: f64,
+) -> Result<FlightFit, FitError> {
+    let guess =
+        initial_guess(detections, gravity).ok_or(FitError::TooFew(observations.list.len()))?;
+    fit_observations(propagator, observations, spin_prior, &guess)
 }
 
 /// Fits the flight of `detections` (one ball, any order) from the guess `initial` of the state at

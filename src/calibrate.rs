@@ -24,7 +24,7 @@ use nalgebra::{DMatrix, DVector, SMatrix, SVector};
 use thiserror::Error;
 
 use crate::batch::{
-    FitError, Observations, Residual, fit_observations, huber, initial_guess, residuals,
+    Linearised, Observations, Residual, fit_from_guess, residuals, spin_prior_cost,
 };
 use crate::config::Config;
 use crate::detection::Detection;
@@ -32,7 +32,7 @@ use crate::eval::ErrorStats;
 use crate::physics::FlightModel;
 use crate::physics::aero::Polynomial;
 use crate::physics::propagate::{Cursor, Propagator, Watch};
-use crate::physics::state::{BallState, SPIN, StateMatrix, StateVector};
+use crate::physics::state::{BallState, StateMatrix, StateVector};
 
 /// Standard deviation of the prior on each flight's spin during calibration [rad/s]: weak
 /// enough not to pull real spins (up to about 600 rad/s) toward zero, strong enough to bound the
@@ -50,9 +50,36 @@ const MAX_PARAMETERS: usize = MAX_DRAG_ORDER + MAX_MAGNUS_ORDER + 2 + 2;
 const MAX_ITERATIONS: usize = 100;
 /// Relative cost change at which a fit has converged.
 const COST_TOLERANCE: f64 = 1e-8;
-/// sigma_e of AIC: the root of the robust cost per measured dimension.
-fn sigma_e(cost: &FlightCost) -> f64 {
-    (cost.cost / cost.dims.max(1) as f64).sqrt()
+/// A fit of the order search, scored.
+struct Candidate {
+    trial: OrderTrial,
+    solution: Solution,
+    flights: Vec<Flight>,
+}
+
+impl Candidate {
+    /// Scores a fit at `orders` by AIC = N ln(sigma_e) + 2k, sigma_e the root of the robust
+    /// cost per measured dimension.
+    fn new(orders: (usize, usize), solution: Solution, flights: Vec<Flight>) -> Self {
+        let cost = &solution.cost;
+        let sigma_e = (cost.cost / cost.dims.max(1) as f64).sqrt();
+        let k = (orders.0 + 1 + orders.1 + 1) as f64;
+        Self {
+            trial: OrderTrial {
+                drag_order: orders.0,
+                magnus_order: orders.1,
+                aic: cost.positions as f64 * sigma_e.ln() + 2.0 * k,
+                sigma_e,
+                position_rms: cost.position_rms(),
+            },
+            solution,
+            flights,
+        }
+    }
+
+    fn orders(&self) -> (usize, usize) {
+        (self.trial.drag_order, self.trial.magnus_order)
+    }
 }
 
 /// Table frictions the fit is restarted from (see [`calibrate`]).
@@ -300,6 +327,7 @@ pub enum CalibrationError {
 }
 
 /// One flight being calibrated.
+#[derive(Clone)]
 struct Flight {
     label: FlightLabel,
     observations: Observations,
@@ -313,10 +341,9 @@ struct Blocks {
     w: SMatrix<f64, MAX_PARAMETERS, 9>,
     u: SMatrix<f64, MAX_PARAMETERS, MAX_PARAMETERS>,
     gt: SVector<f64, MAX_PARAMETERS>,
-    cost: f64,
 }
 
-/// The cost of one flight and its residuals' sums.
+/// The cost of one flight (or of several, summed) and its residuals' sums.
 #[derive(Debug, Clone, Copy, Default)]
 struct FlightCost {
     cost: f64,
@@ -325,6 +352,26 @@ struct FlightCost {
     miss_squares: f64,
     positions: usize,
     outliers: usize,
+}
+
+impl FlightCost {
+    /// The RMS position residual per axis [m].
+    fn position_rms(&self) -> f64 {
+        (self.miss_squares / (3.0 * self.positions.max(1) as f64)).sqrt()
+    }
+}
+
+impl std::iter::Sum for FlightCost {
+    fn sum<I: Iterator<Item = Self>>(costs: I) -> Self {
+        costs.fold(Self::default(), |a, c| Self {
+            cost: a.cost + c.cost,
+            squares: a.squares + c.squares,
+            dims: a.dims + c.dims,
+            miss_squares: a.miss_squares + c.miss_squares,
+            positions: a.positions + c.positions,
+            outliers: a.outliers + c.outliers,
+        })
+    }
 }
 
 /// The parameters being fitted and the configuration around them.
@@ -337,23 +384,17 @@ struct Model<'a> {
 
 impl Model<'_> {
     /// The base configuration with `theta`; a fitted polynomial has exactly the fitted
-    /// coefficients (none of the base's higher ones).
+    /// coefficients (none of the base's higher ones; [`parameters`] fits orders 0 to n).
     fn config(&self, theta: &[f64]) -> Config {
         let mut c = self.base.clone();
-        let length = |of: fn(&Parameter) -> Option<usize>| {
-            self.parameters.iter().filter_map(of).max().map(|k| k + 1)
-        };
-        if let Some(n) = length(|p| match p {
-            Parameter::Drag(k) => Some(*k),
-            _ => None,
-        }) {
-            c.aero.drag_coefficients.resize(n, 0.0);
+        let count = |of: fn(&Parameter) -> bool| self.parameters.iter().filter(|p| of(p)).count();
+        let drag = count(|p| matches!(p, Parameter::Drag(_)));
+        let magnus = count(|p| matches!(p, Parameter::Magnus(_)));
+        if drag > 0 {
+            c.aero.drag_coefficients.resize(drag, 0.0);
         }
-        if let Some(n) = length(|p| match p {
-            Parameter::Magnus(k) => Some(*k),
-            _ => None,
-        }) {
-            c.aero.magnus_coefficients.resize(n, 0.0);
+        if magnus > 0 {
+            c.aero.magnus_coefficients.resize(magnus, 0.0);
         }
         for (p, v) in self.parameters.iter().zip(theta) {
             p.set(&mut c, *v);
@@ -423,13 +464,13 @@ pub fn calibrate(
             });
             continue;
         }
-        let fit = {
-            initial_guess(&input.detections, config.gravity)
-                .ok_or(FitError::TooFew(observations.list.len()))
-                .and_then(|guess| {
-                    fit_observations(&propagator, &observations, CALIBRATION_SPIN_PRIOR, &guess)
-                })
-        };
+        let fit = fit_from_guess(
+            &propagator,
+            &observations,
+            &input.detections,
+            config.gravity,
+            CALIBRATION_SPIN_PRIOR,
+        );
         match fit {
             Ok(fit) => prepared.push(Flight {
                 label: input.label,
@@ -478,21 +519,21 @@ pub fn calibrate(
             parameters: parameters(options, first_orders),
             robust: true,
         }
-        .config(solution.theta.as_slice());
-        let mut candidates = vec![(first_orders, solution, prepared)];
+        .config(&solution.theta);
+        let mut candidates = vec![Candidate::new(first_orders, solution, prepared)];
         let mut try_orders = |orders: (usize, usize),
-                              candidates: &mut Vec<((usize, usize), Solution, Vec<Flight>)>,
+                              candidates: &mut Vec<Candidate>,
                               progress: &mut dyn FnMut(&str)|
          -> Result<(), CalibrationError> {
-            if candidates.iter().any(|c| c.0 == orders) {
+            if candidates.iter().any(|c| c.orders() == orders) {
                 return Ok(());
             }
             progress(&format!("C_D order {}, C_M order {}", orders.0, orders.1));
-            let flights = clone_flights(&candidates[0].2);
+            let flights = candidates[0].flights.clone();
             match fit_at_orders(config, &start, options, orders, flights, progress) {
                 Ok((solution, flights)) => {
                     iterations += solution.iterations;
-                    candidates.push((orders, solution, flights));
+                    candidates.push(Candidate::new(orders, solution, flights));
                     Ok(())
                 }
                 // Orders the data cannot determine are not candidates.
@@ -503,16 +544,11 @@ pub fn calibrate(
                 Err(e) => Err(e),
             }
         };
-        let aic = |c: &((usize, usize), Solution, Vec<Flight>)| {
-            let n = c.1.cost.positions as f64;
-            let k = (c.0.0 + 1 + c.0.1 + 1) as f64;
-            n * sigma_e(&c.1.cost).ln() + 2.0 * k
-        };
-        let best = |candidates: &[((usize, usize), Solution, Vec<Flight>)]| {
+        let best = |candidates: &[Candidate]| {
             candidates
                 .iter()
                 .enumerate()
-                .min_by(|a, b| aic(a.1).total_cmp(&aic(b.1)))
+                .min_by(|a, b| a.1.trial.aic.total_cmp(&b.1.trial.aic))
                 .map_or(0, |(i, _)| i)
         };
         // C_D's order with C_M's fixed, then C_M's with the best C_D.
@@ -521,32 +557,22 @@ pub fn calibrate(
                 try_orders((d, first_orders.1), &mut candidates, progress)?;
             }
         }
-        let drag = candidates[best(&candidates)].0.0;
+        let drag = candidates[best(&candidates)].trial.drag_order;
         if options.magnus_order.is_none() {
             for m in 0..=MAX_MAGNUS_ORDER {
                 try_orders((drag, m), &mut candidates, progress)?;
             }
         }
-        order_trials = candidates
-            .iter()
-            .map(|c| OrderTrial {
-                drag_order: c.0.0,
-                magnus_order: c.0.1,
-                aic: aic(c),
-                sigma_e: sigma_e(&c.1.cost),
-                position_rms: (c.1.cost.miss_squares / (3.0 * c.1.cost.positions.max(1) as f64))
-                    .sqrt(),
-            })
-            .collect();
+        order_trials = candidates.iter().map(|c| c.trial).collect();
         let chosen = candidates.swap_remove(best(&candidates));
-        (orders, solution, prepared) = chosen;
+        (orders, solution, prepared) = (chosen.orders(), chosen.solution, chosen.flights);
     }
     let model = Model {
         base: config,
         parameters: parameters(options, orders),
         robust: true,
     };
-    let fitted = model.config(solution.theta.as_slice());
+    let fitted = model.config(&solution.theta);
     let fitted_propagator = Propagator::new(&fitted);
     let scale = solution.reduced_chi_square;
     let parameters_out = model
@@ -564,17 +590,14 @@ pub fn calibrate(
     let mut flights_out = Vec::with_capacity(prepared.len());
     let mut spin_parameters = Vec::new();
     let model_flight = FlightModel::new(&fitted);
-    let (mut before_squares, mut before_positions) = (0.0, 0usize);
     for (f, b) in prepared.iter().zip(&before) {
         let after = flight_cost(&fitted_propagator, f, &f.state, true);
-        before_squares += b.miss_squares;
-        before_positions += b.positions;
         flights_out.push(FlightResidual {
             label: f.label,
             detections: f.observations.list.len(),
             measured_spins: f.observations.list.iter().filter(|o| o.dims == 6).count(),
-            position_rms_before: (b.miss_squares / (3.0 * b.positions.max(1) as f64)).sqrt(),
-            position_rms: (after.miss_squares / (3.0 * after.positions.max(1) as f64)).sqrt(),
+            position_rms_before: b.position_rms(),
+            position_rms: after.position_rms(),
             outliers: after.outliers,
         });
         let mut cursor = Cursor::new(0.0, &BallState::from_vector(&f.state));
@@ -592,7 +615,6 @@ pub fn calibrate(
             .copied()
             .unwrap_or(0.0)
     };
-    let n = solution.cost.positions.max(1) as f64;
     Ok(Calibration {
         config: fitted,
         parameters: parameters_out,
@@ -601,8 +623,8 @@ pub fn calibrate(
         order_trials,
         flights: flights_out,
         skipped,
-        position_rms_before: (before_squares / (3.0 * before_positions.max(1) as f64)).sqrt(),
-        position_rms: (solution.cost.miss_squares / (3.0 * n)).sqrt(),
+        position_rms_before: before.into_iter().sum::<FlightCost>().position_rms(),
+        position_rms: solution.cost.position_rms(),
         reduced_chi_square: scale,
         spin_parameter: [quantile(0.05), quantile(0.5), quantile(0.95)],
         iterations,
@@ -630,8 +652,7 @@ fn fit_at_orders(
     let theta = start_values(start, &model.parameters, orders);
     let least_squares = solve(&model, theta, &mut flights, progress)?;
     model.robust = true;
-    let theta = least_squares.theta.iter().copied().collect();
-    let mut solution = solve(&model, theta, &mut flights, progress)?;
+    let mut solution = solve(&model, least_squares.theta.clone(), &mut flights, progress)?;
     let mut iterations = least_squares.iterations + solution.iterations;
     if let Some(index) = model
         .parameters
@@ -640,9 +661,9 @@ fn fit_at_orders(
     {
         for mu in FRICTION_STARTS {
             progress(&format!("  restarting from friction {mu}"));
-            let mut theta: Vec<f64> = solution.theta.iter().copied().collect();
+            let mut theta = solution.theta.clone();
             theta[index] = mu;
-            let mut trial_flights = clone_flights(&flights);
+            let mut trial_flights = flights.clone();
             let trial = solve(&model, theta, &mut trial_flights, progress)?;
             iterations += trial.iterations;
             if trial.cost.cost < solution.cost.cost {
@@ -653,17 +674,6 @@ fn fit_at_orders(
     }
     solution.iterations = iterations;
     Ok((solution, flights))
-}
-
-fn clone_flights(flights: &[Flight]) -> Vec<Flight> {
-    flights
-        .iter()
-        .map(|f| Flight {
-            label: f.label,
-            observations: f.observations.clone(),
-            state: f.state,
-        })
-        .collect()
 }
 
 /// The parameters `options` fit at polynomial orders `orders`.
@@ -704,13 +714,9 @@ fn refit(coefficients: &[f64], order: usize) -> Vec<f64> {
     }
     let samples = 31;
     let polynomial = Polynomial::new(coefficients);
-    let value = |x: f64| polynomial.value(x);
-    let a = DMatrix::from_fn(samples, order + 1, |i, k| {
-        (REFIT_SPIN_PARAMETER * i as f64 / (samples - 1) as f64).powi(k as i32)
-    });
-    let b = DVector::from_fn(samples, |i, _| {
-        value(REFIT_SPIN_PARAMETER * i as f64 / (samples - 1) as f64)
-    });
+    let sp = |i: usize| REFIT_SPIN_PARAMETER * i as f64 / (samples - 1) as f64;
+    let a = DMatrix::from_fn(samples, order + 1, |i, k| sp(i).powi(k as i32));
+    let b = DVector::from_fn(samples, |i, _| polynomial.value(sp(i)));
     let normal = a.transpose() * &a;
     match normal.cholesky() {
         Some(c) => c.solve(&(a.transpose() * b)).iter().copied().collect(),
@@ -740,7 +746,7 @@ fn flight_cost(
     let mut out = FlightCost::default();
     for (o, r) in flight.observations.list.iter().zip(&scratch) {
         let length = r.value.norm();
-        let (weight, cost) = huber(length, threshold(o.threshold, robust));
+        let (weight, cost) = o.loss(length, robust);
         out.cost += cost;
         out.squares += weight * length * length;
         out.dims += o.dims;
@@ -750,17 +756,8 @@ fn flight_cost(
             out.outliers += 1;
         }
     }
-    out.cost += spin_prior_cost(x);
+    out.cost += spin_prior_cost(x, CALIBRATION_SPIN_PRIOR);
     out
-}
-
-/// An observation's Huber threshold, or none (least squares).
-fn threshold(huber: f64, robust: bool) -> f64 {
-    if robust { huber } else { f64::INFINITY }
-}
-
-fn spin_prior_cost(x: &StateVector) -> f64 {
-    x.fixed_rows::<3>(SPIN).norm_squared() / (CALIBRATION_SPIN_PRIOR * CALIBRATION_SPIN_PRIOR)
 }
 
 /// One flight's blocks at `x`: the nominal residuals with the transition matrix, theta's
@@ -787,27 +784,20 @@ fn flight_blocks(
             column.set_column(j, &((b.value - a.value) / (2.0 * h)));
         }
     }
+    // The flight's own block is the batch fit's normal equations.
+    let own = Linearised::new(list, &base, robust, CALIBRATION_SPIN_PRIOR, x);
     let mut out = Blocks {
-        v: StateMatrix::zeros(),
-        g: StateVector::zeros(),
+        v: own.normal,
+        g: own.gradient,
         w: SMatrix::zeros(),
         u: SMatrix::zeros(),
         gt: SVector::zeros(),
-        cost: spin_prior_cost(x),
     };
     for ((o, r), jt) in list.iter().zip(&base).zip(&columns) {
-        let (weight, cost) = huber(r.value.norm(), threshold(o.threshold, robust));
-        out.cost += cost;
-        out.v += r.jacobian.transpose() * r.jacobian * weight;
-        out.g += r.jacobian.transpose() * r.value * weight;
+        let (weight, _) = o.loss(r.value.norm(), robust);
         out.w += jt.transpose() * r.jacobian * weight;
         out.u += jt.transpose() * jt * weight;
         out.gt += jt.transpose() * r.value * weight;
-    }
-    let information = 1.0 / (CALIBRATION_SPIN_PRIOR * CALIBRATION_SPIN_PRIOR);
-    for k in SPIN..SPIN + 3 {
-        out.v[(k, k)] += information;
-        out.g[k] -= information * x[k];
     }
     out
 }
@@ -833,7 +823,7 @@ fn parallel_map<T: Sync, R: Send>(items: &[T], f: impl Fn(&T) -> R + Sync) -> Ve
 
 /// A solved calibration at fixed orders.
 struct Solution {
-    theta: DVector<f64>,
+    theta: Vec<f64>,
     covariance: DMatrix<f64>,
     cost: FlightCost,
     reduced_chi_square: f64,
@@ -849,17 +839,11 @@ fn total_cost(
 ) -> FlightCost {
     let propagator = Propagator::new(&model.config(theta));
     let indices: Vec<usize> = (0..flights.len()).collect();
-    let costs = parallel_map(&indices, |&i| {
+    parallel_map(&indices, |&i| {
         flight_cost(&propagator, &flights[i], &states[i], model.robust)
-    });
-    costs.iter().fold(FlightCost::default(), |a, c| FlightCost {
-        cost: a.cost + c.cost,
-        squares: a.squares + c.squares,
-        dims: a.dims + c.dims,
-        miss_squares: a.miss_squares + c.miss_squares,
-        positions: a.positions + c.positions,
-        outliers: a.outliers + c.outliers,
     })
+    .into_iter()
+    .sum()
 }
 
 /// Levenberg-Marquardt over theta and the flights' states, the states eliminated by the Schur
@@ -980,7 +964,7 @@ fn solve(
                 progress(&format!(
                     "  iteration {iteration}: cost {:.1}, RMS position residual {:.2} mm",
                     current.cost,
-                    (current.miss_squares / (3.0 * current.positions.max(1) as f64)).sqrt() * 1e3
+                    current.position_rms() * 1e3
                 ));
                 break;
             }
@@ -994,13 +978,12 @@ fn solve(
         f.state = *x;
     }
     let covariance = reduced_normal
-        .clone()
         .cholesky()
         .map(|c| c.inverse())
         .ok_or(CalibrationError::Singular)?;
     let dof = current.dims as f64 - p as f64 - 9.0 * flights.len() as f64;
     Ok(Solution {
-        theta: DVector::from_vec(theta),
+        theta,
         covariance,
         cost: current,
         reduced_chi_square: current.squares / dof.max(1.0),
@@ -1020,10 +1003,16 @@ pub fn forecast_error(config: &Config, detections: &[Detection], fraction: f64) 
     if early.len() < MIN_FLIGHT_DETECTIONS || late.is_empty() {
         return None;
     }
-    let guess = initial_guess(&early, config.gravity)?;
     let propagator = Propagator::new(config);
     let observations = Observations::new(config, &early);
-    let fit = fit_observations(&propagator, &observations, CALIBRATION_SPIN_PRIOR, &guess).ok()?;
+    let fit = fit_from_guess(
+        &propagator,
+        &observations,
+        &early,
+        config.gravity,
+        CALIBRATION_SPIN_PRIOR,
+    )
+    .ok()?;
     let stamps: Vec<i64> = late.iter().map(|d| d.stamp).collect();
     let states = fit.states_at(&propagator, &stamps);
     let (mut sum, mut n) = (0.0, 0usize);

@@ -15,7 +15,7 @@
 
 use nalgebra::{Matrix2, Vector2, Vector3};
 
-use crate::batch::{fit_flight, initial_guess};
+use crate::batch::fit_whole_flight;
 use crate::config::Config;
 use crate::detection::{Detection, Source, seconds_to_ns};
 use crate::estimator::{Counters, Estimator, Output, TrackStatus};
@@ -420,13 +420,11 @@ pub fn efficiency(config: &Config, session: &Session) -> Vec<LeadEfficiency> {
                 .filter(|d| d.shot == index)
                 .map(|d| d.detection)
                 .collect();
-            let fitted = initial_guess(&seen, config.gravity)
-                .and_then(|guess| fit_flight(config, &seen, &guess).ok())
-                .and_then(|fit| {
-                    fit.states_at(&propagator, &[estimate.stamp])
-                        .pop()
-                        .flatten()
-                });
+            let fitted = fit_whole_flight(config, &seen).ok().and_then(|fit| {
+                fit.states_at(&propagator, &[estimate.stamp])
+                    .pop()
+                    .flatten()
+            });
             let Some(fitted) = fitted else {
                 continue;
             };

@@ -8,7 +8,7 @@
 
 use std::sync::atomic::{AtomicBool, Ordering};
 
-use crate::batch::{FitError, FittedState, fit_flight, initial_guess};
+use crate::batch::{FitError, FittedState, fit_whole_flight};
 use crate::config::Config;
 use crate::detection::Detection;
 use crate::estimator::{Counters, Estimator, Verdict};
@@ -125,10 +125,7 @@ pub fn smooth(
             break;
         }
         let members: Vec<Detection> = flight.members.iter().map(|&i| detections[i]).collect();
-        let fit = initial_guess(&members, config.gravity)
-            .ok_or(FitError::TooFew(members.len()))
-            .and_then(|guess| fit_flight(config, &members, &guess));
-        match fit {
+        match fit_whole_flight(config, &members) {
             Ok(fit) => {
                 out.flights += 1;
                 out.outliers += fit.outliers;

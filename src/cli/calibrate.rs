@@ -122,9 +122,11 @@ impl CalibrateArgs {
         } else {
             (flights, Vec::new())
         };
-        let verbose = std::io::IsTerminal::is_terminal(&std::io::stderr());
+        // Every iteration on a terminal or with TTBALL_VERBOSE set; the stages otherwise.
+        let verbose = std::io::IsTerminal::is_terminal(&std::io::stderr())
+            || std::env::var_os("TTBALL_VERBOSE").is_some();
         let mut progress = |line: &str| {
-            if verbose || !line.starts_with("  ") || std::env::var_os("TTBALL_VERBOSE").is_some() {
+            if verbose || !line.starts_with("  ") {
                 eprintln!("{line}");
             }
         };

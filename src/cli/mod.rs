@@ -16,12 +16,15 @@ pub mod report;
 pub mod simulate;
 pub mod smooth;
 
-use std::io::Write;
+use std::io::{IsTerminal, Write};
 use std::path::PathBuf;
 use std::process::ExitCode;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
 
 use anyhow::Context;
 use clap::{Args, Parser, Subcommand};
+use indicatif::{ProgressBar, ProgressStyle};
 use ttball::config::Config;
 use ttball::config::yaml::{self, LoadError};
 
@@ -102,7 +105,9 @@ pub enum Command {
         ttball calibrate my_rallies/*.mcap --output calibrated.yaml --plot calibration.png\n  \
         ttball calibrate bags/real_launcher.mcap -o launcher.yaml --holdout\n  \
         ttball calibrate rally.mcap -o table.yaml --fit bounce\n  \
-        ttball calibrate rally.mcap -o aero.yaml --fit aero --drag-order 2 --magnus-order 4")]
+        ttball calibrate rally.mcap -o aero.yaml --fit aero --drag-order 2 --magnus-order 4\n\n\
+        Progress goes to stderr: every iteration on a terminal or with TTBALL_VERBOSE=1, the\n\
+        stages otherwise.")]
     Calibrate(calibrate::CalibrateArgs),
 
     /// Smooth a bag: fit every flight as a whole and write the state at each detection.
@@ -287,6 +292,31 @@ pub fn init_logging(level: Option<&str>) {
         .with_writer(std::io::stderr)
         .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
         .try_init();
+}
+
+/// A flag that Ctrl-C (SIGINT) and SIGTERM set, for commands that stop cleanly, and whether
+/// the handler could be installed (only one per process: tests that run several commands in
+/// one process get a flag that never sets).
+pub fn cancel_on_interrupt() -> (Arc<AtomicBool>, Result<(), ctrlc::Error>) {
+    let cancel = Arc::new(AtomicBool::new(false));
+    let flag = Arc::clone(&cancel);
+    let installed = ctrlc::set_handler(move || flag.store(true, Ordering::Relaxed));
+    (cancel, installed)
+}
+
+/// A progress bar on standard error with `message` and the indicatif `template` when standard
+/// error is a terminal; a hidden one otherwise.
+pub fn progress_bar(message: String, template: &str) -> ProgressBar {
+    if !std::io::stderr().is_terminal() {
+        return ProgressBar::hidden();
+    }
+    let bar = ProgressBar::new(0);
+    bar.set_style(ProgressStyle::with_template(template).map_or_else(
+        |_| ProgressStyle::default_bar(),
+        |s| s.progress_chars("=> "),
+    ));
+    bar.set_message(message);
+    bar
 }
 
 /// Writes `text` to standard output; a closed pipe (`ttball ... | head`) is not an error.

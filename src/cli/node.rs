@@ -6,7 +6,6 @@ use std::process::ExitCode;
 use anyhow::Context;
 use clap::Args;
 use ttball::config::Config;
-use ttball::estimator::Rejection;
 use ttball::node::{NodeError, NodeSummary, Placement, start};
 
 use super::{BadUsage, ConfigArgs, write_stdout};
@@ -200,11 +199,7 @@ pub fn node_error(e: NodeError) -> anyhow::Error {
 fn summary_text(name: &str, s: &NodeSummary) -> String {
     let c = &s.counters;
     let t = &s.transport;
-    let mut rejected: Vec<String> = Rejection::ALL
-        .iter()
-        .filter(|r| c.rejected(**r) > 0)
-        .map(|r| format!("{} {}", r.name(), c.rejected(*r)))
-        .collect();
+    let mut rejected: Vec<String> = c.rejections();
     if t.undecodable > 0 {
         rejected.push(format!("undecodable {}", t.undecodable));
     }

@@ -1,20 +1,16 @@
 //! `ttball play`: a bag's detections on the DDS bus at their recorded pace (see
 //! `ttball::node::play`).
 
-use std::io::IsTerminal;
 use std::path::PathBuf;
 use std::process::ExitCode;
-use std::sync::Arc;
-use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Duration;
 
 use anyhow::Context;
 use clap::Args;
-use indicatif::{ProgressBar, ProgressStyle};
 use ttball::node::{Placement, PlayOptions, play};
 
 use super::node::node_error;
-use super::{BadUsage, ConfigArgs, write_stdout};
+use super::{BadUsage, ConfigArgs, cancel_on_interrupt, progress_bar, write_stdout};
 
 /// Arguments of `ttball play`.
 #[derive(Debug, Args)]
@@ -54,25 +50,12 @@ impl PlayArgs {
         super::init_logging(None);
         let config = self.config.load()?;
         let placement = Placement::from_env(&config).map_err(node_error)?;
-        let cancel = Arc::new(AtomicBool::new(false));
-        {
-            let cancel = Arc::clone(&cancel);
-            ctrlc::set_handler(move || cancel.store(true, Ordering::Relaxed))
-                .context("cannot install the SIGINT/SIGTERM handler")?;
-        }
-        let bar = if std::io::stderr().is_terminal() {
-            let bar = ProgressBar::new(0);
-            bar.set_style(
-                ProgressStyle::with_template(
-                    "{msg} [{bar:30}] {pos}/{len} detections, {elapsed_precise}",
-                )
-                .unwrap_or_else(|_| ProgressStyle::default_bar()),
-            );
-            bar.set_message(format!("playing {}", self.bag.display()));
-            bar
-        } else {
-            ProgressBar::hidden()
-        };
+        let (cancel, installed) = cancel_on_interrupt();
+        installed.context("cannot install the SIGINT/SIGTERM handler")?;
+        let bar = progress_bar(
+            format!("playing {}", self.bag.display()),
+            "{msg} [{bar:30}] {pos}/{len} detections, {elapsed_precise}",
+        );
         let options = PlayOptions {
             rate: self.rate,
             repeat: self.repeat,

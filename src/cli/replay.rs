@@ -2,20 +2,17 @@
 //! carries truth). Many bags run in parallel, one per core.
 
 use std::fmt::Write as _;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::process::ExitCode;
-use std::sync::Arc;
-use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+use std::sync::atomic::{AtomicUsize, Ordering};
 
 use anyhow::{Context, bail};
 use clap::Args;
-use indicatif::{ProgressBar, ProgressStyle};
-use std::io::IsTerminal;
 use ttball::estimator::Rejection;
 use ttball::replay::{ReplaySummary, replay};
 
 use super::report::accuracy_table;
-use super::{ConfigArgs, write_stdout};
+use super::{ConfigArgs, cancel_on_interrupt, progress_bar, write_stdout};
 
 /// Arguments of `ttball replay`.
 #[derive(Debug, Args)]
@@ -46,13 +43,8 @@ impl ReplayArgs {
     pub fn run(self) -> anyhow::Result<ExitCode> {
         let config = self.config.load()?;
         let jobs = self.jobs()?;
-        let cancel = Arc::new(AtomicBool::new(false));
-        {
-            let cancel = Arc::clone(&cancel);
-            // A second handler cannot be installed in tests that run several commands: ignore.
-            let _ = ctrlc::set_handler(move || cancel.store(true, Ordering::Relaxed));
-        }
-        let terminal = std::io::stderr().is_terminal();
+        // Only one handler per process (tests run several commands): a failure is ignored.
+        let (cancel, _) = cancel_on_interrupt();
         let workers = std::thread::available_parallelism()
             .map_or(1, |n| n.get())
             .min(jobs.len())
@@ -71,7 +63,10 @@ impl ReplayArgs {
                         let Some((input, output)) = jobs.get(i) else {
                             break;
                         };
-                        let bar = progress_bar(terminal, input);
+                        let bar = progress_bar(
+                            input.display().to_string(),
+                            "{msg} [{bar:30}] {pos}/{len} detections ({per_sec}, eta {eta})",
+                        );
                         let mut progress = |done: u64, total: u64| {
                             bar.set_length(total);
                             bar.set_position(done);
@@ -150,20 +145,6 @@ impl ReplayArgs {
     }
 }
 
-fn progress_bar(terminal: bool, input: &Path) -> ProgressBar {
-    if !terminal {
-        return ProgressBar::hidden();
-    }
-    let bar = ProgressBar::new(0);
-    if let Ok(style) = ProgressStyle::with_template(
-        "{msg} [{bar:30}] {pos}/{len} detections ({per_sec}, eta {eta})",
-    ) {
-        bar.set_style(style.progress_chars("=> "));
-    }
-    bar.set_message(input.display().to_string());
-    bar
-}
-
 /// The summary a user reads at the end of a replay.
 pub fn summary_text(s: &ReplaySummary) -> String {
     let c = &s.counters;
@@ -184,11 +165,7 @@ pub fn summary_text(s: &ReplaySummary) -> String {
         s.undecodable,
         c.tracks
     );
-    let reasons: Vec<String> = Rejection::ALL
-        .iter()
-        .filter(|r| c.rejected(**r) > 0)
-        .map(|r| format!("{} {}", r.name(), c.rejected(*r)))
-        .collect();
+    let reasons: Vec<String> = c.rejections();
     if !reasons.is_empty() {
         let _ = writeln!(out, "  rejected by reason: {}", reasons.join(", "));
     }

@@ -3,17 +3,12 @@
 use std::fmt::Write as _;
 use std::path::PathBuf;
 use std::process::ExitCode;
-use std::sync::Arc;
-use std::sync::atomic::{AtomicBool, Ordering};
 
 use anyhow::{Context, bail};
 use clap::Args;
-use indicatif::{ProgressBar, ProgressStyle};
-use std::io::IsTerminal;
-use ttball::estimator::Rejection;
 use ttball::replay::{SmoothSummary, smooth_bag};
 
-use super::{BadUsage, ConfigArgs, write_stdout};
+use super::{BadUsage, ConfigArgs, cancel_on_interrupt, progress_bar, write_stdout};
 
 /// Arguments of `ttball smooth`.
 #[derive(Debug, Args)]
@@ -41,24 +36,12 @@ impl SmoothArgs {
                 self.output.display()
             )));
         }
-        let cancel = Arc::new(AtomicBool::new(false));
-        {
-            let cancel = Arc::clone(&cancel);
-            // A second handler cannot be installed in tests that run several commands: ignore.
-            let _ = ctrlc::set_handler(move || cancel.store(true, Ordering::Relaxed));
-        }
-        let bar = if std::io::stderr().is_terminal() {
-            let bar = ProgressBar::new(0);
-            if let Ok(style) =
-                ProgressStyle::with_template("{msg} [{bar:30}] {pos}/{len} flights (eta {eta})")
-            {
-                bar.set_style(style.progress_chars("=> "));
-            }
-            bar.set_message(format!("smoothing {}", self.input.display()));
-            bar
-        } else {
-            ProgressBar::hidden()
-        };
+        // Only one handler per process (tests run several commands): a failure is ignored.
+        let (cancel, _) = cancel_on_interrupt();
+        let bar = progress_bar(
+            format!("smoothing {}", self.input.display()),
+            "{msg} [{bar:30}] {pos}/{len} flights (eta {eta})",
+        );
         let mut progress = |done: usize, total: usize| {
             bar.set_length(total as u64);
             bar.set_position(done as u64);
@@ -101,11 +84,7 @@ fn summary_text(s: &SmoothSummary, topic: &str) -> String {
         s.undecodable,
         s.unknown_frame
     );
-    let reasons: Vec<String> = Rejection::ALL
-        .iter()
-        .filter(|r| c.rejected(**r) > 0)
-        .map(|r| format!("{} {}", r.name(), c.rejected(*r)))
-        .collect();
+    let reasons: Vec<String> = c.rejections();
     if !reasons.is_empty() {
         let _ = writeln!(
             out,

@@ -141,6 +141,15 @@ impl Counters {
     pub fn total_rejected(&self) -> u64 {
         self.rejected.iter().sum()
     }
+    /// "reason count" for every reason with rejected detections, in the order of
+    /// [`Rejection::ALL`].
+    pub fn rejections(&self) -> Vec<String> {
+        Rejection::ALL
+            .iter()
+            .filter(|r| self.rejected(**r) > 0)
+            .map(|r| format!("{} {}", r.name(), self.rejected(*r)))
+            .collect()
+    }
 }
 
 /// What the estimator did with one detection.

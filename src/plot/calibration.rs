@@ -7,13 +7,15 @@ use plotters::element::DashedPathElement;
 use plotters::prelude::*;
 
 use super::{FONT, PlotError};
-use crate::calibrate::{Calibration, polynomial_sigma};
+use crate::calibrate::{Calibration, FlightResidual, polynomial_sigma};
 use crate::config::Config;
 use crate::physics::aero::Polynomial;
 
 const FITTED: RGBColor = RGBColor(31, 119, 180);
 const START: RGBColor = RGBColor(120, 120, 120);
 const BEFORE: RGBColor = RGBColor(255, 127, 14);
+/// Which residual of a flight a bar shows.
+type ResidualOf = fn(&FlightResidual) -> f64;
 /// Points per curve.
 const SAMPLES: usize = 100;
 
@@ -162,28 +164,19 @@ pub(crate) fn draw<DB: DrawingBackend>(
         .axis_desc_style((FONT, px(17.0)))
         .light_line_style(RGBColor(235, 235, 235))
         .draw()?;
-    let bar = |i: usize, value: f64, left: bool, colour: RGBColor| {
-        let x = i as f64 + if left { 0.1 } else { 0.5 };
-        Rectangle::new([(x, 0.0), (x + 0.4, value * 1e3)], colour.filled())
-    };
-    chart
-        .draw_series(
-            flights
-                .iter()
-                .enumerate()
-                .map(|(i, f)| bar(i, f.position_rms_before, true, BEFORE)),
-        )?
-        .label("start")
-        .legend(|(x, y)| Rectangle::new([(x, y - 6), (x + 24, y + 6)], BEFORE.filled()));
-    chart
-        .draw_series(
-            flights
-                .iter()
-                .enumerate()
-                .map(|(i, f)| bar(i, f.position_rms, false, FITTED)),
-        )?
-        .label("calibrated")
-        .legend(|(x, y)| Rectangle::new([(x, y - 6), (x + 24, y + 6)], FITTED.filled()));
+    let series: [(&str, RGBColor, f64, ResidualOf); 2] = [
+        ("start", BEFORE, 0.1, |f| f.position_rms_before),
+        ("calibrated", FITTED, 0.5, |f| f.position_rms),
+    ];
+    for (label, colour, offset, value) in series {
+        chart
+            .draw_series(flights.iter().enumerate().map(|(i, f)| {
+                let x = i as f64 + offset;
+                Rectangle::new([(x, 0.0), (x + 0.4, value(f) * 1e3)], colour.filled())
+            }))?
+            .label(label)
+            .legend(move |(x, y)| Rectangle::new([(x, y - 6), (x + 24, y + 6)], colour.filled()));
+    }
     chart
         .configure_series_labels()
         .position(SeriesLabelPosition::UpperRight)
