@@ -664,7 +664,16 @@ fn fit_at_orders(
             let mut theta = solution.theta.clone();
             theta[index] = mu;
             let mut trial_flights = flights.clone();
-            let trial = solve(&model, theta, &mut trial_flights, progress)?;
+            let trial = match solve(&model, theta, &mut trial_flights, progress) {
+                Ok(trial) => trial,
+                // A start where every bounce rolls out leaves the friction undetermined there:
+                // that restart tells nothing, the solution stands.
+                Err(CalibrationError::Singular) => {
+                    progress("  the flights do not determine the friction from there; skipped");
+                    continue;
+                }
+                Err(e) => return Err(e),
+            };
             iterations += trial.iterations;
             if trial.cost.cost < solution.cost.cost {
                 solution = trial;

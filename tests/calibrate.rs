@@ -171,3 +171,22 @@ fn the_command_writes_a_loadable_snippet_and_a_chart() {
     assert_eq!(both.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&both.stderr).contains("cannot be fitted together"));
 }
+
+/// On the real launcher flights a restart from a high friction makes every bounce roll out, so
+/// the friction is undetermined there: that restart is skipped, the calibration still stands,
+/// and it finds the livelier table the real-flight evaluation suspected.
+#[test]
+fn a_restart_where_every_bounce_rolls_does_not_sink_the_calibration() {
+    let d = scratch("calibrate-real");
+    let yaml = d.join("bounce.yaml");
+    let report = ok(&[
+        "calibrate",
+        "bags/real_launcher.mcap",
+        "--fit",
+        "bounce",
+        "--output",
+        yaml.to_str().unwrap(),
+    ]);
+    let loaded = ttball::config::yaml::load(Some(&yaml), &[] as &[String]).expect("loads");
+    assert!(loaded.table.restitution > 0.92, "{report}");
+}
