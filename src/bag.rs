@@ -8,12 +8,14 @@
 //! zstd-compressed chunks with the summary and indexes; [`BagWriter::finish`] must be called to
 //! finish the file (the caller does it on every path, Ctrl-C included).
 
-use std::collections::BTreeMap;
+use std::cmp::{Ordering, Reverse};
+use std::collections::{BTreeMap, BinaryHeap};
 use std::fs::File;
-use std::io::{BufWriter, Seek, Write};
+use std::io::{BufReader, BufWriter, Read, Seek, SeekFrom, Write};
 use std::path::{Path, PathBuf};
 
 use byteorder::{BigEndian, LittleEndian};
+use mcap::sans_io::linear_reader::{LinearReadEvent, LinearReader, LinearReaderOptions};
 use serde::Serialize;
 use serde::de::DeserializeOwned;
 
@@ -151,110 +153,404 @@ impl BagContents {
     }
 }
 
-/// Reads a bag (see [`read_bag`]): an MCAP file, or a rosbag2 directory (as `ros2 bag record`
-/// writes it: `metadata.yaml` beside one or more `.mcap` files, read together in log-time order).
+/// Reads a whole bag in memory (see [`BagReader`]): an MCAP file, or a rosbag2 directory (as
+/// `ros2 bag record` writes it: `metadata.yaml` beside one or more `.mcap` files, read together).
+/// Messages come back in log-time order (file order among equal times).
 pub fn read_bag_file(path: &Path) -> Result<BagContents, BagError> {
-    if path.is_dir() {
-        return read_bag_dir(path);
+    collect(BagReader::open(path)?)
+}
+
+/// Reads every message of MCAP bytes in memory, in log-time order. Bytes that do not start as
+/// MCAP are an error; damage later on ends the reading with what was read and the reason.
+pub fn read_bag(bytes: &[u8]) -> Result<BagContents, String> {
+    let reader =
+        BagReader::from_bytes(bytes.to_vec(), Path::new("<bytes>")).map_err(|e| match e {
+            BagError::NotMcap { reason, .. } => reason,
+            other => other.to_string(),
+        })?;
+    collect(reader).map_err(|e| e.to_string())
+}
+
+fn collect(mut reader: BagReader) -> Result<BagContents, BagError> {
+    let mut messages = Vec::new();
+    while let Some(m) = reader.next_message() {
+        messages.push(m);
     }
-    let bytes = std::fs::read(path).map_err(|source| BagError::Io {
-        path: path.to_path_buf(),
-        source,
-    })?;
-    read_bag(&bytes).map_err(|reason| BagError::NotMcap {
-        path: path.to_path_buf(),
-        reason,
+    messages.sort_by_key(|m| m.log_time);
+    Ok(BagContents {
+        channels: reader.channels,
+        messages,
+        damage: reader.damage,
     })
 }
 
-fn read_bag_dir(dir: &Path) -> Result<BagContents, BagError> {
-    let io = |source| BagError::Io {
-        path: dir.to_path_buf(),
-        source,
-    };
-    let mut files: Vec<PathBuf> = std::fs::read_dir(dir)
-        .map_err(io)?
-        .filter_map(|entry| entry.ok().map(|e| e.path()))
-        .filter(|p| p.extension().is_some_and(|e| e == "mcap"))
-        .collect();
-    files.sort();
-    if files.is_empty() {
-        return Err(BagError::NotMcap {
-            path: dir.to_path_buf(),
-            reason: "a directory without .mcap files".to_string(),
-        });
-    }
-    let mut merged = BagContents::default();
-    for file in &files {
-        let part = read_bag_file(file)?;
-        let map: Vec<usize> = part
-            .channels
-            .iter()
-            .map(|c| {
-                merged.channel(&c.topic).unwrap_or_else(|| {
-                    merged.channels.push(c.clone());
-                    merged.channels.len() - 1
-                })
-            })
-            .collect();
-        merged
-            .messages
-            .extend(part.messages.into_iter().map(|m| BagMessage {
-                channel: map[m.channel],
-                ..m
-            }));
-        if let Some(damage) = part.damage {
-            merged.damage = Some(format!("{}: {damage}", file.display()));
-        }
-    }
-    merged.messages.sort_by_key(|m| m.log_time);
-    Ok(merged)
+/// How many messages the reader holds back to put them in log-time order: a message recorded
+/// up to this many messages late still comes out in order. Bounds the reader's memory.
+pub const REORDER_WINDOW: usize = 4096;
+
+/// Streams the messages of a bag (an MCAP file, or a rosbag2 directory of them in name order)
+/// without holding the file in memory: chunks are read and decompressed one at a time, and a
+/// window of [`REORDER_WINDOW`] messages puts them in log-time order (file order among equal
+/// times). The channels of a file's summary section are known at once; others are added as they
+/// appear. A truncated or corrupt file ends the stream with the messages before the damage, and
+/// [`Self::damage`] says where it stopped.
+pub struct BagReader {
+    files: std::vec::IntoIter<PathBuf>,
+    file: Option<FileStream>,
+    channels: Vec<ChannelInfo>,
+    damage: Option<String>,
+    window: BinaryHeap<Reverse<Held>>,
+    sequence: u64,
+    read: u64,
+    messages: u64,
+    size: u64,
+    several_files: bool,
 }
 
-/// Reads every message of an MCAP file in memory, in log-time order. A file that does not start
-/// as MCAP is an error; damage later on ends the reading with what was read and the reason.
-pub fn read_bag(bytes: &[u8]) -> Result<BagContents, String> {
-    if !bytes.starts_with(mcap::MAGIC) {
-        return Err("it does not start with the MCAP magic bytes".to_string());
+/// A message held in the reorder window, ordered by log time then arrival.
+struct Held(u64, u64, BagMessage);
+
+impl PartialEq for Held {
+    fn eq(&self, other: &Self) -> bool {
+        (self.0, self.1) == (other.0, other.1)
     }
-    let options = mcap::read::Options::IgnoreEndMagic.into();
-    let stream =
-        mcap::MessageStream::new_with_options(bytes, options).map_err(|e| e.to_string())?;
-    let mut contents = BagContents::default();
-    let mut ids: BTreeMap<u16, usize> = BTreeMap::new();
-    for item in stream {
-        let message = match item {
-            Ok(m) => m,
-            Err(e) => {
-                contents.damage = Some(format!(
-                    "reading stopped after {} messages: {e}",
-                    contents.messages.len()
-                ));
-                break;
-            }
+}
+impl Eq for Held {}
+impl PartialOrd for Held {
+    fn partial_cmp(&self, other: &Self) -> Option<Ordering> {
+        Some(self.cmp(other))
+    }
+}
+impl Ord for Held {
+    fn cmp(&self, other: &Self) -> Ordering {
+        (self.0, self.1).cmp(&(other.0, other.1))
+    }
+}
+
+/// One MCAP file being read.
+struct FileStream {
+    path: PathBuf,
+    source: Box<dyn Read>,
+    reader: LinearReader,
+    schemas: BTreeMap<u16, (String, String, Vec<u8>)>,
+    /// Channel id in the file -> index in [`BagReader::channels`].
+    ids: BTreeMap<u16, usize>,
+}
+
+impl BagReader {
+    /// Opens a bag file or rosbag2 directory; the channels of its summary sections are read.
+    pub fn open(path: &Path) -> Result<Self, BagError> {
+        let io = |source| BagError::Io {
+            path: path.to_path_buf(),
+            source,
         };
-        let channel = *ids.entry(message.channel.id).or_insert_with(|| {
-            let c = &message.channel;
-            let schema = c.schema.as_deref();
-            contents.channels.push(ChannelInfo {
-                topic: c.topic.clone(),
-                schema_name: schema.map(|s| s.name.clone()).unwrap_or_default(),
-                schema_encoding: schema.map(|s| s.encoding.clone()).unwrap_or_default(),
-                schema_data: schema.map(|s| s.data.to_vec()).unwrap_or_default(),
-                message_encoding: c.message_encoding.clone(),
-                metadata: c.metadata.clone(),
+        let files = if path.is_dir() {
+            let mut files: Vec<PathBuf> = std::fs::read_dir(path)
+                .map_err(io)?
+                .filter_map(|entry| entry.ok().map(|e| e.path()))
+                .filter(|p| p.extension().is_some_and(|e| e == "mcap"))
+                .collect();
+            files.sort();
+            if files.is_empty() {
+                return Err(BagError::NotMcap {
+                    path: path.to_path_buf(),
+                    reason: "a directory without .mcap files".to_string(),
+                });
+            }
+            files
+        } else {
+            vec![path.to_path_buf()]
+        };
+        let mut size = 0;
+        let mut reader = Self::empty();
+        for file in &files {
+            let mut f = File::open(file).map_err(|source| BagError::Io {
+                path: file.clone(),
+                source,
+            })?;
+            size += f.metadata().map(|m| m.len()).unwrap_or(0);
+            check_magic(&mut f, file)?;
+            let mut stream = FileStream::new(file.clone(), Box::new(std::io::empty()));
+            if let Some(summary) = read_summary(&mut f) {
+                reader.register_summary(&mut stream, &summary);
+            }
+        }
+        reader.size = size;
+        reader.several_files = files.len() > 1;
+        reader.files = files.into_iter();
+        reader.open_next()?;
+        Ok(reader)
+    }
+
+    /// A reader of MCAP bytes already in memory; `path` names them in messages.
+    pub fn from_bytes(bytes: Vec<u8>, path: &Path) -> Result<Self, BagError> {
+        if !bytes.starts_with(mcap::MAGIC) {
+            return Err(BagError::NotMcap {
+                path: path.to_path_buf(),
+                reason: "it does not start with the MCAP magic bytes".to_string(),
             });
-            contents.channels.len() - 1
-        });
-        contents.messages.push(BagMessage {
-            channel,
-            log_time: message.log_time,
-            publish_time: message.publish_time,
-            data: message.data.into_owned(),
+        }
+        let mut reader = Self::empty();
+        reader.size = bytes.len() as u64;
+        reader.file = Some(FileStream::new(
+            path.to_path_buf(),
+            Box::new(std::io::Cursor::new(bytes)),
+        ));
+        Ok(reader)
+    }
+
+    fn empty() -> Self {
+        Self {
+            files: Vec::new().into_iter(),
+            file: None,
+            channels: Vec::new(),
+            damage: None,
+            window: BinaryHeap::with_capacity(REORDER_WINDOW + 1),
+            sequence: 0,
+            read: 0,
+            messages: 0,
+            size: 0,
+            several_files: false,
+        }
+    }
+
+    /// Every channel seen so far (all of them once the summaries are read).
+    pub fn channels(&self) -> &[ChannelInfo] {
+        &self.channels
+    }
+
+    /// The index of the channel of a topic.
+    pub fn channel(&self, topic: &str) -> Option<usize> {
+        self.channels.iter().position(|c| c.topic == topic)
+    }
+
+    /// Why reading stopped early (a truncated or corrupt file), when it did.
+    pub fn damage(&self) -> Option<&str> {
+        self.damage.as_deref()
+    }
+
+    /// Bytes read so far and the bag's size in bytes (for progress).
+    pub fn progress(&self) -> (u64, u64) {
+        (self.read, self.size)
+    }
+
+    /// The next message in log-time order, or `None` at the end (or at damage).
+    pub fn next_message(&mut self) -> Option<BagMessage> {
+        while self.window.len() <= REORDER_WINDOW {
+            let Some(message) = self.read_message() else {
+                break;
+            };
+            self.sequence += 1;
+            self.window
+                .push(Reverse(Held(message.log_time, self.sequence, message)));
+        }
+        self.window.pop().map(|Reverse(Held(_, _, m))| m)
+    }
+
+    fn open_next(&mut self) -> Result<bool, BagError> {
+        let Some(path) = self.files.next() else {
+            self.file = None;
+            return Ok(false);
+        };
+        let f = File::open(&path).map_err(|source| BagError::Io {
+            path: path.clone(),
+            source,
+        })?;
+        self.file = Some(FileStream::new(
+            path,
+            Box::new(BufReader::with_capacity(1 << 16, f)),
+        ));
+        Ok(true)
+    }
+
+    /// The next message in file order, across the files.
+    fn read_message(&mut self) -> Option<BagMessage> {
+        loop {
+            let stream = self.file.as_mut()?;
+            match stream.next(&mut self.channels, &mut self.read) {
+                Ok(Some(message)) => {
+                    self.messages += 1;
+                    return Some(message);
+                }
+                Ok(None) => {}
+                Err(reason) => {
+                    let name = if self.several_files {
+                        format!("{}: ", stream.path.display())
+                    } else {
+                        String::new()
+                    };
+                    self.damage = Some(format!(
+                        "{name}reading stopped after {} messages: {reason}",
+                        self.messages
+                    ));
+                    self.file = None;
+                    return None;
+                }
+            }
+            match self.open_next() {
+                Ok(true) => {}
+                Ok(false) => return None,
+                Err(e) => {
+                    self.damage = Some(e.to_string());
+                    return None;
+                }
+            }
+        }
+    }
+
+    fn register_summary(&mut self, stream: &mut FileStream, summary: &[u8]) {
+        let mut rest = summary;
+        while let Some((&opcode, after)) = rest.split_first() {
+            let Some((len, body)) = after.split_first_chunk::<8>() else {
+                return;
+            };
+            let len = usize::try_from(u64::from_le_bytes(*len)).unwrap_or(usize::MAX);
+            let Some((record, tail)) = body.split_at_checked(len) else {
+                return;
+            };
+            if let Ok(record) = mcap::parse_record(opcode, record) {
+                stream.take(record, &mut self.channels);
+            }
+            rest = tail;
+        }
+    }
+}
+
+impl FileStream {
+    fn new(path: PathBuf, source: Box<dyn Read>) -> Self {
+        Self {
+            path,
+            source,
+            reader: LinearReader::new_with_options(
+                LinearReaderOptions::default().with_skip_end_magic(true),
+            ),
+            schemas: BTreeMap::new(),
+            ids: BTreeMap::new(),
+        }
+    }
+
+    /// The next message of the file, `None` at its end, or why it cannot be read further.
+    fn next(
+        &mut self,
+        channels: &mut Vec<ChannelInfo>,
+        read: &mut u64,
+    ) -> Result<Option<BagMessage>, String> {
+        loop {
+            let request = match self.reader.next_event() {
+                None => return Ok(None),
+                Some(Err(e)) => return Err(e.to_string()),
+                Some(Ok(LinearReadEvent::ReadRequest(n))) => n,
+                Some(Ok(LinearReadEvent::Record { data, opcode })) => {
+                    let record = mcap::parse_record(opcode, data).map_err(|e| e.to_string())?;
+                    match record {
+                        mcap::records::Record::Message { header, data } => {
+                            let Some(&channel) = self.ids.get(&header.channel_id) else {
+                                return Err(format!(
+                                    "a message on unknown channel {}",
+                                    header.channel_id
+                                ));
+                            };
+                            return Ok(Some(BagMessage {
+                                channel,
+                                log_time: header.log_time,
+                                publish_time: header.publish_time,
+                                data: data.into_owned(),
+                            }));
+                        }
+                        // The summary after the data section repeats what was read.
+                        mcap::records::Record::DataEnd(_) => return Ok(None),
+                        other => {
+                            let (schemas, ids) = (&mut self.schemas, &mut self.ids);
+                            take_record(schemas, ids, other, channels);
+                        }
+                    }
+                    continue;
+                }
+            };
+            let buffer = self.reader.insert(request);
+            let n = loop {
+                match self.source.read(buffer) {
+                    Ok(n) => break n,
+                    Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
+                    Err(e) => return Err(e.to_string()),
+                }
+            };
+            *read += n as u64;
+            self.reader.notify_read(n);
+        }
+    }
+
+    fn take(&mut self, record: mcap::records::Record<'_>, channels: &mut Vec<ChannelInfo>) {
+        take_record(&mut self.schemas, &mut self.ids, record, channels);
+    }
+}
+
+/// Registers a schema or channel record (channels merge by topic across files).
+fn take_record(
+    schemas: &mut BTreeMap<u16, (String, String, Vec<u8>)>,
+    ids: &mut BTreeMap<u16, usize>,
+    record: mcap::records::Record<'_>,
+    channels: &mut Vec<ChannelInfo>,
+) {
+    match record {
+        mcap::records::Record::Schema { header, data } => {
+            schemas.insert(header.id, (header.name, header.encoding, data.into_owned()));
+        }
+        mcap::records::Record::Channel(c) => {
+            let schema = schemas.get(&c.schema_id);
+            let index = channels
+                .iter()
+                .position(|known| known.topic == c.topic)
+                .unwrap_or_else(|| {
+                    channels.push(ChannelInfo {
+                        topic: c.topic.clone(),
+                        schema_name: schema.map(|s| s.0.clone()).unwrap_or_default(),
+                        schema_encoding: schema.map(|s| s.1.clone()).unwrap_or_default(),
+                        schema_data: schema.map(|s| s.2.clone()).unwrap_or_default(),
+                        message_encoding: c.message_encoding.clone(),
+                        metadata: c.metadata.clone(),
+                    });
+                    channels.len() - 1
+                });
+            ids.insert(c.id, index);
+        }
+        _ => {}
+    }
+}
+
+/// Checks the MCAP magic at the start of a file and rewinds it.
+fn check_magic(f: &mut File, path: &Path) -> Result<(), BagError> {
+    let mut magic = [0u8; 8];
+    let ok = f.read_exact(&mut magic).is_ok() && magic == *mcap::MAGIC;
+    if !ok {
+        return Err(BagError::NotMcap {
+            path: path.to_path_buf(),
+            reason: "it does not start with the MCAP magic bytes".to_string(),
         });
     }
-    contents.messages.sort_by_key(|m| m.log_time);
-    Ok(contents)
+    Ok(())
+}
+
+/// The summary section of a finished MCAP file (from its footer), if it has one.
+fn read_summary(f: &mut File) -> Option<Vec<u8>> {
+    // Footer record: opcode, length (20), summary start, summary offset start, CRC; then magic.
+    const TAIL: u64 = 1 + 8 + 8 + 8 + 4 + 8;
+    let len = f.metadata().ok()?.len();
+    let footer_at = len.checked_sub(TAIL)?;
+    f.seek(SeekFrom::Start(footer_at)).ok()?;
+    let mut tail = [0u8; TAIL as usize];
+    f.read_exact(&mut tail).ok()?;
+    if tail[0] != mcap::records::op::FOOTER || tail[29..] != *mcap::MAGIC {
+        return None;
+    }
+    let start = u64::from_le_bytes(tail[9..17].try_into().ok()?);
+    if start == 0 || start >= footer_at {
+        return None;
+    }
+    let mut summary = vec![0u8; usize::try_from(footer_at - start).ok()?];
+    f.seek(SeekFrom::Start(start)).ok()?;
+    f.read_exact(&mut summary).ok()?;
+    Some(summary)
 }
 
 /// Writes a ROS 2 MCAP bag.

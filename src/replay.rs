@@ -8,12 +8,15 @@
 //! stamp; `/ball/truth/intercept`: each shot's true crossing and bounce), the replay scores the
 //! estimator with the same [`Scorer`] as `ttball evaluate`.
 
+use std::borrow::Borrow;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
-use crate::bag::{BagContents, BagError, BagWriter, decode, read_bag_file};
+use crate::bag::{
+    BagContents, BagError, BagMessage, BagReader, BagWriter, ChannelInfo, decode, read_bag_file,
+};
 use crate::config::Config;
 use crate::detection::Detection;
 use crate::estimator::{Counters, Estimate, TrackStatus};
@@ -24,7 +27,7 @@ use crate::msgs::convert::{
 use crate::msgs::ttball_msgs::msg::{BallDetection, BallState, InterceptPrediction};
 use crate::pipeline::Pipeline;
 use crate::smooth::{SmoothedState, Smoothing, smooth};
-use crate::stats::DurationSummary;
+use crate::stats::DurationHistogram;
 
 /// The type of the detection topic.
 pub const DETECTION_TYPE: &str = "ttball_msgs/msg/BallDetection";
@@ -130,16 +133,22 @@ struct BagTruth {
     shots: Vec<ShotTruth>,
 }
 
-fn read_truth(contents: &BagContents, config: &Config) -> Option<BagTruth> {
-    let state_channel = contents.channel(&config.topics.truth)?;
-    let event_channel = contents.channel(&truth_intercept_topic(&config.topics.truth))?;
+/// The truth among `messages` of a bag with these `channels`, if it has truth topics.
+fn read_truth<M: Borrow<BagMessage>>(
+    channels: &[ChannelInfo],
+    messages: impl IntoIterator<Item = M>,
+    config: &Config,
+) -> Option<BagTruth> {
+    let find = |topic: &str| channels.iter().position(|c| c.topic == topic);
+    let state_channel = find(&config.topics.truth)?;
+    let event_channel = find(&truth_intercept_topic(&config.topics.truth))?;
     let mut shots: BTreeMap<u32, ShotTruth> = BTreeMap::new();
-    for m in contents
-        .messages
-        .iter()
-        .filter(|m| m.channel == event_channel)
-    {
-        if let Ok(msg) = decode::<InterceptPrediction>(&m.data) {
+    let mut shot_states = Vec::new();
+    for m in messages {
+        let m = m.borrow();
+        if m.channel == event_channel
+            && let Ok(msg) = decode::<InterceptPrediction>(&m.data)
+        {
             let (shot, intercept_stamp, intercept_position, bounce_stamp) =
                 truth_intercept_from_msg(&msg);
             shots.insert(
@@ -150,22 +159,17 @@ fn read_truth(contents: &BagContents, config: &Config) -> Option<BagTruth> {
                     intercept_position,
                 },
             );
+        } else if m.channel == state_channel
+            && let Ok(msg) = decode::<BallState>(&m.data)
+        {
+            shot_states.push(state_from_msg(&msg));
         }
     }
     let index: BTreeMap<u32, usize> = shots.keys().enumerate().map(|(i, id)| (*id, i)).collect();
-    let mut states = BTreeMap::new();
-    for m in contents
-        .messages
-        .iter()
-        .filter(|m| m.channel == state_channel)
-    {
-        if let Ok(msg) = decode::<BallState>(&m.data) {
-            let (stamp, shot, state) = state_from_msg(&msg);
-            if let Some(i) = index.get(&shot) {
-                states.insert(stamp, (*i, state));
-            }
-        }
-    }
+    let states = shot_states
+        .into_iter()
+        .filter_map(|(stamp, shot, state)| index.get(&shot).map(|i| (stamp, (*i, state))))
+        .collect();
     Some(BagTruth {
         states,
         shots: shots.into_values().collect(),
@@ -174,12 +178,12 @@ fn read_truth(contents: &BagContents, config: &Config) -> Option<BagTruth> {
 
 /// The channel of `topic` in a bag read from `path`, checked to carry `BallDetection`.
 pub fn detection_channel(
-    contents: &BagContents,
+    channels: &[ChannelInfo],
     topic: &str,
     path: &Path,
 ) -> Result<usize, ReplayError> {
-    let Some(channel) = contents.channel(topic) else {
-        let present: Vec<&str> = contents.channels.iter().map(|c| c.topic.as_str()).collect();
+    let Some(channel) = channels.iter().position(|c| c.topic == topic) else {
+        let present: Vec<&str> = channels.iter().map(|c| c.topic.as_str()).collect();
         return Err(ReplayError::NoDetections {
             path: path.to_path_buf(),
             topic: topic.to_owned(),
@@ -190,7 +194,7 @@ pub fn detection_channel(
             },
         });
     };
-    let found = &contents.channels[channel].schema_name;
+    let found = &channels[channel].schema_name;
     if found != DETECTION_TYPE {
         return Err(ReplayError::WrongType {
             path: path.to_path_buf(),
@@ -204,8 +208,10 @@ pub fn detection_channel(
 /// A detection further than this from the truth is an outlier for scoring [m].
 const OUTLIER_DISTANCE: f64 = 0.03;
 
-/// Replays `input` into `output` (see the module doc). `progress` is called with (done, total)
-/// detections now and then; setting `cancel` stops early with a properly finished output.
+/// Replays `input` into `output` (see the module doc), streaming: the input is read a chunk at a
+/// time and nothing grows with the length of the bag, except the truth of a bag that has one
+/// (read in a first pass, to score against). `progress` is called with (bytes read, bytes) now
+/// and then; setting `cancel` stops early with a properly finished output.
 pub fn replay(
     input: &Path,
     output: &Path,
@@ -213,44 +219,74 @@ pub fn replay(
     progress: &mut dyn FnMut(u64, u64),
     cancel: &AtomicBool,
 ) -> Result<ReplaySummary, ReplayError> {
-    let contents = read_bag_file(input)?;
-    let detection_channel = detection_channel(&contents, &config.topics.detections, input)?;
-    let truth = read_truth(&contents, config);
+    let mut reader = BagReader::open(input)?;
+    let known_channels = reader.channels().to_vec();
+    let has_truth = [
+        config.topics.truth.clone(),
+        truth_intercept_topic(&config.topics.truth),
+    ]
+    .iter()
+    .all(|topic| known_channels.iter().any(|c| &c.topic == topic));
+    let truth = if has_truth {
+        let mut pass = BagReader::open(input)?;
+        read_truth(
+            &known_channels,
+            std::iter::from_fn(|| pass.next_message()),
+            config,
+        )
+    } else {
+        None
+    };
     let mut scorer = truth.as_ref().map(|t| Scorer::new(t.shots.clone()));
+    // A finished bag names its channels in its summary: check the detection topic before
+    // writing anything. A bag without a summary (cut off) is checked at its end.
+    if !known_channels.is_empty() {
+        detection_channel(&known_channels, &config.topics.detections, input)?;
+    }
 
     let mut writer = BagWriter::create(output)?;
-    let mut copied = Vec::with_capacity(contents.channels.len());
-    for channel in &contents.channels {
-        copied.push(writer.add_channel(channel)?);
-    }
     let outputs = Outputs {
         state: writer.channel(&config.topics.state, STATE_TYPE)?,
         intercept: writer.channel(&config.topics.intercept, INTERCEPT_TYPE)?,
         trajectory: writer.channel(&config.topics.trajectory, TRAJECTORY_TYPE)?,
         markers: writer.channel(&config.topics.markers, MARKERS_TYPE)?,
     };
+    let mut copied: Vec<u16> = Vec::new();
+    let mut detection_channel_index: Option<Option<usize>> = None;
 
-    let total = contents
-        .messages
-        .iter()
-        .filter(|m| m.channel == detection_channel)
-        .count() as u64;
     let mut pipeline = Pipeline::new(config);
+    let mut messages = 0usize;
     let mut detections = 0u64;
     let mut undecodable = 0u64;
     let mut written = 0u64;
-    let mut times: Vec<u64> = Vec::with_capacity(total as usize);
+    let mut times = DurationHistogram::new();
     let mut first_last: Option<(u64, u64)> = None;
     let mut interrupted = false;
     let result = (|| -> Result<(), ReplayError> {
-        for m in &contents.messages {
+        while let Some(m) = reader.next_message() {
             if cancel.load(Ordering::Relaxed) {
                 interrupted = true;
                 break;
             }
+            messages += 1;
+            while copied.len() < reader.channels().len() {
+                let info = &reader.channels()[copied.len()];
+                copied.push(writer.add_channel(info)?);
+            }
             writer.write_raw(copied[m.channel], m.log_time, m.publish_time, &m.data)?;
             written += 1;
-            if m.channel != detection_channel {
+            let channel = match detection_channel_index {
+                Some(channel) => channel,
+                None => {
+                    let found = reader.channel(&config.topics.detections);
+                    if let Some(c) = found {
+                        detection_channel(reader.channels(), &config.topics.detections, input)?;
+                        detection_channel_index = Some(Some(c));
+                    }
+                    found
+                }
+            };
+            if Some(m.channel) != channel {
                 continue;
             }
             detections += 1;
@@ -260,7 +296,7 @@ pub fn replay(
             };
             let started = Instant::now();
             let step = pipeline.on_detection(&msg);
-            times.push(u64::try_from(started.elapsed().as_nanos()).unwrap_or(u64::MAX));
+            times.record(u64::try_from(started.elapsed().as_nanos()).unwrap_or(u64::MAX));
             first_last =
                 Some(first_last.map_or((m.log_time, m.log_time), |(a, _)| (a, m.log_time)));
             let t = m.log_time;
@@ -292,8 +328,12 @@ pub fn replay(
                 scorer.score(*shot, &d, state, outlier, out);
             }
             if detections.is_multiple_of(1024) {
-                progress(detections, total);
+                let (done, total) = reader.progress();
+                progress(done, total);
             }
+        }
+        if detection_channel_index.is_none() && !interrupted {
+            detection_channel(reader.channels(), &config.topics.detections, input)?;
         }
         Ok(())
     })();
@@ -301,14 +341,15 @@ pub fn replay(
     let finished = writer.finish();
     result?;
     finished?;
-    progress(detections, total);
+    let (done, total) = reader.progress();
+    progress(done, total);
 
-    let timing = DurationSummary::of(&mut times);
+    let timing = times.summary();
     let counters = pipeline.counters();
     Ok(ReplaySummary {
         input: input.to_path_buf(),
         output: output.to_path_buf(),
-        messages: contents.messages.len(),
+        messages,
         detections,
         undecodable,
         counters,
@@ -317,7 +358,7 @@ pub fn replay(
         processing_p99_ns: timing.p99,
         recorded_seconds: first_last.map_or(0.0, |(a, b)| (b - a) as f64 * 1e-9),
         processing_seconds: timing.total * 1e-9,
-        damage: contents.damage,
+        damage: reader.damage().map(str::to_owned),
         interrupted,
         accuracy: scorer.map(|s| s.report(counters)),
     })
@@ -341,7 +382,7 @@ pub struct BagDetections {
 /// Reads `path` and decodes its detections (`topics.detections`).
 pub fn read_detections(path: &Path, config: &Config) -> Result<BagDetections, ReplayError> {
     let contents = read_bag_file(path)?;
-    let channel = detection_channel(&contents, &config.topics.detections, path)?;
+    let channel = detection_channel(&contents.channels, &config.topics.detections, path)?;
     let mut detections = Vec::new();
     let mut message_detection = Vec::with_capacity(contents.messages.len());
     let (mut undecodable, mut unknown_frame) = (0u64, 0u64);
@@ -423,7 +464,7 @@ pub fn smooth_bag(
         unknown_frame,
     } = read_detections(input, config)?;
     let count = message_detection.iter().flatten().count() as u64 + undecodable + unknown_frame;
-    let truth = read_truth(&contents, config);
+    let truth = read_truth(&contents.channels, &contents.messages, config);
     let smoothing = smooth(config, &detections, progress, cancel);
     let mut by_detection: Vec<Option<&SmoothedState>> = vec![None; detections.len()];
     for s in &smoothing.states {

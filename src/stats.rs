@@ -40,6 +40,96 @@ impl DurationSummary {
     }
 }
 
+/// Durations [ns] in fixed bins, for runs of any length in constant memory: 10 ns bins up to
+/// 100 us, 1 us bins up to 10 ms, and the largest kept exactly. Quantiles are the upper edge of
+/// their bin (nearest rank), so within 10 ns below 100 us; the mean and total are exact.
+#[derive(Debug, Clone, PartialEq)]
+pub struct DurationHistogram {
+    fine: Vec<u64>,
+    coarse: Vec<u64>,
+    beyond: u64,
+    count: u64,
+    total: f64,
+    max: u64,
+}
+
+const FINE_NS: u64 = 10;
+const FINE_BINS: usize = 10_000;
+const COARSE_NS: u64 = 1_000;
+const COARSE_BINS: usize = 9_900;
+
+impl Default for DurationHistogram {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl DurationHistogram {
+    /// An empty histogram (its bins are allocated here, once).
+    pub fn new() -> Self {
+        Self {
+            fine: vec![0; FINE_BINS],
+            coarse: vec![0; COARSE_BINS],
+            beyond: 0,
+            count: 0,
+            total: 0.0,
+            max: 0,
+        }
+    }
+
+    /// Adds one duration [ns].
+    pub fn record(&mut self, ns: u64) {
+        let fine_end = FINE_NS * FINE_BINS as u64;
+        if ns < fine_end {
+            self.fine[(ns / FINE_NS) as usize] += 1;
+        } else if let Some(bin) = self.coarse.get_mut(((ns - fine_end) / COARSE_NS) as usize) {
+            *bin += 1;
+        } else {
+            self.beyond += 1;
+        }
+        self.count += 1;
+        self.total += ns as f64;
+        self.max = self.max.max(ns);
+    }
+
+    /// The nearest-rank quantile `q` in [0, 1] [ns] (0 when empty).
+    pub fn quantile(&self, q: f64) -> f64 {
+        if self.count == 0 {
+            return 0.0;
+        }
+        let rank = ((self.count - 1) as f64 * q.clamp(0.0, 1.0)).round() as u64;
+        let mut seen = 0u64;
+        let fine_end = FINE_NS * FINE_BINS as u64;
+        let edges = (0..FINE_BINS)
+            .map(|i| (self.fine[i], (i as u64 + 1) * FINE_NS))
+            .chain(
+                (0..COARSE_BINS).map(|i| (self.coarse[i], fine_end + (i as u64 + 1) * COARSE_NS)),
+            );
+        for (count, upper) in edges {
+            seen += count;
+            if seen > rank {
+                return upper.min(self.max) as f64;
+            }
+        }
+        self.max as f64
+    }
+
+    /// Count, mean, median, 99th percentile, largest and total.
+    pub fn summary(&self) -> DurationSummary {
+        if self.count == 0 {
+            return DurationSummary::default();
+        }
+        DurationSummary {
+            count: self.count as usize,
+            mean: self.total / self.count as f64,
+            p50: self.quantile(0.5),
+            p99: self.quantile(0.99),
+            max: self.max as f64,
+            total: self.total,
+        }
+    }
+}
+
 /// Gamma(a) for a positive integer or half-integer `a`.
 fn gamma_half_integer(a: f64) -> f64 {
     let (mut value, mut x) = if (a - a.floor()) > 0.25 {

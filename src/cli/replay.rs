@@ -65,7 +65,7 @@ impl ReplayArgs {
                         };
                         let bar = progress_bar(
                             input.display().to_string(),
-                            "{msg} [{bar:30}] {pos}/{len} detections ({per_sec}, eta {eta})",
+                            "{msg} [{bar:30}] {bytes}/{total_bytes} ({bytes_per_sec}, eta {eta})",
                         );
                         let mut progress = |done: u64, total: u64| {
                             bar.set_length(total);

@@ -200,6 +200,13 @@ impl FlightModel {
 
     /// The Jacobian of [`Self::derivative`] with respect to the state.
     pub fn jacobian(&self, x: &StateVector) -> FlightJacobian {
+        self.derivative_and_jacobian(x).1
+    }
+
+    /// [`Self::derivative`] and [`Self::jacobian`] together, sharing the spin parameter, the
+    /// coefficients and the norms (the propagator needs both at every RK4 stage). The derivative
+    /// is the same, bit for bit, as [`Self::derivative`]'s.
+    pub fn derivative_and_jacobian(&self, x: &StateVector) -> (StateVector, FlightJacobian) {
         let v = x.fixed_rows::<3>(VELOCITY).into_owned();
         let w = x.fixed_rows::<3>(SPIN).into_owned();
         let speed_sq = v.norm_squared();
@@ -207,23 +214,32 @@ impl FlightModel {
         let c = w.cross(&v);
         let c_norm = c.norm();
 
-        // Sp and its gradients; zero where Sp is clamped or undefined.
-        let (sp, dsp_dv, dsp_dw) = if speed_sq < TINY || c_norm < TINY {
-            (0.0, Vector3::zeros(), Vector3::zeros())
+        // Sp (as in `spin_parameter`) and its gradients; zero where Sp is clamped or undefined.
+        let sp = if speed_sq < TINY {
+            0.0
         } else {
-            let sp = self.radius * c_norm / speed_sq;
+            self.radius * c_norm / speed_sq
+        };
+        let (dsp_dv, dsp_dw) = if speed_sq < TINY || c_norm < TINY || sp > self.spin_parameter_max {
+            (Vector3::zeros(), Vector3::zeros())
+        } else {
             let c_hat = c / c_norm;
-            if sp > self.spin_parameter_max {
-                (sp, Vector3::zeros(), Vector3::zeros())
-            } else {
-                let dsp_dv = (self.radius * c_hat.cross(&w) - 2.0 * sp * v) / speed_sq;
-                let dsp_dw = self.radius * v.cross(&c_hat) / speed_sq;
-                (sp, dsp_dv, dsp_dw)
-            }
+            let dsp_dv = (self.radius * c_hat.cross(&w) - 2.0 * sp * v) / speed_sq;
+            let dsp_dw = self.radius * v.cross(&c_hat) / speed_sq;
+            (dsp_dv, dsp_dw)
         };
         let sp_eval = sp.clamp(0.0, self.spin_parameter_max);
         let (cd, dcd) = self.drag.value_and_slope(sp_eval);
         let (cm, dcm) = self.magnus.value_and_slope(sp_eval);
+
+        let drag = -self.drag_factor * cd * speed * v;
+        let magnus = self.magnus_factor * cm * c;
+        let accel = drag + magnus - Vector3::new(0.0, 0.0, self.gravity);
+        let mut dx = StateVector::zeros();
+        dx.fixed_rows_mut::<3>(0).copy_from(&v);
+        dx.fixed_rows_mut::<3>(VELOCITY).copy_from(&accel);
+        dx.fixed_rows_mut::<3>(SPIN)
+            .copy_from(&(w * -self.spin_decay));
 
         // Drag: -k_D C_D |v| v.
         let speed_v = speed * v;
@@ -238,11 +254,12 @@ impl FlightModel {
         let magnus_dv = self.magnus_factor * (dcm * c * dsp_dv.transpose() + cm * w.cross_matrix());
         let magnus_dw = self.magnus_factor * (dcm * c * dsp_dw.transpose() - cm * v.cross_matrix());
 
-        FlightJacobian {
+        let jacobian = FlightJacobian {
             dv_dv: drag_dv + magnus_dv,
             dv_dw: drag_dw + magnus_dw,
             spin_decay: self.spin_decay,
-        }
+        };
+        (dx, jacobian)
     }
 }
 

@@ -357,9 +357,18 @@ impl Propagator {
                 return None;
             }
             let start = cursor.state;
-            let end = self.rk4(&start, h);
+            // The whole step with its sensitivities, kept unless an event cuts it short.
+            let full = cursor
+                .tangent
+                .map(|tangent| self.rk4_tangent(&start, h, &tangent.transition));
+            let end = full
+                .as_ref()
+                .map_or_else(|| self.rk4(&start, h), |step| step.state);
             let Some((surface, tau)) = self.first_event(&start, &end, h, watch) else {
-                self.take_step(cursor, h, None);
+                match full {
+                    Some(step) => Self::commit_step(cursor, step, None),
+                    None => cursor.state = end,
+                }
                 cursor.t = target;
                 return None;
             };
@@ -527,15 +536,26 @@ impl Propagator {
     }
 
     /// Moves the cursor's state (and tangent) by one RK4 step of size `h`. With `event_axis`, the
-    /// step ends on a surface whose event function is that state component: the step size then
-    /// depends on the initial state, and the tangent's time gradient is updated from it.
+    /// step ends on a surface whose event function is that state component (see
+    /// [`Self::commit_step`]).
     fn take_step(&self, cursor: &mut Cursor, h: f64, event_axis: Option<usize>) {
+        match cursor.tangent {
+            None => cursor.state = self.rk4(&cursor.state, h),
+            Some(tangent) => {
+                let step = self.rk4_tangent(&cursor.state, h, &tangent.transition);
+                Self::commit_step(cursor, step, event_axis);
+            }
+        }
+    }
+
+    /// Moves a cursor with a tangent to the end of `step`. Without `event_axis` the step ended at
+    /// a fixed time; with it, on a surface whose event function is that state component: the step
+    /// size then depends on the initial state, and the tangent's time gradient is updated from it.
+    fn commit_step(cursor: &mut Cursor, step: TangentStep, event_axis: Option<usize>) {
+        cursor.state = step.state;
         let Some(tangent) = cursor.tangent.as_mut() else {
-            cursor.state = self.rk4(&cursor.state, h);
             return;
         };
-        let step = self.rk4_tangent(&cursor.state, h, &tangent.transition);
-        cursor.state = step.state;
         match event_axis {
             None => {
                 // The step ends at a fixed time: h = target - t moves with -time_gradient.
@@ -566,17 +586,10 @@ impl Propagator {
     fn rk4_tangent(&self, x: &StateVector, h: f64, transition: &StateMatrix) -> TangentStep {
         let f = &self.flight;
         let half = 0.5 * h;
-        let k1 = f.derivative(x);
-        let a1 = f.jacobian(x);
-        let x2 = x + k1 * half;
-        let k2 = f.derivative(&x2);
-        let a2 = f.jacobian(&x2);
-        let x3 = x + k2 * half;
-        let k3 = f.derivative(&x3);
-        let a3 = f.jacobian(&x3);
-        let x4 = x + k3 * h;
-        let k4 = f.derivative(&x4);
-        let a4 = f.jacobian(&x4);
+        let (k1, a1) = f.derivative_and_jacobian(x);
+        let (k2, a2) = f.derivative_and_jacobian(&(x + k1 * half));
+        let (k3, a3) = f.derivative_and_jacobian(&(x + k2 * half));
+        let (k4, a4) = f.derivative_and_jacobian(&(x + k3 * h));
         let slope = (k1 + (k2 + k3) * 2.0 + k4) / 6.0;
 
         let p1 = a1.apply(transition);
