@@ -1,6 +1,8 @@
-//! Cost of the per-detection path: one EKF update, one interception prediction with covariance
-//! at several horizons, and the whole `Estimator::handle` (update + interception), on states and
-//! detections from a simulated 150 + 900 fps session. `cargo bench --bench estimator`.
+//! Cost of the per-detection path: one EKF update, the estimator's update of a detection in order
+//! and of a late one (rollback), one interception prediction with covariance at several horizons,
+//! and the whole `Estimator::handle` (update + interception), on states and detections from a
+//! simulated 150 + 900 fps session. `cargo bench --bench estimator`; the distribution over a whole
+//! stream is `cargo bench --bench per_detection`.
 
 use std::hint::black_box;
 
@@ -109,6 +111,56 @@ fn benches(c: &mut Criterion) {
                     BatchSize::SmallInput,
                 )
             });
+        }
+
+        // The filter alone (no interception), for a detection in order and for one that arrives
+        // late: a 150 fps detection behind the 900 fps ones already fused (a rollback re-applies
+        // them). Both at the first late arrival of the second half of the shot.
+        let late = session
+            .stream
+            .iter()
+            .enumerate()
+            .skip(midway)
+            .find(|(i, d)| {
+                session.stream[..*i]
+                    .iter()
+                    .rev()
+                    .take(20)
+                    .filter(|e| e.detection.stamp > d.detection.stamp)
+                    .count()
+                    >= 3
+            });
+        if let Some((index, late)) = late {
+            let mut before = Estimator::new(&config);
+            for d in &session.stream[..index] {
+                before.handle(&d.detection);
+            }
+            let newer = session.stream[..index]
+                .iter()
+                .filter(|e| e.detection.stamp > late.detection.stamp)
+                .count();
+            let in_order = session.stream[index..]
+                .iter()
+                .find(|d| d.detection.stamp > session.stream[index - 1].detection.stamp)
+                .map(|d| d.detection);
+            let mut group = c.benchmark_group("estimator_update");
+            if let Some(d) = in_order {
+                group.bench_function("in_order", |b| {
+                    b.iter_batched(
+                        || before.clone(),
+                        |mut e| e.update(black_box(&d)),
+                        BatchSize::SmallInput,
+                    )
+                });
+            }
+            group.bench_function(format!("late_rollback_{newer}_newer"), |b| {
+                b.iter_batched(
+                    || before.clone(),
+                    |mut e| e.update(black_box(&late.detection)),
+                    BatchSize::SmallInput,
+                )
+            });
+            group.finish();
         }
     }
 }

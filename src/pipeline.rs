@@ -411,7 +411,7 @@ mod tests {
     fn ball() -> BallState {
         let mut b = BallState::default();
         b.header.stamp = crate::msgs::builtin_interfaces::Time::from_nanos(seconds_to_ns(2.0));
-        b.header.frame_id = "table".to_owned();
+        b.header.frame_id = "table".into();
         b.position = Point {
             x: -1.6,
             y: 0.1,

@@ -13,8 +13,14 @@ use crate::msgs::convert::{detection_to_msg, truth_intercept_msg, truth_msg};
 use crate::replay::{DETECTION_TYPE, INTERCEPT_TYPE, STATE_TYPE, truth_intercept_topic};
 use crate::sim::Session;
 
-/// Writes a simulated session as a ROS 2 MCAP bag; returns the number of messages written.
-pub fn write_session(session: &Session, config: &Config, path: &Path) -> Result<u64, BagError> {
+/// Writes a simulated session as a ROS 2 MCAP bag, with its truth or (`with_truth` false) the
+/// detections alone, as a camera system records them; returns the number of messages written.
+pub fn write_session(
+    session: &Session,
+    config: &Config,
+    path: &Path,
+    with_truth: bool,
+) -> Result<u64, BagError> {
     let mut writer = BagWriter::create(path)?;
     let detections = writer.channel(&config.topics.detections, DETECTION_TYPE)?;
     let truth = writer.channel(&config.topics.truth, STATE_TYPE)?;
@@ -22,7 +28,7 @@ pub fn write_session(session: &Session, config: &Config, path: &Path) -> Result<
 
     // (log time, order, channel, payload), written in log-time order.
     let mut records: Vec<(u64, usize, u16, Vec<u8>)> = Vec::new();
-    for (k, shot) in session.shots.iter().enumerate() {
+    for (k, shot) in session.shots.iter().enumerate().filter(|_| with_truth) {
         let id = u32::try_from(k + 1).unwrap_or(u32::MAX);
         let msg = truth_intercept_msg(
             shot.launch_stamp,
@@ -44,6 +50,9 @@ pub fn write_session(session: &Session, config: &Config, path: &Path) -> Result<
         let id = u32::try_from(sim.shot + 1).unwrap_or(u32::MAX);
         let detection = encode(DETECTION_TYPE, &detection_to_msg(&sim.detection))?;
         records.push((t, records.len(), detections, detection));
+        if !with_truth {
+            continue;
+        }
         let state = encode(STATE_TYPE, &truth_msg(sim.detection.stamp, id, &sim.truth))?;
         records.push((t, records.len(), truth, state));
     }

@@ -968,7 +968,7 @@ fn ball_detection_cdr_golden_bytes() {
                 sec: 1_700_000_000,
                 nanosec: 250_000_000,
             },
-            frame_id: "table".to_owned(),
+            frame_id: "table".into(),
         },
         position: Point {
             x: 0.5,

@@ -43,3 +43,53 @@ fn handling_detections_allocates_nothing() {
     assert!(outputs > 1000 && counters.rollbacks > 50 && counters.tracks == 3);
     assert_eq!(info.count_total, 0, "{info:?}");
 }
+
+/// The node's whole per-detection path, `Pipeline::on_detection`: the message converted, the
+/// filter updated, the interception predicted and the `/ball/state` and `/ball/intercept`
+/// messages built (their `frame_id` borrowed from a constant) allocate nothing. The
+/// `/ball/trajectory` and markers, at most 50 times a second, do (their sample vectors).
+#[test]
+fn the_pipeline_allocates_nothing_per_detection_but_the_trajectory() {
+    use ttball::msgs::convert::detection_to_msg;
+    use ttball::pipeline::Pipeline;
+
+    let config = Config::default();
+    let session = simulate(
+        &config,
+        &SimOptions {
+            cameras: Cameras::WideAndHighSpeed,
+            shots: 3,
+            seed: 4,
+            ..SimOptions::default()
+        },
+    )
+    .unwrap();
+    let messages: Vec<_> = session
+        .stream
+        .iter()
+        .map(|d| (d.shot, detection_to_msg(&d.detection)))
+        .collect();
+    let mut pipeline = Pipeline::new(&config);
+    let first_of_second = messages.iter().position(|(shot, _)| *shot == 1).unwrap();
+    for (_, msg) in &messages[..first_of_second] {
+        pipeline.on_detection(msg);
+    }
+    let (mut plain, mut trajectories, mut allocating) = (0usize, 0usize, 0usize);
+    for (_, msg) in &messages[first_of_second..] {
+        let mut step = None;
+        let info = allocation_counter::measure(|| step = Some(pipeline.on_detection(msg)));
+        let step = step.unwrap();
+        if step.published.trajectory.is_some() {
+            trajectories += 1;
+        } else {
+            assert!(step.published.state.is_some() || step.published.intercept.is_none());
+            plain += 1;
+            allocating += usize::from(info.count_total > 0);
+        }
+    }
+    assert!(plain > 1000 && trajectories > 20, "{plain} {trajectories}");
+    assert_eq!(
+        allocating, 0,
+        "{allocating} of {plain} detections allocated"
+    );
+}

@@ -38,7 +38,7 @@ fn simulated_bag(path: &Path, shots: usize) -> ttball::sim::Session {
         },
     )
     .unwrap();
-    write_session(&session, &config, path).unwrap();
+    write_session(&session, &config, path, true).unwrap();
     session
 }
 
@@ -221,7 +221,7 @@ fn bad_detections_are_counted_by_reason() {
         .map(|s| detection_to_msg(&s.detection))
         .collect();
     msgs[50].position.x = f64::NAN;
-    msgs[60].header.frame_id = "camera_left".to_string();
+    msgs[60].header.frame_id = "camera_left".into();
     msgs[70].confidence = 2.0;
     let input = d.join("in.mcap");
     write_detections(&input, DETECTION_TYPE, &msgs);

@@ -201,7 +201,8 @@ pub enum Command {
     /// Write a bag of simulated play (detections of both cameras, with truth).
     #[command(after_help = "Examples:\n  \
         ttball simulate --output rally.mcap --shots 20 --seed 7\n  \
-        ttball simulate --output wide.mcap --cameras wide")]
+        ttball simulate --output wide.mcap --cameras wide\n  \
+        ttball simulate --output hour.mcap --shots 3200 --no-truth   # an hour, detections only")]
     Simulate(simulate::SimulateArgs),
 }
 

@@ -39,6 +39,11 @@ pub struct SimulateArgs {
     #[arg(long, value_enum, default_value = "wide+highspeed")]
     pub cameras: CameraSetup,
 
+    /// Write the detections only, without the truth topics (as a camera system records them:
+    /// a smaller bag, nothing to score against).
+    #[arg(long)]
+    pub no_truth: bool,
+
     /// The physics, table, hitting plane and topics of the simulation.
     #[command(flatten)]
     pub config: ConfigArgs,
@@ -58,7 +63,7 @@ impl SimulateArgs {
             ..SimOptions::default()
         };
         let session = simulate(&config, &options).context("cannot simulate")?;
-        let messages = write_session(&session, &config, &self.output)?;
+        let messages = write_session(&session, &config, &self.output, !self.no_truth)?;
         let bytes = std::fs::metadata(&self.output)
             .map(|m| m.len())
             .unwrap_or(0);

@@ -488,8 +488,16 @@ impl Estimator {
         self.counters.rejected[reason.index()] += 1;
     }
 
-    /// Takes one detection (in arrival order) and returns the estimate and interception after it.
+    /// Takes one detection (in arrival order) and returns the estimate and interception after it:
+    /// [`Self::update`], then the interception from the updated state.
     pub fn handle(&mut self, detection: &Detection) -> Output {
+        let verdict = self.update(detection);
+        self.output(verdict, detection.stamp)
+    }
+
+    /// Takes one detection (in arrival order) into the filter, rolling back and re-applying the
+    /// newer ones when it is late, without predicting the interception; says what became of it.
+    pub fn update(&mut self, detection: &Detection) -> Verdict {
         self.counters.received += 1;
         let verdict = match self.measurement(detection) {
             Err(reason) => Verdict::Rejected(reason),
@@ -500,7 +508,7 @@ impl Estimator {
             Verdict::Initializing => self.counters.initializing += 1,
             Verdict::Rejected(reason) => self.counters.rejected[reason.index()] += 1,
         }
-        self.output(verdict, detection.stamp)
+        verdict
     }
 
     fn output(&self, verdict: Verdict, stamp: i64) -> Output {

@@ -81,14 +81,14 @@ fn row_major9(m: &StateMatrix) -> [f64; 81] {
 fn header(stamp: i64) -> Header {
     Header {
         stamp: Time::from_nanos(stamp),
-        frame_id: TABLE_FRAME.to_string(),
+        frame_id: TABLE_FRAME.into(),
     }
 }
 
 /// A `BallDetection` message as the core's detection.
 pub fn detection_from_msg(msg: &BallDetection) -> Result<Detection, ConvertError> {
     if msg.header.frame_id != TABLE_FRAME {
-        return Err(ConvertError::UnknownFrame(msg.header.frame_id.clone()));
+        return Err(ConvertError::UnknownFrame(msg.header.frame_id.to_string()));
     }
     Ok(Detection {
         stamp: msg.header.stamp.to_nanos(),

@@ -1,5 +1,7 @@
 //! Mirror of the ROS 2 package `std_msgs` (only `Header` and `ColorRGBA`).
 
+use std::borrow::Cow;
+
 use serde::{Deserialize, Serialize};
 
 use super::builtin_interfaces::Time;
@@ -9,8 +11,10 @@ use super::builtin_interfaces::Time;
 pub struct Header {
     /// Time the data refers to [s, ns]; each message says which time that is.
     pub stamp: Time,
-    /// Coordinate frame of the data; `"table"` for every ttball message.
-    pub frame_id: String,
+    /// Coordinate frame of the data; `"table"` for every ttball message. Borrowed from a
+    /// constant in the messages ttball writes, so building one allocates nothing (a `string` on
+    /// the wire either way).
+    pub frame_id: Cow<'static, str>,
 }
 
 /// `std_msgs/msg/ColorRGBA`: a colour, each channel in [0, 1].

@@ -157,7 +157,7 @@ pub fn diagnostics_msg(snapshot: &Snapshot<'_>, window: &mut Window) -> Diagnost
     DiagnosticArray {
         header: Header {
             stamp: Time::from_nanos(s.stamp),
-            frame_id: String::new(),
+            frame_id: "".into(),
         },
         status: vec![DiagnosticStatus {
             level,
