@@ -1056,7 +1056,7 @@ fn every_mirror_round_trips_through_cdr() {
     }
     let header = Header {
         stamp: Time::from_nanos(-1_250_000_000),
-        frame_id: "table".to_owned(),
+        frame_id: "table".into(),
     };
     let v = |x: f64| Vector3 {
         x,

@@ -208,7 +208,9 @@ fn summary_text(name: &str, s: &NodeSummary) -> String {
     }
     format!(
         "{name} ran {:.1} s: detections received {}, fused {}, initialising {}, rejected {} ({}); tracks {}\n  \
-         processing per detection: mean {:.1} us, max {:.1} us; service requests {}; publish errors {}\n",
+         processing per detection: mean {:.1} us, max {:.1} us; in the node (off DDS to published): \
+         p50 {:.1} us, p99 {:.1} us, max {:.1} us\n  \
+         service requests {}; publish errors {}\n",
         s.seconds,
         t.received,
         c.fused,
@@ -222,6 +224,9 @@ fn summary_text(name: &str, s: &NodeSummary) -> String {
         c.tracks,
         s.processing_mean_ns * 1e-3,
         s.processing_max_ns * 1e-3,
+        s.in_node.p50 * 1e-3,
+        s.in_node.p99 * 1e-3,
+        s.in_node.max * 1e-3,
         t.service_requests,
         t.publish_errors,
     )

@@ -49,6 +49,7 @@ use crate::msgs::ttball_msgs::msg::{
 use crate::msgs::visualization_msgs::MarkerArray;
 use crate::pipeline::{Pipeline, Published};
 use crate::replay::{DETECTION_TYPE, INTERCEPT_TYPE, MARKERS_TYPE, STATE_TYPE, TRAJECTORY_TYPE};
+use crate::stats::{DurationHistogram, DurationSummary};
 use services::{Reply, Servers, Service};
 
 impl ros2_client::Message for BallDetection {}
@@ -142,6 +143,10 @@ pub struct NodeSummary {
     pub processing_mean_ns: f64,
     /// Longest processing time of one detection [ns].
     pub processing_max_ns: f64,
+    /// Time in the node per detection [ns]: from the DDS thread taking the sample off DDS to the
+    /// estimator thread having published its state and intercept (queue wait + processing +
+    /// publishing); over the whole run, in constant memory.
+    pub in_node: DurationSummary,
     /// How long the node ran [s].
     pub seconds: f64,
 }
@@ -331,6 +336,7 @@ pub fn start(config: &Config, placement: &Placement) -> Result<NodeHandle, NodeE
                 transport: shared.snapshot(),
                 processing_mean_ns: estimator.processing_mean_ns,
                 processing_max_ns: estimator.processing_max_ns,
+                in_node: estimator.in_node,
                 seconds: started.elapsed().as_secs_f64(),
             })
         })
@@ -467,6 +473,7 @@ struct EstimatorResult {
     counters: Counters,
     processing_mean_ns: f64,
     processing_max_ns: f64,
+    in_node: DurationSummary,
 }
 
 impl EstimatorThread {
@@ -482,6 +489,7 @@ impl EstimatorThread {
         let mut transport_before = self.shared.snapshot();
         let mut requests_open = true;
         let (mut total_ns, mut max_ns, mut count) = (0.0, 0u64, 0u64);
+        let mut in_node = DurationHistogram::new();
         loop {
             let never = channel::never();
             channel::select! {
@@ -495,6 +503,7 @@ impl EstimatorThread {
                     max_ns = max_ns.max(ns);
                     count += 1;
                     self.publish(step.published);
+                    in_node.record(nanos(queued_at.elapsed()));
                 }
                 recv(if requests_open { requests } else { &never }) -> request => match request {
                     Ok((id, request)) => {
@@ -530,6 +539,7 @@ impl EstimatorThread {
                 0.0
             },
             processing_max_ns: max_ns as f64,
+            in_node: in_node.summary(),
         }
     }
 

@@ -323,16 +323,18 @@ def read_detections(bag, topic):
                 for _, _, m in make_reader(f).iter_messages(topics=[topic], log_time_order=True)]
 
 
-def latency_ms(sent, states):
-    """recv_ns of each state minus send_ns of the detection with its stamp (FIFO when stamps repeat)."""
+def latency_ms(sent, outputs):
+    """recv_ns of each output (state or intercept, stamped with its detection's stamp) minus
+    send_ns of the detection with that stamp (FIFO when stamps repeat)."""
     pending = collections.defaultdict(collections.deque)
     for s in sent:
         pending[s["stamp_ns"]].append(s["send_ns"])
     values = sorted((r["recv_ns"] - pending[r["stamp_ns"]].popleft()) / 1e6
-                    for r in states if pending.get(r["stamp_ns"]))
+                    for r in outputs if pending.get(r["stamp_ns"]))
     if not values:
-        return {"p50": None, "p99": None, "count": 0}
-    return {"p50": percentile(values, 50), "p99": percentile(values, 99), "count": len(values)}
+        return {"p50": None, "p99": None, "max": None, "count": 0}
+    return {"p50": percentile(values, 50), "p99": percentile(values, 99), "max": values[-1],
+            "count": len(values)}
 
 
 def cmd_publish(args):
@@ -371,11 +373,16 @@ def cmd_publish(args):
 
     result = {"sent": sent, "states": states.snapshot(), "intercepts": intercepts.snapshot()}
     result["latency_ms"] = latency_ms(sent, result["states"])
+    result["intercept_latency_ms"] = latency_ms(sent, result["intercepts"])
     write_json(args.out, result)
-    lat = result["latency_ms"]
+
+    def describe(lat):
+        if not lat["count"]:
+            return "n/a"
+        return f"p50 {lat['p50']:.3f} ms, p99 {lat['p99']:.3f} ms, max {lat['max']:.3f} ms over {lat['count']}"
     print(f"dds_peer: sent {len(sent)} detections in {(sent[-1]['send_ns'] - start) / 1e9:.2f} s, received "
-          f"{len(result['states'])} states, {len(result['intercepts'])} intercepts; latency "
-          + (f"p50 {lat['p50']:.3f} ms, p99 {lat['p99']:.3f} ms over {lat['count']}" if lat["count"] else "n/a"),
+          f"{len(result['states'])} states, {len(result['intercepts'])} intercepts; latency to the state "
+          f"{describe(result['latency_ms'])}; to the intercept {describe(result['intercept_latency_ms'])}",
           file=sys.stderr)
     return 0
 

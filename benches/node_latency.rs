@@ -1,0 +1,80 @@
+//! End-to-end latency of the live node on loopback: a DDS peer we did not write (Eclipse Cyclone
+//! DDS, `tests/interop/dds_peer.py`) publishes the detections of a simulated 150 + 900 fps rally
+//! at their recorded pace and reads `/ball/state` and `/ball/intercept`; the latency of each is
+//! the time from the peer's write of a detection to its read of the output with that stamp,
+//! through both DDS stacks and Cyclone's Python binding. `ttball node` and the peer run in a
+//! network namespace with only loopback (`unshare -n`), both limited to 127.0.0.1.
+//!
+//! `TTBALL_PYTHON=target/interop-venv/bin/python cargo bench --bench node_latency` (the venv that
+//! `.ci/run` makes: `pip install cyclonedds mcap`). Needs permission to make a network namespace.
+//! Under `cargo test --benches` it only says how to run it.
+#![allow(
+    clippy::unwrap_used,
+    clippy::expect_used,
+    clippy::panic,
+    reason = "benchmark: fail loudly"
+)]
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+/// Shots of the simulated rally (about 1.15 s each).
+const SHOTS: usize = 50;
+
+fn main() {
+    if !std::env::args().any(|a| a == "--bench") {
+        println!("node_latency: run with `cargo bench --bench node_latency` (and TTBALL_PYTHON)");
+        return;
+    }
+    let Some(python) = std::env::var_os("TTBALL_PYTHON").map(PathBuf::from) else {
+        println!("node_latency: set TTBALL_PYTHON to a Python with cyclonedds and mcap");
+        return;
+    };
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let ttball = env!("CARGO_BIN_EXE_ttball");
+    let dir = std::env::temp_dir().join(format!("ttball-latency-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let bag = dir.join("rally.mcap");
+    let simulated = Command::new(ttball)
+        .args([
+            "simulate",
+            "--shots",
+            &SHOTS.to_string(),
+            "--seed",
+            "3",
+            "-o",
+        ])
+        .arg(&bag)
+        .status()
+        .unwrap();
+    assert!(simulated.success());
+    let script = format!(
+        r#"
+ip link set lo up && ip link set lo multicast on && ip route add 224.0.0.0/4 dev lo || exit 90
+export ROS_DOMAIN_ID=43 ROS_LOCALHOST_ONLY=1
+cd "{dir}"
+"{ttball}" node > node.out 2> node.err &
+node=$!
+"{python}" "{peer}" publish "{bag}" --wait-match 30 --out peer.json 2> peer.err
+kill -TERM $node
+wait $node
+"#,
+        dir = dir.display(),
+        python = python.display(),
+        peer = root.join("tests/interop/dds_peer.py").display(),
+        bag = bag.display(),
+    );
+    let status = Command::new("unshare")
+        .args(["-n", "bash", "-c", &script])
+        .status()
+        .unwrap();
+    assert_ne!(
+        status.code(),
+        Some(90),
+        "cannot set up loopback in the namespace"
+    );
+    let read = |name: &str| std::fs::read_to_string(dir.join(name)).unwrap_or_default();
+    println!("{}", read("peer.err").trim());
+    println!("{}", read("node.out").trim());
+    let _ = std::fs::remove_dir_all(&dir);
+}
