@@ -193,6 +193,41 @@ mod tests {
     use super::*;
     use approx::assert_relative_eq;
 
+    /// The histogram's quantiles are the sorted sample's, to its 10 ns bins (1 us above 100 us);
+    /// mean, total and maximum exact; beyond 10 ms only the maximum is kept.
+    #[test]
+    fn duration_histogram_matches_the_sorted_sample() {
+        let mut histogram = DurationHistogram::new();
+        let mut sample: Vec<u64> = (0..10_000u64).map(|i| (i * 7919) % 150_000 + 5).collect();
+        sample.push(20_000_000);
+        for &ns in &sample {
+            histogram.record(ns);
+        }
+        let exact = DurationSummary::of(&mut sample);
+        let binned = histogram.summary();
+        assert_eq!(binned.count, exact.count);
+        assert_relative_eq!(binned.mean, exact.mean);
+        assert_eq!(binned.max, exact.max);
+        assert!(
+            (binned.p50 - exact.p50).abs() <= 1_000.0,
+            "{binned:?} {exact:?}"
+        );
+        assert!(binned.p50 >= exact.p50 && binned.p99 >= exact.p99);
+        assert!(
+            (binned.p99 - exact.p99).abs() <= 1_000.0,
+            "{binned:?} {exact:?}"
+        );
+        let mut small = DurationHistogram::new();
+        for ns in [100, 200, 300] {
+            small.record(ns);
+        }
+        assert_eq!(small.quantile(0.5), 210.0);
+        assert_eq!(
+            DurationHistogram::new().summary(),
+            DurationSummary::default()
+        );
+    }
+
     /// Reference quantiles from standard chi-square tables.
     #[test]
     fn quantiles_match_tables() {

@@ -9,13 +9,12 @@
 
 use ttball::config::Config;
 use ttball::estimator::Estimator;
-use ttball::sim::{Cameras, SimOptions, simulate};
+use ttball::sim::{Cameras, Session, SimOptions, simulate};
 
-#[test]
-fn handling_detections_allocates_nothing() {
-    let config = Config::default();
-    let session = simulate(
-        &config,
+/// Three shots seen by both cameras.
+fn session(config: &Config) -> Session {
+    simulate(
+        config,
         &SimOptions {
             cameras: Cameras::WideAndHighSpeed,
             shots: 3,
@@ -23,7 +22,13 @@ fn handling_detections_allocates_nothing() {
             ..SimOptions::default()
         },
     )
-    .unwrap();
+    .unwrap()
+}
+
+#[test]
+fn handling_detections_allocates_nothing() {
+    let config = Config::default();
+    let session = session(&config);
     let mut estimator = Estimator::new(&config);
     // The first shot warms up: the first track takes its buffers.
     let first_of_second = session.stream.iter().position(|d| d.shot == 1).unwrap();
@@ -54,16 +59,7 @@ fn the_pipeline_allocates_nothing_per_detection_but_the_trajectory() {
     use ttball::pipeline::Pipeline;
 
     let config = Config::default();
-    let session = simulate(
-        &config,
-        &SimOptions {
-            cameras: Cameras::WideAndHighSpeed,
-            shots: 3,
-            seed: 4,
-            ..SimOptions::default()
-        },
-    )
-    .unwrap();
+    let session = session(&config);
     let messages: Vec<_> = session
         .stream
         .iter()
