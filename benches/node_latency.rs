@@ -15,8 +15,11 @@
     reason = "benchmark: fail loudly"
 )]
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::process::Command;
+
+#[path = "../tests/common/mod.rs"]
+mod common;
 
 /// Shots of the simulated rally (about 1.15 s each).
 const SHOTS: usize = 50;
@@ -30,10 +33,9 @@ fn main() {
         println!("node_latency: set TTBALL_PYTHON to a Python with cyclonedds and mcap");
         return;
     };
-    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let root = common::root();
     let ttball = env!("CARGO_BIN_EXE_ttball");
-    let dir = std::env::temp_dir().join(format!("ttball-latency-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    let dir = common::scratch("latency");
     let bag = dir.join("rally.mcap");
     let simulated = Command::new(ttball)
         .args([
@@ -50,7 +52,6 @@ fn main() {
     assert!(simulated.success());
     let script = format!(
         r#"
-ip link set lo up && ip link set lo multicast on && ip route add 224.0.0.0/4 dev lo || exit 90
 export ROS_DOMAIN_ID=43 ROS_LOCALHOST_ONLY=1
 cd "{dir}"
 "{ttball}" node > node.out 2> node.err &
@@ -64,15 +65,7 @@ wait $node
         peer = root.join("tests/interop/dds_peer.py").display(),
         bag = bag.display(),
     );
-    let status = Command::new("unshare")
-        .args(["-n", "bash", "-c", &script])
-        .status()
-        .unwrap();
-    assert_ne!(
-        status.code(),
-        Some(90),
-        "cannot set up loopback in the namespace"
-    );
+    common::run_on_loopback_only(&script);
     let read = |name: &str| std::fs::read_to_string(dir.join(name)).unwrap_or_default();
     println!("{}", read("peer.err").trim());
     println!("{}", read("node.out").trim());

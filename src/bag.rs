@@ -232,6 +232,13 @@ struct FileStream {
     path: PathBuf,
     source: Box<dyn Read>,
     reader: LinearReader,
+    records: Records,
+}
+
+/// The schema and channel records of one MCAP file.
+#[derive(Default)]
+struct Records {
+    /// Schema id -> (name, encoding, data).
     schemas: BTreeMap<u16, (String, String, Vec<u8>)>,
     /// Channel id in the file -> index in [`BagReader::channels`].
     ids: BTreeMap<u16, usize>,
@@ -269,10 +276,11 @@ impl BagReader {
                 source,
             })?;
             size += f.metadata().map(|m| m.len()).unwrap_or(0);
-            check_magic(&mut f, file)?;
-            let mut stream = FileStream::new(file.clone(), Box::new(std::io::empty()));
+            let mut start = [0u8; 8];
+            let _ = f.read_exact(&mut start);
+            check_magic(&start, file)?;
             if let Some(summary) = read_summary(&mut f) {
-                reader.register_summary(&mut stream, &summary);
+                reader.register_summary(&summary);
             }
         }
         reader.size = size;
@@ -284,12 +292,7 @@ impl BagReader {
 
     /// A reader of MCAP bytes already in memory; `path` names them in messages.
     pub fn from_bytes(bytes: Vec<u8>, path: &Path) -> Result<Self, BagError> {
-        if !bytes.starts_with(mcap::MAGIC) {
-            return Err(BagError::NotMcap {
-                path: path.to_path_buf(),
-                reason: "it does not start with the MCAP magic bytes".to_string(),
-            });
-        }
+        check_magic(&bytes, path)?;
         let mut reader = Self::empty();
         reader.size = bytes.len() as u64;
         reader.file = Some(FileStream::new(
@@ -398,7 +401,10 @@ impl BagReader {
         }
     }
 
-    fn register_summary(&mut self, stream: &mut FileStream, summary: &[u8]) {
+    /// Registers the channels of a file's summary section (the file's ids are read again with
+    /// its data section).
+    fn register_summary(&mut self, summary: &[u8]) {
+        let mut records = Records::default();
         let mut rest = summary;
         while let Some((&opcode, after)) = rest.split_first() {
             let Some((len, body)) = after.split_first_chunk::<8>() else {
@@ -409,7 +415,7 @@ impl BagReader {
                 return;
             };
             if let Ok(record) = mcap::parse_record(opcode, record) {
-                stream.take(record, &mut self.channels);
+                records.take(record, &mut self.channels);
             }
             rest = tail;
         }
@@ -424,8 +430,7 @@ impl FileStream {
             reader: LinearReader::new_with_options(
                 LinearReaderOptions::default().with_skip_end_magic(true),
             ),
-            schemas: BTreeMap::new(),
-            ids: BTreeMap::new(),
+            records: Records::default(),
         }
     }
 
@@ -444,7 +449,7 @@ impl FileStream {
                     let record = mcap::parse_record(opcode, data).map_err(|e| e.to_string())?;
                     match record {
                         mcap::records::Record::Message { header, data } => {
-                            let Some(&channel) = self.ids.get(&header.channel_id) else {
+                            let Some(&channel) = self.records.ids.get(&header.channel_id) else {
                                 return Err(format!(
                                     "a message on unknown channel {}",
                                     header.channel_id
@@ -459,10 +464,7 @@ impl FileStream {
                         }
                         // The summary after the data section repeats what was read.
                         mcap::records::Record::DataEnd(_) => return Ok(None),
-                        other => {
-                            let (schemas, ids) = (&mut self.schemas, &mut self.ids);
-                            take_record(schemas, ids, other, channels);
-                        }
+                        other => self.records.take(other, channels),
                     }
                     continue;
                 }
@@ -479,50 +481,42 @@ impl FileStream {
             self.reader.notify_read(n);
         }
     }
+}
 
+impl Records {
+    /// Registers a schema or channel record (channels merge by topic across files).
     fn take(&mut self, record: mcap::records::Record<'_>, channels: &mut Vec<ChannelInfo>) {
-        take_record(&mut self.schemas, &mut self.ids, record, channels);
-    }
-}
-
-/// Registers a schema or channel record (channels merge by topic across files).
-fn take_record(
-    schemas: &mut BTreeMap<u16, (String, String, Vec<u8>)>,
-    ids: &mut BTreeMap<u16, usize>,
-    record: mcap::records::Record<'_>,
-    channels: &mut Vec<ChannelInfo>,
-) {
-    match record {
-        mcap::records::Record::Schema { header, data } => {
-            schemas.insert(header.id, (header.name, header.encoding, data.into_owned()));
-        }
-        mcap::records::Record::Channel(c) => {
-            let schema = schemas.get(&c.schema_id);
-            let index = channels
-                .iter()
-                .position(|known| known.topic == c.topic)
-                .unwrap_or_else(|| {
-                    channels.push(ChannelInfo {
-                        topic: c.topic.clone(),
-                        schema_name: schema.map(|s| s.0.clone()).unwrap_or_default(),
-                        schema_encoding: schema.map(|s| s.1.clone()).unwrap_or_default(),
-                        schema_data: schema.map(|s| s.2.clone()).unwrap_or_default(),
-                        message_encoding: c.message_encoding.clone(),
-                        metadata: c.metadata.clone(),
+        match record {
+            mcap::records::Record::Schema { header, data } => {
+                self.schemas
+                    .insert(header.id, (header.name, header.encoding, data.into_owned()));
+            }
+            mcap::records::Record::Channel(c) => {
+                let schema = self.schemas.get(&c.schema_id);
+                let index = channels
+                    .iter()
+                    .position(|known| known.topic == c.topic)
+                    .unwrap_or_else(|| {
+                        channels.push(ChannelInfo {
+                            topic: c.topic.clone(),
+                            schema_name: schema.map(|s| s.0.clone()).unwrap_or_default(),
+                            schema_encoding: schema.map(|s| s.1.clone()).unwrap_or_default(),
+                            schema_data: schema.map(|s| s.2.clone()).unwrap_or_default(),
+                            message_encoding: c.message_encoding.clone(),
+                            metadata: c.metadata.clone(),
+                        });
+                        channels.len() - 1
                     });
-                    channels.len() - 1
-                });
-            ids.insert(c.id, index);
+                self.ids.insert(c.id, index);
+            }
+            _ => {}
         }
-        _ => {}
     }
 }
 
-/// Checks the MCAP magic at the start of a file and rewinds it.
-fn check_magic(f: &mut File, path: &Path) -> Result<(), BagError> {
-    let mut magic = [0u8; 8];
-    let ok = f.read_exact(&mut magic).is_ok() && magic == *mcap::MAGIC;
-    if !ok {
+/// Checks that the first bytes of a file are the MCAP magic.
+fn check_magic(start: &[u8], path: &Path) -> Result<(), BagError> {
+    if !start.starts_with(mcap::MAGIC) {
         return Err(BagError::NotMcap {
             path: path.to_path_buf(),
             reason: "it does not start with the MCAP magic bytes".to_string(),

@@ -133,15 +133,21 @@ struct BagTruth {
     shots: Vec<ShotTruth>,
 }
 
-/// The truth among `messages` of a bag with these `channels`, if it has truth topics.
-fn read_truth<M: Borrow<BagMessage>>(
-    channels: &[ChannelInfo],
-    messages: impl IntoIterator<Item = M>,
-    config: &Config,
-) -> Option<BagTruth> {
+/// The channels of the truth topics (states, shot events) among a bag's, when it has both.
+fn truth_channels(channels: &[ChannelInfo], config: &Config) -> Option<(usize, usize)> {
     let find = |topic: &str| channels.iter().position(|c| c.topic == topic);
-    let state_channel = find(&config.topics.truth)?;
-    let event_channel = find(&truth_intercept_topic(&config.topics.truth))?;
+    Some((
+        find(&config.topics.truth)?,
+        find(&truth_intercept_topic(&config.topics.truth))?,
+    ))
+}
+
+/// The truth among `messages`, its states and shot events on these channels
+/// ([`truth_channels`]).
+fn read_truth<M: Borrow<BagMessage>>(
+    (state_channel, event_channel): (usize, usize),
+    messages: impl IntoIterator<Item = M>,
+) -> BagTruth {
     let mut shots: BTreeMap<u32, ShotTruth> = BTreeMap::new();
     let mut shot_states = Vec::new();
     for m in messages {
@@ -170,10 +176,10 @@ fn read_truth<M: Borrow<BagMessage>>(
         .into_iter()
         .filter_map(|(stamp, shot, state)| index.get(&shot).map(|i| (stamp, (*i, state))))
         .collect();
-    Some(BagTruth {
+    BagTruth {
         states,
         shots: shots.into_values().collect(),
-    })
+    }
 }
 
 /// The channel of `topic` in a bag read from `path`, checked to carry `BallDetection`.
@@ -220,29 +226,25 @@ pub fn replay(
     cancel: &AtomicBool,
 ) -> Result<ReplaySummary, ReplayError> {
     let mut reader = BagReader::open(input)?;
-    let known_channels = reader.channels().to_vec();
-    let has_truth = [
-        config.topics.truth.clone(),
-        truth_intercept_topic(&config.topics.truth),
-    ]
-    .iter()
-    .all(|topic| known_channels.iter().any(|c| &c.topic == topic));
-    let truth = if has_truth {
-        let mut pass = BagReader::open(input)?;
-        read_truth(
-            &known_channels,
-            std::iter::from_fn(|| pass.next_message()),
-            config,
-        )
-    } else {
+    let topic = &config.topics.detections;
+    // A finished bag names its channels in its summary: the detection topic is checked before
+    // anything is written. A bag without a summary (cut off) is checked as its channels appear.
+    let mut detections_on = if reader.channels().is_empty() {
         None
+    } else {
+        Some(detection_channel(reader.channels(), topic, input)?)
+    };
+    let truth = match truth_channels(reader.channels(), config) {
+        Some(channels) => {
+            let mut pass = BagReader::open(input)?;
+            Some(read_truth(
+                channels,
+                std::iter::from_fn(|| pass.next_message()),
+            ))
+        }
+        None => None,
     };
     let mut scorer = truth.as_ref().map(|t| Scorer::new(t.shots.clone()));
-    // A finished bag names its channels in its summary: check the detection topic before
-    // writing anything. A bag without a summary (cut off) is checked at its end.
-    if !known_channels.is_empty() {
-        detection_channel(&known_channels, &config.topics.detections, input)?;
-    }
 
     let mut writer = BagWriter::create(output)?;
     let outputs = Outputs {
@@ -252,7 +254,6 @@ pub fn replay(
         markers: writer.channel(&config.topics.markers, MARKERS_TYPE)?,
     };
     let mut copied: Vec<u16> = Vec::new();
-    let mut detection_channel_index: Option<Option<usize>> = None;
 
     let mut pipeline = Pipeline::new(config);
     let mut messages = 0usize;
@@ -275,18 +276,10 @@ pub fn replay(
             }
             writer.write_raw(copied[m.channel], m.log_time, m.publish_time, &m.data)?;
             written += 1;
-            let channel = match detection_channel_index {
-                Some(channel) => channel,
-                None => {
-                    let found = reader.channel(&config.topics.detections);
-                    if let Some(c) = found {
-                        detection_channel(reader.channels(), &config.topics.detections, input)?;
-                        detection_channel_index = Some(Some(c));
-                    }
-                    found
-                }
-            };
-            if Some(m.channel) != channel {
+            if detections_on.is_none() && reader.channel(topic).is_some() {
+                detections_on = Some(detection_channel(reader.channels(), topic, input)?);
+            }
+            if Some(m.channel) != detections_on {
                 continue;
             }
             detections += 1;
@@ -332,8 +325,8 @@ pub fn replay(
                 progress(done, total);
             }
         }
-        if detection_channel_index.is_none() && !interrupted {
-            detection_channel(reader.channels(), &config.topics.detections, input)?;
+        if detections_on.is_none() && !interrupted {
+            detection_channel(reader.channels(), topic, input)?;
         }
         Ok(())
     })();
@@ -464,7 +457,8 @@ pub fn smooth_bag(
         unknown_frame,
     } = read_detections(input, config)?;
     let count = message_detection.iter().flatten().count() as u64 + undecodable + unknown_frame;
-    let truth = read_truth(&contents.channels, &contents.messages, config);
+    let truth = truth_channels(&contents.channels, config)
+        .map(|channels| read_truth(channels, &contents.messages));
     let smoothing = smooth(config, &detections, progress, cancel);
     let mut by_detection: Vec<Option<&SmoothedState>> = vec![None; detections.len()];
     for s in &smoothing.states {

@@ -6,7 +6,7 @@ use plotters::coord::Shift;
 use plotters::element::DashedPathElement;
 use plotters::prelude::*;
 
-use super::{FONT, PlotError};
+use super::{FONT, PlotError, draw_legend};
 use crate::calibrate::{Calibration, FlightResidual, polynomial_sigma};
 use crate::config::Config;
 use crate::physics::aero::Polynomial;
@@ -134,13 +134,7 @@ pub(crate) fn draw<DB: DrawingBackend>(
             .legend(move |(x, y)| {
                 DashedPathElement::new(vec![(x, y), (x + 24, y)], 6, 4, START.stroke_width(lw))
             });
-        chart
-            .configure_series_labels()
-            .position(SeriesLabelPosition::UpperRight)
-            .label_font((FONT, px(13.0)))
-            .background_style(WHITE.mix(0.85))
-            .border_style(BLACK.mix(0.3))
-            .draw()?;
+        draw_legend(&mut chart, SeriesLabelPosition::UpperRight, px(13.0))?;
     }
 
     // Residuals per flight.
@@ -177,12 +171,6 @@ pub(crate) fn draw<DB: DrawingBackend>(
             .label(label)
             .legend(move |(x, y)| Rectangle::new([(x, y - 6), (x + 24, y + 6)], colour.filled()));
     }
-    chart
-        .configure_series_labels()
-        .position(SeriesLabelPosition::UpperRight)
-        .label_font((FONT, px(13.0)))
-        .background_style(WHITE.mix(0.85))
-        .border_style(BLACK.mix(0.3))
-        .draw()?;
+    draw_legend(&mut chart, SeriesLabelPosition::UpperRight, px(13.0))?;
     Ok(())
 }

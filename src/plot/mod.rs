@@ -32,6 +32,21 @@ pub use data::{
 /// The font family the figures use; the bundled DejaVu Sans is registered under this name.
 const FONT: &str = "sans-serif";
 
+/// Draws a chart's legend in a light framed box at `position`, its labels `font_px` high.
+fn draw_legend<'a, DB: DrawingBackend + 'a, CT: CoordTranslate>(
+    chart: &mut ChartContext<'a, DB, CT>,
+    position: SeriesLabelPosition,
+    font_px: u32,
+) -> Result<(), DrawingAreaErrorKind<DB::ErrorType>> {
+    chart
+        .configure_series_labels()
+        .position(position)
+        .label_font((FONT, font_px))
+        .background_style(WHITE.mix(0.85))
+        .border_style(BLACK.mix(0.3))
+        .draw()
+}
+
 /// Smallest figure, width x height [px]: below it the labels are too small to read.
 pub const MIN_SIZE: (u32, u32) = (800, 500);
 /// Largest figure, width x height [px] (a PNG buffer of 192 MB).

@@ -7,7 +7,7 @@ use plotters::coord::Shift;
 use plotters::element::DashedPathElement;
 use plotters::prelude::*;
 
-use super::{FONT, PlotError};
+use super::{FONT, PlotError, draw_legend};
 use crate::config::Config;
 use crate::physics::RacketModel;
 
@@ -206,13 +206,7 @@ impl ReboundChart {
                     }
                 });
             }
-            chart
-                .configure_series_labels()
-                .position(SeriesLabelPosition::LowerRight)
-                .label_font((FONT, px(13.0)))
-                .background_style(WHITE.mix(0.85))
-                .border_style(BLACK.mix(0.3))
-                .draw()?;
+            draw_legend(&mut chart, SeriesLabelPosition::LowerRight, px(13.0))?;
         }
         Ok(())
     }

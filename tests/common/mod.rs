@@ -30,6 +30,25 @@ pub fn ok(args: &[&str]) -> String {
     String::from_utf8_lossy(&out.stdout).into_owned()
 }
 
+/// Runs a bash `script` in a new network namespace where only loopback is up (with multicast,
+/// for DDS discovery), so nothing it sends leaves the machine; returns its exit status. Fails when
+/// the namespace cannot be set up.
+pub fn run_on_loopback_only(script: &str) -> std::process::ExitStatus {
+    let script = format!(
+        "ip link set lo up && ip link set lo multicast on && ip route add 224.0.0.0/4 dev lo || exit 90\n{script}"
+    );
+    let status = Command::new("unshare")
+        .args(["-n", "bash", "-c", &script])
+        .status()
+        .unwrap_or_else(|e| panic!("cannot run unshare: {e}"));
+    assert_ne!(
+        status.code(),
+        Some(90),
+        "cannot set up loopback in the namespace"
+    );
+    status
+}
+
 /// A fresh directory of this test process, under the system's temporary directory.
 pub fn scratch(name: &str) -> PathBuf {
     let d = std::env::temp_dir().join(format!("ttball-{name}-{}", std::process::id()));
