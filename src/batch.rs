@@ -208,7 +208,7 @@ pub(crate) fn residuals(
             .copy_from(&state.fixed_rows::<3>(SPIN));
         let mut h = SMatrix::<f64, 6, 9>::zeros();
         if let Some(tangent) = &cursor.tangent {
-            let phi = tangent.transition;
+            let phi = tangent.transition();
             h.fixed_rows_mut::<3>(0).copy_from(&phi.fixed_rows::<3>(0));
             h.fixed_rows_mut::<3>(3)
                 .copy_from(&phi.fixed_rows::<3>(SPIN));
@@ -554,7 +554,7 @@ impl FlightFit {
             propagator.advance(&mut cursor, duration, Watch::BOUNCES, &mut bounces);
             let phi = cursor
                 .tangent
-                .map_or(StateMatrix::identity(), |t| t.transition);
+                .map_or(StateMatrix::identity(), |t| t.transition());
             let covariance = phi * self.covariance * phi.transpose();
             out[i] = Some(FittedState {
                 state: cursor.ball(),

@@ -100,7 +100,6 @@ impl Ekf {
     }
 
     /// Propagates the estimate by `dt` seconds (dt >= 0) through flight and bounces.
-    #[expect(non_snake_case, reason = "matrix notation")]
     pub fn predict(
         &mut self,
         propagator: &Propagator,
@@ -113,11 +112,13 @@ impl Ekf {
         }
         let mut cursor = Cursor::tracking(0.0, self.x);
         propagator.advance(&mut cursor, dt, Watch::BOUNCES, &mut report);
-        let F = cursor
+        // F P F' with F the transition of the step (the filter always tracks it).
+        let carried = cursor
             .tangent
-            .map_or_else(StateMatrix::identity, |t| t.transition);
+            .as_ref()
+            .map_or(self.P, |t| t.carry_covariance(&self.P));
         self.x = cursor.state;
-        self.P = symmetrise(&(F * self.P * F.transpose() + noise.discretise(dt)));
+        self.P = symmetrise(&(carried + noise.discretise(dt)));
         report
     }
 

@@ -246,7 +246,7 @@ fn propagation_jacobian_matches_finite_differences_through_bounces() {
                 (value(plus)[i] - value(minus)[i]) / (2.0 * h)
             })
         };
-        let transition = end.tangent.expect("tangent").transition;
+        let transition = end.tangent.expect("tangent").transition();
         let err = relative_error(&transition, &numeric(&|r| r.0.state));
         assert!(err < 1e-6, "relative error {err:e} for {shot:?}");
 
@@ -268,6 +268,28 @@ fn propagation_jacobian_matches_finite_differences_through_bounces() {
         }
     }
     assert!(regimes.contains(&BounceRegime::Sliding) && regimes.contains(&BounceRegime::Rolling));
+}
+
+/// The covariance carried by a propagation (block-structured before any event) equals
+/// transition * P * transition' computed in full, in flight and after a bounce.
+#[test]
+fn carried_covariance_equals_the_full_product() {
+    let propagator = Propagator::new(&Config::default());
+    let x0 = state([1.2, -0.2, 0.25], [-4.0, 0.3, 1.5], [0.0, 120.0, -30.0]).to_vector();
+    let a = StateMatrix::from_fn(|i, j| ((9 * i + j) as f64 * 0.61).sin());
+    let p = a * a.transpose() + StateMatrix::identity();
+    for (duration, bounces) in [(0.05, 0), (0.5, 1)] {
+        let (end, events) = run(&propagator, &x0, duration, Watch::BOUNCES);
+        assert_eq!(events.len(), bounces);
+        let tangent = end.tangent.expect("tangent");
+        let transition = tangent.transition();
+        let full = transition * p * transition.transpose();
+        let carried = tangent.carry_covariance(&p);
+        assert!(
+            (carried - full).norm() <= 1e-12 * full.norm(),
+            "after {duration} s"
+        );
+    }
 }
 
 #[test]

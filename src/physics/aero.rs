@@ -79,6 +79,7 @@ pub struct FlightJacobian {
 
 impl FlightJacobian {
     /// The product `A m` for any matrix with 9 rows (a state vector or a state-transition matrix).
+    #[inline]
     pub fn apply<const C: usize>(&self, m: &SMatrix<f64, 9, C>) -> SMatrix<f64, 9, C> {
         let mut out = SMatrix::<f64, 9, C>::zeros();
         let mv = m.fixed_rows::<3>(VELOCITY);
@@ -94,6 +95,110 @@ impl FlightJacobian {
     /// The full 9x9 matrix.
     pub fn to_matrix(&self) -> SMatrix<f64, 9, 9> {
         self.apply(&SMatrix::<f64, 9, 9>::identity())
+    }
+
+    /// The product `A m` of a matrix of free-flight structure (again of that structure).
+    #[inline]
+    pub fn apply_flight(&self, m: &FlightMatrix) -> FlightMatrix {
+        FlightMatrix {
+            position: 0.0,
+            pv: m.vv,
+            pw: m.vw,
+            vv: self.dv_dv * m.vv,
+            vw: self.dv_dv * m.vw + self.dv_dw * m.spin,
+            spin: -self.spin_decay * m.spin,
+        }
+    }
+}
+
+/// A 9x9 matrix with the block structure of free flight,
+/// `[[position I, pv, pw], [0, vv, vw], [0, 0, spin I]]`.
+///
+/// The state-transition matrix of a stretch of flight has it exactly (dp/dp stays I, nothing
+/// feeds back into position or spin, spin decays as a scalar), and so has the flight Jacobian
+/// applied to it: 36 entries and 2 scalars evolve instead of 81.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FlightMatrix {
+    /// Position-position block, a multiple of I.
+    pub position: f64,
+    /// Position-velocity block.
+    pub pv: Matrix3<f64>,
+    /// Position-spin block.
+    pub pw: Matrix3<f64>,
+    /// Velocity-velocity block.
+    pub vv: Matrix3<f64>,
+    /// Velocity-spin block.
+    pub vw: Matrix3<f64>,
+    /// Spin-spin block, a multiple of I.
+    pub spin: f64,
+}
+
+impl FlightMatrix {
+    /// The identity.
+    #[inline]
+    pub fn identity() -> Self {
+        Self {
+            position: 1.0,
+            pv: Matrix3::zeros(),
+            pw: Matrix3::zeros(),
+            vv: Matrix3::identity(),
+            vw: Matrix3::zeros(),
+            spin: 1.0,
+        }
+    }
+
+    /// `self + other * factor`.
+    #[inline]
+    pub fn add_scaled(&self, other: &Self, factor: f64) -> Self {
+        Self {
+            position: self.position + other.position * factor,
+            pv: self.pv + other.pv * factor,
+            pw: self.pw + other.pw * factor,
+            vv: self.vv + other.vv * factor,
+            vw: self.vw + other.vw * factor,
+            spin: self.spin + other.spin * factor,
+        }
+    }
+
+    /// The product `self m` with any matrix of 9 rows.
+    #[inline]
+    pub fn times<const C: usize>(&self, m: &SMatrix<f64, 9, C>) -> SMatrix<f64, 9, C> {
+        let mp = m.fixed_rows::<3>(0);
+        let mv = m.fixed_rows::<3>(VELOCITY);
+        let mw = m.fixed_rows::<3>(SPIN);
+        let mut out = SMatrix::<f64, 9, C>::zeros();
+        out.fixed_rows_mut::<3>(0)
+            .copy_from(&(mp * self.position + self.pv * mv + self.pw * mw));
+        out.fixed_rows_mut::<3>(VELOCITY)
+            .copy_from(&(self.vv * mv + self.vw * mw));
+        out.fixed_rows_mut::<3>(SPIN).copy_from(&(mw * self.spin));
+        out
+    }
+
+    /// Row `i` of the full matrix.
+    pub fn row(&self, i: usize) -> SMatrix<f64, 1, 9> {
+        let mut out = SMatrix::<f64, 1, 9>::zeros();
+        match i / 3 {
+            0 => {
+                out[i] = self.position;
+                out.fixed_columns_mut::<3>(VELOCITY)
+                    .copy_from(&self.pv.row(i));
+                out.fixed_columns_mut::<3>(SPIN).copy_from(&self.pw.row(i));
+            }
+            1 => {
+                out.fixed_columns_mut::<3>(VELOCITY)
+                    .copy_from(&self.vv.row(i - VELOCITY));
+                out.fixed_columns_mut::<3>(SPIN)
+                    .copy_from(&self.vw.row(i - VELOCITY));
+            }
+            _ => out[i] = self.spin,
+        }
+        out
+    }
+
+    /// The full 9x9 matrix.
+    pub fn to_matrix(&self) -> SMatrix<f64, 9, 9> {
+        self.times(&SMatrix::<f64, 9, 9>::identity())
     }
 }
 
@@ -223,9 +328,11 @@ impl FlightModel {
         let (dsp_dv, dsp_dw) = if speed_sq < TINY || c_norm < TINY || sp > self.spin_parameter_max {
             (Vector3::zeros(), Vector3::zeros())
         } else {
-            let c_hat = c / c_norm;
-            let dsp_dv = (self.radius * c_hat.cross(&w) - 2.0 * sp * v) / speed_sq;
-            let dsp_dw = self.radius * v.cross(&c_hat) / speed_sq;
+            // d Sp = r (c_hat . d c) / |v|^2 - 2 Sp (v . d v) / |v|^2, c = w x v.
+            let r_over_speed_sq = self.radius / speed_sq;
+            let c_hat_scaled = c * (r_over_speed_sq / c_norm);
+            let dsp_dv = c_hat_scaled.cross(&w) - v * (2.0 * sp / speed_sq);
+            let dsp_dw = v.cross(&c_hat_scaled);
             (dsp_dv, dsp_dw)
         };
         let sp_eval = sp.clamp(0.0, self.spin_parameter_max);
@@ -241,22 +348,25 @@ impl FlightModel {
         dx.fixed_rows_mut::<3>(SPIN)
             .copy_from(&(w * -self.spin_decay));
 
-        // Drag: -k_D C_D |v| v.
-        let speed_v = speed * v;
-        let d_speed_v = if speed < TINY {
-            Matrix3::zeros()
-        } else {
-            Matrix3::identity() * speed + v * v.transpose() / speed
-        };
-        let drag_dv = -self.drag_factor * (dcd * speed_v * dsp_dv.transpose() + cd * d_speed_v);
-        let drag_dw = -self.drag_factor * dcd * speed_v * dsp_dw.transpose();
+        // Drag: -k_D C_D |v| v, d(|v| v)/dv = |v| I + v v' / |v|.
         // Magnus: k_M C_M (w x v);  d(w x v)/dv = [w]x,  d(w x v)/dw = -[v]x.
-        let magnus_dv = self.magnus_factor * (dcm * c * dsp_dv.transpose() + cm * w.cross_matrix());
-        let magnus_dw = self.magnus_factor * (dcm * c * dsp_dw.transpose() - cm * v.cross_matrix());
+        // Both coefficients move with Sp: the rank-one term (dC_D, dC_M part) is shared.
+        let drag_scale = -self.drag_factor * cd;
+        let magnus_scale = self.magnus_factor * cm;
+        let sp_direction = v * (-self.drag_factor * dcd * speed) + c * (self.magnus_factor * dcm);
+        let mut dv_dv = sp_direction * dsp_dv.transpose() + w.cross_matrix() * magnus_scale;
+        if speed >= TINY {
+            let diagonal = drag_scale * speed;
+            dv_dv += v * (v * (drag_scale / speed)).transpose();
+            for i in 0..3 {
+                dv_dv[(i, i)] += diagonal;
+            }
+        }
+        let dv_dw = sp_direction * dsp_dw.transpose() - v.cross_matrix() * magnus_scale;
 
         let jacobian = FlightJacobian {
-            dv_dv: drag_dv + magnus_dv,
-            dv_dw: drag_dw + magnus_dw,
+            dv_dv,
+            dv_dw,
             spin_decay: self.spin_decay,
         };
         (dx, jacobian)
@@ -329,6 +439,49 @@ mod tests {
 
     /// The propagator's fused evaluation gives the same derivative, bit for bit, and the same
     /// Jacobian as the separate ones, at rest, at clamped and at ordinary spin parameters.
+    #[test]
+    fn flight_matrix_products_equal_the_full_ones() {
+        let block = |seed: f64| Matrix3::from_fn(|i, j| (seed + (3 * i + j) as f64).sin());
+        let f = FlightMatrix {
+            position: 0.9,
+            pv: block(1.0),
+            pw: block(2.0),
+            vv: block(3.0),
+            vw: block(4.0),
+            spin: 0.7,
+        };
+        let full = f.to_matrix();
+        assert_eq!(full.fixed_view::<3, 3>(0, 0), Matrix3::identity() * 0.9);
+        assert_eq!(full.fixed_view::<3, 3>(VELOCITY, 0), Matrix3::zeros());
+        assert_eq!(full.fixed_view::<3, 3>(SPIN, VELOCITY), Matrix3::zeros());
+        let m = SMatrix::<f64, 9, 9>::from_fn(|i, j| ((9 * i + j) as f64 * 0.37).cos());
+        assert_relative_eq!(f.times(&m), full * m, epsilon = 1e-14);
+        for i in 0..9 {
+            assert_eq!(f.row(i), full.row(i));
+        }
+        let x = crate::physics::BallState::new(
+            [0.1, 0.2, 0.3].into(),
+            [-6.5, 0.1, 1.4].into(),
+            [10.0, -150.0, 20.0].into(),
+        )
+        .to_vector();
+        let a = model().jacobian(&x);
+        assert_relative_eq!(
+            a.apply_flight(&f).to_matrix(),
+            a.to_matrix() * full,
+            epsilon = 1e-12
+        );
+        assert_eq!(
+            FlightMatrix::identity().to_matrix(),
+            SMatrix::<f64, 9, 9>::identity()
+        );
+        assert_relative_eq!(
+            f.add_scaled(&f, 0.5).to_matrix(),
+            full * 1.5,
+            epsilon = 1e-14
+        );
+    }
+
     #[test]
     fn derivative_and_jacobian_together_equal_the_separate_ones() {
         let m = model();

@@ -19,7 +19,7 @@ pub mod propagate;
 pub mod racket;
 pub mod state;
 
-pub use aero::{AeroForces, FlightJacobian, FlightModel};
+pub use aero::{AeroForces, FlightJacobian, FlightMatrix, FlightModel};
 pub use bounce::{Bounce, BounceRegime, TableBounce};
 pub use contact::{Contact, ContactError, RestoringCharacteristic};
 pub use predict::{PredictOptions, Sample, Trajectory, TrajectoryEnd, predict};

@@ -15,16 +15,22 @@
 //! g(x(tau)) = 0) enters the Jacobian of every later state, as in the saltation matrix of a hybrid
 //! system. Times are seconds relative to the caller's own origin.
 
-use super::aero::FlightModel;
+use super::aero::{FlightMatrix, FlightModel};
 use super::bounce::{BounceRegime, TableBounce};
 use super::state::{BallState, StateMatrix, StateRow, StateVector, VELOCITY};
 use crate::config::Config;
 
 /// d(state)/d(initial state) and d(time)/d(initial state) of a [`Cursor`].
+///
+/// The state-transition matrix is kept as a product: the transition up to the last event (`None`
+/// before any: the identity) and the transition of the flight since, in its block structure
+/// ([`FlightMatrix`]), so a step of flight updates 36 entries rather than 81.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Tangent {
-    /// State-transition matrix: d(current state)/d(initial state).
-    pub transition: StateMatrix,
+    /// d(state after the last event)/d(initial state); `None` for the identity.
+    until_event: Option<StateMatrix>,
+    /// d(current state)/d(state after the last event), over free flight.
+    flight: FlightMatrix,
     /// d(current time)/d(initial state) [s per state unit]; non-zero only at an event, whose time
     /// moves with the initial state.
     pub time_gradient: StateRow,
@@ -33,9 +39,44 @@ pub struct Tangent {
 impl Tangent {
     fn identity() -> Self {
         Self {
-            transition: StateMatrix::identity(),
+            until_event: None,
+            flight: FlightMatrix::identity(),
             time_gradient: StateRow::zeros(),
         }
+    }
+
+    /// The state-transition matrix: d(current state)/d(initial state).
+    pub fn transition(&self) -> StateMatrix {
+        self.through(&self.flight)
+    }
+
+    /// `transition * p * transition'`: a covariance `p` of the initial state carried to the
+    /// current state (in the flight's block structure before any event).
+    pub fn carry_covariance(&self, p: &StateMatrix) -> StateMatrix {
+        match &self.until_event {
+            None => {
+                let fp = self.flight.times(p);
+                self.flight.times(&fp.transpose()).transpose()
+            }
+            Some(_) => {
+                let transition = self.transition();
+                transition * p * transition.transpose()
+            }
+        }
+    }
+
+    /// The full transition when `flight` is the flight since the last event.
+    fn through(&self, flight: &FlightMatrix) -> StateMatrix {
+        match &self.until_event {
+            None => flight.to_matrix(),
+            Some(until_event) => flight.times(until_event),
+        }
+    }
+
+    /// Restarts the flight part at an event whose full transition is `transition`.
+    fn restart_at(&mut self, transition: StateMatrix) {
+        self.until_event = Some(transition);
+        self.flight = FlightMatrix::identity();
     }
 }
 
@@ -203,10 +244,26 @@ pub enum Outcome {
 /// One step of RK4 with its sensitivities.
 struct TangentStep {
     state: StateVector,
-    /// d(state after the step)/d(initial state), at a fixed step size.
-    transition: StateMatrix,
+    /// d(state after the step)/d(state after the last event), at a fixed step size.
+    flight: FlightMatrix,
     /// d(state after the step)/d(step size).
     rate: StateVector,
+}
+
+impl TangentStep {
+    /// d(state after the step)/d(initial state), at a fixed step size, for a cursor whose tangent
+    /// was `tangent` at the step's start.
+    fn transition(&self, tangent: &Tangent) -> StateMatrix {
+        tangent.through(&self.flight)
+    }
+
+    /// Row `i` of [`Self::transition`].
+    fn transition_row(&self, tangent: &Tangent, i: usize) -> StateRow {
+        match &tangent.until_event {
+            None => self.flight.row(i),
+            Some(until_event) => self.flight.row(i) * until_event,
+        }
+    }
 }
 
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -360,13 +417,14 @@ impl Propagator {
             // The whole step with its sensitivities, kept unless an event cuts it short.
             let full = cursor
                 .tangent
-                .map(|tangent| self.rk4_tangent(&start, h, &tangent.transition));
+                .as_ref()
+                .map(|tangent| self.rk4_tangent(&start, h, &tangent.flight));
             let end = full
                 .as_ref()
                 .map_or_else(|| self.rk4(&start, h), |step| step.state);
             let Some((surface, tau)) = self.first_event(&start, &end, h, watch) else {
                 match full {
-                    Some(step) => Self::commit_step(cursor, step, None),
+                    Some(step) => Self::commit_step(cursor, &step, None),
                     None => cursor.state = end,
                 }
                 cursor.t = target;
@@ -415,10 +473,13 @@ impl Propagator {
             t: cursor.t,
             before: cursor.state,
             after: cursor.state,
-            sensitivity: cursor.tangent.map(|t| EventSensitivity {
-                before: t.transition,
-                after: t.transition,
-                time_gradient: t.time_gradient,
+            sensitivity: cursor.tangent.as_ref().map(|t| {
+                let transition = t.transition();
+                EventSensitivity {
+                    before: transition,
+                    after: transition,
+                    time_gradient: t.time_gradient,
+                }
             }),
         }
     }
@@ -429,11 +490,12 @@ impl Propagator {
         let bounce = self.bounce.apply(&before);
         cursor.state = bounce.state;
         let sensitivity = cursor.tangent.as_mut().map(|tangent| {
-            let transition_before = tangent.transition;
-            tangent.transition = bounce.jacobian * transition_before;
+            let transition_before = tangent.transition();
+            let transition_after = bounce.jacobian * transition_before;
+            tangent.restart_at(transition_after);
             EventSensitivity {
                 before: transition_before,
-                after: tangent.transition,
+                after: transition_after,
                 time_gradient: tangent.time_gradient,
             }
         });
@@ -539,11 +601,11 @@ impl Propagator {
     /// step ends on a surface whose event function is that state component (see
     /// [`Self::commit_step`]).
     fn take_step(&self, cursor: &mut Cursor, h: f64, event_axis: Option<usize>) {
-        match cursor.tangent {
+        match &cursor.tangent {
             None => cursor.state = self.rk4(&cursor.state, h),
             Some(tangent) => {
-                let step = self.rk4_tangent(&cursor.state, h, &tangent.transition);
-                Self::commit_step(cursor, step, event_axis);
+                let step = self.rk4_tangent(&cursor.state, h, &tangent.flight);
+                Self::commit_step(cursor, &step, event_axis);
             }
         }
     }
@@ -551,21 +613,24 @@ impl Propagator {
     /// Moves a cursor with a tangent to the end of `step`. Without `event_axis` the step ended at
     /// a fixed time; with it, on a surface whose event function is that state component: the step
     /// size then depends on the initial state, and the tangent's time gradient is updated from it.
-    fn commit_step(cursor: &mut Cursor, step: TangentStep, event_axis: Option<usize>) {
+    fn commit_step(cursor: &mut Cursor, step: &TangentStep, event_axis: Option<usize>) {
         cursor.state = step.state;
         let Some(tangent) = cursor.tangent.as_mut() else {
             return;
         };
         match event_axis {
+            None if tangent.time_gradient == StateRow::zeros() => tangent.flight = step.flight,
             None => {
                 // The step ends at a fixed time: h = target - t moves with -time_gradient.
-                tangent.transition = step.transition - step.rate * tangent.time_gradient;
+                let transition = step.transition(tangent) - step.rate * tangent.time_gradient;
+                tangent.restart_at(transition);
                 tangent.time_gradient = StateRow::zeros();
             }
             Some(axis) => {
                 // g(x(tau)) = 0 fixes tau: dtau = -dg/dx0 / dg/dtau.
-                let dtau = -step.transition.row(axis) / step.rate[axis];
-                tangent.transition = step.transition + step.rate * dtau;
+                let dtau = -step.transition_row(tangent, axis) / step.rate[axis];
+                let transition = step.transition(tangent) + step.rate * dtau;
+                tangent.restart_at(transition);
                 tangent.time_gradient += dtau;
             }
         }
@@ -582,8 +647,8 @@ impl Propagator {
     }
 
     /// One RK4 step with the exact derivatives of the discrete map with respect to the initial
-    /// state (pre-multiplied into `transition`) and to the step size.
-    fn rk4_tangent(&self, x: &StateVector, h: f64, transition: &StateMatrix) -> TangentStep {
+    /// state (pre-multiplied into the flight transition `flight`) and to the step size.
+    fn rk4_tangent(&self, x: &StateVector, h: f64, flight: &FlightMatrix) -> TangentStep {
         let f = &self.flight;
         let half = 0.5 * h;
         let (k1, a1) = f.derivative_and_jacobian(x);
@@ -592,10 +657,11 @@ impl Propagator {
         let (k4, a4) = f.derivative_and_jacobian(&(x + k3 * h));
         let slope = (k1 + (k2 + k3) * 2.0 + k4) / 6.0;
 
-        let p1 = a1.apply(transition);
-        let p2 = a2.apply(&(transition + p1 * half));
-        let p3 = a3.apply(&(transition + p2 * half));
-        let p4 = a4.apply(&(transition + p3 * h));
+        let p1 = a1.apply_flight(flight);
+        let p2 = a2.apply_flight(&flight.add_scaled(&p1, half));
+        let p3 = a3.apply_flight(&flight.add_scaled(&p2, half));
+        let p4 = a4.apply_flight(&flight.add_scaled(&p3, h));
+        let p23 = p2.add_scaled(&p3, 1.0);
 
         let d2 = a2.apply(&(k1 * 0.5));
         let d3 = a3.apply(&(k2 * 0.5 + d2 * half));
@@ -603,7 +669,7 @@ impl Propagator {
 
         TangentStep {
             state: x + slope * h,
-            transition: transition + (p1 + (p2 + p3) * 2.0 + p4) * (h / 6.0),
+            flight: flight.add_scaled(&p1.add_scaled(&p23, 2.0).add_scaled(&p4, 1.0), h / 6.0),
             rate: slope + ((d2 + d3) * 2.0 + d4) * (h / 6.0),
         }
     }
