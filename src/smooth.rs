@@ -11,7 +11,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use crate::batch::{FitError, FittedState, fit_whole_flight};
 use crate::config::Config;
 use crate::detection::Detection;
-use crate::estimator::{Counters, Estimator, Verdict};
+use crate::estimator::{Counters, Estimator, Rejection, Verdict};
 use crate::physics::Propagator;
 
 /// The detections of one track.
@@ -29,10 +29,26 @@ pub fn split_flights(config: &Config, detections: &[Detection]) -> (Vec<Flight>,
     let mut estimator = Estimator::new(config);
     let mut flights: Vec<Flight> = Vec::new();
     let mut waiting: Vec<usize> = Vec::new();
+    // A detection whose stamp jumped, held by the estimator: it starts the next track with its
+    // successors when the jump is confirmed, and is dropped when it proves a glitch.
+    let mut held: Option<usize> = None;
     for (index, detection) in detections.iter().enumerate() {
+        let glitches = estimator.counters().rejected(Rejection::StampJump);
         let out = estimator.handle(detection);
+        if let Some(first) = held {
+            if estimator.counters().rejected(Rejection::StampJump) > glitches {
+                held = None;
+            } else if !estimator.holds_a_jump() {
+                waiting.push(first);
+                held = None;
+            }
+        }
         let track_id = match out.verdict {
             Verdict::Rejected(_) => continue,
+            Verdict::Held => {
+                held = Some(index);
+                continue;
+            }
             Verdict::Fused { .. } | Verdict::Initializing => out.estimate.map(|e| e.track_id),
         };
         let Some(track_id) = track_id else {

@@ -366,3 +366,200 @@ fn every_detection_is_accounted_for() {
     assert_eq!(c.rejected(Rejection::BadConfidence), 1);
     assert_eq!(c.rejected(Rejection::Duplicate), 1);
 }
+
+/// A 150 fps flight with a 900 fps camera on the robot's half: the stream of one shot, merged
+/// in stamp order.
+fn two_cameras(seed: u64) -> Vec<Detection> {
+    let start = shot([1.3, 0.0, 0.30], [-4.5, 0.0, 1.6], [0.0, -80.0, 0.0]);
+    let mut rng = Rng::new(seed);
+    let mut all: Vec<Detection> =
+        camera(&start, 150.0, 0.0, 0.6, 0.002, Source::Wide150Fps, &mut rng)
+            .into_iter()
+            .chain(camera(
+                &start,
+                900.0,
+                0.0005,
+                0.6,
+                0.001,
+                Source::HighSpeed900Fps,
+                &mut rng,
+            ))
+            .map(|(d, _)| d)
+            .collect();
+    all.sort_by_key(|d| d.stamp);
+    all
+}
+
+fn accounted(estimator: &Estimator) {
+    let c = estimator.counters();
+    assert_eq!(
+        c.fused + c.initializing + c.total_rejected(),
+        c.received,
+        "{c:?}"
+    );
+}
+
+/// One stamp glitched far ahead (an hour) or a little ahead (0.5 s) in the middle of a track:
+/// counted as a stamp jump, and the track goes on, same id, every later detection fused.
+#[test]
+fn a_glitched_stamp_does_not_end_the_track() {
+    for jump in [3_600_000_000_000_i64, 500_000_000, -3_600_000_000_000] {
+        let mut detections = two_cameras(31);
+        detections[200].stamp += jump;
+        let mut estimator = Estimator::new(&wide_config());
+        let verdicts: Vec<_> = detections.iter().map(|d| estimator.handle(d)).collect();
+        let c = estimator.counters();
+        let expected = if jump > 0 {
+            Rejection::StampJump
+        } else {
+            Rejection::TooOld
+        };
+        assert_eq!(c.rejected(expected), 1, "jump {jump}: {c:?}");
+        assert_eq!(c.tracks, 1, "jump {jump}");
+        assert!(
+            verdicts[201..]
+                .iter()
+                .all(|v| matches!(v.verdict, Verdict::Fused { .. }))
+        );
+        // The estimate never moved to the glitched time.
+        let last = verdicts.last().unwrap().estimate.unwrap();
+        assert_eq!(last.track_id, 1);
+        assert!(last.stamp < detections[0].stamp + 1_000_000_000);
+        accounted(&estimator);
+    }
+}
+
+/// The very first detection stamped an hour off: the initialiser is not stalled by it.
+#[test]
+fn a_glitched_first_stamp_does_not_stall_the_initialiser() {
+    for jump in [3_600_000_000_000_i64, -3_600_000_000_000] {
+        let mut detections = two_cameras(32);
+        detections[0].stamp += jump;
+        let mut estimator = Estimator::new(&wide_config());
+        for d in &detections {
+            estimator.handle(d);
+        }
+        let c = estimator.counters();
+        assert_eq!(c.tracks, 1, "jump {jump}: {c:?}");
+        assert!(c.fused > detections.len() as u64 * 9 / 10, "{c:?}");
+        assert_eq!(estimator.estimate().unwrap().track_id, 1);
+        accounted(&estimator);
+    }
+}
+
+/// A camera whose clock restarts (every stamp from one on shifted by the same hour): the jump is
+/// confirmed by the next detection and tracking goes on in the new time, nothing rejected for it.
+#[test]
+fn a_clock_that_jumps_for_good_starts_a_new_track() {
+    let mut detections = two_cameras(33);
+    for d in &mut detections[200..] {
+        d.stamp += 3_600_000_000_000;
+    }
+    let mut estimator = Estimator::new(&wide_config());
+    let verdicts: Vec<_> = detections.iter().map(|d| estimator.handle(d)).collect();
+    let c = estimator.counters();
+    assert_eq!(c.rejected(Rejection::StampJump), 0, "{c:?}");
+    assert_eq!(c.tracks, 2);
+    assert!(matches!(
+        verdicts.last().unwrap().verdict,
+        Verdict::Fused { .. }
+    ));
+    assert_eq!(estimator.estimate().unwrap().track_id, 2);
+    accounted(&estimator);
+}
+
+/// A position 100 m away, a spin claimed as exactly zero, confidence outside [0, 1], an
+/// unsymmetric or indefinite covariance: each rejected or handled by its rule and counted.
+#[test]
+fn bad_fields_are_rejected_by_reason_and_the_track_goes_on() {
+    let mut detections = two_cameras(34);
+    detections[150].position.x += 100.0;
+    detections[160].confidence = -0.5;
+    detections[170].position_covariance = Some(nalgebra::Matrix3::new(
+        1e-6, 2e-6, 0.0, 0.0, 1e-6, 0.0, 0.0, 0.0, 1e-6,
+    ));
+    detections[180].position_covariance = Some(nalgebra::Matrix3::from_diagonal(&Vector3::new(
+        1e-6, -1e-6, 1e-6,
+    )));
+    let zero_spin: Vec<usize> = (250..detections.len())
+        .filter(|&i| detections[i].source == Source::HighSpeed900Fps)
+        .take(20)
+        .collect();
+    for &i in &zero_spin {
+        detections[i].spin = Some(Vector3::zeros());
+    }
+    let mut estimator = Estimator::new(&wide_config());
+    let verdicts: Vec<_> = detections.iter().map(|d| estimator.handle(d)).collect();
+    let c = estimator.counters();
+    assert_eq!(c.rejected(Rejection::OutOfRange), 1);
+    assert_eq!(c.rejected(Rejection::BadConfidence), 1);
+    assert_eq!(c.rejected(Rejection::BadCovariance), 2);
+    assert_eq!(c.zero_spin_ignored, 20);
+    for &i in &zero_spin {
+        assert!(matches!(verdicts[i].verdict, Verdict::Fused { .. }), "{i}");
+    }
+    // The spin was not pulled toward the placeholder zero (true spin 80 rad/s).
+    let spin = verdicts[*zero_spin.last().unwrap()]
+        .estimate
+        .unwrap()
+        .state
+        .spin;
+    assert!(spin.norm() > 40.0, "spin {spin}");
+    assert_eq!(c.tracks, 1);
+    accounted(&estimator);
+}
+
+/// A burst at 10x the 900 fps rate (9 extra detections between two frames, for 50 ms): every
+/// one is taken in turn, the track goes on and stays accurate.
+#[test]
+fn a_burst_of_ten_times_the_rate_is_absorbed() {
+    let detections = two_cameras(35);
+    let mut burst = Vec::new();
+    for pair in detections.windows(2) {
+        burst.push(pair[0]);
+        if pair[0].source == Source::HighSpeed900Fps && (300..345).contains(&burst.len()) {
+            for k in 1..10 {
+                let mut extra = pair[0];
+                extra.stamp += k * 111_111;
+                extra.position += (pair[1].position - pair[0].position) * (k as f64 / 10.0);
+                burst.push(extra);
+            }
+        }
+    }
+    let mut estimator = Estimator::new(&wide_config());
+    let verdicts: Vec<_> = burst.iter().map(|d| estimator.handle(d)).collect();
+    let c = estimator.counters();
+    assert!(burst.len() > detections.len() + 40);
+    assert_eq!(c.tracks, 1, "{c:?}");
+    assert!(c.fused as usize > burst.len() * 9 / 10, "{c:?}");
+    assert!(matches!(
+        verdicts.last().unwrap().verdict,
+        Verdict::Fused { .. }
+    ));
+    accounted(&estimator);
+}
+
+/// The smoother's flights (the estimator's tracks): a new ball after a pause starts its flight
+/// with its first detection (held, then confirmed); a glitched stamp belongs to no flight.
+#[test]
+fn flights_keep_a_confirmed_jump_and_drop_a_glitch() {
+    let mut detections = two_cameras(36);
+    let first_len = detections.len();
+    let second: Vec<Detection> = two_cameras(37)
+        .into_iter()
+        .map(|mut d| {
+            d.stamp += 2_000_000_000;
+            d
+        })
+        .collect();
+    detections.extend(second);
+    let glitch = 100;
+    detections[glitch].stamp += 500_000_000;
+    let (flights, counters) = ttball::smooth::split_flights(&wide_config(), &detections);
+    assert_eq!(flights.len(), 2, "{counters:?}");
+    assert_eq!(counters.rejected(Rejection::StampJump), 1);
+    assert!(flights.iter().all(|f| !f.members.contains(&glitch)));
+    assert_eq!(flights[1].members[0], first_len);
+    assert!(flights[0].members.iter().all(|&i| i < first_len));
+    assert!(flights[1].members.iter().all(|&i| i >= first_len));
+}

@@ -34,10 +34,10 @@ fn stream() -> &'static [Detection] {
 enum Corruption {
     /// Move it by this much [m].
     Displace([f64; 3]),
-    /// Shift its stamp [ns] (out of order, duplicates, a little ahead). A stamp far in the
-    /// future is the robustness issue's: it restarts the track today.
+    /// Shift its stamp [ns]: out of order, duplicates, a little ahead, or far off (a glitched
+    /// clock, up to a day either way).
     Restamp(i64),
-    /// A measured spin [rad/s] with this covariance scale.
+    /// A measured spin [rad/s] with this covariance scale (all zero: a placeholder).
     Spin([f64; 3], f64),
     /// Its own position covariance: a random symmetric matrix (maybe not positive definite).
     Covariance([f64; 6]),
@@ -51,8 +51,11 @@ fn corruption() -> impl Strategy<Value = Corruption> {
     prop_oneof![
         prop::array::uniform3(-0.5f64..0.5).prop_map(Corruption::Displace),
         (-40_000_000i64..40_000_000).prop_map(Corruption::Restamp),
+        (-86_400_000_000_000i64..86_400_000_000_000).prop_map(Corruption::Restamp),
+        prop::array::uniform3(-200.0f64..200.0).prop_map(Corruption::Displace),
         (prop::array::uniform3(-700.0f64..700.0), 1e-3f64..1e4)
             .prop_map(|(w, s)| Corruption::Spin(w, s)),
+        Just(Corruption::Spin([0.0; 3], 1.0)),
         prop::array::uniform6(-1e-4f64..1e-4).prop_map(Corruption::Covariance),
         Just(Corruption::NotFinite),
         (-1.0f32..2.0).prop_map(Corruption::Confidence),

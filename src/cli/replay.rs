@@ -169,6 +169,13 @@ pub fn summary_text(s: &ReplaySummary) -> String {
     if !reasons.is_empty() {
         let _ = writeln!(out, "  rejected by reason: {}", reasons.join(", "));
     }
+    if c.zero_spin_ignored > 0 {
+        let _ = writeln!(
+            out,
+            "  {} detections claimed a spin of exactly zero: their positions were used, their spins ignored",
+            c.zero_spin_ignored
+        );
+    }
     let _ = writeln!(
         out,
         "  processing per detection: mean {:.1} us, p99 {:.1} us; {:.1} s recorded in {:.2} s ({:.0}x real time); {} messages written",
@@ -210,6 +217,7 @@ fn summary_json(s: &ReplaySummary) -> serde_json::Value {
         "rejected": rejected,
         "tracks": c.tracks,
         "rollbacks": c.rollbacks,
+        "zero_spin_ignored": c.zero_spin_ignored,
         "processing_mean_ns": s.processing_mean_ns,
         "processing_p99_ns": s.processing_p99_ns,
         "recorded_seconds": s.recorded_seconds,

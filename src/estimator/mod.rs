@@ -12,7 +12,10 @@
 //! - Initialisation from the first `ekf.init_detections` detections (`init.rs`). A track that
 //!   starts on the robot's half with the ball rising toward the robot (a restart after a run of
 //!   rejections, or a late first sight) counts the bounce it must already have made.
-//! - Every rejected detection is counted by reason ([`Counters`]).
+//! - A detection whose stamp jumps beyond `tracking.timeout` is held until the next one confirms
+//!   the jump (a new ball, a restarted clock: a new track) or shows a glitch
+//!   ([`Rejection::StampJump`]); see [`Estimator::update`]. Every rejected detection is counted
+//!   by reason ([`Counters`]); the rules are tabled in the README ("Bad input").
 //!
 //! No heap allocation per detection: the history and buffers are allocated once.
 
@@ -74,11 +77,18 @@ pub enum Rejection {
     InitOutlier,
     /// Rejected by an adapter before the filter: its `frame_id` is not `table`.
     UnknownFrame,
+    /// More than `tracking.timeout` away from the stamps of the current track (or of the
+    /// detections initialising one), and the next detection did not confirm the jump: a clock
+    /// glitch. A jump the next detection confirms (a new ball after a pause, a restarted camera's
+    /// clock) starts a new track with both.
+    StampJump,
+    /// The position is more than [`MAX_RANGE`] from the table's centre: not a ball in play.
+    OutOfRange,
 }
 
 impl Rejection {
     /// Every reason, in the order of [`Counters::rejected`].
-    pub const ALL: [Self; 9] = [
+    pub const ALL: [Self; 11] = [
         Self::NonFinite,
         Self::BadConfidence,
         Self::LowConfidence,
@@ -88,6 +98,8 @@ impl Rejection {
         Self::Gated,
         Self::InitOutlier,
         Self::UnknownFrame,
+        Self::StampJump,
+        Self::OutOfRange,
     ];
 
     /// A short snake_case name for summaries and diagnostics.
@@ -102,6 +114,8 @@ impl Rejection {
             Self::Gated => "gated",
             Self::InitOutlier => "init_outlier",
             Self::UnknownFrame => "unknown_frame",
+            Self::StampJump => "stamp_jump",
+            Self::OutOfRange => "out_of_range",
         }
     }
 
@@ -120,7 +134,7 @@ pub struct Counters {
     /// Detections used to initialise a track (or still waiting in the initialiser).
     pub initializing: u64,
     /// Rejected detections by reason, in the order of [`Rejection::ALL`].
-    pub rejected: [u64; 9],
+    pub rejected: [u64; Rejection::ALL.len()],
     /// Tracks started.
     pub tracks: u64,
     /// Late detections fused by rolling back.
@@ -129,6 +143,9 @@ pub struct Counters {
     pub spin_resets: u64,
     /// Detections near the table's edge that the other bounce hypothesis explained better.
     pub edge_retries: u64,
+    /// Detections that claimed a spin of exactly zero (a detector's placeholder, not a
+    /// measurement): their position was used, their spin ignored.
+    pub zero_spin_ignored: u64,
 }
 
 impl Counters {
@@ -162,6 +179,9 @@ pub enum Verdict {
     },
     /// Taken by the initialiser of a new track.
     Initializing,
+    /// Its stamp jumped beyond `tracking.timeout`: held until the next detection confirms the
+    /// jump or shows a glitch (see [`Estimator::update`]); counted as initialising meanwhile.
+    Held,
     /// Not fused.
     Rejected(Rejection),
 }
@@ -302,6 +322,9 @@ pub(crate) fn measurement(settings: &Settings, d: &Detection) -> Result<Measurem
     if !finite {
         return Err(Rejection::NonFinite);
     }
+    if d.position.norm() > MAX_RANGE {
+        return Err(Rejection::OutOfRange);
+    }
     let confidence = f64::from(d.confidence);
     if !(0.0..=1.0).contains(&confidence) {
         return Err(Rejection::BadConfidence);
@@ -315,7 +338,9 @@ pub(crate) fn measurement(settings: &Settings, d: &Detection) -> Result<Measurem
         Some(c) => c,
         None => Matrix3::identity() * noise.position_var,
     };
-    let r_spin = match (d.spin, d.spin_covariance, noise.spin_var) {
+    // An all-zero spin is a detector's placeholder, not a measurement.
+    let spin = d.spin.filter(|w| *w != Vector3::zeros());
+    let r_spin = match (spin, d.spin_covariance, noise.spin_var) {
         (None, _, _) => None,
         (Some(_), Some(c), _) if !is_spd(&c) => return Err(Rejection::BadCovariance),
         (Some(_), Some(c), _) => Some(c),
@@ -323,7 +348,7 @@ pub(crate) fn measurement(settings: &Settings, d: &Detection) -> Result<Measurem
         // A source that does not measure spin: its spin values are ignored.
         (Some(_), None, None) => None,
     };
-    Ok(match (d.spin, r_spin) {
+    Ok(match (spin, r_spin) {
         (Some(w), Some(rs)) => {
             let mut z = SVector::<f64, 6>::zeros();
             z.fixed_rows_mut::<3>(0).copy_from(&d.position);
@@ -407,12 +432,19 @@ pub struct Estimator {
     edge_alternatives: [Propagator; 2],
     /// Detections fused under the other edge hypothesis.
     edge_retries: std::cell::Cell<u64>,
+    /// A detection that jumped more than `tracking.timeout` off the current stamps, held until
+    /// the next detection confirms the jump or shows it was a glitch (see [`Self::update`]).
+    held: Option<(Detection, Measurement)>,
 }
 
 /// How far from the table's edge [m] a detection is also fused with the table grown and shrunk
 /// by as much, and the better fit kept (the estimate's position is uncertain by millimetres; the
 /// edge is sharp).
 const EDGE_MARGIN: f64 = 0.02;
+
+/// Farthest a detection may be from the table's centre [m] (the table is 2.74 m long; a ball in
+/// play stays within a few metres of it).
+pub const MAX_RANGE: f64 = 10.0;
 
 impl Estimator {
     /// An estimator with the given configuration (assumed validated).
@@ -435,6 +467,7 @@ impl Estimator {
             spin_resets: std::cell::Cell::new(0),
             edge_alternatives: [EDGE_MARGIN, -EDGE_MARGIN].map(|m| propagator.with_edge_margin(m)),
             edge_retries: std::cell::Cell::new(0),
+            held: None,
             propagator,
             settings,
         }
@@ -497,18 +530,91 @@ impl Estimator {
 
     /// Takes one detection (in arrival order) into the filter, rolling back and re-applying the
     /// newer ones when it is late, without predicting the interception; says what became of it.
+    ///
+    /// A detection more than `tracking.timeout` after the current track's last fused stamp (or,
+    /// with no track, that far from the detections initialising one) is a jump: a new ball after
+    /// a pause, a camera whose clock restarted, or a glitched stamp. It is held ([`Verdict::Held`],
+    /// counted as initialising) until the next detection tells which: one within `tracking.timeout` of it
+    /// confirms the jump, and both start a new track; one that carries on the current stamps
+    /// shows it was a glitch, and it is counted as [`Rejection::StampJump`]. So one bad stamp
+    /// never ends a track or stalls the initialiser. The output for a held detection is the
+    /// track's estimate, not moved to its stamp.
     pub fn update(&mut self, detection: &Detection) -> Verdict {
         self.counters.received += 1;
+        if detection.spin.is_some_and(|w| w == Vector3::zeros()) {
+            self.counters.zero_spin_ignored += 1;
+        }
         let verdict = match self.measurement(detection) {
             Err(reason) => Verdict::Rejected(reason),
-            Ok(measurement) => self.process(detection, measurement),
+            Ok(measurement) => self.screen_jump(detection, measurement),
         };
+        self.count(verdict);
+        verdict
+    }
+
+    fn count(&mut self, verdict: Verdict) {
         match verdict {
             Verdict::Fused { .. } => self.counters.fused += 1,
-            Verdict::Initializing => self.counters.initializing += 1,
+            Verdict::Initializing | Verdict::Held => self.counters.initializing += 1,
             Verdict::Rejected(reason) => self.counters.rejected[reason.index()] += 1,
         }
-        verdict
+    }
+
+    /// True while a detection whose stamp jumped is held (see [`Self::update`]).
+    pub fn holds_a_jump(&self) -> bool {
+        self.held.is_some()
+    }
+
+    /// Re-counts a held detection (counted as initialising when it was held) with its verdict.
+    fn recount_held(&mut self, verdict: Verdict) {
+        if !matches!(verdict, Verdict::Initializing | Verdict::Held) {
+            self.counters.initializing = self.counters.initializing.saturating_sub(1);
+            self.count(verdict);
+        }
+    }
+
+    /// The stamp the current detections run on: the track's last fused one, else the newest
+    /// detection initialising one.
+    fn current_stamp(&self) -> Option<i64> {
+        match &self.track {
+            Some(track) => Some(track.now.last_fused),
+            None => self.pending.last().map(|p| p.stamp),
+        }
+    }
+
+    /// Holds, confirms or dismisses a jump in the stamps (see [`Self::update`]).
+    fn screen_jump(&mut self, d: &Detection, m: Measurement) -> Verdict {
+        let Some(current) = self.current_stamp() else {
+            return self.process(d, m);
+        };
+        let timeout = self.settings.timeout;
+        let offset = d.stamp - current;
+        // With a track, a detection from long ago is a late one (too old to fuse, not a jump).
+        let jump = offset > timeout || (self.track.is_none() && offset < -timeout);
+        if !jump {
+            if d.stamp > current && self.held.take().is_some() {
+                self.recount_held(Verdict::Rejected(Rejection::StampJump));
+            }
+            return self.process(d, m);
+        }
+        match self.held.take() {
+            Some((first, first_m))
+                if (d.stamp - first.stamp).abs() <= timeout && !same_frame(&first, d) =>
+            {
+                // Confirmed: a new timeline starts with both detections.
+                self.end_track();
+                let first_verdict = self.process(&first, first_m);
+                self.recount_held(first_verdict);
+                self.process(d, m)
+            }
+            superseded => {
+                if superseded.is_some() {
+                    self.recount_held(Verdict::Rejected(Rejection::StampJump));
+                }
+                self.held = Some((*d, m));
+                Verdict::Held
+            }
+        }
     }
 
     fn output(&self, verdict: Verdict, stamp: i64) -> Output {
@@ -519,8 +625,12 @@ impl Estimator {
                 intercept: None,
             };
         };
-        // A rejected detection newer than the track still moves the estimate to its time.
-        let snapshot = if stamp > track.now.stamp && !matches!(verdict, Verdict::Fused { .. }) {
+        // A rejected detection newer than the track still moves the estimate to its time (not
+        // across a jump: a held or glitched stamp leaves it where it is).
+        let snapshot = if stamp > track.now.stamp
+            && stamp - track.now.stamp <= self.settings.timeout
+            && !matches!(verdict, Verdict::Fused { .. })
+        {
             let mut s = track.now;
             self.advance(&mut s, stamp);
             s

@@ -147,6 +147,7 @@ pub fn diagnostics_msg(snapshot: &Snapshot<'_>, window: &mut Window) -> Diagnost
                 .map_or_else(|| "none".to_owned(), |id| id.to_string()),
         ),
         kv("late detections fused by rollback", c.rollbacks.to_string()),
+        kv("all-zero spins ignored", c.zero_spin_ignored.to_string()),
         kv("publish errors", t.publish_errors.to_string()),
         kv("service requests", t.service_requests.to_string()),
         kv(
@@ -192,7 +193,7 @@ mod tests {
 
     #[test]
     fn reports_rates_times_and_every_reason() {
-        let mut rejected = [0; 9];
+        let mut rejected = [0; Rejection::ALL.len()];
         rejected[0] = 3; // Rejection::ALL[0]
         let counters = Counters {
             fused: 140,

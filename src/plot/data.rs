@@ -246,7 +246,7 @@ impl PlotData {
 
     /// Records one detection and what `Estimator::handle` returned for it.
     pub fn record(&mut self, detection: &Detection, output: &Output) {
-        let rejected = matches!(output.verdict, Verdict::Rejected(_));
+        let rejected = matches!(output.verdict, Verdict::Rejected(_) | Verdict::Held);
         self.detections
             .push(PlotDetection::new(detection, rejected));
         if let Some(e) = &output.estimate {
