@@ -15,7 +15,6 @@ use std::io::{BufReader, BufWriter, Read, Seek, SeekFrom, Write};
 use std::path::{Path, PathBuf};
 
 use byteorder::{BigEndian, LittleEndian};
-use mcap::sans_io::linear_reader::{LinearReadEvent, LinearReader, LinearReaderOptions};
 use serde::Serialize;
 use serde::de::DeserializeOwned;
 
@@ -205,6 +204,8 @@ pub struct BagReader {
     messages: u64,
     size: u64,
     several_files: bool,
+    /// A summary section was read: [`Self::channels`] lists every channel from the start.
+    summarised: bool,
 }
 
 /// A message held in the reorder window, ordered by log time then arrival.
@@ -227,13 +228,30 @@ impl Ord for Held {
     }
 }
 
-/// One MCAP file being read.
+/// One MCAP file being read, a record at a time (its own framing: opcode, length, body), so
+/// that a corrupt chunk can be skipped and a chunk cut off by the end of the file still yields
+/// its complete records.
 struct FileStream {
     path: PathBuf,
     source: Box<dyn Read>,
-    reader: LinearReader,
+    /// Bytes of the file consumed so far (the offset of the next record).
+    offset: u64,
     records: Records,
+    /// The messages of the chunk being read, in file order.
+    chunk: std::collections::VecDeque<BagMessage>,
+    /// Chunks skipped as corrupt (CRC mismatch, undecompressible), each with why.
+    skipped: Vec<String>,
+    /// The data section has ended (a data end or footer record).
+    finished: bool,
 }
+
+/// Largest MCAP record accepted [bytes]: a corrupt length cannot make the reader buffer more.
+const RECORD_LENGTH_LIMIT: u64 = 1 << 28;
+
+/// MCAP record opcodes this reader acts on.
+const OP_FOOTER: u8 = 0x02;
+const OP_CHUNK: u8 = 0x06;
+const OP_DATA_END: u8 = 0x0F;
 
 /// The schema and channel records of one MCAP file.
 #[derive(Default)]
@@ -276,8 +294,8 @@ impl BagReader {
                 source,
             })?;
             size += f.metadata().map(|m| m.len()).unwrap_or(0);
-            let mut start = [0u8; 8];
-            let _ = f.read_exact(&mut start);
+            let mut start = Vec::with_capacity(8);
+            let _ = Read::by_ref(&mut f).take(8).read_to_end(&mut start);
             check_magic(&start, file)?;
             if let Some(summary) = read_summary(&mut f) {
                 reader.register_summary(&summary);
@@ -314,7 +332,14 @@ impl BagReader {
             messages: 0,
             size: 0,
             several_files: false,
+            summarised: false,
         }
+    }
+
+    /// True when the bag's summary section was read: [`Self::channels`] is then complete
+    /// before the first message.
+    pub fn has_summary(&self) -> bool {
+        self.summarised
     }
 
     /// Every channel seen so far (all of them once the summaries are read).
@@ -327,7 +352,8 @@ impl BagReader {
         self.channels.iter().position(|c| c.topic == topic)
     }
 
-    /// Why reading stopped early (a truncated or corrupt file), when it did.
+    /// What was damaged, when anything was: corrupt chunks skipped, and why reading stopped
+    /// early (a truncated or corrupt file).
     pub fn damage(&self) -> Option<&str> {
         self.damage.as_deref()
     }
@@ -350,6 +376,13 @@ impl BagReader {
         self.window.pop().map(|Reverse(Held(_, _, m))| m)
     }
 
+    fn add_damage(&mut self, note: String) {
+        self.damage = Some(match self.damage.take() {
+            Some(before) => format!("{before}; {note}"),
+            None => note,
+        });
+    }
+
     fn open_next(&mut self) -> Result<bool, BagError> {
         let Some(path) = self.files.next() else {
             self.file = None;
@@ -370,19 +403,24 @@ impl BagReader {
     fn read_message(&mut self) -> Option<BagMessage> {
         loop {
             let stream = self.file.as_mut()?;
-            match stream.next(&mut self.channels, &mut self.read) {
+            let result = stream.next(&mut self.channels, &mut self.read);
+            let name = if self.several_files {
+                format!("{}: ", stream.path.display())
+            } else {
+                String::new()
+            };
+            let skipped: Vec<String> = stream.skipped.drain(..).collect();
+            for note in skipped {
+                self.add_damage(format!("{name}{note}"));
+            }
+            match result {
                 Ok(Some(message)) => {
                     self.messages += 1;
                     return Some(message);
                 }
                 Ok(None) => {}
                 Err(reason) => {
-                    let name = if self.several_files {
-                        format!("{}: ", stream.path.display())
-                    } else {
-                        String::new()
-                    };
-                    self.damage = Some(format!(
+                    self.add_damage(format!(
                         "{name}reading stopped after {} messages: {reason}",
                         self.messages
                     ));
@@ -394,7 +432,7 @@ impl BagReader {
                 Ok(true) => {}
                 Ok(false) => return None,
                 Err(e) => {
-                    self.damage = Some(e.to_string());
+                    self.add_damage(e.to_string());
                     return None;
                 }
             }
@@ -404,6 +442,7 @@ impl BagReader {
     /// Registers the channels of a file's summary section (the file's ids are read again with
     /// its data section).
     fn register_summary(&mut self, summary: &[u8]) {
+        self.summarised = true;
         let mut records = Records::default();
         let mut rest = summary;
         while let Some((&opcode, after)) = rest.split_first() {
@@ -423,14 +462,18 @@ impl BagReader {
 }
 
 impl FileStream {
-    fn new(path: PathBuf, source: Box<dyn Read>) -> Self {
+    /// A stream over `source`, positioned after the 8 magic bytes (already checked).
+    fn new(path: PathBuf, mut source: Box<dyn Read>) -> Self {
+        let mut magic = [0u8; 8];
+        let skipped_magic = read_up_to(&mut source, &mut magic).unwrap_or(0);
         Self {
             path,
             source,
-            reader: LinearReader::new_with_options(
-                LinearReaderOptions::default().with_skip_end_magic(true),
-            ),
+            offset: skipped_magic as u64,
             records: Records::default(),
+            chunk: std::collections::VecDeque::new(),
+            skipped: Vec::new(),
+            finished: false,
         }
     }
 
@@ -441,46 +484,193 @@ impl FileStream {
         read: &mut u64,
     ) -> Result<Option<BagMessage>, String> {
         loop {
-            let request = match self.reader.next_event() {
-                None => return Ok(None),
-                Some(Err(e)) => return Err(e.to_string()),
-                Some(Ok(LinearReadEvent::ReadRequest(n))) => n,
-                Some(Ok(LinearReadEvent::Record { data, opcode })) => {
-                    let record = mcap::parse_record(opcode, data).map_err(|e| e.to_string())?;
-                    match record {
-                        mcap::records::Record::Message { header, data } => {
-                            let Some(&channel) = self.records.ids.get(&header.channel_id) else {
-                                return Err(format!(
-                                    "a message on unknown channel {}",
-                                    header.channel_id
-                                ));
-                            };
-                            return Ok(Some(BagMessage {
-                                channel,
-                                log_time: header.log_time,
-                                publish_time: header.publish_time,
-                                data: data.into_owned(),
-                            }));
-                        }
-                        // The summary after the data section repeats what was read.
-                        mcap::records::Record::DataEnd(_) => return Ok(None),
-                        other => self.records.take(other, channels),
+            if let Some(message) = self.chunk.pop_front() {
+                return Ok(Some(message));
+            }
+            if self.finished {
+                return Ok(None);
+            }
+            let at = self.offset;
+            let Some((opcode, body, complete)) = self.next_record()? else {
+                return Ok(None);
+            };
+            *read += self.offset - at;
+            if !complete {
+                if opcode == OP_CHUNK {
+                    // What the cut-off chunk holds up to the end of the file is still read.
+                    let _ = self.take_chunk(&body, at, false, channels);
+                    let found = self.chunk.len();
+                    self.finished = true;
+                    if found > 0 {
+                        self.skipped.push(format!(
+                            "the file ends inside the chunk at byte {at} ({found} messages of it read)"
+                        ));
+                        continue;
                     }
-                    continue;
                 }
-            };
-            let buffer = self.reader.insert(request);
-            let n = loop {
-                match self.source.read(buffer) {
-                    Ok(n) => break n,
-                    Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
-                    Err(e) => return Err(e.to_string()),
+                return Err(format!("the file ends inside a record at byte {at}"));
+            }
+            match opcode {
+                OP_CHUNK => self.take_chunk(&body, at, true, channels)?,
+                OP_DATA_END | OP_FOOTER => self.finished = true,
+                _ => {
+                    let record = mcap::parse_record(opcode, &body)
+                        .map_err(|e| format!("the record at byte {at}: {e}"))?;
+                    if let mcap::records::Record::Message { header, data } = record {
+                        let data = data.into_owned();
+                        return self.message(&header, data).map(Some);
+                    }
+                    self.records.take(record, channels);
                 }
-            };
-            *read += n as u64;
-            self.reader.notify_read(n);
+            }
         }
     }
+
+    /// The next record: opcode, body, and whether the body is whole (false when the file ends
+    /// inside it); `None` at the end of the file.
+    fn next_record(&mut self) -> Result<Option<(u8, Vec<u8>, bool)>, String> {
+        let at = self.offset;
+        let mut head = [0u8; 9];
+        let got = read_up_to(&mut self.source, &mut head).map_err(|e| e.to_string())?;
+        self.offset += got as u64;
+        match got {
+            0 => return Ok(None),
+            9 => {}
+            _ => return Err(format!("the file ends inside a record header at byte {at}")),
+        }
+        let opcode = head[0];
+        let mut len_bytes = [0u8; 8];
+        len_bytes.copy_from_slice(&head[1..]);
+        let len = u64::from_le_bytes(len_bytes);
+        if len > RECORD_LENGTH_LIMIT {
+            return Err(format!(
+                "the record at byte {at} claims {len} bytes: corrupt"
+            ));
+        }
+        let mut body = Vec::new();
+        Read::by_ref(&mut self.source)
+            .take(len)
+            .read_to_end(&mut body)
+            .map_err(|e| e.to_string())?;
+        self.offset += body.len() as u64;
+        let complete = body.len() as u64 == len;
+        Ok(Some((opcode, body, complete)))
+    }
+
+    /// Reads a chunk record's records: its messages are queued, its schemas and channels
+    /// registered. A whole chunk whose CRC does not match, or that does not decompress, is
+    /// skipped (noted in `skipped`) and reading goes on with the next record; of a chunk cut off
+    /// by the end of the file (`complete` false), the complete records are read.
+    fn take_chunk(
+        &mut self,
+        body: &[u8],
+        at: u64,
+        complete: bool,
+        channels: &mut Vec<ChannelInfo>,
+    ) -> Result<(), String> {
+        let Some(chunk) = ChunkParts::parse(body) else {
+            return Err(format!("the chunk at byte {at} has a corrupt header"));
+        };
+        let skip = |why: String| format!("the chunk at byte {at} ({why}) was skipped");
+        let data = match decompress(&chunk, complete) {
+            Ok(data) => data,
+            Err(why) => {
+                self.skipped.push(skip(why));
+                return Ok(());
+            }
+        };
+        if complete && chunk.crc != 0 && crc32fast::hash(&data) != chunk.crc {
+            self.skipped
+                .push(skip("its CRC does not match: corrupt".to_string()));
+            return Ok(());
+        }
+        let mut rest = data.as_slice();
+        while let Some((&opcode, after)) = rest.split_first() {
+            let Some((len, body)) = after.split_first_chunk::<8>() else {
+                break;
+            };
+            let len = usize::try_from(u64::from_le_bytes(*len)).unwrap_or(usize::MAX);
+            let Some((record, tail)) = body.split_at_checked(len) else {
+                break;
+            };
+            match mcap::parse_record(opcode, record) {
+                Ok(mcap::records::Record::Message { header, data }) => {
+                    let message = self.message(&header, data.into_owned())?;
+                    self.chunk.push_back(message);
+                }
+                Ok(other) => self.records.take(other, channels),
+                Err(e) => return Err(format!("a record in the chunk at byte {at}: {e}")),
+            }
+            rest = tail;
+        }
+        if complete && !rest.is_empty() {
+            return Err(format!("the chunk at byte {at} ends inside a record"));
+        }
+        Ok(())
+    }
+
+    /// A message record of this file as a [`BagMessage`].
+    fn message(
+        &self,
+        header: &mcap::records::MessageHeader,
+        data: Vec<u8>,
+    ) -> Result<BagMessage, String> {
+        let Some(&channel) = self.records.ids.get(&header.channel_id) else {
+            return Err(format!(
+                "a message on unknown channel {}",
+                header.channel_id
+            ));
+        };
+        Ok(BagMessage {
+            channel,
+            log_time: header.log_time,
+            publish_time: header.publish_time,
+            data,
+        })
+    }
+}
+
+/// The parts of a chunk record body: uncompressed size and CRC, compression, compressed records
+/// (as many bytes of them as there are).
+struct ChunkParts<'a> {
+    uncompressed_size: u64,
+    crc: u32,
+    compression: &'a str,
+    records: &'a [u8],
+}
+
+impl<'a> ChunkParts<'a> {
+    fn parse(body: &'a [u8]) -> Option<Self> {
+        // message_start_time u64, message_end_time u64, uncompressed_size u64,
+        // uncompressed_crc u32, compression (u32 length + UTF-8), records length u64, records.
+        let (_times, rest) = body.split_at_checked(16)?;
+        let (size, rest) = rest.split_first_chunk::<8>()?;
+        let (crc, rest) = rest.split_first_chunk::<4>()?;
+        let (name_len, rest) = rest.split_first_chunk::<4>()?;
+        let (name, rest) = rest.split_at_checked(u32::from_le_bytes(*name_len) as usize)?;
+        let (records_len, rest) = rest.split_first_chunk::<8>()?;
+        let records_len = usize::try_from(u64::from_le_bytes(*records_len)).ok()?;
+        Some(Self {
+            uncompressed_size: u64::from_le_bytes(*size),
+            crc: u32::from_le_bytes(*crc),
+            compression: std::str::from_utf8(name).ok()?,
+            records: rest.get(..records_len).unwrap_or(rest),
+        })
+    }
+}
+
+/// Reads into `buf` until it is full or the source ends; the number of bytes read.
+fn read_up_to(source: &mut dyn Read, buf: &mut [u8]) -> std::io::Result<usize> {
+    let mut got = 0;
+    while got < buf.len() {
+        match source.read(&mut buf[got..]) {
+            Ok(0) => break,
+            Ok(n) => got += n,
+            Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
+            Err(e) => return Err(e),
+        }
+    }
+    Ok(got)
 }
 
 impl Records {
@@ -516,6 +706,12 @@ impl Records {
 
 /// Checks that the first bytes of a file are the MCAP magic.
 fn check_magic(start: &[u8], path: &Path) -> Result<(), BagError> {
+    if start.is_empty() {
+        return Err(BagError::NotMcap {
+            path: path.to_path_buf(),
+            reason: "the file is empty (0 bytes)".to_string(),
+        });
+    }
     if !start.starts_with(mcap::MAGIC) {
         return Err(BagError::NotMcap {
             path: path.to_path_buf(),
@@ -523,6 +719,36 @@ fn check_magic(start: &[u8], path: &Path) -> Result<(), BagError> {
         });
     }
     Ok(())
+}
+
+/// The records of a chunk, decompressed; of a chunk cut short (`complete` false), as much as
+/// decompresses.
+fn decompress(chunk: &ChunkParts<'_>, complete: bool) -> Result<Vec<u8>, String> {
+    let size = chunk.uncompressed_size;
+    if size > RECORD_LENGTH_LIMIT {
+        return Err(format!("{size} bytes uncompressed: too large"));
+    }
+    let mut out = Vec::new();
+    let result = match chunk.compression {
+        "" => {
+            out.extend_from_slice(chunk.records);
+            Ok(0)
+        }
+        "zstd" => zstd::stream::read::Decoder::new(chunk.records)
+            .and_then(|d| d.take(size).read_to_end(&mut out))
+            .map_err(|e| format!("zstd: {e}")),
+        "lz4" => lz4::Decoder::new(chunk.records)
+            .and_then(|d| d.take(size).read_to_end(&mut out))
+            .map_err(|e| format!("lz4: {e}")),
+        other => return Err(format!("unknown compression `{other}`")),
+    };
+    if complete {
+        result?;
+        if out.len() as u64 != size {
+            return Err(format!("{} bytes decompressed, {size} declared", out.len()));
+        }
+    }
+    Ok(out)
 }
 
 /// The summary section of a finished MCAP file (from its footer), if it has one.

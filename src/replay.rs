@@ -24,6 +24,7 @@ use crate::eval::{EvalReport, Scorer, ShotTruth};
 use crate::msgs::convert::{
     detection_from_msg, state_from_msg, state_msg, truth_intercept_from_msg,
 };
+use crate::msgs::definitions;
 use crate::msgs::ttball_msgs::msg::{BallDetection, BallState, InterceptPrediction};
 use crate::pipeline::Pipeline;
 use crate::smooth::{SmoothedState, Smoothing, smooth};
@@ -71,6 +72,20 @@ pub enum ReplayError {
         topic: String,
         /// Its type.
         found: String,
+    },
+    /// The detection topic has the detection type's name, but its schema declares other fields.
+    #[error(
+        "{path}: topic `{topic}` is `{DETECTION_TYPE}`, but not ttball's definition of it: its fields are `{found}`, ttball's are `{expected}`; record it with this version of ttball_msgs (msgs/msg/BallDetection.msg)"
+    )]
+    SchemaMismatch {
+        /// The input bag.
+        path: PathBuf,
+        /// The topic.
+        topic: String,
+        /// The bag's fields, `type name; ...`.
+        found: String,
+        /// ttball's fields.
+        expected: String,
     },
 }
 
@@ -200,13 +215,33 @@ pub fn detection_channel(
             },
         });
     };
-    let found = &channels[channel].schema_name;
-    if found != DETECTION_TYPE {
+    let info = &channels[channel];
+    if info.schema_name != DETECTION_TYPE {
         return Err(ReplayError::WrongType {
             path: path.to_path_buf(),
             topic: topic.to_owned(),
-            found: found.clone(),
+            found: info.schema_name.clone(),
         });
+    }
+    // Same name, other fields: the payloads would decode as garbage or not at all.
+    if info.schema_encoding == "ros2msg" && !info.schema_data.is_empty() {
+        let listed = |text: &str| {
+            definitions::fields(text)
+                .iter()
+                .map(|(ty, name)| format!("{ty} {name}"))
+                .collect::<Vec<_>>()
+                .join("; ")
+        };
+        let found = listed(&String::from_utf8_lossy(&info.schema_data));
+        let expected = listed(definitions::definition(DETECTION_TYPE).unwrap_or_default());
+        if found != expected {
+            return Err(ReplayError::SchemaMismatch {
+                path: path.to_path_buf(),
+                topic: topic.to_owned(),
+                found,
+                expected,
+            });
+        }
     }
     Ok(channel)
 }
@@ -229,7 +264,7 @@ pub fn replay(
     let topic = &config.topics.detections;
     // A finished bag names its channels in its summary: the detection topic is checked before
     // anything is written. A bag without a summary (cut off) is checked as its channels appear.
-    let mut detections_on = if reader.channels().is_empty() {
+    let mut detections_on = if !reader.has_summary() {
         None
     } else {
         Some(detection_channel(reader.channels(), topic, input)?)
@@ -244,7 +279,11 @@ pub fn replay(
         }
         None => None,
     };
-    let mut scorer = truth.as_ref().map(|t| Scorer::new(t.shots.clone()));
+    // A bag with truth channels but no shots in them (`simulate --no-truth`) is not scored.
+    let mut scorer = truth
+        .as_ref()
+        .filter(|t| !t.shots.is_empty())
+        .map(|t| Scorer::new(t.shots.clone()));
 
     let mut writer = BagWriter::create(output)?;
     let outputs = Outputs {

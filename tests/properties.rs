@@ -1,11 +1,15 @@
 //! Properties over random input: the filter's covariance stays symmetric positive definite
-//! whatever the detections, and decoding arbitrary bytes as a message never panics.
+//! whatever the detections, decoding arbitrary bytes as a message never panics, and neither does
+//! reading arbitrary bytes, or a real bag with bytes flipped, cut or inserted, as MCAP.
+//!
+//! `PROPTEST_CASES=N cargo test --release --test properties` runs N cases of each (the longer
+//! fuzzing run in the README).
 #![cfg(feature = "bag")]
 #![allow(clippy::unwrap_used, reason = "test code: fail loudly")]
 
 use nalgebra::{Matrix3, Vector3};
 use proptest::prelude::*;
-use ttball::bag::decode;
+use ttball::bag::{BagReader, decode};
 use ttball::config::Config;
 use ttball::detection::Detection;
 use ttball::estimator::Estimator;
@@ -27,6 +31,61 @@ fn stream() -> &'static [Detection] {
         .unwrap();
         session.stream.iter().map(|s| s.detection).collect()
     })
+}
+
+/// A small real bag (one simulated shot with its truth, as `ttball simulate` writes it).
+fn small_bag() -> &'static [u8] {
+    static BAG: std::sync::OnceLock<Vec<u8>> = std::sync::OnceLock::new();
+    BAG.get_or_init(|| {
+        let config = Config::default();
+        let session = simulate(
+            &config,
+            &SimOptions {
+                shots: 1,
+                seed: 22,
+                ..SimOptions::default()
+            },
+        )
+        .unwrap();
+        let path = std::env::temp_dir().join(format!("ttball-props-{}.mcap", std::process::id()));
+        ttball::record::write_session(&session, &config, &path, true).unwrap();
+        let bytes = std::fs::read(&path).unwrap();
+        let _ = std::fs::remove_file(&path);
+        bytes
+    })
+}
+
+/// Reads every message of `bytes` as an MCAP bag; the number read.
+fn read_all(bytes: Vec<u8>) -> usize {
+    let Ok(mut reader) = BagReader::from_bytes(bytes, std::path::Path::new("fuzz.mcap")) else {
+        return 0;
+    };
+    let mut n = 0;
+    while reader.next_message().is_some() {
+        n += 1;
+    }
+    let _ = reader.damage();
+    n
+}
+
+/// A damage done to a bag's bytes.
+#[derive(Debug, Clone)]
+enum Damage {
+    /// XOR a byte at a relative position with a mask.
+    Flip(f64, u8),
+    /// Cut the file at a relative position.
+    Cut(f64),
+    /// Insert bytes at a relative position.
+    Insert(f64, Vec<u8>),
+}
+
+fn damage() -> impl Strategy<Value = Damage> {
+    prop_oneof![
+        (0.0f64..1.0, 1u8..=255).prop_map(|(at, mask)| Damage::Flip(at, mask)),
+        (0.0f64..1.0).prop_map(Damage::Cut),
+        (0.0f64..1.0, prop::collection::vec(any::<u8>(), 1..16))
+            .prop_map(|(at, bytes)| Damage::Insert(at, bytes)),
+    ]
 }
 
 /// One corruption of one detection of the stream.
@@ -107,6 +166,42 @@ proptest! {
         prop_assert!(estimates > detections.len() / 2, "{estimates} estimates");
         let c = estimator.counters();
         prop_assert_eq!(c.fused + c.initializing + c.total_rejected(), c.received);
+    }
+
+    #[test]
+    fn reading_arbitrary_bytes_as_mcap_never_panics(
+        bytes in prop::collection::vec(any::<u8>(), 0..2000),
+        with_magic in any::<bool>(),
+    ) {
+        let mut input = if with_magic { b"\x89MCAP0\r\n".to_vec() } else { Vec::new() };
+        input.extend_from_slice(&bytes);
+        read_all(input);
+    }
+
+    #[test]
+    fn reading_a_damaged_bag_never_panics(damages in prop::collection::vec(damage(), 1..8)) {
+        let original = small_bag();
+        let mut bytes = original.to_vec();
+        for d in &damages {
+            let at = |r: f64, len: usize| ((r * len as f64) as usize).min(len.saturating_sub(1));
+            match d {
+                Damage::Flip(r, mask) => {
+                    let i = at(*r, bytes.len());
+                    if let Some(b) = bytes.get_mut(i) {
+                        *b ^= mask;
+                    }
+                }
+                Damage::Cut(r) => bytes.truncate(at(*r, bytes.len())),
+                Damage::Insert(r, extra) => {
+                    let i = at(*r, bytes.len());
+                    bytes.splice(i..i, extra.iter().copied());
+                }
+            }
+        }
+        let total = read_all(original.to_vec());
+        let read = read_all(bytes);
+        // Never more than the bag holds, give or take a flipped length that splits a record.
+        prop_assert!(read <= total + 8, "{read} of {total}");
     }
 
     #[test]

@@ -203,6 +203,103 @@ fn a_truncated_bag_is_replayed_as_far_as_it_goes_and_the_output_is_finished() {
     assert!(missing.contains("missing.mcap"), "{missing}");
 }
 
+/// An empty file, and a finished bag with nothing in it: clear errors naming the file.
+#[test]
+fn an_empty_bag_is_a_clear_error() {
+    let d = dir("empty");
+    let empty = d.join("empty.mcap");
+    std::fs::write(&empty, b"").unwrap();
+    let text = run(&empty, &d.join("out.mcap")).unwrap_err().to_string();
+    assert!(
+        text.contains("empty.mcap") && text.contains("empty (0 bytes)"),
+        "{text}"
+    );
+    let nothing = d.join("nothing.mcap");
+    BagWriter::create(&nothing).unwrap().finish().unwrap();
+    let text = run(&nothing, &d.join("out.mcap")).unwrap_err().to_string();
+    assert!(
+        text.contains("nothing.mcap") && text.contains("topics in the bag: none"),
+        "{text}"
+    );
+    assert!(
+        !d.join("out.mcap").exists(),
+        "nothing is written for a refused bag"
+    );
+}
+
+/// Bytes overwritten in the middle of a bag: the chunk they hit fails its CRC and is skipped
+/// (said in the summary), every other chunk is replayed, no garbage is decoded, and the output
+/// is finished.
+#[test]
+fn a_corrupted_chunk_is_skipped_and_the_rest_replayed() {
+    let d = dir("corrupt-chunk");
+    let input = d.join("sim.mcap");
+    let session = simulated_bag(&input, 6);
+    let mut bytes = std::fs::read(&input).unwrap();
+    let middle = bytes.len() / 2;
+    for b in &mut bytes[middle..middle + 64] {
+        *b ^= 0x5a;
+    }
+    let corrupt = d.join("corrupt.mcap");
+    std::fs::write(&corrupt, &bytes).unwrap();
+    let output = d.join("out.mcap");
+    let summary = run(&corrupt, &output).unwrap();
+    let damage = summary.damage.clone().unwrap_or_default();
+    assert!(
+        damage.contains("chunk at byte") && damage.contains("CRC") && damage.contains("skipped"),
+        "{damage}"
+    );
+    let total = session.stream.len() as u64;
+    assert!(
+        summary.detections > total / 3 && summary.detections < total,
+        "{} of {total} detections read",
+        summary.detections
+    );
+    assert_eq!(summary.undecodable, 0);
+    let c = summary.counters;
+    assert_eq!(c.fused + c.initializing + c.total_rejected(), c.received);
+    let out = read_bag_file(&output).unwrap();
+    assert!(out.damage.is_none(), "the output is a finished file");
+}
+
+/// A detection topic with the right type name but other fields: refused, naming the file, the
+/// topic and the fields, before anything is written.
+#[test]
+fn a_detection_schema_with_other_fields_is_an_error_naming_them() {
+    let d = dir("schema-mismatch");
+    let input = d.join("in.mcap");
+    let mut w = BagWriter::create(&input).unwrap();
+    let ch = w
+        .add_channel(&ttball::bag::ChannelInfo {
+            topic: "/ball/detections".into(),
+            schema_name: DETECTION_TYPE.into(),
+            schema_encoding: "ros2msg".into(),
+            schema_data: b"std_msgs/Header header\nfloat32 x\nfloat32 y\n".to_vec(),
+            message_encoding: "cdr".into(),
+            metadata: Default::default(),
+        })
+        .unwrap();
+    w.write_raw(ch, 1, 1, &[0, 1, 0, 0, 0, 0, 0, 0]).unwrap();
+    w.finish().unwrap();
+    let output = d.join("out.mcap");
+    let err = run(&input, &output).unwrap_err();
+    let text = err.to_string();
+    assert!(matches!(err, ReplayError::SchemaMismatch { .. }), "{text}");
+    assert!(
+        text.contains("in.mcap") && text.contains("/ball/detections") && text.contains("float32 x"),
+        "{text}"
+    );
+    assert!(!output.exists());
+    // A bag recorded with ttball's own definition (comments and all) passes the check.
+    let ok = d.join("ok.mcap");
+    let mut w = BagWriter::create(&ok).unwrap();
+    let ch = w.channel("/ball/detections", DETECTION_TYPE).unwrap();
+    w.write(ch, DETECTION_TYPE, 1, &BallDetection::default())
+        .unwrap();
+    w.finish().unwrap();
+    assert!(run(&ok, &d.join("ok-out.mcap")).is_ok());
+}
+
 #[test]
 fn bad_detections_are_counted_by_reason() {
     let d = dir("bad-detections");

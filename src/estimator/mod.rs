@@ -531,9 +531,9 @@ impl Estimator {
     /// Takes one detection (in arrival order) into the filter, rolling back and re-applying the
     /// newer ones when it is late, without predicting the interception; says what became of it.
     ///
-    /// A detection more than `tracking.timeout` after the current track's last fused stamp (or,
-    /// with no track, that far from the detections initialising one) is a jump: a new ball after
-    /// a pause, a camera whose clock restarted, or a glitched stamp. It is held ([`Verdict::Held`],
+    /// A detection more than `tracking.timeout` before or after the current track's last fused
+    /// stamp (or, with no track, the newest detection initialising one) is a jump: a new ball
+    /// after a pause, a camera whose clock restarted, or a glitched stamp. It is held ([`Verdict::Held`],
     /// counted as initialising) until the next detection tells which: one within `tracking.timeout` of it
     /// confirms the jump, and both start a new track; one that carries on the current stamps
     /// shows it was a glitch, and it is counted as [`Rejection::StampJump`]. So one bad stamp
@@ -589,8 +589,8 @@ impl Estimator {
         };
         let timeout = self.settings.timeout;
         let offset = d.stamp - current;
-        // With a track, a detection from long ago is a late one (too old to fuse, not a jump).
-        let jump = offset > timeout || (self.track.is_none() && offset < -timeout);
+        // Either way: a camera whose clock restarted sends stamps from long ago, for good.
+        let jump = offset.abs() > timeout;
         if !jump {
             if d.stamp > current && self.held.take().is_some() {
                 self.recount_held(Verdict::Rejected(Rejection::StampJump));

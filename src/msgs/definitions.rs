@@ -135,18 +135,29 @@ pub fn definition(name: &str) -> Option<&'static str> {
         .map(|(_, text)| *text)
 }
 
+/// The fields `(type, name)` of a definition, or of a `ros2msg` schema's own message (the text
+/// before its first `====` separator), without comments, constants or default values.
+pub fn fields(text: &str) -> Vec<(String, String)> {
+    text.lines()
+        .take_while(|line| !line.starts_with("=="))
+        .filter_map(|line| {
+            let line = line.split('#').next().unwrap_or("");
+            let mut words = line.split_whitespace();
+            let (ty, name) = (words.next()?, words.next()?);
+            // A constant: `TYPE NAME=value` or `TYPE NAME = value`.
+            if name.contains('=') || words.next().is_some_and(|w| w.starts_with('=')) {
+                return None;
+            }
+            Some((ty.to_string(), name.to_string()))
+        })
+        .collect()
+}
+
 /// The message types a definition's fields use, as `pkg/Type`, in order of appearance.
 fn field_types(package: &str, text: &str) -> Vec<String> {
     let mut out = Vec::new();
-    for line in text.lines() {
-        let line = line.split('#').next().unwrap_or("").trim();
-        let mut words = line.split_whitespace();
-        let (Some(ty), Some(name)) = (words.next(), words.next()) else {
-            continue;
-        };
-        if name.contains('=') {
-            continue; // a constant
-        }
+    for (ty, _) in fields(text) {
+        let ty = ty.as_str();
         let base = ty.split('[').next().unwrap_or(ty);
         let base = base.split("<=").next().unwrap_or(base);
         if PRIMITIVES.contains(&base) {
@@ -200,6 +211,18 @@ fn package_of(name: &str) -> &str {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn fields_skip_comments_constants_and_dependencies() {
+        let text = "uint8 A=1 # constant\nint32 B = 2\nstd_msgs/Header header # stamp\n\
+                    string<=8 name\nfloat64[9] c 0\n====\nMSG: x/Y\nint32 hidden\n";
+        let f = fields(text);
+        let names: Vec<&str> = f.iter().map(|(_, n)| n.as_str()).collect();
+        assert_eq!(names, ["header", "name", "c"]);
+        assert_eq!(f[1].0, "string<=8");
+        let ours = schema("ttball_msgs/msg/BallDetection").expect("known");
+        assert_eq!(fields(&ours).len(), 9);
+    }
 
     #[test]
     fn schemas_embed_every_dependency_once() {
