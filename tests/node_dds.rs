@@ -15,6 +15,15 @@
 //!   lands on the target.
 //! - `ttball play` publishes the bag and the peer receives every detection, byte for byte.
 //!
+//! - Robustness: a peer publishes samples of the detection's type name with other fields (the
+//!   node counts them undecodable) and of another type (DDS does not match them), then half the
+//!   bag and exits, then a new peer publishes the other half: the states and intercepts still
+//!   equal the replay's. A flood (another bag at 1000x, into a queue of 8) is shed oldest first
+//!   and counted; the node still answers a service call, stops cleanly, and every detection is
+//!   accounted for (fused + initialising + rejected by reason = received).
+//!
+//! The two tests take turns (one DDS run at a time on 2 cores).
+//!
 //! Needs a Python with `cyclonedds` and `mcap` (`.ci/run` sets `TTBALL_PYTHON`) and permission
 //! to make a network namespace (root, or unprivileged user namespaces). Without either the test
 //! says so and passes, except under CI (`CI=true`), where it fails.
@@ -47,6 +56,9 @@ use ttball::pipeline::Pipeline;
 mod common;
 
 const BAG: &str = "bags/sim_rally_2cams.mcap";
+
+/// One DDS run at a time: the tests' timing-sensitive parts share 2 cores otherwise.
+static DDS: std::sync::Mutex<()> = std::sync::Mutex::new(());
 
 /// The Python interpreter with cyclonedds, and `unshare`, or why the test cannot run.
 fn prerequisites() -> Option<PathBuf> {
@@ -175,6 +187,9 @@ fn node_and_play_interoperate_with_cyclone_dds() {
     let Some(python) = prerequisites() else {
         return;
     };
+    let _turn = DDS
+        .lock()
+        .unwrap_or_else(std::sync::PoisonError::into_inner);
     let dir = common::scratch("dds");
     let ttball = env!("CARGO_BIN_EXE_ttball");
     let peer = common::root().join("tests/interop/dds_peer.py");
@@ -422,4 +437,165 @@ wait $listener
         detections.len()
     );
     assert!(read("play.out").contains(&format!("{} detections published", detections.len())));
+}
+
+/// The states and intercepts `ttball replay` publishes for a bag.
+fn replayed_outputs(dir: &Path, bag: &str) -> (Vec<BallState>, Vec<InterceptPrediction>) {
+    let replayed = dir.join("replay.mcap");
+    common::ok(&["replay", bag, "--output", replayed.to_str().unwrap()]);
+    let contents = read_bag_file(&replayed).unwrap();
+    let on = |topic: &str| {
+        let channel = contents.channel(topic).unwrap();
+        contents
+            .messages
+            .iter()
+            .filter(move |m| m.channel == channel)
+            .map(|m| m.data.clone())
+    };
+    (
+        on("/ball/state").map(|d| decode(&d).unwrap()).collect(),
+        on("/ball/intercept").map(|d| decode(&d).unwrap()).collect(),
+    )
+}
+
+/// The number after `label` in the node's stop summary (0 when absent).
+fn summary_count(summary: &str, label: &str) -> u64 {
+    summary
+        .split(label)
+        .nth(1)
+        .map(|rest| {
+            rest.trim_start()
+                .chars()
+                .take_while(char::is_ascii_digit)
+                .collect::<String>()
+        })
+        .and_then(|n| n.parse().ok())
+        .unwrap_or(0)
+}
+
+#[test]
+fn the_node_survives_wrong_types_a_peer_that_comes_back_and_a_flood() {
+    let Some(python) = prerequisites() else {
+        return;
+    };
+    let _turn = DDS
+        .lock()
+        .unwrap_or_else(std::sync::PoisonError::into_inner);
+    let dir = common::scratch("dds-robust");
+    let ttball = env!("CARGO_BIN_EXE_ttball");
+    let peer = common::root().join("tests/interop/dds_peer.py");
+    let bag = common::root().join(BAG);
+    let flood_bag = common::root().join("bags/sim_rally_wide.mcap");
+    let total = {
+        let contents = read_bag_file(&bag).unwrap();
+        let channel = contents.channel("/ball/detections").unwrap();
+        contents
+            .messages
+            .iter()
+            .filter(|m| m.channel == channel)
+            .count()
+    };
+    let half = total / 2;
+    let script = format!(
+        r#"
+export ROS_DOMAIN_ID=43 ROS_LOCALHOST_ONLY=1
+cd "{dir}"
+"{ttball}" node -p node.service_mapping:=cyclone -p node.queue_capacity:=8 > node.out 2> node.err &
+node=$!
+"{python}" "{peer}" publish-wrong other-fields --count 200 --wait-match 30 --out wrong.json 2> peer.err
+"{python}" "{peer}" publish-wrong other-type --count 200 --wait-match 3 --out other.json 2>> peer.err
+"{python}" "{peer}" publish "{bag}" --count {half} --wait-match 30 --linger 1 --out first.json 2>> peer.err
+sleep 1
+"{python}" "{peer}" publish "{bag}" --first {half} --wait-match 30 --out second.json 2>> peer.err
+"{python}" "{peer}" publish "{flood}" --rate 1000 --wait-match 30 --linger 1 --out flood.json 2>> peer.err
+"{python}" "{peer}" call-predict --horizon 0.5 --dt 0.01 --timeout 20 --out call.json 2>> peer.err
+kill -TERM $node
+wait $node
+echo $? > node.rc
+"#,
+        dir = dir.display(),
+        python = python.display(),
+        peer = peer.display(),
+        bag = bag.display(),
+        flood = flood_bag.display(),
+    );
+    common::run_on_loopback_only(&script);
+    let read = |name: &str| std::fs::read_to_string(dir.join(name)).unwrap_or_default();
+    assert_eq!(
+        read("node.rc").trim(),
+        "0",
+        "node: {}\npeer: {}",
+        read("node.err"),
+        read("peer.err")
+    );
+    let summary = read("node.out");
+    eprintln!("{summary}");
+
+    // The wrong samples: those of the detection's name are counted undecodable; those of another
+    // type never reach the node (DDS matches by type name).
+    let wrong = read_json(&dir.join("wrong.json"));
+    let undecodable = summary_count(&summary, "undecodable");
+    if wrong["matched"] == Value::Bool(true) {
+        assert!(undecodable > 0, "no undecodable sample counted: {summary}");
+    }
+    assert!(undecodable <= 200, "{summary}");
+    let other = read_json(&dir.join("other.json"));
+    eprintln!(
+        "other-fields samples: matched {}, {undecodable} counted undecodable; other-type: matched {}",
+        wrong["matched"], other["matched"]
+    );
+
+    // The bag in two halves from two peers: the outputs are the replay's.
+    let (first, second) = (
+        read_json(&dir.join("first.json")),
+        read_json(&dir.join("second.json")),
+    );
+    let sent = records(&first, "sent").len() + records(&second, "sent").len();
+    assert_eq!(sent, total, "the two peers sent the whole bag");
+    let decoded = |key: &str| -> Vec<Vec<u8>> {
+        [&first, &second]
+            .iter()
+            .flat_map(|run| records(run, key))
+            .map(|r| cdr_of(&r))
+            .collect()
+    };
+    let states: Vec<BallState> = decoded("states")
+        .iter()
+        .map(|b| decode(b).unwrap())
+        .collect();
+    let intercepts: Vec<InterceptPrediction> = decoded("intercepts")
+        .iter()
+        .map(|b| decode(b).unwrap())
+        .collect();
+    let (replay_states, replay_intercepts) = replayed_outputs(&dir, BAG);
+    // Nothing lost on the wire (as many as the replay): equal one for one; else a common prefix.
+    let whole = states.len() == replay_states.len();
+    compare("states", &states, &replay_states, whole);
+    compare("intercepts", &intercepts, &replay_intercepts, whole);
+    assert!(
+        states.len() * 10 >= replay_states.len() * 9,
+        "{} of {} states",
+        states.len(),
+        replay_states.len()
+    );
+
+    // The flood: shed oldest first and counted; the node went on and answered a call.
+    let flooded = records(&read_json(&dir.join("flood.json")), "sent").len();
+    assert!(flooded > 0);
+    let dropped = summary_count(&summary, "queue full");
+    eprintln!(
+        "flood: {flooded} detections sent at 1000x, {dropped} dropped by the queue (capacity 8)"
+    );
+    let call = read_json(&dir.join("call.json"));
+    assert_eq!(call["success"], Value::Bool(true), "{call}");
+
+    // Every detection accounted for.
+    let received = summary_count(&summary, "detections received");
+    let (fused, initialising, rejected) = (
+        summary_count(&summary, "fused"),
+        summary_count(&summary, "initialising"),
+        summary_count(&summary, "rejected"),
+    );
+    assert_eq!(fused + initialising + rejected, received, "{summary}");
+    assert!(received as usize >= sent, "{summary}");
 }

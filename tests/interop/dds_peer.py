@@ -339,6 +339,8 @@ def latency_ms(sent, outputs):
 
 def cmd_publish(args):
     detections = read_detections(args.bag, args.topic)
+    end = args.first + args.count if args.count else None
+    detections = detections[args.first:end]
     if not detections:
         sys.exit(f"dds_peer: no messages on {args.topic} in {args.bag}")
     dp = participant()
@@ -384,6 +386,40 @@ def cmd_publish(args):
           f"{len(result['states'])} states, {len(result['intercepts'])} intercepts; latency to the state "
           f"{describe(result['latency_ms'])}; to the intercept {describe(result['intercept_latency_ms'])}",
           file=sys.stderr)
+    return 0
+
+
+@dataclass
+class WrongDetection_(IdlStruct, typename="ttball_msgs::msg::dds_::BallDetection_"):
+    """A detection type of the right name and other fields (another version of the .msg)."""
+    label: str
+    value: t.int64
+
+
+@dataclass
+class String_(IdlStruct, typename="std_msgs::msg::dds_::String_"):
+    data: str
+
+
+def cmd_publish_wrong(args):
+    dp = participant()
+    data_type, sample = {
+        "other-fields": (WrongDetection_, lambda i: WrongDetection_(label=f"not a detection {i}", value=i)),
+        "other-type": (String_, lambda i: String_(data=f"not a detection {i}")),
+    }[args.kind]
+    out = writer(dp, ros_topic("rt", args.topic), data_type, True, 1000)
+    if not wait_until(out.get_matched_subscriptions, time.monotonic() + args.wait_match):
+        print(f"dds_peer: no subscriber to {args.topic} matched a {args.kind} writer within "
+              f"{args.wait_match} s", file=sys.stderr)
+        write_json(args.out, {"matched": False, "sent": 0})
+        return 3
+    time.sleep(0.5)
+    for i in range(args.count):
+        out.write(sample(i))
+        time.sleep(0.001)
+    time.sleep(args.linger)
+    write_json(args.out, {"matched": True, "sent": args.count})
+    print(f"dds_peer: sent {args.count} {args.kind} samples on {args.topic}", file=sys.stderr)
     return 0
 
 
@@ -519,12 +555,27 @@ def main(argv=None):
     p.add_argument("--state-topic", default="/ball/state", help="default %(default)s")
     p.add_argument("--intercept-topic", default="/ball/intercept", help="default %(default)s")
     p.add_argument("--rate", type=float, default=1.0, help="playback speed factor (default %(default)s)")
+    p.add_argument("--first", type=int, default=0, help="index of the first detection to send (default 0)")
+    p.add_argument("--count", type=int, default=0, help="how many to send (default: all from --first)")
     p.add_argument("--wait-match", type=float, default=10.0, metavar="SECONDS",
                    help="how long to wait for a subscriber (default %(default)s)")
     p.add_argument("--linger", type=float, default=2.0, metavar="SECONDS",
                    help="keep recording this long after the last detection (default %(default)s)")
     p.add_argument("--out", metavar="FILE.json", help="write the results here")
     p.set_defaults(run=cmd_publish)
+
+    p = sub.add_parser("publish-wrong", help="publish samples of a wrong type on the detections topic",
+                       description="Publish --count samples on the detections topic (Reliable) that are not "
+                                   "detections: 'other-fields' has the detection's DDS type name and other "
+                                   "fields (the node must count them undecodable), 'other-type' another type "
+                                   "name (DDS does not match it with the node). Exit code 3 when nothing matched.")
+    p.add_argument("kind", choices=["other-fields", "other-type"])
+    p.add_argument("--topic", default="/ball/detections", help="default %(default)s")
+    p.add_argument("--count", type=int, default=100, help="default %(default)s")
+    p.add_argument("--wait-match", type=float, default=10.0, metavar="SECONDS", help="default %(default)s")
+    p.add_argument("--linger", type=float, default=0.5, metavar="SECONDS", help="default %(default)s")
+    p.add_argument("--out", metavar="FILE.json", help="write {matched, sent} here")
+    p.set_defaults(run=cmd_publish_wrong)
 
     p = sub.add_parser("listen", help="record detections published by someone else (e.g. `ttball play`)",
                        description="Subscribe to detections (BestEffort, KeepLast 10000) until --count arrive "
