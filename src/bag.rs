@@ -444,19 +444,10 @@ impl BagReader {
     fn register_summary(&mut self, summary: &[u8]) {
         self.summarised = true;
         let mut records = Records::default();
-        let mut rest = summary;
-        while let Some((&opcode, after)) = rest.split_first() {
-            let Some((len, body)) = after.split_first_chunk::<8>() else {
-                return;
-            };
-            let len = usize::try_from(u64::from_le_bytes(*len)).unwrap_or(usize::MAX);
-            let Some((record, tail)) = body.split_at_checked(len) else {
-                return;
-            };
+        for (opcode, record) in (RecordSlices { rest: summary }) {
             if let Ok(record) = mcap::parse_record(opcode, record) {
                 records.take(record, &mut self.channels);
             }
-            rest = tail;
         }
     }
 }
@@ -584,15 +575,8 @@ impl FileStream {
                 .push(skip("its CRC does not match: corrupt".to_string()));
             return Ok(());
         }
-        let mut rest = data.as_slice();
-        while let Some((&opcode, after)) = rest.split_first() {
-            let Some((len, body)) = after.split_first_chunk::<8>() else {
-                break;
-            };
-            let len = usize::try_from(u64::from_le_bytes(*len)).unwrap_or(usize::MAX);
-            let Some((record, tail)) = body.split_at_checked(len) else {
-                break;
-            };
+        let mut records = RecordSlices { rest: &data };
+        for (opcode, record) in records.by_ref() {
             match mcap::parse_record(opcode, record) {
                 Ok(mcap::records::Record::Message { header, data }) => {
                     let message = self.message(&header, data.into_owned())?;
@@ -601,9 +585,8 @@ impl FileStream {
                 Ok(other) => self.records.take(other, channels),
                 Err(e) => return Err(format!("a record in the chunk at byte {at}: {e}")),
             }
-            rest = tail;
         }
-        if complete && !rest.is_empty() {
+        if complete && !records.rest.is_empty() {
             return Err(format!("the chunk at byte {at} ends inside a record"));
         }
         Ok(())
@@ -656,6 +639,25 @@ impl<'a> ChunkParts<'a> {
             compression: std::str::from_utf8(name).ok()?,
             records: rest.get(..records_len).unwrap_or(rest),
         })
+    }
+}
+
+/// The records `(opcode, body)` laid end to end in `rest` (a chunk's or a summary section's);
+/// iteration stops at one cut short, which stays in `rest`.
+struct RecordSlices<'a> {
+    rest: &'a [u8],
+}
+
+impl<'a> Iterator for RecordSlices<'a> {
+    type Item = (u8, &'a [u8]);
+
+    fn next(&mut self) -> Option<Self::Item> {
+        let (&opcode, after) = self.rest.split_first()?;
+        let (len, body) = after.split_first_chunk::<8>()?;
+        let len = usize::try_from(u64::from_le_bytes(*len)).ok()?;
+        let (record, tail) = body.split_at_checked(len)?;
+        self.rest = tail;
+        Some((opcode, record))
     }
 }
 

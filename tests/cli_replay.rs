@@ -1,5 +1,5 @@
-//! `ttball replay` as a user runs it: Ctrl-C (SIGINT) in the middle of a long replay leaves a
-//! properly finished output bag and says so.
+//! `ttball replay` as a user runs it: Ctrl-C (SIGINT) or SIGTERM (a supervisor stopping it) in
+//! the middle of a long replay leaves a properly finished output bag and says so.
 #![cfg(all(feature = "cli", unix))]
 #![allow(
     clippy::unwrap_used,
@@ -15,10 +15,9 @@ use std::time::{Duration, Instant};
 use ttball::bag::read_bag_file;
 
 #[test]
-fn ctrl_c_finishes_the_output_bag() {
+fn ctrl_c_and_sigterm_finish_the_output_bag() {
     let dir = common::scratch("sigint");
     let input = dir.join("long.mcap");
-    let output = dir.join("out.mcap");
     common::ok(&[
         "simulate",
         "--output",
@@ -28,6 +27,14 @@ fn ctrl_c_finishes_the_output_bag() {
         "--seed",
         "9",
     ]);
+    for signal in ["INT", "TERM"] {
+        let output = dir.join(format!("out-{signal}.mcap"));
+        stop_midway(&input, &output, signal);
+    }
+}
+
+/// Replays `input` into `output`, sends `signal` once it is writing, and checks the output.
+fn stop_midway(input: &std::path::Path, output: &std::path::Path, signal: &str) {
     let child = Command::new(env!("CARGO_BIN_EXE_ttball"))
         .args([
             "replay",
@@ -41,23 +48,23 @@ fn ctrl_c_finishes_the_output_bag() {
         .unwrap();
     // Wait until the replay is writing, then interrupt it as Ctrl-C would.
     let started = Instant::now();
-    while std::fs::metadata(&output).map_or(0, |m| m.len()) == 0
+    while std::fs::metadata(output).map_or(0, |m| m.len()) == 0
         && started.elapsed() < Duration::from_secs(30)
     {
         std::thread::sleep(Duration::from_millis(5));
     }
     std::thread::sleep(Duration::from_millis(150));
     let kill = Command::new("kill")
-        .args(["-INT", &child.id().to_string()])
+        .args([&format!("-{signal}"), &child.id().to_string()])
         .status()
         .unwrap();
     assert!(kill.success());
     let out = child.wait_with_output().unwrap();
     let stdout = String::from_utf8_lossy(&out.stdout);
-    let contents = read_bag_file(&output).unwrap();
+    let contents = read_bag_file(output).unwrap();
     assert!(
         contents.damage.is_none(),
-        "the output is a finished MCAP file"
+        "SIG{signal}: the output is a finished MCAP file"
     );
     assert!(contents.channel("/ball/state").is_some());
     if stdout.contains("interrupted") {

@@ -426,3 +426,51 @@ fn printed_configuration_round_trips() {
     assert!(document["ttball"]["ros__parameters"]["gravity"].is_f64());
     assert!(document["ttball"]["ros__parameters"]["aero"]["drag_coefficients"][1].is_f64());
 }
+
+/// Every number of the configuration, set to NaN, infinity or a value far out of any range, is
+/// refused with a problem naming its key (or, for the last, accepted as valid): nothing slips
+/// through to a running node.
+#[test]
+fn every_number_out_of_range_is_named_with_its_key() {
+    let defaults = serde_norway::to_value(Config::default()).unwrap();
+    let mut keys = BTreeSet::new();
+    leaf_keys(&defaults, "", &mut keys);
+    let mut checked = 0;
+    for key in keys {
+        let value = key.split('.').fold(&defaults, |v, part| &v[part]);
+        let is_real =
+            value.as_f64().is_some() && value.as_i64().is_none() && value.as_u64().is_none();
+        let is_integer = value.as_i64().is_some() || value.as_u64().is_some();
+        if !(is_real || is_integer) {
+            continue;
+        }
+        let bad: &[&str] = if is_real {
+            &[".nan", ".inf", "-.inf", "-1e300", "1e300"]
+        } else {
+            &["-1", "99999999999999999999"]
+        };
+        for v in bad {
+            let setting = format!("{key}:={v}");
+            match load_text("", &[setting.as_str()]) {
+                // Far-out finite values may be valid for a key without that bound; a non-finite
+                // one never is.
+                Ok(_) => assert!(
+                    !v.contains("nan") && !v.contains("inf"),
+                    "{setting} was accepted"
+                ),
+                Err(LoadError::Rejected { problems }) => {
+                    let text: Vec<String> = problems.iter().map(ToString::to_string).collect();
+                    assert!(
+                        text.iter()
+                            .any(|t| t.contains(&format!("`{key}")) || t.contains(&setting)),
+                        "{setting}: {text:?}"
+                    );
+                }
+                Err(other) => assert!(other.to_string().contains(&key), "{setting}: {other}"),
+            }
+            checked += 1;
+        }
+    }
+    eprintln!("{checked} values tried");
+    assert!(checked > 100, "{checked} values tried");
+}

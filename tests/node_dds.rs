@@ -88,6 +88,34 @@ fn prerequisites() -> Option<PathBuf> {
     Some(python)
 }
 
+/// What a DDS test runs with, holding its turn.
+struct DdsRun {
+    python: PathBuf,
+    dir: PathBuf,
+    ttball: &'static str,
+    peer: PathBuf,
+    bag: PathBuf,
+    _turn: std::sync::MutexGuard<'static, ()>,
+}
+
+impl DdsRun {
+    /// Waits for its turn and sets up a scratch directory; `None` when the test cannot run here.
+    fn start(name: &str) -> Option<Self> {
+        let python = prerequisites()?;
+        let turn = DDS
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner);
+        Some(Self {
+            python,
+            dir: common::scratch(name),
+            ttball: env!("CARGO_BIN_EXE_ttball"),
+            peer: common::root().join("tests/interop/dds_peer.py"),
+            bag: common::root().join(BAG),
+            _turn: turn,
+        })
+    }
+}
+
 fn hex(text: &str) -> Vec<u8> {
     (0..text.len())
         .step_by(2)
@@ -184,16 +212,17 @@ fn compare<T: PartialEq + std::fmt::Debug>(what: &str, live: &[T], replayed: &[T
 
 #[test]
 fn node_and_play_interoperate_with_cyclone_dds() {
-    let Some(python) = prerequisites() else {
+    let Some(DdsRun {
+        python,
+        dir,
+        ttball,
+        peer,
+        bag,
+        _turn,
+    }) = DdsRun::start("dds")
+    else {
         return;
     };
-    let _turn = DDS
-        .lock()
-        .unwrap_or_else(std::sync::PoisonError::into_inner);
-    let dir = common::scratch("dds");
-    let ttball = env!("CARGO_BIN_EXE_ttball");
-    let peer = common::root().join("tests/interop/dds_peer.py");
-    let bag = common::root().join(BAG);
     // The rally ball `ttball predict` starts from, for the service call.
     let initial = [
         1.0178, -0.0184, 0.4448, -5.4122, -0.1333, 1.5129, 7.051, -40.643, -3.915,
@@ -475,16 +504,17 @@ fn summary_count(summary: &str, label: &str) -> u64 {
 
 #[test]
 fn the_node_survives_wrong_types_a_peer_that_comes_back_and_a_flood() {
-    let Some(python) = prerequisites() else {
+    let Some(DdsRun {
+        python,
+        dir,
+        ttball,
+        peer,
+        bag,
+        _turn,
+    }) = DdsRun::start("dds-robust")
+    else {
         return;
     };
-    let _turn = DDS
-        .lock()
-        .unwrap_or_else(std::sync::PoisonError::into_inner);
-    let dir = common::scratch("dds-robust");
-    let ttball = env!("CARGO_BIN_EXE_ttball");
-    let peer = common::root().join("tests/interop/dds_peer.py");
-    let bag = common::root().join(BAG);
     let flood_bag = common::root().join("bags/sim_rally_wide.mcap");
     let total = {
         let contents = read_bag_file(&bag).unwrap();

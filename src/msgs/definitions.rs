@@ -221,7 +221,7 @@ mod tests {
         assert_eq!(names, ["header", "name", "c"]);
         assert_eq!(f[1].0, "string<=8");
         let ours = schema("ttball_msgs/msg/BallDetection").expect("known");
-        assert_eq!(fields(&ours).len(), 9);
+        assert_eq!(fields(&ours).len(), 8);
     }
 
     #[test]

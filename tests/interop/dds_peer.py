@@ -258,8 +258,8 @@ class Recorder:
     """A DataReader whose samples are taken from Cyclone's receive thread (a listener, so none is
     lost and recv_ns is the arrival time), kept as {"stamp_ns"?, "recv_ns", "cdr"} plus the sample."""
 
-    def __init__(self, dp, name, data_type, reliable, depth):
-        self.records, self.samples = [], []
+    def __init__(self, dp, name, data_type, reliable, depth, keep=True):
+        self.records, self.samples, self.keep, self.count = [], [], keep, 0
         self.lock = threading.Lock()
         self.arrived = threading.Condition(self.lock)
         listener = warn_incompatible("reader")
@@ -275,6 +275,9 @@ class Recorder:
             with self.lock:
                 for sample in samples:
                     if not sample.sample_info.valid_data:
+                        continue
+                    self.count += 1
+                    if not self.keep:
                         continue
                     record = {"recv_ns": now, "cdr": sample.serialize().hex()}
                     if hasattr(sample, "header"):
@@ -344,8 +347,9 @@ def cmd_publish(args):
     if not detections:
         sys.exit(f"dds_peer: no messages on {args.topic} in {args.bag}")
     dp = participant()
-    states = Recorder(dp, ros_topic("rt", args.state_topic), BallState_, True, 10000)
-    intercepts = Recorder(dp, ros_topic("rt", args.intercept_topic), InterceptPrediction_, True, 10000)
+    keep = not args.count_only
+    states = Recorder(dp, ros_topic("rt", args.state_topic), BallState_, True, 10000, keep)
+    intercepts = Recorder(dp, ros_topic("rt", args.intercept_topic), InterceptPrediction_, True, 10000, keep)
     out = writer(dp, ros_topic("rt", args.topic), BallDetection_, False, 100)  # REP 2003 sensor data
 
     # The detections are volatile: send none before the node's reader has matched ours. Then give
@@ -370,8 +374,15 @@ def cmd_publish(args):
         if delay > 0:
             time.sleep(delay / 1e9)
         out.write(detection)
-        sent.append({"stamp_ns": stamp_ns(detection.header.stamp), "send_ns": time.monotonic_ns()})
+        if keep:
+            sent.append({"stamp_ns": stamp_ns(detection.header.stamp), "send_ns": time.monotonic_ns()})
     time.sleep(args.linger)
+    if not keep:
+        result = {"sent": len(detections), "states": states.count, "intercepts": intercepts.count}
+        write_json(args.out, result)
+        print(f"dds_peer: sent {len(detections)} detections in {(time.monotonic_ns() - start) / 1e9:.1f} s, "
+              f"received {states.count} states, {intercepts.count} intercepts", file=sys.stderr)
+        return 0
 
     result = {"sent": sent, "states": states.snapshot(), "intercepts": intercepts.snapshot()}
     result["latency_ms"] = latency_ms(sent, result["states"])
@@ -557,6 +568,8 @@ def main(argv=None):
     p.add_argument("--rate", type=float, default=1.0, help="playback speed factor (default %(default)s)")
     p.add_argument("--first", type=int, default=0, help="index of the first detection to send (default 0)")
     p.add_argument("--count", type=int, default=0, help="how many to send (default: all from --first)")
+    p.add_argument("--count-only", action="store_true",
+                   help="keep counts only, not every sample (long runs); writes {sent, states, intercepts}")
     p.add_argument("--wait-match", type=float, default=10.0, metavar="SECONDS",
                    help="how long to wait for a subscriber (default %(default)s)")
     p.add_argument("--linger", type=float, default=2.0, metavar="SECONDS",
