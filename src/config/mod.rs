@@ -401,10 +401,12 @@ impl Default for GatingParams {
 #[serde(deny_unknown_fields)]
 pub struct TrackingParams {
     /// A gap between detections longer than this starts a new track [s] (15 frames at 150 fps).
+    /// A stamp this far off the track's, either way, is held until the next detection confirms
+    /// the jump or shows a glitch (see `Estimator::update`).
     pub timeout: f64,
     /// Out-of-order detections older than this behind the newest fused one are dropped and
     /// counted [s]; newer ones are fused by rolling the filter back. Covers the latency difference
-    /// of the two cameras (8 ms vs 4 ms) with margin.
+    /// of the two cameras (8 ms vs 4 ms) with margin. At most `timeout`.
     pub rollback_window: f64,
     /// The state is reported as COASTING when no detection was fused for this long [s]
     /// (3 frames at 150 fps).

@@ -573,6 +573,13 @@ impl Config {
         c.non_negative("tracking.rollback_window", tr.rollback_window);
         c.positive("tracking.coast_after", tr.coast_after);
         c.at_most(
+            "tracking.rollback_window",
+            tr.rollback_window,
+            "tracking.timeout",
+            tr.timeout,
+            "a stamp further off than the timeout is a jump, not a late detection",
+        );
+        c.at_most(
             "tracking.coast_after",
             tr.coast_after,
             "tracking.timeout",
@@ -779,6 +786,7 @@ mod tests {
     fn consistency_between_keys() {
         let mut c = Config::default();
         c.tracking.coast_after = 0.2;
+        c.tracking.rollback_window = 0.5;
         c.prediction.trajectory_dt = 2.0;
         let v = violations(&c);
         assert_eq!(
@@ -790,6 +798,13 @@ mod tests {
                     limit_key: "prediction.horizon".to_owned(),
                     limit: 1.5,
                     reason: "a trajectory needs at least one sample after its start",
+                },
+                Violation::Exceeds {
+                    key: "tracking.rollback_window".to_owned(),
+                    value: 0.5,
+                    limit_key: "tracking.timeout".to_owned(),
+                    limit: 0.1,
+                    reason: "a stamp further off than the timeout is a jump, not a late detection",
                 },
                 Violation::Exceeds {
                     key: "tracking.coast_after".to_owned(),
