@@ -27,7 +27,8 @@ fn default_prediction_shows_the_bounce_and_the_hitting_plane() {
 
 #[test]
 fn csv_has_a_header_and_one_row_per_sample() {
-    let dir = std::env::temp_dir().join(format!("ttball-predict-{}", std::process::id()));
+    let dir = std::path::Path::new(env!("CARGO_TARGET_TMPDIR"))
+        .join(format!("predict-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let path = dir.join("flight.csv");
     let out = ttball(&[

@@ -95,7 +95,8 @@ fn the_aimed_command_lands_on_the_target_through_rebound() {
 
 #[test]
 fn the_chart_is_written() {
-    let dir = std::env::temp_dir().join(format!("ttball-rebound-{}", std::process::id()));
+    let dir = std::path::Path::new(env!("CARGO_TARGET_TMPDIR"))
+        .join(format!("rebound-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let path = dir.join("e.svg");
     let out = ttball(&["rebound", "--chart", path.to_str().unwrap()]);

@@ -47,7 +47,8 @@ fn small_bag() -> &'static [u8] {
             },
         )
         .unwrap();
-        let path = std::env::temp_dir().join(format!("ttball-props-{}.mcap", std::process::id()));
+        let path = std::path::Path::new(env!("CARGO_TARGET_TMPDIR"))
+            .join(format!("props-{}.mcap", std::process::id()));
         ttball::record::write_session(&session, &config, &path, true).unwrap();
         let bytes = std::fs::read(&path).unwrap();
         let _ = std::fs::remove_file(&path);

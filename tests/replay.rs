@@ -21,7 +21,8 @@ use ttball::replay::{DETECTION_TYPE, ReplayError, STATE_TYPE, replay};
 use ttball::sim::{Cameras, SimOptions, simulate};
 
 fn dir(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("ttball-replay-{}-{name}", std::process::id()));
+    let d = Path::new(env!("CARGO_TARGET_TMPDIR"))
+        .join(format!("replay-{}-{name}", std::process::id()));
     std::fs::create_dir_all(&d).unwrap();
     d
 }

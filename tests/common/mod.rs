@@ -49,9 +49,10 @@ pub fn run_on_loopback_only(script: &str) -> std::process::ExitStatus {
     status
 }
 
-/// A fresh directory of this test process, under the system's temporary directory.
+/// A directory of this test process under Cargo's `target/tmp` (not the system's temporary
+/// directory: `cargo clean` removes what tests leave).
 pub fn scratch(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("ttball-{name}-{}", std::process::id()));
+    let d = Path::new(env!("CARGO_TARGET_TMPDIR")).join(format!("{name}-{}", std::process::id()));
     std::fs::create_dir_all(&d).unwrap_or_else(|e| panic!("cannot create {}: {e}", d.display()));
     d
 }
