@@ -3,8 +3,8 @@
 //! encapsulation header, then little-endian CDR from `cdr-encoding`, the serialiser ros2-client
 //! uses), log and publish times in nanoseconds.
 //!
-//! [`read_bag`] reads what it can: a truncated or corrupt file yields the messages before the
-//! damage and says where it stopped. Messages come back in log-time order. [`BagWriter`] writes
+//! [`BagReader`] (and [`read_bag`], [`read_bag_file`] on it) reads what it can: a corrupt chunk is
+//! skipped, a truncated file yields its complete records, and the damage says where. Messages come back in log-time order. [`BagWriter`] writes
 //! zstd-compressed chunks with the summary and indexes; [`BagWriter::finish`] must be called to
 //! finish the file (the caller does it on every path, Ctrl-C included).
 
@@ -15,6 +15,7 @@ use std::io::{BufReader, BufWriter, Read, Seek, SeekFrom, Write};
 use std::path::{Path, PathBuf};
 
 use byteorder::{BigEndian, LittleEndian};
+use mcap::records::op;
 use serde::Serialize;
 use serde::de::DeserializeOwned;
 
@@ -148,8 +149,13 @@ pub struct BagContents {
 impl BagContents {
     /// The index of the channel of a topic.
     pub fn channel(&self, topic: &str) -> Option<usize> {
-        self.channels.iter().position(|c| c.topic == topic)
+        channel_of(&self.channels, topic)
     }
+}
+
+/// The index of the channel of `topic` among `channels`.
+pub fn channel_of(channels: &[ChannelInfo], topic: &str) -> Option<usize> {
+    channels.iter().position(|c| c.topic == topic)
 }
 
 /// Reads a whole bag in memory (see [`BagReader`]): an MCAP file, or a rosbag2 directory (as
@@ -191,8 +197,8 @@ pub const REORDER_WINDOW: usize = 4096;
 /// without holding the file in memory: chunks are read and decompressed one at a time, and a
 /// window of [`REORDER_WINDOW`] messages puts them in log-time order (file order among equal
 /// times). The channels of a file's summary section are known at once; others are added as they
-/// appear. A truncated or corrupt file ends the stream with the messages before the damage, and
-/// [`Self::damage`] says where it stopped.
+/// appear. A chunk whose CRC fails or that does not decompress is skipped; a file cut off yields
+/// its complete records (those of a cut chunk included); [`Self::damage`] says what and where.
 pub struct BagReader {
     files: std::vec::IntoIter<PathBuf>,
     file: Option<FileStream>,
@@ -247,11 +253,6 @@ struct FileStream {
 
 /// Largest MCAP record accepted [bytes]: a corrupt length cannot make the reader buffer more.
 const RECORD_LENGTH_LIMIT: u64 = 1 << 28;
-
-/// MCAP record opcodes this reader acts on.
-const OP_FOOTER: u8 = 0x02;
-const OP_CHUNK: u8 = 0x06;
-const OP_DATA_END: u8 = 0x0F;
 
 /// The schema and channel records of one MCAP file.
 #[derive(Default)]
@@ -349,7 +350,7 @@ impl BagReader {
 
     /// The index of the channel of a topic.
     pub fn channel(&self, topic: &str) -> Option<usize> {
-        self.channels.iter().position(|c| c.topic == topic)
+        channel_of(&self.channels, topic)
     }
 
     /// What was damaged, when anything was: corrupt chunks skipped, and why reading stopped
@@ -487,7 +488,7 @@ impl FileStream {
             };
             *read += self.offset - at;
             if !complete {
-                if opcode == OP_CHUNK {
+                if opcode == op::CHUNK {
                     // What the cut-off chunk holds up to the end of the file is still read.
                     let _ = self.take_chunk(&body, at, false, channels);
                     let found = self.chunk.len();
@@ -502,8 +503,8 @@ impl FileStream {
                 return Err(format!("the file ends inside a record at byte {at}"));
             }
             match opcode {
-                OP_CHUNK => self.take_chunk(&body, at, true, channels)?,
-                OP_DATA_END | OP_FOOTER => self.finished = true,
+                op::CHUNK => self.take_chunk(&body, at, true, channels)?,
+                op::DATA_END | op::FOOTER => self.finished = true,
                 _ => {
                     let record = mcap::parse_record(opcode, &body)
                         .map_err(|e| format!("the record at byte {at}: {e}"))?;

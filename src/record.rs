@@ -23,38 +23,46 @@ pub fn write_session(
 ) -> Result<u64, BagError> {
     let mut writer = BagWriter::create(path)?;
     let detections = writer.channel(&config.topics.detections, DETECTION_TYPE)?;
-    let truth = writer.channel(&config.topics.truth, STATE_TYPE)?;
-    let events = writer.channel(&truth_intercept_topic(&config.topics.truth), INTERCEPT_TYPE)?;
+    // Without truth, no truth channels either: the bag is what a camera system records.
+    let truth_channels = if with_truth {
+        Some((
+            writer.channel(&config.topics.truth, STATE_TYPE)?,
+            writer.channel(&truth_intercept_topic(&config.topics.truth), INTERCEPT_TYPE)?,
+        ))
+    } else {
+        None
+    };
 
     // (log time, order, channel, payload), written in log-time order.
     let mut records: Vec<(u64, usize, u16, Vec<u8>)> = Vec::new();
-    for (k, shot) in session.shots.iter().enumerate().filter(|_| with_truth) {
-        let id = u32::try_from(k + 1).unwrap_or(u32::MAX);
-        let msg = truth_intercept_msg(
-            shot.launch_stamp,
-            id,
-            shot.intercept.stamp,
-            &shot.intercept.before,
-            shot.bounce.stamp,
-            &shot.bounce.before.position,
-        );
-        records.push((
-            mcap_time(shot.launch_stamp),
-            records.len(),
-            events,
-            encode(INTERCEPT_TYPE, &msg)?,
-        ));
+    if let Some((_, events)) = truth_channels {
+        for (k, shot) in session.shots.iter().enumerate() {
+            let id = u32::try_from(k + 1).unwrap_or(u32::MAX);
+            let msg = truth_intercept_msg(
+                shot.launch_stamp,
+                id,
+                shot.intercept.stamp,
+                &shot.intercept.before,
+                shot.bounce.stamp,
+                &shot.bounce.before.position,
+            );
+            records.push((
+                mcap_time(shot.launch_stamp),
+                records.len(),
+                events,
+                encode(INTERCEPT_TYPE, &msg)?,
+            ));
+        }
     }
     for sim in &session.stream {
         let t = mcap_time(sim.arrival);
-        let id = u32::try_from(sim.shot + 1).unwrap_or(u32::MAX);
         let detection = encode(DETECTION_TYPE, &detection_to_msg(&sim.detection))?;
         records.push((t, records.len(), detections, detection));
-        if !with_truth {
-            continue;
+        if let Some((truth, _)) = truth_channels {
+            let id = u32::try_from(sim.shot + 1).unwrap_or(u32::MAX);
+            let state = encode(STATE_TYPE, &truth_msg(sim.detection.stamp, id, &sim.truth))?;
+            records.push((t, records.len(), truth, state));
         }
-        let state = encode(STATE_TYPE, &truth_msg(sim.detection.stamp, id, &sim.truth))?;
-        records.push((t, records.len(), truth, state));
     }
     records.sort_by_key(|(t, order, _, _)| (*t, *order));
     for (t, _, channel, payload) in &records {

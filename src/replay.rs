@@ -15,7 +15,8 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
 use crate::bag::{
-    BagContents, BagError, BagMessage, BagReader, BagWriter, ChannelInfo, decode, read_bag_file,
+    BagContents, BagError, BagMessage, BagReader, BagWriter, ChannelInfo, channel_of, decode,
+    read_bag_file,
 };
 use crate::config::Config;
 use crate::detection::Detection;
@@ -150,10 +151,9 @@ struct BagTruth {
 
 /// The channels of the truth topics (states, shot events) among a bag's, when it has both.
 fn truth_channels(channels: &[ChannelInfo], config: &Config) -> Option<(usize, usize)> {
-    let find = |topic: &str| channels.iter().position(|c| c.topic == topic);
     Some((
-        find(&config.topics.truth)?,
-        find(&truth_intercept_topic(&config.topics.truth))?,
+        channel_of(channels, &config.topics.truth)?,
+        channel_of(channels, &truth_intercept_topic(&config.topics.truth))?,
     ))
 }
 
@@ -203,7 +203,7 @@ pub fn detection_channel(
     topic: &str,
     path: &Path,
 ) -> Result<usize, ReplayError> {
-    let Some(channel) = channels.iter().position(|c| c.topic == topic) else {
+    let Some(channel) = channel_of(channels, topic) else {
         let present: Vec<&str> = channels.iter().map(|c| c.topic.as_str()).collect();
         return Err(ReplayError::NoDetections {
             path: path.to_path_buf(),
@@ -279,7 +279,7 @@ pub fn replay(
         }
         None => None,
     };
-    // A bag with truth channels but no shots in them (`simulate --no-truth`) is not scored.
+    // Truth channels without a shot in them: nothing to score against.
     let mut scorer = truth
         .as_ref()
         .filter(|t| !t.shots.is_empty())

@@ -144,7 +144,7 @@ pub struct Counters {
     /// Detections near the table's edge that the other bounce hypothesis explained better.
     pub edge_retries: u64,
     /// Detections that claimed a spin of exactly zero (a detector's placeholder, not a
-    /// measurement): their position was used, their spin ignored.
+    /// measurement): their spin was ignored, the detection judged as a position alone.
     pub zero_spin_ignored: u64,
 }
 
@@ -338,8 +338,7 @@ pub(crate) fn measurement(settings: &Settings, d: &Detection) -> Result<Measurem
         Some(c) => c,
         None => Matrix3::identity() * noise.position_var,
     };
-    // An all-zero spin is a detector's placeholder, not a measurement.
-    let spin = d.spin.filter(|w| *w != Vector3::zeros());
+    let spin = d.spin.filter(|_| !claims_placeholder_spin(d));
     let r_spin = match (spin, d.spin_covariance, noise.spin_var) {
         (None, _, _) => None,
         (Some(_), Some(c), _) if !is_spd(&c) => return Err(Rejection::BadCovariance),
@@ -369,6 +368,11 @@ pub(crate) fn measurement(settings: &Settings, d: &Detection) -> Result<Measurem
 /// (an incoming ball falls from the net to its bounce).
 fn already_bounced(x: &crate::physics::StateVector) -> bool {
     x[0] < 0.0 && x[3] < 0.0 && x[5] > 0.0
+}
+
+/// A detection whose spin is exactly zero: a detector's placeholder, not a measurement.
+fn claims_placeholder_spin(d: &Detection) -> bool {
+    d.spin.is_some_and(|w| w == Vector3::zeros())
 }
 
 /// Two detections of the same camera frame: a duplicate.
@@ -541,7 +545,7 @@ impl Estimator {
     /// track's estimate, not moved to its stamp.
     pub fn update(&mut self, detection: &Detection) -> Verdict {
         self.counters.received += 1;
-        if detection.spin.is_some_and(|w| w == Vector3::zeros()) {
+        if claims_placeholder_spin(detection) {
             self.counters.zero_spin_ignored += 1;
         }
         let verdict = match self.measurement(detection) {

@@ -437,8 +437,8 @@ mod tests {
         assert!(back.magnus.z > 1.0);
     }
 
-    /// The propagator's fused evaluation gives the same derivative, bit for bit, and the same
-    /// Jacobian as the separate ones, at rest, at clamped and at ordinary spin parameters.
+    /// The block-structured products (with a matrix, a row, the flight Jacobian, a scaled sum)
+    /// equal the full 9x9 ones.
     #[test]
     fn flight_matrix_products_equal_the_full_ones() {
         let block = |seed: f64| Matrix3::from_fn(|i, j| (seed + (3 * i + j) as f64).sin());
@@ -482,6 +482,8 @@ mod tests {
         );
     }
 
+    /// The propagator's fused evaluation gives the same derivative, bit for bit, and the same
+    /// Jacobian as the separate ones, at rest, at clamped and at ordinary spin parameters.
     #[test]
     fn derivative_and_jacobian_together_equal_the_separate_ones() {
         let m = model();
