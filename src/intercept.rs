@@ -7,12 +7,22 @@
 //! timing uncertainty is included: the x row is zero (the ball is on the plane by definition) and
 //! the spread of the crossing time shows in y, z and the velocity; its own variance is
 //! dtau/dx P dtau/dx'.
+//!
+//! [`InterceptTracker`] keeps the interception up to date detection by detection: between full
+//! predictions it flies the last full prediction's start state along (its "anchor") and moves the
+//! crossing to first order in the estimate's drift from it, d = x - anchor: crossing state
+//! y + J d, time tau + dtau/dx d, covariance J P J', where J, the crossing's sensitivity to the
+//! anchor, is carried along by the inverse of the anchor's own flight transition
+//! (J_now = J_then Phi^-1; free-flight transitions form a group, [`crate::physics::FlightMatrix`]).
+//! It predicts in full again at any event on the anchor's way (a bounce, the net, the plane), when
+//! the drift exceeds its tolerances, and when the last full prediction is older than its age limit
+//! ([`Refresh`]).
 
-use nalgebra::Vector3;
+use nalgebra::{SMatrix, Vector3};
 
 use crate::physics::{
     BallState, Cursor, Event, EventKind, Flow, Observer, Outcome, Propagator, StateMatrix,
-    StateVector, Watch,
+    StateRow, StateVector, Watch,
 };
 
 /// Why there is no valid interception.
@@ -85,14 +95,95 @@ pub struct InterceptQuery {
     pub bounced_on_robot_half: bool,
 }
 
-struct Watcher {
-    robot_half_bounces: u32,
-    bounce: Option<PredictedBounce>,
-    result: Option<Result<Event, NoIntercept>>,
+/// d(an event's position and time)/d(the state predicted from).
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct BounceSensitivity {
+    position: SMatrix<f64, 3, 9>,
+    time: StateRow,
 }
 
-impl Observer for Watcher {
+/// d(state at the crossing)/d(state) and d(crossing time)/d(state).
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct CrossingSensitivity {
+    state: StateMatrix,
+    time: StateRow,
+}
+
+/// Most branch points a prediction may meet and still be moved to first order.
+const MAX_BRANCHES: usize = 8;
+
+/// The branch points of a prediction: at each, a margin whose sign decided the branch (a
+/// bounce's regime, where it lands, how the ball passes the net) and its gradient with respect
+/// to the state predicted from.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct Branches {
+    margins: [f64; MAX_BRANCHES],
+    gradients: SMatrix<f64, MAX_BRANCHES, 9>,
+    count: usize,
+    /// More than [`MAX_BRANCHES`], or one without its gradient.
+    overflow: bool,
+}
+
+impl Branches {
+    fn new() -> Self {
+        Self {
+            margins: [0.0; MAX_BRANCHES],
+            gradients: SMatrix::zeros(),
+            count: 0,
+            overflow: false,
+        }
+    }
+
+    /// Records a margin of the event state whose gradient there is `gradient`.
+    fn record(&mut self, event: &Event, (margin, gradient): (f64, StateRow)) {
+        match event.sensitivity {
+            Some(s) if self.count < MAX_BRANCHES => {
+                self.margins[self.count] = margin;
+                self.gradients
+                    .set_row(self.count, &(gradient * s.before));
+                self.count += 1;
+            }
+            _ => self.overflow = true,
+        }
+    }
+
+    /// True when a drift of the state keeps every branch: each margin moves by at most half of
+    /// itself (to first order).
+    fn kept_by(&self, drift: &StateVector) -> bool {
+        let moved = self.gradients * drift;
+        !self.overflow
+            && (0..self.count).all(|i| moved[i].abs() <= 0.5 * self.margins[i].abs())
+    }
+}
+
+struct Watcher<'a> {
+    propagator: &'a Propagator,
+    robot_half_bounces: u32,
+    bounce: Option<(PredictedBounce, Option<BounceSensitivity>)>,
+    result: Option<Result<Event, NoIntercept>>,
+    branches: Branches,
+}
+
+impl Observer for Watcher<'_> {
     fn on_event(&mut self, event: &Event) -> Flow {
+        match event.kind {
+            EventKind::TableBounce { .. } => {
+                let p = self.propagator;
+                self.branches
+                    .record(event, p.bounce().regime_margin(&event.before));
+                self.branches
+                    .record(event, p.landing_margin(&event.before));
+            }
+            EventKind::Net { .. } => {
+                self.branches
+                    .record(event, self.propagator.net_margin(&event.before));
+            }
+            EventKind::TableMiss { .. } => {
+                self.branches
+                    .record(event, self.propagator.outline_margin(&event.before));
+            }
+            _ => {}
+        }
         match event.kind {
             EventKind::TableBounce { .. } if event.before[0] < 0.0 => {
                 self.robot_half_bounces += 1;
@@ -100,10 +191,15 @@ impl Observer for Watcher {
                     self.result = Some(Err(NoIntercept::TwoBounces));
                     return Flow::Stop;
                 }
-                self.bounce = Some(PredictedBounce {
+                let bounce = PredictedBounce {
                     time: event.t,
                     position: event.before.fixed_rows::<3>(0).into_owned(),
+                };
+                let sensitivity = event.sensitivity.map(|s| BounceSensitivity {
+                    position: s.before.fixed_rows::<3>(0).into_owned(),
+                    time: s.time_gradient,
                 });
+                self.bounce = Some((bounce, sensitivity));
             }
             EventKind::Plane { .. } if event.before[3] < 0.0 => {
                 self.result = Some(if self.robot_half_bounces == 1 {
@@ -128,7 +224,26 @@ pub fn predict_intercept(
     p: &StateMatrix,
     query: &InterceptQuery,
 ) -> Intercept {
+    predict_in_full(propagator, x, p, query).0
+}
+
+/// Sensitivities of a predicted interception to the state it was predicted from.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct Sensitivity {
+    crossing: Option<CrossingSensitivity>,
+    bounce: Option<BounceSensitivity>,
+    branches: Branches,
+}
+
+fn predict_in_full(
+    propagator: &Propagator,
+    x: &StateVector,
+    p: &StateMatrix,
+    query: &InterceptQuery,
+) -> (Intercept, Sensitivity) {
     let mut watcher = Watcher {
+        propagator,
+        branches: Branches::new(),
         robot_half_bounces: u32::from(query.bounced_on_robot_half),
         bounce: None,
         result: None,
@@ -136,37 +251,290 @@ pub fn predict_intercept(
     let mut cursor = Cursor::tracking(0.0, *x);
     let watch = Watch {
         plane_x: Some(query.plane_x),
+        table_misses: true,
         ..Watch::FLIGHT
     };
     let outcome = propagator.advance(&mut cursor, query.horizon, watch, &mut watcher);
     let crossing = match (watcher.result, outcome) {
-        (Some(Ok(event)), _) => Ok(crossing_of(&event, p)),
+        (Some(Ok(event)), _) => Ok(event),
         (Some(Err(reason)), _) => Err(reason),
         (None, Outcome::Terminated(EventKind::Floor)) => Err(NoIntercept::MissesTable),
         (None, Outcome::Terminated(_)) => Err(NoIntercept::NetHit),
         (None, _) => Err(NoIntercept::NotWithinHorizon),
     };
-    Intercept {
-        crossing,
-        bounce: watcher.bounce,
-    }
+    let crossing_sensitivity = crossing.ok().and_then(|event| {
+        event.sensitivity.map(|s| CrossingSensitivity {
+            state: s.before,
+            time: s.time_gradient,
+        })
+    });
+    let intercept = Intercept {
+        crossing: crossing.map(|event| {
+            crossing_with(
+                event.t,
+                BallState::from_vector(&event.before),
+                crossing_sensitivity.as_ref(),
+                p,
+            )
+        }),
+        bounce: watcher.bounce.map(|(bounce, _)| bounce),
+    };
+    let sensitivity = Sensitivity {
+        crossing: crossing_sensitivity,
+        bounce: watcher.bounce.and_then(|(_, s)| s),
+        branches: watcher.branches,
+    };
+    (intercept, sensitivity)
 }
 
-fn crossing_of(event: &Event, p: &StateMatrix) -> Crossing {
-    let (covariance, time_sigma) = match event.sensitivity {
+/// A crossing at `time` in `state`, its covariance from the sensitivities and `p`.
+fn crossing_with(
+    time: f64,
+    state: BallState,
+    sensitivity: Option<&CrossingSensitivity>,
+    p: &StateMatrix,
+) -> Crossing {
+    let (covariance, time_sigma) = match sensitivity {
         Some(s) => {
-            let j = s.before;
-            let cov = j * p * j.transpose();
-            let var_t = (s.time_gradient * p * s.time_gradient.transpose())[(0, 0)];
+            let cov = s.state * p * s.state.transpose();
+            let var_t = (s.time * p * s.time.transpose())[(0, 0)];
             ((cov + cov.transpose()) * 0.5, var_t.max(0.0).sqrt())
         }
         None => (StateMatrix::zeros(), 0.0),
     };
     Crossing {
-        time: event.t,
+        time,
         time_sigma,
-        state: BallState::from_vector(&event.before),
+        state,
         covariance,
+    }
+}
+
+/// When an [`InterceptTracker`] predicts in full again rather than moving the last full
+/// prediction to first order.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Refresh {
+    /// Longest time between two full predictions [s]; 0 predicts in full at every call.
+    pub max_age: f64,
+    /// Largest drift of the estimated position from the anchor's [m].
+    pub position: f64,
+    /// Largest drift of the estimated velocity [m/s].
+    pub velocity: f64,
+    /// Largest drift of the estimated spin [rad/s].
+    pub spin: f64,
+}
+
+impl From<&crate::config::RefreshParams> for Refresh {
+    fn from(p: &crate::config::RefreshParams) -> Self {
+        Self {
+            max_age: p.max_age,
+            position: p.position,
+            velocity: p.velocity,
+            spin: p.spin,
+        }
+    }
+}
+
+impl Refresh {
+    /// Predicts in full at every call.
+    pub const ALWAYS: Self = Self {
+        max_age: 0.0,
+        position: 0.0,
+        velocity: 0.0,
+        spin: 0.0,
+    };
+
+    fn admits(&self, drift: &StateVector) -> bool {
+        let norm = |i: usize| drift.fixed_rows::<3>(i).norm();
+        norm(0) <= self.position && norm(3) <= self.velocity && norm(6) <= self.spin
+    }
+}
+
+/// How many interceptions a tracker predicted in full and how many it moved.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct TrackerCounts {
+    /// Predicted in full.
+    pub full: u64,
+    /// Moved to first order from the last full prediction.
+    pub moved: u64,
+}
+
+/// The last full prediction, its start state flown to the latest stamp.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct Anchor {
+    track_id: u32,
+    query: InterceptQuery,
+    /// Stamp of `flown` [ns].
+    stamp: i64,
+    /// The full prediction's start state, flown to `stamp`.
+    flown: StateVector,
+    /// Time from the full prediction's start to `stamp` [s].
+    elapsed: f64,
+    /// The full prediction (times from its start).
+    base: Intercept,
+    /// Its sensitivities to `flown`.
+    sensitivity: Sensitivity,
+}
+
+/// Observes whether a propagation met any event.
+struct AnyEvent(bool);
+
+impl Observer for AnyEvent {
+    fn on_event(&mut self, _event: &Event) -> Flow {
+        self.0 = true;
+        Flow::Stop
+    }
+}
+
+impl Anchor {
+    /// The anchor flown on by `dt` seconds, its sensitivities carried along; `None` when the
+    /// flight meets an event (the last full prediction's events are then at hand).
+    fn flown_on(&self, propagator: &Propagator, dt: f64, stamp: i64) -> Option<Self> {
+        let mut cursor = Cursor::tracking(0.0, self.flown);
+        let watch = Watch {
+            plane_x: Some(self.query.plane_x),
+            table_misses: true,
+            ..Watch::FLIGHT
+        };
+        let mut event = AnyEvent(false);
+        propagator.advance(&mut cursor, dt, watch, &mut event);
+        if event.0 {
+            return None;
+        }
+        let back = cursor.tangent?.free_flight()?.inverse()?;
+        let crossing = self.sensitivity.crossing.map(|s| CrossingSensitivity {
+            state: back.premultiplied_by(&s.state),
+            time: back.premultiplied_by(&s.time),
+        });
+        let bounce = self.sensitivity.bounce.map(|s| BounceSensitivity {
+            position: back.premultiplied_by(&s.position),
+            time: back.premultiplied_by(&s.time),
+        });
+        let mut branches = self.sensitivity.branches;
+        branches.gradients = back.premultiplied_by(&branches.gradients);
+        Some(Self {
+            stamp,
+            flown: cursor.state,
+            elapsed: self.elapsed + dt,
+            sensitivity: Sensitivity {
+                crossing,
+                bounce,
+                branches,
+            },
+            ..*self
+        })
+    }
+
+    /// The interception from `x` (covariance `p`) at the anchor's stamp, to first order in its
+    /// drift from the anchor; `None` when a sensitivity is missing or the crossing or the bounce
+    /// comes so soon that the drift could move it into the past (an event ahead is a branch too).
+    fn moved_to(&self, x: &StateVector, p: &StateMatrix) -> Option<Intercept> {
+        let drift = x - self.flown;
+        let ahead = |time: f64, gradient: &StateRow| {
+            let ahead = time - self.elapsed;
+            let moved = gradient.dot(&drift.transpose());
+            (moved.abs() <= 0.5 * ahead).then_some(ahead + moved)
+        };
+        let crossing = match self.base.crossing {
+            Ok(c) => {
+                let s = self.sensitivity.crossing?;
+                let state = BallState::from_vector(&(c.state.to_vector() + s.state * drift));
+                let time = ahead(c.time, &s.time)?;
+                Ok(crossing_with(time, state, Some(&s), p))
+            }
+            Err(reason) => Err(reason),
+        };
+        let bounce = match (self.base.bounce, self.sensitivity.bounce) {
+            (Some(b), Some(s)) => Some(PredictedBounce {
+                time: ahead(b.time, &s.time)?,
+                position: b.position + s.position * drift,
+            }),
+            (None, _) => None,
+            (Some(_), None) => return None,
+        };
+        Some(Intercept { crossing, bounce })
+    }
+}
+
+/// Keeps the interception of one track up to date from call to call (see the module doc); the
+/// calls' stamps must not go back (a call that does predicts in full).
+#[derive(Debug, Clone, PartialEq)]
+pub struct InterceptTracker {
+    refresh: Refresh,
+    anchor: Option<Anchor>,
+    counts: TrackerCounts,
+}
+
+impl InterceptTracker {
+    /// A tracker that predicts in full as `refresh` says.
+    pub fn new(refresh: Refresh) -> Self {
+        Self {
+            refresh,
+            anchor: None,
+            counts: TrackerCounts::default(),
+        }
+    }
+
+    /// How many interceptions were predicted in full and how many moved.
+    pub fn counts(&self) -> TrackerCounts {
+        self.counts
+    }
+
+    /// The interception of track `track_id` from state `x` with covariance `p` at `stamp` [ns].
+    pub fn predict(
+        &mut self,
+        propagator: &Propagator,
+        track_id: u32,
+        stamp: i64,
+        x: &StateVector,
+        p: &StateMatrix,
+        query: &InterceptQuery,
+    ) -> Intercept {
+        if let Some(intercept) = self.move_anchor(propagator, track_id, stamp, x, p, query) {
+            self.counts.moved += 1;
+            return intercept;
+        }
+        let (base, sensitivity) = predict_in_full(propagator, x, p, query);
+        self.counts.full += 1;
+        self.anchor = (self.refresh.max_age > 0.0).then_some(Anchor {
+            track_id,
+            query: *query,
+            stamp,
+            flown: *x,
+            elapsed: 0.0,
+            base,
+            sensitivity,
+        });
+        base
+    }
+
+    fn move_anchor(
+        &mut self,
+        propagator: &Propagator,
+        track_id: u32,
+        stamp: i64,
+        x: &StateVector,
+        p: &StateMatrix,
+        query: &InterceptQuery,
+    ) -> Option<Intercept> {
+        let anchor = self.anchor.as_ref()?;
+        if anchor.track_id != track_id || anchor.query != *query || stamp < anchor.stamp {
+            return None;
+        }
+        let dt = (stamp - anchor.stamp) as f64 * 1e-9;
+        if anchor.elapsed + dt > self.refresh.max_age {
+            return None;
+        }
+        if dt > 0.0 {
+            let flown = anchor.flown_on(propagator, dt, stamp)?;
+            self.anchor = Some(flown);
+        }
+        let anchor = self.anchor.as_ref()?;
+        let drift = x - anchor.flown;
+        if !self.refresh.admits(&drift) || !anchor.sensitivity.branches.kept_by(&drift) {
+            return None;
+        }
+        anchor.moved_to(x, p)
     }
 }
 
@@ -233,3 +601,4 @@ mod tests {
         );
     }
 }
+

@@ -490,6 +490,7 @@ impl Stroke {
             net: false,
             floor: false,
             plane_x: Some(0.0),
+            table_misses: false,
         };
         Some(
             self.first_bounce(&self.solver_propagator, watch, &hit.ball)

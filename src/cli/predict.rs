@@ -178,6 +178,9 @@ fn report(
                 format!("net crossed ({:.0} mm clearance)", clearance * 1e3)
             }
             EventKind::Floor => "floor".to_string(),
+            EventKind::TableMiss { distance } => {
+                format!("table missed ({:.0} mm outside)", distance * 1e3)
+            }
             EventKind::Plane { x } => format!("hitting plane x = {x:.3} m"),
         };
         let _ = write!(out, "{:8.4}  {:<38}", event.t, label);

@@ -271,11 +271,43 @@ pub struct InterceptParams {
     /// The robot's hitting plane is x = plane_x in the table frame [m]. Default: 0.23 m behind the
     /// robot's baseline (x = -1.37 m), where an incoming ball has bounced and is near its apex.
     pub plane_x: f64,
+    /// When the interception after a detection is predicted in full again rather than moved to
+    /// first order from the last full prediction.
+    pub refresh: RefreshParams,
 }
 
 impl Default for InterceptParams {
     fn default() -> Self {
-        Self { plane_x: -1.6 }
+        Self {
+            plane_x: -1.6,
+            refresh: RefreshParams::default(),
+        }
+    }
+}
+
+/// Limits of the first-order interception update (see `intercept::InterceptTracker`): past any
+/// of them, or at an event or a change of branch, the interception is predicted in full.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RefreshParams {
+    /// Longest time between two full predictions [s]; 0 predicts in full after every detection.
+    pub max_age: f64,
+    /// Largest drift of the estimated position from the last full prediction's flight [m].
+    pub position: f64,
+    /// Largest drift of the estimated velocity [m/s].
+    pub velocity: f64,
+    /// Largest drift of the estimated spin [rad/s].
+    pub spin: f64,
+}
+
+impl Default for RefreshParams {
+    fn default() -> Self {
+        Self {
+            max_age: 0.1,
+            position: 0.01,
+            velocity: 0.05,
+            spin: 3.0,
+        }
     }
 }
 

@@ -530,6 +530,17 @@ impl Config {
              the robot's baseline is at -1.37)",
         );
 
+        let r = &self.intercept.refresh;
+        c.real(
+            "intercept.refresh.max_age",
+            r.max_age,
+            |v| (0.0..=1.0).contains(&v),
+            "between 0 and 1 (seconds; 0 predicts in full after every detection)",
+        );
+        c.non_negative("intercept.refresh.position", r.position);
+        c.non_negative("intercept.refresh.velocity", r.velocity);
+        c.non_negative("intercept.refresh.spin", r.spin);
+
         c.source("sources.wide_150fps", &self.sources.wide_150fps);
         c.source("sources.highspeed_900fps", &self.sources.highspeed_900fps);
         c.source("sources.unknown", &self.sources.unknown);

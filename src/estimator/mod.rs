@@ -28,7 +28,7 @@ use nalgebra::{Matrix3, Matrix6, SVector, Vector3};
 use crate::config::{Config, SourceParams};
 use crate::detection::{Detection, Source, seconds_to_ns};
 use crate::ekf::{Ekf, ProcessNoise, UpdateError, position_H, position_spin_H};
-use crate::intercept::{Intercept, InterceptQuery, predict_intercept};
+use crate::intercept::{Intercept, InterceptQuery, InterceptTracker, Refresh};
 use crate::physics::{
     BallState, FlightModel, PredictOptions, Propagator, StateMatrix, Trajectory, predict,
 };
@@ -439,6 +439,8 @@ pub struct Estimator {
     /// A detection that jumped more than `tracking.timeout` off the current stamps, held until
     /// the next detection confirms the jump or shows it was a glitch (see [`Self::update`]).
     held: Option<(Detection, Measurement)>,
+    /// The interception kept up to date from detection to detection.
+    intercepts: InterceptTracker,
 }
 
 /// How far from the table's edge [m] a detection is also fused with the table grown and shrunk
@@ -472,6 +474,7 @@ impl Estimator {
             edge_alternatives: [EDGE_MARGIN, -EDGE_MARGIN].map(|m| propagator.with_edge_margin(m)),
             edge_retries: std::cell::Cell::new(0),
             held: None,
+            intercepts: InterceptTracker::new(Refresh::from(&config.intercept.refresh)),
             propagator,
             settings,
         }
@@ -621,7 +624,7 @@ impl Estimator {
         }
     }
 
-    fn output(&self, verdict: Verdict, stamp: i64) -> Output {
+    fn output(&mut self, verdict: Verdict, stamp: i64) -> Output {
         let Some(track) = &self.track else {
             return Output {
                 verdict,
@@ -642,15 +645,18 @@ impl Estimator {
             track.now
         };
         let estimate = self.estimate_of(track, &snapshot, stamp);
-        let intercept = predict_intercept(
+        let query = InterceptQuery {
+            plane_x: self.settings.plane_x,
+            horizon: self.settings.horizon,
+            bounced_on_robot_half: snapshot.robot_half_bounces > 0,
+        };
+        let intercept = self.intercepts.predict(
             &self.propagator,
+            track.id,
+            snapshot.stamp,
             &snapshot.ekf.x,
             &snapshot.ekf.P,
-            &InterceptQuery {
-                plane_x: self.settings.plane_x,
-                horizon: self.settings.horizon,
-                bounced_on_robot_half: snapshot.robot_half_bounces > 0,
-            },
+            &query,
         );
         Output {
             verdict,
@@ -1067,3 +1073,4 @@ impl Estimator {
         true
     }
 }
+

@@ -175,6 +175,41 @@ impl FlightMatrix {
         out
     }
 
+    /// The product `m self` with any matrix of 9 columns.
+    #[inline]
+    pub fn premultiplied_by<const R: usize>(&self, m: &SMatrix<f64, R, 9>) -> SMatrix<f64, R, 9> {
+        let mp = m.fixed_columns::<3>(0);
+        let mv = m.fixed_columns::<3>(VELOCITY);
+        let mw = m.fixed_columns::<3>(SPIN);
+        let mut out = SMatrix::<f64, R, 9>::zeros();
+        out.fixed_columns_mut::<3>(0)
+            .copy_from(&(mp * self.position));
+        out.fixed_columns_mut::<3>(VELOCITY)
+            .copy_from(&(mp * self.pv + mv * self.vv));
+        out.fixed_columns_mut::<3>(SPIN)
+            .copy_from(&(mp * self.pw + mv * self.vw + mw * self.spin));
+        out
+    }
+
+    /// The inverse (block back-substitution; free-flight matrices form a group), or `None` when
+    /// the velocity block is singular.
+    pub fn inverse(&self) -> Option<Self> {
+        let vv = self.vv.try_inverse()?;
+        if self.position == 0.0 || self.spin == 0.0 {
+            return None;
+        }
+        let (position, spin) = (1.0 / self.position, 1.0 / self.spin);
+        let pv_vv = self.pv * vv;
+        Some(Self {
+            position,
+            pv: -pv_vv * position,
+            pw: (pv_vv * self.vw - self.pw) * (position * spin),
+            vv,
+            vw: -vv * self.vw * spin,
+            spin,
+        })
+    }
+
     /// Row `i` of the full matrix.
     pub fn row(&self, i: usize) -> SMatrix<f64, 1, 9> {
         let mut out = SMatrix::<f64, 1, 9>::zeros();
@@ -446,7 +481,8 @@ mod tests {
             position: 0.9,
             pv: block(1.0),
             pw: block(2.0),
-            vv: block(3.0),
+            // Well conditioned, as over a stretch of flight (a near-identity velocity block).
+            vv: Matrix3::identity() + Matrix3::from_fn(|i, j| 0.3 * ((i * i + 2 * j) as f64).cos()),
             vw: block(4.0),
             spin: 0.7,
         };
@@ -480,6 +516,24 @@ mod tests {
             full * 1.5,
             epsilon = 1e-14
         );
+        let rows = SMatrix::<f64, 4, 9>::from_fn(|i, j| ((9 * i + j) as f64 * 0.53).sin());
+        assert_relative_eq!(f.premultiplied_by(&rows), rows * full, epsilon = 1e-14);
+        let inverse = f.inverse().expect("invertible");
+        assert_relative_eq!(
+            inverse.to_matrix(),
+            full.try_inverse().expect("invertible"),
+            epsilon = 1e-9
+        );
+        assert_relative_eq!(
+            inverse.times(&full),
+            SMatrix::<f64, 9, 9>::identity(),
+            epsilon = 1e-12
+        );
+        let singular = FlightMatrix {
+            vv: Matrix3::zeros(),
+            ..f
+        };
+        assert_eq!(singular.inverse(), None);
     }
 
     /// The propagator's fused evaluation gives the same derivative, bit for bit, and the same

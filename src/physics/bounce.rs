@@ -14,7 +14,7 @@
 
 use nalgebra::{Matrix2, SMatrix, Vector2};
 
-use super::state::{SPIN, StateMatrix, StateVector, VELOCITY};
+use super::state::{SPIN, StateMatrix, StateRow, StateVector, VELOCITY};
 use crate::config::Config;
 
 /// Tangential impulse ratio at which the contact point stops slipping (thin shell: 2/5).
@@ -62,6 +62,25 @@ impl TableBounce {
     pub fn slip(&self, x: &StateVector) -> Vector2<f64> {
         let r = self.radius;
         Vector2::new(x[VELOCITY] - r * x[SPIN + 1], x[VELOCITY + 1] + r * x[SPIN])
+    }
+
+    /// The margin that decides the regime of an impact in state `x`,
+    /// mu (1 + e) |v_z| - 2/5 |u| [m/s] (rolling when >= 0, sliding below), and its gradient.
+    pub fn regime_margin(&self, x: &StateVector) -> (f64, StateRow) {
+        let k = self.friction * (1.0 + self.restitution);
+        let vz = x[VELOCITY + 2];
+        let u = self.slip(x);
+        let u_norm = u.norm();
+        let mut gradient = StateRow::zeros();
+        gradient[VELOCITY + 2] = if vz < 0.0 { -k } else { k };
+        if u_norm > 0.0 {
+            let u_hat = u * (ROLLING_ALPHA / u_norm);
+            gradient[VELOCITY] -= u_hat.x;
+            gradient[SPIN + 1] += self.radius * u_hat.x;
+            gradient[VELOCITY + 1] -= u_hat.y;
+            gradient[SPIN] -= self.radius * u_hat.y;
+        }
+        (k * vz.abs() - ROLLING_ALPHA * u_norm, gradient)
     }
 
     /// The state just after an impact with the table, and its Jacobian.

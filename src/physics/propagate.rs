@@ -50,6 +50,12 @@ impl Tangent {
         self.through(&self.flight)
     }
 
+    /// The state-transition matrix in its block structure when the propagation met no event (the
+    /// transition of free flight); `None` after an event.
+    pub fn free_flight(&self) -> Option<&FlightMatrix> {
+        (self.until_event.is_none() && self.time_gradient == StateRow::zeros()).then_some(&self.flight)
+    }
+
     /// `transition * p * transition'`: a covariance `p` of the initial state carried to the
     /// current state (in the flight's block structure before any event).
     pub fn carry_covariance(&self, p: &StateMatrix) -> StateMatrix {
@@ -133,6 +139,8 @@ pub struct Watch {
     pub floor: bool,
     /// Report crossings of the plane x = this value [m].
     pub plane_x: Option<f64>,
+    /// Report a ball that passes the table's level outside its outline ([`EventKind::TableMiss`]).
+    pub table_misses: bool,
 }
 
 impl Watch {
@@ -141,12 +149,14 @@ impl Watch {
         net: true,
         floor: true,
         plane_x: None,
+        table_misses: false,
     };
     /// Table bounces only (the filter's process model: it must not stop at a net or the floor).
     pub const BOUNCES: Self = Self {
         net: false,
         floor: false,
         plane_x: None,
+        table_misses: false,
     };
 }
 
@@ -167,6 +177,12 @@ pub enum EventKind {
     },
     /// The ball reached the floor (the propagation stops there).
     Floor,
+    /// The ball centre passed the table's level (z = r, moving down) outside its outline: a
+    /// near miss when `distance` is small (reported only when watched).
+    TableMiss {
+        /// Distance of the ball centre from the outline [m].
+        distance: f64,
+    },
     /// The ball centre crossed the watched plane x = const.
     Plane {
         /// The plane's x [m].
@@ -269,6 +285,8 @@ impl TangentStep {
 #[derive(Debug, Clone, Copy, PartialEq)]
 enum Surface {
     Table,
+    /// The table's level outside its outline.
+    TableMiss,
     Net,
     Floor,
     Plane(f64),
@@ -278,7 +296,7 @@ impl Surface {
     /// The state component the surface's event function depends on (x or z).
     fn axis(&self) -> usize {
         match self {
-            Self::Table | Self::Floor => 2,
+            Self::Table | Self::TableMiss | Self::Floor => 2,
             Self::Net | Self::Plane(_) => 0,
         }
     }
@@ -337,6 +355,56 @@ impl Propagator {
     /// The distance of a ball centre from the table's outline in the plane [m]: negative inside.
     pub fn distance_outside_table(&self, x: f64, y: f64) -> f64 {
         (x.abs() - self.half_length).max(y.abs() - self.half_width)
+    }
+
+    /// Where a bounce in state `x` lands relative to the lines that decide what it means, the
+    /// table's outline and the net's line x = 0: the distance to the nearer [m] (positive on
+    /// the table), and its gradient.
+    pub fn landing_margin(&self, x: &StateVector) -> (f64, StateRow) {
+        let (inside, gradient) = self.outline_margin(x);
+        let to_net = x[0].abs();
+        if to_net < inside {
+            let mut gradient = StateRow::zeros();
+            gradient[0] = if x[0] < 0.0 { -1.0 } else { 1.0 };
+            (to_net, gradient)
+        } else {
+            (inside, gradient)
+        }
+    }
+
+    /// The signed distance of a ball centre in state `x` from the table's outline (as grown or
+    /// shrunk by the edge margin) in the plane [m], positive inside, and its gradient.
+    pub fn outline_margin(&self, x: &StateVector) -> (f64, StateRow) {
+        let sign = |v: f64| if v < 0.0 { -1.0 } else { 1.0 };
+        let to_end = self.half_length + self.edge_margin - x[0].abs();
+        let to_side = self.half_width + self.edge_margin - x[1].abs();
+        let mut gradient = StateRow::zeros();
+        if to_end <= to_side {
+            gradient[0] = -sign(x[0]);
+            (to_end, gradient)
+        } else {
+            gradient[1] = -sign(x[1]);
+            (to_side, gradient)
+        }
+    }
+
+    /// How a net crossing in state `x` misses the net [m]: the largest of the ball's clearance
+    /// over the net, its distance beyond a post and its depth under the table top (negative for
+    /// a hit: all three negative), and its gradient.
+    pub fn net_margin(&self, x: &StateVector) -> (f64, StateRow) {
+        let clearance = x[2] - self.radius - self.net_height;
+        let beside = x[1].abs() - self.net_half_span;
+        let below = -(x[2] + self.radius);
+        let margin = clearance.max(beside).max(below);
+        let mut gradient = StateRow::zeros();
+        if margin == clearance {
+            gradient[2] = 1.0;
+        } else if margin == beside {
+            gradient[1] = if x[1] < 0.0 { -1.0 } else { 1.0 };
+        } else {
+            gradient[2] = -1.0;
+        }
+        (margin, gradient)
     }
 
     /// The flight model.
@@ -447,6 +515,11 @@ impl Propagator {
                         && cursor.state[1].abs() < self.net_half_span;
                     self.passing_event(cursor, EventKind::Net { clearance, hit })
                 }
+                Surface::TableMiss => {
+                    cursor.state[axis] = self.radius;
+                    let distance = self.outline_margin(&cursor.state).0.abs();
+                    self.passing_event(cursor, EventKind::TableMiss { distance })
+                }
                 Surface::Floor => {
                     cursor.state[axis] = self.radius + self.floor_z;
                     self.passing_event(cursor, EventKind::Floor)
@@ -544,6 +617,9 @@ impl Propagator {
                 continue;
             }
             if surface == Surface::Table && !self.over_table(&self.rk4(start, tau)) {
+                if watch.table_misses {
+                    first = Some((Surface::TableMiss, tau));
+                }
                 continue;
             }
             first = Some((surface, tau));
@@ -554,7 +630,7 @@ impl Propagator {
     /// The signed distance of the state from a surface, zero at the event [m].
     fn event_function(&self, surface: Surface, x: &StateVector) -> f64 {
         match surface {
-            Surface::Table => x[2] - self.radius,
+            Surface::Table | Surface::TableMiss => x[2] - self.radius,
             Surface::Floor => x[2] - self.radius - self.floor_z,
             Surface::Net => x[0],
             Surface::Plane(c) => x[0] - c,

@@ -358,6 +358,7 @@ fn landing(propagator: &Propagator, state: &BallState, horizon: f64) -> Vector3<
         net: false,
         floor: true,
         plane_x: None,
+        table_misses: false,
     };
     let _: Outcome = propagator.advance(&mut cursor, horizon, watch, &mut FirstContact);
     cursor.ball().position
