@@ -571,6 +571,138 @@ mod tests {
         assert!(crossing.time_sigma > 1e-4);
     }
 
+    fn refresh() -> Refresh {
+        Refresh {
+            max_age: 0.1,
+            position: 0.01,
+            velocity: 0.05,
+            spin: 10.0,
+        }
+    }
+
+    const MS: i64 = 1_000_000;
+
+    #[test]
+    fn a_tracker_that_always_refreshes_equals_the_full_prediction() {
+        let propagator = Propagator::new(&Config::default());
+        let x = shot([1.3, 0.0, 0.30], [-4.5, 0.0, 1.6], [0.0, -50.0, 0.0]);
+        let p = StateMatrix::identity() * 1e-4;
+        let mut tracker = InterceptTracker::new(Refresh::ALWAYS);
+        for k in 0..3 {
+            let got = tracker.predict(&propagator, 1, k * MS, &x, &p, &query());
+            assert_eq!(got, predict_intercept(&propagator, &x, &p, &query()));
+        }
+        assert_eq!(tracker.counts(), TrackerCounts { full: 3, moved: 0 });
+    }
+
+    /// Along the ball's own flight (no drift) the moved interception is the full one: the same
+    /// crossing, its time counting down, the covariance carried by the inverse transitions.
+    #[test]
+    fn along_its_own_flight_the_moved_interception_is_the_full_one() {
+        let propagator = Propagator::new(&Config::default());
+        let start = shot([1.2, 0.1, 0.3], [-5.0, -0.3, 1.2], [10.0, -60.0, 20.0]);
+        let mut cursor = Cursor::tracking(0.0, start);
+        let p0 = StateMatrix::identity() * 1e-4;
+        let mut tracker = InterceptTracker::new(refresh());
+        let step = 10 * MS / 9; // 900 fps
+        for k in 0..60 {
+            let dt = (k * step) as f64 * 1e-9 - cursor.t;
+            propagator.advance(&mut cursor, dt, Watch::BOUNCES, &mut ());
+            let phi = cursor.tangent.expect("tangent").transition();
+            let p = phi * p0 * phi.transpose();
+            let got = tracker.predict(&propagator, 1, k * step, &cursor.state, &p, &query());
+            let full = predict_intercept(&propagator, &cursor.state, &p, &query());
+            let (got_c, full_c) = (got.crossing.expect("moved"), full.crossing.expect("full"));
+            assert!((got_c.state.to_vector() - full_c.state.to_vector()).norm() < 1e-6);
+            assert!((got_c.time - full_c.time).abs() < 1e-8);
+            assert!((got_c.time_sigma - full_c.time_sigma).abs() < 1e-6 * full_c.time_sigma);
+            let cov_error = (got_c.covariance - full_c.covariance).norm();
+            assert!(cov_error < 1e-5 * full_c.covariance.norm());
+            let (got_b, full_b) = (got.bounce.expect("bounce"), full.bounce.expect("bounce"));
+            assert!((got_b.position - full_b.position).norm() < 1e-7);
+            assert!((got_b.time - full_b.time).abs() < 1e-8);
+        }
+        // One full prediction (the age limit is 0.1 s), the rest moved.
+        assert_eq!(tracker.counts(), TrackerCounts { full: 1, moved: 59 });
+    }
+
+    /// A drift within the limits that would turn the bounce from sliding to rolling (or back) is
+    /// a change of branch: the interception is predicted in full.
+    #[test]
+    fn a_drift_that_changes_the_bounce_regime_predicts_in_full() {
+        let propagator = Propagator::new(&Config::default());
+        let regime = |x: &StateVector| {
+            let options = crate::physics::PredictOptions {
+                horizon: 1.0,
+                sample_interval: 0.1,
+                plane_x: None,
+                stop_at_plane: false,
+            };
+            crate::physics::predict(&propagator, &BallState::from_vector(x), &options)
+                .bounces()
+                .next()
+                .map(|e| e.kind)
+        };
+        let p = StateMatrix::identity() * 1e-4;
+        // Topspin just short of rolling out of the robot-half bounce: find the boundary.
+        let base = shot([-0.16, 0.0, 0.30], [-4.2, -0.13, -2.5], [-7.5, -6.0, -8.5]);
+        let flipped = (0..200)
+            .map(|i| {
+                let mut x = base;
+                x[7] += 0.25 * f64::from(i);
+                x
+            })
+            .find(|x| regime(x) != regime(&base))
+            .expect("a regime change within 50 rad/s");
+        let mut before = flipped;
+        before[7] -= 1.0;
+        assert_ne!(regime(&before), regime(&flipped));
+        let mut tracker = InterceptTracker::new(refresh());
+        tracker.predict(&propagator, 1, 0, &before, &p, &query());
+        let got = tracker.predict(&propagator, 1, 0, &flipped, &p, &query());
+        assert_eq!(got, predict_intercept(&propagator, &flipped, &p, &query()));
+        assert_eq!(tracker.counts().full, 2);
+        // Far from the boundary the same drift is moved.
+        let mut tracker = InterceptTracker::new(refresh());
+        tracker.predict(&propagator, 1, 0, &base, &p, &query());
+        let mut drifted = base;
+        drifted[7] -= 1.0;
+        tracker.predict(&propagator, 1, 0, &drifted, &p, &query());
+        assert_eq!(tracker.counts(), TrackerCounts { full: 1, moved: 1 });
+    }
+
+    /// Another track, an earlier stamp, a drift past a limit, an old anchor: in full.
+    #[test]
+    fn the_limits_predict_in_full() {
+        let propagator = Propagator::new(&Config::default());
+        let x = shot([1.2, 0.1, 0.3], [-5.0, -0.3, 1.2], [10.0, -60.0, 20.0]);
+        let p = StateMatrix::identity() * 1e-4;
+        let nudge = |i: usize, by: f64| {
+            let mut y = x;
+            y[i] += by;
+            y
+        };
+        let cases: [(u32, i64, StateVector); 6] = [
+            (2, 0, x),
+            (1, -MS, x),
+            (1, 0, nudge(0, 0.011)),
+            (1, 0, nudge(3, 0.051)),
+            (1, 0, nudge(7, 10.1)),
+            (1, 101 * MS, x),
+        ];
+        for (track, stamp, y) in cases {
+            let mut tracker = InterceptTracker::new(refresh());
+            tracker.predict(&propagator, 1, 0, &x, &p, &query());
+            tracker.predict(&propagator, track, stamp, &y, &p, &query());
+            assert_eq!(tracker.counts().full, 2, "track {track} stamp {stamp}");
+        }
+        // Within every limit: moved.
+        let mut tracker = InterceptTracker::new(refresh());
+        tracker.predict(&propagator, 1, 0, &x, &p, &query());
+        tracker.predict(&propagator, 1, MS, &nudge(3, 0.01), &p, &query());
+        assert_eq!(tracker.counts(), TrackerCounts { full: 1, moved: 1 });
+    }
+
     #[test]
     fn invalid_crossings_say_why() {
         let propagator = Propagator::new(&Config::default());

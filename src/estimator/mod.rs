@@ -489,6 +489,12 @@ impl Estimator {
         }
     }
 
+    /// How many interceptions were predicted in full and how many moved to first order from the
+    /// last full one (see [`crate::intercept::InterceptTracker`]).
+    pub fn intercept_counts(&self) -> crate::intercept::TrackerCounts {
+        self.intercepts.counts()
+    }
+
     /// The propagator the estimator predicts with.
     pub fn propagator(&self) -> &Propagator {
         &self.propagator
