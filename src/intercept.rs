@@ -139,8 +139,7 @@ impl Branches {
         match event.sensitivity {
             Some(s) if self.count < MAX_BRANCHES => {
                 self.margins[self.count] = margin;
-                self.gradients
-                    .set_row(self.count, &(gradient * s.before));
+                self.gradients.set_row(self.count, &(gradient * s.before));
                 self.count += 1;
             }
             _ => self.overflow = true,
@@ -151,8 +150,7 @@ impl Branches {
     /// itself (to first order).
     fn kept_by(&self, drift: &StateVector) -> bool {
         let moved = self.gradients * drift;
-        !self.overflow
-            && (0..self.count).all(|i| moved[i].abs() <= 0.5 * self.margins[i].abs())
+        !self.overflow && (0..self.count).all(|i| moved[i].abs() <= 0.5 * self.margins[i].abs())
     }
 }
 
@@ -171,8 +169,7 @@ impl Observer for Watcher<'_> {
                 let p = self.propagator;
                 self.branches
                     .record(event, p.bounce().regime_margin(&event.before));
-                self.branches
-                    .record(event, p.landing_margin(&event.before));
+                self.branches.record(event, p.landing_margin(&event.before));
             }
             EventKind::Net { .. } => {
                 self.branches
@@ -733,4 +730,3 @@ mod tests {
         );
     }
 }
-

@@ -5,9 +5,9 @@
 use nalgebra::{SMatrix, Vector3};
 use ttball::config::Config;
 use ttball::physics::{
-    BallState, BounceRegime, Cursor, EventKind, FlightModel, Observer, Outcome, PredictOptions,
-    Propagator, StateMatrix, StateVector, TableBounce, TrajectoryEnd, Watch, predict,
-    propagate::Event,
+    BallState, BounceRegime, Cursor, EventKind, FlightModel, Flow, Observer, Outcome,
+    PredictOptions, Propagator, StateMatrix, StateRow, StateVector, TableBounce, TrajectoryEnd,
+    Watch, predict, propagate::Event,
 };
 use ttball::sim::Rng;
 
@@ -477,4 +477,129 @@ fn predictions_are_deterministic() {
     let b = predict(&propagator, &shot, &options);
     assert_eq!(a, b);
     assert!(a.samples.len() > 100);
+}
+
+/// A margin of a state and its gradient.
+type Margin<'a> = dyn Fn(&StateVector) -> (f64, StateRow) + 'a;
+
+/// The margins that decide a prediction's branches (a bounce's regime, where it lands, how the
+/// ball passes the net) have the gradients their finite differences say, and their signs agree
+/// with the branch taken.
+#[test]
+fn branch_margins_have_exact_gradients_and_the_branch_signs() {
+    let config = Config::default();
+    let propagator = Propagator::new(&config);
+    let states = [
+        BallState::new(
+            [-0.6, 0.2, 0.02].into(),
+            [-4.0, 0.5, -2.5].into(),
+            [5.0, -40.0, 10.0].into(),
+        ),
+        BallState::new(
+            [0.9, -0.5, 0.02].into(),
+            [-3.0, -0.8, -1.5].into(),
+            [-30.0, 60.0, 5.0].into(),
+        ),
+        BallState::new(
+            [0.001, 0.1, 0.17].into(),
+            [-5.0, 0.2, 0.4].into(),
+            [0.0, 80.0, 0.0].into(),
+        ),
+        BallState::new(
+            [0.001, 0.85, 0.05].into(),
+            [-5.0, 0.2, 0.4].into(),
+            [0.0, 80.0, 0.0].into(),
+        ),
+    ];
+    let margins: [(&str, &Margin); 4] = [
+        ("regime", &|x| propagator.bounce().regime_margin(x)),
+        ("landing", &|x| propagator.landing_margin(x)),
+        ("outline", &|x| propagator.outline_margin(x)),
+        ("net", &|x| propagator.net_margin(x)),
+    ];
+    for state in &states {
+        let x = state.to_vector();
+        for (name, margin) in &margins {
+            let (_, gradient) = margin(&x);
+            for i in 0..9 {
+                let h = 1e-6;
+                let mut up = x;
+                up[i] += h;
+                let mut down = x;
+                down[i] -= h;
+                let numeric = (margin(&up).0 - margin(&down).0) / (2.0 * h);
+                assert!(
+                    (numeric - gradient[i]).abs() < 1e-6,
+                    "{name} d/dx{i}: {numeric} vs {}",
+                    gradient[i]
+                );
+            }
+        }
+        let rolling = propagator.bounce().regime_margin(&x).0 >= 0.0;
+        let regime = propagator.bounce().apply(&x).regime;
+        assert_eq!(rolling, regime == BounceRegime::Rolling, "{state:?}");
+    }
+    // The net: a hit below the top, a clear pass above it, a pass beside a post.
+    let at_net = |y: f64, z: f64| {
+        BallState::new(
+            [0.0, y, z].into(),
+            [-5.0, 0.0, 0.0].into(),
+            Vector3::zeros(),
+        )
+        .to_vector()
+    };
+    assert!(propagator.net_margin(&at_net(0.0, 0.10)).0 < 0.0);
+    assert!(propagator.net_margin(&at_net(0.0, 0.20)).0 > 0.0);
+    assert!(propagator.net_margin(&at_net(1.0, 0.10)).0 > 0.0);
+}
+
+/// A ball that passes the table's level just outside its outline is reported as a table miss
+/// when watched, and not otherwise; the flight is the same either way.
+#[test]
+fn a_near_miss_of_the_table_is_an_event_when_watched() {
+    let propagator = Propagator::new(&Config::default());
+    // Along the side line, 1 cm outside it, falling.
+    let start = BallState::new(
+        [-0.5, 0.7625 + 0.01 + 0.02, 0.2].into(),
+        [-2.0, 0.02, 0.0].into(),
+        Vector3::zeros(),
+    );
+    let mut events = Vec::new();
+    let mut run = |table_misses: bool| {
+        let mut recorder = Recorder(Vec::new());
+        let mut cursor = Cursor::new(0.0, &start);
+        let watch = Watch {
+            table_misses,
+            ..Watch::FLIGHT
+        };
+        propagator.advance(&mut cursor, 0.3, watch, &mut recorder);
+        events.push(recorder.0);
+        cursor.state
+    };
+    let watched = run(true);
+    let unwatched = run(false);
+    assert!((watched - unwatched).norm() < 1e-9);
+    let misses: Vec<f64> = events[0]
+        .iter()
+        .filter_map(|e| match e.kind {
+            EventKind::TableMiss { distance } => Some(distance),
+            _ => None,
+        })
+        .collect();
+    assert_eq!(misses.len(), 1, "{:?}", events[0]);
+    assert!((misses[0] - 0.03).abs() < 0.01, "{misses:?}");
+    assert!(
+        events[1]
+            .iter()
+            .all(|e| !matches!(e.kind, EventKind::TableMiss { .. }))
+    );
+}
+
+struct Recorder(Vec<Event>);
+
+impl Observer for Recorder {
+    fn on_event(&mut self, event: &Event) -> Flow {
+        self.0.push(*event);
+        Flow::Continue
+    }
 }

@@ -1079,4 +1079,3 @@ impl Estimator {
         true
     }
 }
-

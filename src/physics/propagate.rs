@@ -53,7 +53,8 @@ impl Tangent {
     /// The state-transition matrix in its block structure when the propagation met no event (the
     /// transition of free flight); `None` after an event.
     pub fn free_flight(&self) -> Option<&FlightMatrix> {
-        (self.until_event.is_none() && self.time_gradient == StateRow::zeros()).then_some(&self.flight)
+        (self.until_event.is_none() && self.time_gradient == StateRow::zeros())
+            .then_some(&self.flight)
     }
 
     /// `transition * p * transition'`: a covariance `p` of the initial state carried to the
