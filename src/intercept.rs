@@ -14,12 +14,16 @@
 //! y + J d, time tau + dtau/dx d, covariance J P J', where J, the crossing's sensitivity to the
 //! anchor, is carried along by the inverse of the anchor's own flight transition
 //! (J_now = J_then Phi^-1; free-flight transitions form a group, [`crate::physics::FlightMatrix`]).
-//! It predicts in full again at any event on the anchor's way (a bounce, the net, the plane), when
-//! the drift exceeds its tolerances, and when the last full prediction is older than its age limit
-//! ([`Refresh`]).
+//! It predicts in full again at any event on the anchor's way (a bounce, the net, the plane, a near
+//! miss of the table), when the drift could change a branch of the prediction (each branch point
+//! recorded as a margin with its gradient: a bounce's sliding/rolling regime, where it lands
+//! against the table's edge and the net line, how the ball passes the net or misses the table, the
+//! crossing or the bounce coming due), when the drift exceeds its limits, and when the last full
+//! prediction is older than its age limit (`intercept.refresh`, [`RefreshParams`]).
 
 use nalgebra::{SMatrix, Vector3};
 
+use crate::config::RefreshParams;
 use crate::physics::{
     BallState, Cursor, Event, EventKind, Flow, Observer, Outcome, Propagator, StateMatrix,
     StateRow, StateVector, Watch,
@@ -307,44 +311,10 @@ fn crossing_with(
     }
 }
 
-/// When an [`InterceptTracker`] predicts in full again rather than moving the last full
-/// prediction to first order.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Refresh {
-    /// Longest time between two full predictions [s]; 0 predicts in full at every call.
-    pub max_age: f64,
-    /// Largest drift of the estimated position from the anchor's [m].
-    pub position: f64,
-    /// Largest drift of the estimated velocity [m/s].
-    pub velocity: f64,
-    /// Largest drift of the estimated spin [rad/s].
-    pub spin: f64,
-}
-
-impl From<&crate::config::RefreshParams> for Refresh {
-    fn from(p: &crate::config::RefreshParams) -> Self {
-        Self {
-            max_age: p.max_age,
-            position: p.position,
-            velocity: p.velocity,
-            spin: p.spin,
-        }
-    }
-}
-
-impl Refresh {
-    /// Predicts in full at every call.
-    pub const ALWAYS: Self = Self {
-        max_age: 0.0,
-        position: 0.0,
-        velocity: 0.0,
-        spin: 0.0,
-    };
-
-    fn admits(&self, drift: &StateVector) -> bool {
-        let norm = |i: usize| drift.fixed_rows::<3>(i).norm();
-        norm(0) <= self.position && norm(3) <= self.velocity && norm(6) <= self.spin
-    }
+/// True when a drift of the state from the anchor is within the limits.
+fn within_limits(limits: &RefreshParams, drift: &StateVector) -> bool {
+    let norm = |i: usize| drift.fixed_rows::<3>(i).norm();
+    norm(0) <= limits.position && norm(3) <= limits.velocity && norm(6) <= limits.spin
 }
 
 /// How many interceptions a tracker predicted in full and how many it moved.
@@ -457,14 +427,14 @@ impl Anchor {
 /// calls' stamps must not go back (a call that does predicts in full).
 #[derive(Debug, Clone, PartialEq)]
 pub struct InterceptTracker {
-    refresh: Refresh,
+    refresh: RefreshParams,
     anchor: Option<Anchor>,
     counts: TrackerCounts,
 }
 
 impl InterceptTracker {
     /// A tracker that predicts in full as `refresh` says.
-    pub fn new(refresh: Refresh) -> Self {
+    pub fn new(refresh: RefreshParams) -> Self {
         Self {
             refresh,
             anchor: None,
@@ -528,7 +498,7 @@ impl InterceptTracker {
         }
         let anchor = self.anchor.as_ref()?;
         let drift = x - anchor.flown;
-        if !self.refresh.admits(&drift) || !anchor.sensitivity.branches.kept_by(&drift) {
+        if !within_limits(&self.refresh, &drift) || !anchor.sensitivity.branches.kept_by(&drift) {
             return None;
         }
         anchor.moved_to(x, p)
@@ -568,8 +538,8 @@ mod tests {
         assert!(crossing.time_sigma > 1e-4);
     }
 
-    fn refresh() -> Refresh {
-        Refresh {
+    fn refresh() -> RefreshParams {
+        RefreshParams {
             max_age: 0.1,
             position: 0.01,
             velocity: 0.05,
@@ -584,7 +554,11 @@ mod tests {
         let propagator = Propagator::new(&Config::default());
         let x = shot([1.3, 0.0, 0.30], [-4.5, 0.0, 1.6], [0.0, -50.0, 0.0]);
         let p = StateMatrix::identity() * 1e-4;
-        let mut tracker = InterceptTracker::new(Refresh::ALWAYS);
+        let always = RefreshParams {
+            max_age: 0.0,
+            ..RefreshParams::default()
+        };
+        let mut tracker = InterceptTracker::new(always);
         for k in 0..3 {
             let got = tracker.predict(&propagator, 1, k * MS, &x, &p, &query());
             assert_eq!(got, predict_intercept(&propagator, &x, &p, &query()));

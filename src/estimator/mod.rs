@@ -28,7 +28,7 @@ use nalgebra::{Matrix3, Matrix6, SVector, Vector3};
 use crate::config::{Config, SourceParams};
 use crate::detection::{Detection, Source, seconds_to_ns};
 use crate::ekf::{Ekf, ProcessNoise, UpdateError, position_H, position_spin_H};
-use crate::intercept::{Intercept, InterceptQuery, InterceptTracker, Refresh};
+use crate::intercept::{Intercept, InterceptQuery, InterceptTracker};
 use crate::physics::{
     BallState, FlightModel, PredictOptions, Propagator, StateMatrix, Trajectory, predict,
 };
@@ -474,7 +474,7 @@ impl Estimator {
             edge_alternatives: [EDGE_MARGIN, -EDGE_MARGIN].map(|m| propagator.with_edge_margin(m)),
             edge_retries: std::cell::Cell::new(0),
             held: None,
-            intercepts: InterceptTracker::new(Refresh::from(&config.intercept.refresh)),
+            intercepts: InterceptTracker::new(config.intercept.refresh.clone()),
             propagator,
             settings,
         }

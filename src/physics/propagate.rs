@@ -509,11 +509,8 @@ impl Propagator {
                 }
                 Surface::Net => {
                     cursor.state[axis] = 0.0;
-                    let z = cursor.state[2];
-                    let clearance = z - self.radius - self.net_height;
-                    let hit = clearance < 0.0
-                        && z + self.radius > 0.0
-                        && cursor.state[1].abs() < self.net_half_span;
+                    let clearance = cursor.state[2] - self.radius - self.net_height;
+                    let hit = self.net_margin(&cursor.state).0 < 0.0;
                     self.passing_event(cursor, EventKind::Net { clearance, hit })
                 }
                 Surface::TableMiss => {
