@@ -1,9 +1,13 @@
-//! End-to-end latency of the live node on loopback: a DDS peer we did not write (Eclipse Cyclone
-//! DDS, `tests/interop/dds_peer.py`) publishes the detections of a simulated 150 + 900 fps rally
-//! at their recorded pace and reads `/ball/state` and `/ball/intercept`; the latency of each is
-//! the time from the peer's write of a detection to its read of the output with that stamp,
-//! through both DDS stacks and Cyclone's Python binding. `ttball node` and the peer run in a
-//! network namespace with only loopback (`unshare -n`), both limited to 127.0.0.1.
+//! End-to-end latency of the live node on loopback, with two peers in turn publishing the
+//! detections of a simulated 150 + 900 fps rally at their recorded pace and reading
+//! `/ball/state` and `/ball/intercept`; the latency of each output is the time from the peer's
+//! write of a detection to its read of the output with that stamp:
+//! - a DDS peer we did not write (Eclipse Cyclone DDS through its Python binding,
+//!   `tests/interop/dds_peer.py`): both DDS stacks and a Python interpreter;
+//! - `ttball play --latency` (RustDDS, native code): the node's latency with a light peer.
+//!
+//! `ttball node` and the peer run in a network namespace with only loopback (`unshare -n`), both
+//! limited to 127.0.0.1. The node prints its own share (off DDS to published) when it stops.
 //!
 //! `TTBALL_PYTHON=target/interop-venv/bin/python cargo bench --bench node_latency` (the venv that
 //! `.ci/run` makes: `pip install cyclonedds mcap`). Needs permission to make a network namespace.
@@ -59,6 +63,11 @@ node=$!
 "{python}" "{peer}" publish "{bag}" --wait-match 30 --out peer.json 2> peer.err
 kill -TERM $node
 wait $node
+"{ttball}" node > node_rust.out 2> node_rust.err &
+node=$!
+"{ttball}" play "{bag}" --latency --wait 30 > play.out 2> play.err
+kill -TERM $node
+wait $node
 "#,
         dir = dir.display(),
         python = python.display(),
@@ -67,7 +76,11 @@ wait $node
     );
     common::run_on_loopback_only(&script);
     let read = |name: &str| std::fs::read_to_string(dir.join(name)).unwrap_or_default();
+    println!("== Cyclone DDS (Python) peer");
     println!("{}", read("peer.err").trim());
     println!("{}", read("node.out").trim());
+    println!("== ttball play --latency (RustDDS) peer");
+    println!("{}", read("play.out").trim());
+    println!("{}", read("node_rust.out").trim());
     let _ = std::fs::remove_dir_all(&dir);
 }

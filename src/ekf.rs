@@ -7,7 +7,8 @@
 //!   Q_pp = q_a dt^3/3, Q_pv = q_a dt^2/2, Q_vv = q_a dt, Q_ww = q_w dt (each times I_3).
 //! - Update: S = H P H' + R factored by Cholesky (a typed error when S is not positive definite),
 //!   NIS = y' S^-1 y, the gain from the factor, and the Joseph form
-//!   P = (I - K H) P (I - K H)' + K R K', symmetrised. Fixed-size matrices: no heap allocation.
+//!   P = (I - K H) P (I - K H)' + K R K' (multiplied out), symmetrised. Fixed-size matrices: no
+//!   heap allocation.
 
 use nalgebra::{SMatrix, SVector};
 
@@ -150,8 +151,11 @@ impl Ekf {
         // K = P H' S^-1 = (S^-1 H P)'.
         let K = chol.solve(&PHt.transpose()).transpose();
         self.x += K * y;
-        let I_KH = StateMatrix::identity() - K * H;
-        self.P = symmetrise(&(I_KH * self.P * I_KH.transpose() + K * R * K.transpose()));
+        // The Joseph form (I - K H) P (I - K H)' + K R K', multiplied out with S = H P H' + R:
+        // P - K (P H')' - (P H') K' + K S K'. Equal to it for any gain, so a rounding error in K
+        // still changes P to second order only; a third of the arithmetic of the 9x9 products.
+        let K_PHt = K * PHt.transpose();
+        self.P = symmetrise(&(self.P - K_PHt - K_PHt.transpose() + K * S * K.transpose()));
         Ok(nis)
     }
 
@@ -248,6 +252,32 @@ mod tests {
             ekf.update(&far, &position_H(), &R, 10.0),
             Err(UpdateError::Gated { .. })
         ));
+    }
+
+    /// The multiplied-out covariance update equals the Joseph form written as products, for a
+    /// correlated prior and a position + spin measurement.
+    #[test]
+    #[expect(non_snake_case, reason = "matrix notation")]
+    fn update_covariance_is_the_joseph_form() {
+        let A = StateMatrix::from_fn(|i, j| ((i * 7 + j * 3) % 5) as f64 * 0.1 - 0.2);
+        let P = A * A.transpose() + StateMatrix::identity() * 0.5;
+        let x = StateVector::from_fn(|i, _| i as f64 * 0.3);
+        let H = position_spin_H();
+        let R = SMatrix::<f64, 6, 6>::from_diagonal_element(0.2);
+        let z = H * x + SVector::<f64, 6>::from_fn(|i, _| 0.1 * i as f64 - 0.2);
+        let mut ekf = Ekf::new(x, P);
+        ekf.update(&z, &H, &R, 1e6).expect("fused");
+        let S = H * P * H.transpose() + R;
+        let K = P * H.transpose() * S.try_inverse().expect("S invertible");
+        let I_KH = StateMatrix::identity() - K * H;
+        let joseph = I_KH * P * I_KH.transpose() + K * R * K.transpose();
+        assert!(
+            (ekf.P - joseph).amax() < 1e-13 * P.amax(),
+            "{}",
+            (ekf.P - joseph).amax()
+        );
+        assert!((ekf.x - (x + K * (z - H * x))).amax() < 1e-13);
+        assert_eq!(ekf.P, ekf.P.transpose());
     }
 
     #[test]

@@ -486,10 +486,9 @@ mod tests {
             assert_eq!(plan.impact_stamp, request.ball.header.stamp);
             assert_eq!(plan.impact_position, request.ball.position);
             assert!(plan.landing_error < 1e-3, "{}", plan.landing_error);
-            assert_eq!(
-                distance(&plan.landing_position, &request.target),
-                plan.landing_error
-            );
+            // The same distance, to rounding (the landing is computed in another order).
+            let landing_error = distance(&plan.landing_position, &request.target);
+            assert!((landing_error - plan.landing_error).abs() < 1e-15);
             if request.flight_time != 0.0 {
                 assert!((plan.flight_time - request.flight_time).abs() < 1e-3);
             } else {

@@ -13,7 +13,8 @@
 //!   `~/plan_return` for a track that does not exist: every reply equals, bit for bit, what the
 //!   pipeline answers in process; the planned racket command, sent back to `~/predict_rebound`,
 //!   lands on the target.
-//! - `ttball play` publishes the bag and the peer receives every detection, byte for byte.
+//! - `ttball play` publishes the bag and the peer receives every detection, byte for byte; with
+//!   `--latency`, beside a `ttball node`, it times the node's outputs.
 //!
 //! - Robustness: a peer publishes samples of the detection's type name with other fields (the
 //!   node counts them undecodable) and of another type (DDS does not match them), then half the
@@ -274,8 +275,12 @@ wait $node
 echo $? > node.rc
 "{python}" "{peer}" listen --count {count} --timeout 60 --out listen.json 2> listen.err &
 listener=$!
-"{ttball}" play "{bag}" --wait 30 > play.out 2> play.err
+"{ttball}" node > node_play.out 2> node_play.err &
+node=$!
+"{ttball}" play "{bag}" --wait 30 --latency > play.out 2> play.err
 echo $? > play.rc
+kill -TERM $node
+wait $node
 wait $listener
 "#,
         dir = dir.display(),
@@ -465,7 +470,27 @@ wait $listener
         got.len(),
         detections.len()
     );
-    assert!(read("play.out").contains(&format!("{} detections published", detections.len())));
+    let play_out = read("play.out");
+    assert!(play_out.contains(&format!("{} detections published", detections.len())));
+    // `ttball play --latency` beside a `ttball node`: the outputs came back and were timed.
+    for topic in ["/ball/state", "/ball/intercept"] {
+        let line = play_out
+            .lines()
+            .find(|l| l.contains(&format!("latency to {topic}:")))
+            .unwrap_or_else(|| panic!("no latency to {topic} in {play_out}"));
+        let numbers: Vec<f64> = line
+            .split(|c: char| !(c.is_ascii_digit() || c == '.'))
+            .filter_map(|w| w.parse().ok())
+            .collect();
+        // p50, p99, max [ms], received, published.
+        let [p50, p99, max, received, published] = numbers[numbers.len() - 5..] else {
+            panic!("{line}");
+        };
+        assert!(0.0 < p50 && p50 <= p99 && p99 <= max, "{line}");
+        assert_eq!(published as usize, detections.len(), "{line}");
+        assert!(received >= published * 0.5, "{line}");
+        eprintln!("play --latency: {}", line.trim());
+    }
 }
 
 /// The states and intercepts `ttball replay` publishes for a bag.

@@ -31,6 +31,12 @@ pub struct PlayArgs {
     #[arg(long, default_value_t = 5.0, value_name = "SECONDS")]
     pub wait: f64,
 
+    /// Also subscribe to the node's state and intercept topics and print its end-to-end
+    /// latency: for each output, the time from publishing the detection with its stamp to
+    /// receiving it (median, 99th percentile, largest). Run beside `ttball node`.
+    #[arg(long)]
+    pub latency: bool,
+
     /// Topic names, QoS depth, DDS interfaces.
     #[command(flatten)]
     pub config: ConfigArgs,
@@ -60,6 +66,7 @@ impl PlayArgs {
             rate: self.rate,
             repeat: self.repeat,
             wait_for_subscriber: Duration::from_secs_f64(self.wait),
+            measure_latency: self.latency,
         };
         let mut progress = |done: u64, total: u64| {
             bar.set_length(total);
@@ -97,6 +104,23 @@ impl PlayArgs {
                 String::new()
             },
         ))?;
+        if let Some(latency) = &summary.latency {
+            let line = |topic: &str, l: &ttball::node::Latency| {
+                format!(
+                    "  latency to {topic}: p50 {:.2} ms, p99 {:.2} ms, max {:.2} ms ({} of {} received)\n",
+                    l.p50 * 1e3,
+                    l.p99 * 1e3,
+                    l.max * 1e3,
+                    l.received,
+                    summary.published
+                )
+            };
+            write_stdout(&format!(
+                "{}{}",
+                line(&config.topics.state, &latency.state),
+                line(&config.topics.intercept, &latency.intercept)
+            ))?;
+        }
         Ok(ExitCode::SUCCESS)
     }
 }

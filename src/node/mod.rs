@@ -38,7 +38,7 @@ use tracing::{debug, info, warn};
 
 pub use dds::domain_id;
 pub use diagnostics::{Snapshot, TransportCounters, Window, diagnostics_msg};
-pub use play::{PlayOptions, PlaySummary, play};
+pub use play::{Latency, LatencyReport, PlayOptions, PlaySummary, play};
 
 use crate::config::Config;
 use crate::estimator::Counters;

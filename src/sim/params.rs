@@ -302,10 +302,14 @@ pub struct SimParams {
     pub high_speed: CameraParams,
     /// The shots.
     pub shots: ShotParams,
-    /// Largest RK4 step of the true flight [s]. Default 0.25 ms, an eighth of the estimator's
-    /// 2 ms: the truth is then independent of the step grid to about 1e-12 m, so the state at a
-    /// stamp is the same however the flight was cut into steps.
+    /// Largest RK4 step of the true flight [s]. Default 0.25 ms: the truth is then independent
+    /// of the step grid to about 1e-12 m, so the state at a stamp is the same however the flight
+    /// was cut into steps.
     pub truth_step: f64,
+    /// Largest RK4 step of the launcher's aim (which launches land where they are aimed, which
+    /// make good shots) [s]. Default 10 ms. Its own, not the estimator's `prediction.step`, so
+    /// that a session is the same whatever the estimator's settings.
+    pub aim_step: f64,
 }
 
 impl Default for SimParams {
@@ -315,6 +319,7 @@ impl Default for SimParams {
             high_speed: CameraParams::high_speed(),
             shots: ShotParams::default(),
             truth_step: 0.000_25,
+            aim_step: 0.01,
         }
     }
 }
@@ -401,6 +406,11 @@ impl SimParams {
             self.truth_step.is_finite() && self.truth_step > 0.0,
             "truth_step",
             self.truth_step,
+        )?;
+        check(
+            self.aim_step.is_finite() && self.aim_step > 0.0 && self.aim_step <= 0.05,
+            "aim_step",
+            self.aim_step,
         )
     }
 

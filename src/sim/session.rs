@@ -254,7 +254,7 @@ pub fn simulate(config: &Config, options: &SimOptions) -> Result<Session, SimErr
     let truth = Arc::new(Propagator::with_step(config, params.truth_step));
     let mut launcher = Launcher {
         truth: &truth,
-        aim: Propagator::new(config),
+        aim: Propagator::with_step(config, params.aim_step),
         params,
         check: ShotCheck {
             plane_x: config.intercept.plane_x,
