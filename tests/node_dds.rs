@@ -478,9 +478,10 @@ wait $listener
             .lines()
             .find(|l| l.contains(&format!("latency to {topic}:")))
             .unwrap_or_else(|| panic!("no latency to {topic} in {play_out}"));
+        // The words that are numbers (not the labels p50, p99).
         let numbers: Vec<f64> = line
-            .split(|c: char| !(c.is_ascii_digit() || c == '.'))
-            .filter_map(|w| w.parse().ok())
+            .split_whitespace()
+            .filter_map(|w| w.trim_matches(['(', ')', ',']).parse().ok())
             .collect();
         // p50, p99, max [ms], received, published.
         let [p50, p99, max, received, published] = numbers[numbers.len() - 5..] else {
