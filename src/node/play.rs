@@ -7,6 +7,7 @@
 //! from publishing the detection with its stamp to receiving it (one process, one monotonic
 //! clock; through both DDS stacks and the network).
 
+use std::collections::HashMap;
 use std::path::Path;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
@@ -55,9 +56,8 @@ pub struct Latency {
 
 impl Latency {
     /// The latencies of the first receipt of each stamp in `received` (stamp [ns], time) of a
-    /// detection published at the time `published` gives for its stamp.
-    fn of(published: &[(i64, Instant)], received: &[(i64, Instant)]) -> Self {
-        let sent: std::collections::HashMap<i64, Instant> = published.iter().copied().collect();
+    /// detection published at the time `sent` gives for its stamp.
+    fn of(sent: &HashMap<i64, Instant>, received: &[(i64, Instant)]) -> Self {
         let mut seen = std::collections::HashSet::new();
         let mut seconds: Vec<f64> = received
             .iter()
@@ -188,7 +188,8 @@ pub fn play(
     };
     let total = detections.len() as u64;
     let rate = options.rate;
-    let mut sent = Vec::with_capacity(if listener.is_some() {
+    // When each stamp was published [ns -> time], for the latency.
+    let mut sent = HashMap::with_capacity(if listener.is_some() {
         detections.len()
     } else {
         0
@@ -209,7 +210,7 @@ pub fn play(
                 msg.header.stamp = Time::from_nanos(msg.header.stamp.to_nanos() + shift);
             }
             if listener.is_some() {
-                sent.push((msg.header.stamp.to_nanos(), Instant::now()));
+                sent.insert(msg.header.stamp.to_nanos(), Instant::now());
             }
             match publisher.publish(msg) {
                 Ok(()) => summary.published += 1,
@@ -328,7 +329,7 @@ mod tests {
     fn latency_matches_stamps_and_counts_the_first_receipt_only() {
         let t0 = Instant::now();
         let at = |us: u64| t0 + Duration::from_micros(us);
-        let published: Vec<(i64, Instant)> =
+        let published: HashMap<i64, Instant> =
             (0..100).map(|i| (i * 1000, at(i as u64 * 1000))).collect();
         // Stamp i arrives i + 1 us... 100 us after it was published; stamp 7 twice (the second
         // receipt is not counted); a stamp never published is ignored.
