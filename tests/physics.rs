@@ -374,6 +374,35 @@ fn rk4_error_falls_sixteen_fold_when_the_step_halves() {
     assert!(at_default < 3e-7, "error at the default step {at_default}");
 }
 
+/// A duration a rounding error over a whole number of largest steps takes that number of steps,
+/// not one more (a trajectory sample at k x 10 ms lands a rounding error off the step grid).
+#[test]
+fn a_duration_a_rounding_error_over_whole_steps_takes_no_extra_step() {
+    struct Steps(usize);
+    impl Observer for Steps {
+        fn on_step(&mut self, _cursor: &Cursor) -> Flow {
+            self.0 += 1;
+            Flow::Continue
+        }
+    }
+    let propagator = Propagator::with_step(&Config::default(), 0.02);
+    let high = state([3.0, 0.0, 3.0], [-5.0, 0.0, 1.0], [0.0, 0.0, 0.0]);
+    for (duration, steps) in [
+        (0.02 * (1.0 + 1e-12), 1),
+        (3.0 * 0.02 * (1.0 + 1e-12), 3),
+        (0.0201, 2),
+    ] {
+        let mut cursor = Cursor::new(0.0, &high);
+        let mut counted = Steps(0);
+        assert_eq!(
+            propagator.advance(&mut cursor, duration, Watch::FLIGHT, &mut counted),
+            Outcome::Reached
+        );
+        assert_eq!(counted.0, steps, "{duration}");
+        assert_eq!(cursor.t, duration);
+    }
+}
+
 /// The samples between RK4 steps are interpolated (a cubic Hermite of the step's ends and their
 /// derivatives): at the default 20 ms step and 10 ms samples they agree with a finely integrated
 /// flight to 3e-7 (m, m/s, rad/s; the worst is a vertical velocity between two steps, the RK4
