@@ -74,8 +74,8 @@ pub fn node(context: &Context, name: NodeName, rosout: bool) -> Result<Node, Nod
 }
 
 /// Runs the node's ros2-client spinner (graph discovery, `ros_discovery_info`) on its own
-/// thread; it stops when the node is dropped.
-pub fn spawn_spinner(node: &mut Node) -> Result<(), NodeError> {
+/// thread; it stops when the node is dropped ([`Spinner::stop_with`]).
+pub fn spawn_spinner(node: &mut Node) -> Result<Spinner, NodeError> {
     let spinner = node.spinner().map_err(error)?;
     std::thread::Builder::new()
         .name("ttball-spinner".to_owned())
@@ -84,8 +84,31 @@ pub fn spawn_spinner(node: &mut Node) -> Result<(), NodeError> {
                 tracing::warn!("ros2-client spinner stopped: {e}");
             }
         })
-        .map(drop)
+        .map(|thread| Spinner { thread })
         .map_err(|e| NodeError::Thread(e.to_string()))
+}
+
+/// The thread of a node's spinner.
+pub struct Spinner {
+    thread: std::thread::JoinHandle<()>,
+}
+
+impl Spinner {
+    /// Drops `node`, which stops the spinner, and waits (up to a second) for the spinner to end:
+    /// it owns DDS readers and writers (the node's parameter services), which must go before the
+    /// participant does, or RustDDS logs an error for each.
+    pub fn stop_with(self, node: Node) {
+        drop(node);
+        let deadline = std::time::Instant::now() + std::time::Duration::from_secs(1);
+        while !self.thread.is_finished() && std::time::Instant::now() < deadline {
+            std::thread::sleep(std::time::Duration::from_millis(2));
+        }
+        if self.thread.is_finished() {
+            let _ = self.thread.join();
+        } else {
+            tracing::warn!("the ros2-client spinner did not stop within a second");
+        }
+    }
 }
 
 /// The detections topic (`topics.detections`, sensor-data QoS), for the node and `ttball play`.

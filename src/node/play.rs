@@ -157,7 +157,7 @@ pub fn play(
     } else {
         None
     };
-    dds::spawn_spinner(&mut node)?;
+    let spinner = dds::spawn_spinner(&mut node)?;
 
     let started = Instant::now();
     let deadline = started + options.wait_for_subscriber;
@@ -244,6 +244,12 @@ pub fn play(
         });
     }
     summary.seconds = started.elapsed().as_secs_f64();
+    // Readers and writers go before their node, the node (and its spinner) before the
+    // participant.
+    drop(publisher);
+    drop(topic);
+    spinner.stop_with(node);
+    drop(context);
     Ok(summary)
 }
 
