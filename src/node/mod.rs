@@ -257,7 +257,7 @@ pub fn start(config: &Config, placement: &Placement) -> Result<NodeHandle, NodeE
         )?,
     };
     let servers = Servers::new(&mut node, &node_name, config.node.service_mapping)?;
-    dds::spawn_spinner(&mut node)?;
+    let spinner = dds::spawn_spinner(&mut node)?;
 
     let shared = Arc::new(Shared::default());
     let capacity = usize::try_from(config.node.queue_capacity).unwrap_or(usize::MAX);
@@ -328,7 +328,7 @@ pub fn start(config: &Config, placement: &Placement) -> Result<NodeHandle, NodeE
             // Readers and writers go before their node, the node before its participant.
             drop(subscription);
             drop(servers);
-            drop(node); // stops its spinner too
+            spinner.stop_with(node);
             drop(context);
             drop(ended_tx);
             Ok(NodeSummary {
@@ -545,9 +545,11 @@ impl EstimatorThread {
 
     fn publish(&self, published: Published) {
         let o = &self.outputs;
+        // The interception first: it is what a controller waits for (each publication wakes
+        // RustDDS's sending thread, which may run before the next one is serialised).
         let results = [
-            published.state.map(|m| o.state.publish(m).is_ok()),
             published.intercept.map(|m| o.intercept.publish(m).is_ok()),
+            published.state.map(|m| o.state.publish(m).is_ok()),
             published
                 .trajectory
                 .map(|m| o.trajectory.publish(m).is_ok()),
