@@ -105,6 +105,8 @@ pub struct ReplaySummary {
     pub undecodable: u64,
     /// What the estimator did with the decoded ones.
     pub counters: Counters,
+    /// How many interceptions were predicted in full and how many moved from the last full one.
+    pub intercepts: crate::intercept::TrackerCounts,
     /// Messages written to the output bag.
     pub written: u64,
     /// Processing time per detection [ns], mean and 99th percentile.
@@ -385,6 +387,7 @@ pub fn replay(
         detections,
         undecodable,
         counters,
+        intercepts: pipeline.estimator().intercept_counts(),
         written,
         processing_mean_ns: timing.mean,
         processing_p99_ns: timing.p99,

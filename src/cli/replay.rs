@@ -178,6 +178,11 @@ pub fn summary_text(s: &ReplaySummary) -> String {
     }
     let _ = writeln!(
         out,
+        "  late detections rolled back and re-applied {}; interceptions predicted in full {}, moved from the last full one {}",
+        c.rollbacks, s.intercepts.full, s.intercepts.moved
+    );
+    let _ = writeln!(
+        out,
         "  processing per detection: mean {:.1} us, p99 {:.1} us; {:.1} s recorded in {:.2} s ({:.0}x real time); {} messages written",
         s.processing_mean_ns * 1e-3,
         s.processing_p99_ns * 1e-3,
@@ -217,6 +222,8 @@ fn summary_json(s: &ReplaySummary) -> serde_json::Value {
         "rejected": rejected,
         "tracks": c.tracks,
         "rollbacks": c.rollbacks,
+        "intercepts_full": s.intercepts.full,
+        "intercepts_moved": s.intercepts.moved,
         "zero_spin_ignored": c.zero_spin_ignored,
         "processing_mean_ns": s.processing_mean_ns,
         "processing_p99_ns": s.processing_p99_ns,
