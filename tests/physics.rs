@@ -368,10 +368,10 @@ fn rk4_error_falls_sixteen_fold_when_the_step_halves() {
             "error ratio {ratio} ({errors:?})"
         );
     }
-    // At the default step (20 ms) the integration error is far below any camera's noise.
+    // At the default step (40 ms) the integration error (2e-6 m) is far below any camera's noise.
     let at_default = (end(Config::default().prediction.step) - reference).norm();
     println!("error at the default step {at_default:e}");
-    assert!(at_default < 3e-7, "error at the default step {at_default}");
+    assert!(at_default < 5e-6, "error at the default step {at_default}");
 }
 
 /// A duration a rounding error over a whole number of largest steps takes that number of steps,
@@ -404,10 +404,10 @@ fn a_duration_a_rounding_error_over_whole_steps_takes_no_extra_step() {
 }
 
 /// The samples between RK4 steps are interpolated (a cubic Hermite of the step's ends and their
-/// derivatives): at the default 20 ms step and 10 ms samples they agree with a finely integrated
-/// flight to 3e-7 (m, m/s, rad/s; the worst is a vertical velocity between two steps, the RK4
-/// error itself is about half of it), through a bounce and the plane crossing, with the same
-/// events (to 1e-8 s) and the same end.
+/// derivatives): at the default 40 ms step and 10 ms samples they agree with a finely integrated
+/// flight to 5e-6 (m, m/s, rad/s; measured 2.5e-6, the RK4 error itself is about as large),
+/// through a bounce and the plane crossing, with the same events (to 5e-7 s; 1.2e-7 measured, at
+/// the floor after 0.96 s) and the same end.
 #[test]
 fn interpolated_samples_match_a_fine_integration_through_events() {
     let config = Config::default();
@@ -420,7 +420,7 @@ fn interpolated_samples_match_a_fine_integration_through_events() {
     let shot = state([1.3, 0.1, 0.30], [-5.5, -0.4, 1.2], [40.0, -150.0, 30.0]);
     let coarse = predict(&Propagator::new(&config), &shot, &options);
     let fine = predict(&Propagator::with_step(&config, 0.000_5), &shot, &options);
-    assert_eq!(config.prediction.step, 0.02);
+    assert_eq!(config.prediction.step, 0.04);
     assert_eq!(coarse.samples.len(), fine.samples.len());
     assert_eq!(coarse.end, fine.end);
     assert_eq!(coarse.events.len(), fine.events.len());
@@ -430,19 +430,19 @@ fn interpolated_samples_match_a_fine_integration_through_events() {
             std::mem::discriminant(&a.kind),
             std::mem::discriminant(&b.kind)
         );
-        assert!((a.t - b.t).abs() < 1e-8, "event at {} vs {}", a.t, b.t);
+        assert!((a.t - b.t).abs() < 5e-7, "event at {} vs {}", a.t, b.t);
     }
     let worst = coarse
         .samples
         .iter()
         .zip(&fine.samples)
         .map(|(a, b)| {
-            assert!((a.t - b.t).abs() < 1e-8, "sample at {} vs {}", a.t, b.t);
+            assert!((a.t - b.t).abs() < 5e-7, "sample at {} vs {}", a.t, b.t);
             (a.state.to_vector() - b.state.to_vector()).amax()
         })
         .fold(0.0, f64::max);
     println!("largest sample difference {worst:e}");
-    assert!(worst < 3e-7, "largest sample difference {worst}");
+    assert!(worst < 5e-6, "largest sample difference {worst}");
     // Interpolation, not integration, filled the samples between steps: fewer flight-field
     // evaluations than a 10 ms step would need is what it is for, and it must not be exact.
     let stepped = predict(&Propagator::with_step(&config, 0.01), &shot, &options);
@@ -630,7 +630,8 @@ fn branch_margins_have_exact_gradients_and_the_branch_signs() {
 }
 
 /// A ball that passes the table's level just outside its outline is reported as a table miss
-/// when watched, and not otherwise; the flight is the same either way.
+/// when watched, and not otherwise; the flight is the same either way (to the integration error
+/// of the step the event splits: 4e-9 m at the 40 ms step).
 #[test]
 fn a_near_miss_of_the_table_is_an_event_when_watched() {
     let propagator = Propagator::new(&Config::default());
@@ -654,7 +655,7 @@ fn a_near_miss_of_the_table_is_an_event_when_watched() {
     };
     let watched = run(true);
     let unwatched = run(false);
-    assert!((watched - unwatched).norm() < 1e-9);
+    assert!((watched - unwatched).norm() < 1e-8, "{}", (watched - unwatched).norm());
     let misses: Vec<f64> = events[0]
         .iter()
         .filter_map(|e| match e.kind {
