@@ -42,9 +42,12 @@ impl Polynomial {
         (value, slope)
     }
 
-    /// The value at `x`.
+    /// The value at `x` (the same as [`Self::value_and_slope`]'s, bit for bit).
     pub fn value(&self, x: f64) -> f64 {
-        self.value_and_slope(x).0
+        self.coefficients
+            .iter()
+            .rev()
+            .fold(0.0, |value, &c| value * x + c)
     }
 }
 
@@ -240,6 +243,21 @@ impl FlightMatrix {
 /// Below this |v|^2 [m^2/s^2] or |w x v| the spin parameter is taken as 0 (no direction defined).
 const TINY: f64 = 1e-18;
 
+/// The quantities of one state that the flight field is made of.
+#[derive(Debug, Clone, Copy)]
+struct Field {
+    v: Vector3<f64>,
+    w: Vector3<f64>,
+    speed_sq: f64,
+    speed: f64,
+    /// w x v.
+    c: Vector3<f64>,
+    c_norm: f64,
+    /// The spin parameter, and clamped to [0, Sp_max] as the coefficients take it.
+    sp: f64,
+    sp_eval: f64,
+}
+
 /// The flight model: constants of the ball and the air folded into two factors.
 #[derive(Debug, Clone, PartialEq)]
 pub struct FlightModel {
@@ -326,16 +344,46 @@ impl FlightModel {
 
     /// The time derivative of the state, dx/dt.
     pub fn derivative(&self, x: &StateVector) -> StateVector {
-        let v = x.fixed_rows::<3>(VELOCITY).into_owned();
-        let w = x.fixed_rows::<3>(SPIN).into_owned();
-        let f = self.forces(&v, &w);
-        let accel = f.drag + f.magnus - Vector3::new(0.0, 0.0, self.gravity);
-        let mut dx = StateVector::zeros();
-        dx.fixed_rows_mut::<3>(0).copy_from(&v);
-        dx.fixed_rows_mut::<3>(VELOCITY).copy_from(&accel);
-        dx.fixed_rows_mut::<3>(SPIN)
-            .copy_from(&(w * -self.spin_decay));
-        dx
+        let field = self.field(x);
+        let cd = self.drag.value(field.sp_eval);
+        let cm = self.magnus.value(field.sp_eval);
+        self.state_derivative(&field, cd, cm)
+    }
+
+    /// The velocity, spin and the norms both the derivative and its Jacobian need.
+    fn field(&self, x: &StateVector) -> Field {
+        let v = Vector3::new(x[VELOCITY], x[VELOCITY + 1], x[VELOCITY + 2]);
+        let w = Vector3::new(x[SPIN], x[SPIN + 1], x[SPIN + 2]);
+        let speed_sq = v.norm_squared();
+        let c = w.cross(&v);
+        let c_norm = c.norm();
+        // Sp as in `spin_parameter`.
+        let sp = if speed_sq < TINY {
+            0.0
+        } else {
+            self.radius * c_norm / speed_sq
+        };
+        Field {
+            v,
+            w,
+            speed_sq,
+            speed: speed_sq.sqrt(),
+            c,
+            c_norm,
+            sp,
+            sp_eval: sp.clamp(0.0, self.spin_parameter_max),
+        }
+    }
+
+    /// dx/dt from the field and the coefficients at its spin parameter.
+    fn state_derivative(&self, f: &Field, cd: f64, cm: f64) -> StateVector {
+        let drag = -self.drag_factor * cd * f.speed * f.v;
+        let magnus = self.magnus_factor * cm * f.c;
+        let accel = drag + magnus - Vector3::new(0.0, 0.0, self.gravity);
+        let spin = f.w * -self.spin_decay;
+        StateVector::from_column_slice(&[
+            f.v.x, f.v.y, f.v.z, accel.x, accel.y, accel.z, spin.x, spin.y, spin.z,
+        ])
     }
 
     /// The Jacobian of [`Self::derivative`] with respect to the state.
@@ -347,19 +395,19 @@ impl FlightModel {
     /// coefficients and the norms (the propagator needs both at every RK4 stage). The derivative
     /// is the same, bit for bit, as [`Self::derivative`]'s.
     pub fn derivative_and_jacobian(&self, x: &StateVector) -> (StateVector, FlightJacobian) {
-        let v = x.fixed_rows::<3>(VELOCITY).into_owned();
-        let w = x.fixed_rows::<3>(SPIN).into_owned();
-        let speed_sq = v.norm_squared();
-        let speed = speed_sq.sqrt();
-        let c = w.cross(&v);
-        let c_norm = c.norm();
+        let field = self.field(x);
+        let Field {
+            v,
+            w,
+            speed_sq,
+            speed,
+            c,
+            c_norm,
+            sp,
+            sp_eval,
+        } = field;
 
-        // Sp (as in `spin_parameter`) and its gradients; zero where Sp is clamped or undefined.
-        let sp = if speed_sq < TINY {
-            0.0
-        } else {
-            self.radius * c_norm / speed_sq
-        };
+        // The gradients of Sp; zero where Sp is clamped or undefined.
         let (dsp_dv, dsp_dw) = if speed_sq < TINY || c_norm < TINY || sp > self.spin_parameter_max {
             (Vector3::zeros(), Vector3::zeros())
         } else {
@@ -370,18 +418,9 @@ impl FlightModel {
             let dsp_dw = v.cross(&c_hat_scaled);
             (dsp_dv, dsp_dw)
         };
-        let sp_eval = sp.clamp(0.0, self.spin_parameter_max);
         let (cd, dcd) = self.drag.value_and_slope(sp_eval);
         let (cm, dcm) = self.magnus.value_and_slope(sp_eval);
-
-        let drag = -self.drag_factor * cd * speed * v;
-        let magnus = self.magnus_factor * cm * c;
-        let accel = drag + magnus - Vector3::new(0.0, 0.0, self.gravity);
-        let mut dx = StateVector::zeros();
-        dx.fixed_rows_mut::<3>(0).copy_from(&v);
-        dx.fixed_rows_mut::<3>(VELOCITY).copy_from(&accel);
-        dx.fixed_rows_mut::<3>(SPIN)
-            .copy_from(&(w * -self.spin_decay));
+        let dx = self.state_derivative(&field, cd, cm);
 
         // Drag: -k_D C_D |v| v, d(|v| v)/dv = |v| I + v v' / |v|.
         // Magnus: k_M C_M (w x v);  d(w x v)/dv = [w]x,  d(w x v)/dw = -[v]x.
