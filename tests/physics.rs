@@ -655,7 +655,11 @@ fn a_near_miss_of_the_table_is_an_event_when_watched() {
     };
     let watched = run(true);
     let unwatched = run(false);
-    assert!((watched - unwatched).norm() < 1e-8, "{}", (watched - unwatched).norm());
+    assert!(
+        (watched - unwatched).norm() < 1e-8,
+        "{}",
+        (watched - unwatched).norm()
+    );
     let misses: Vec<f64> = events[0]
         .iter()
         .filter_map(|e| match e.kind {
