@@ -237,6 +237,10 @@ impl Default for StrokeParams {
     }
 }
 
+/// Largest RK4 step the configuration accepts [s]: `prediction.step` and the simulator's
+/// `aim_step` are validated against it.
+pub const MAX_STEP: f64 = 0.05;
+
 /// Numerical settings of the flight propagator and of the published trajectory.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]

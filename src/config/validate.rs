@@ -498,7 +498,7 @@ impl Config {
         c.real(
             "prediction.step",
             p.step,
-            |v| v > 0.0 && v <= 0.05,
+            |v| v > 0.0 && v <= super::MAX_STEP,
             "greater than 0 and at most 0.05 (seconds)",
         );
         c.real(

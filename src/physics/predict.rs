@@ -2,7 +2,9 @@
 //! floor, a plane). The base of every later prediction (trajectory service, interception, return
 //! of the racket's hit).
 
-use super::propagate::{Cursor, Event, EventKind, Flow, Observer, Outcome, Propagator, Watch};
+use super::propagate::{
+    Cursor, Event, EventKind, Flow, Observer, Outcome, Propagator, WHOLE_STEPS_TOLERANCE, Watch,
+};
 use super::state::{BallState, StateVector};
 
 /// What to predict.
@@ -107,7 +109,7 @@ pub fn predict(propagator: &Propagator, start: &BallState, options: &PredictOpti
     let interval = options.sample_interval.max(f64::MIN_POSITIVE);
     let count = (options.horizon / interval).ceil().max(0.0) as usize;
     let time_of = |k: usize| (k as f64 * interval).min(options.horizon);
-    let per_step = ((propagator.max_step() / interval) * (1.0 + 1e-9)).floor();
+    let per_step = ((propagator.max_step() / interval) * (1.0 + WHOLE_STEPS_TOLERANCE)).floor();
     let per_step = if per_step >= 2.0 {
         per_step as usize
     } else {

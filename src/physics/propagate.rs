@@ -306,6 +306,10 @@ impl Surface {
 /// Largest number of root-finding iterations for one event time.
 const MAX_ROOT_ITERATIONS: usize = 100;
 
+/// Relative tolerance under which a duration counts as a whole number of steps (or a step as a
+/// whole number of sample intervals): `0.02 * 3.0` is a rounding error over `0.06`.
+pub(crate) const WHOLE_STEPS_TOLERANCE: f64 = 1e-9;
+
 /// The propagator: flight model, table bounce, table geometry and the largest RK4 step.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Propagator {
@@ -450,7 +454,9 @@ impl Propagator {
             }
         }
         // A duration a rounding error over a whole number of largest steps takes that number.
-        let steps = (duration / self.max_step * (1.0 - 1e-9)).ceil().max(1.0);
+        let steps = (duration / self.max_step * (1.0 - WHOLE_STEPS_TOLERANCE))
+            .ceil()
+            .max(1.0);
         let h = duration / steps;
         let t_start = cursor.t;
         let count = steps as u64;

@@ -408,7 +408,9 @@ impl SimParams {
             self.truth_step,
         )?;
         check(
-            self.aim_step.is_finite() && self.aim_step > 0.0 && self.aim_step <= 0.05,
+            self.aim_step.is_finite()
+                && self.aim_step > 0.0
+                && self.aim_step <= crate::config::MAX_STEP,
             "aim_step",
             self.aim_step,
         )
