@@ -33,7 +33,8 @@ pub struct PlayArgs {
 
     /// Also subscribe to the node's state and intercept topics and print its end-to-end
     /// latency: for each output, the time from publishing the detection with its stamp to
-    /// receiving it (median, 99th percentile, largest). Run beside `ttball node`.
+    /// receiving it (median, 99th percentile, largest; outputs more than 5 s late are not
+    /// counted, so that `--loop --latency` runs in bounded memory). Run beside `ttball node`.
     #[arg(long)]
     pub latency: bool,
 

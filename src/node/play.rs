@@ -5,13 +5,16 @@
 //! With [`PlayOptions::measure_latency`] it also subscribes to the node's `/ball/state` and
 //! `/ball/intercept` and reports the end-to-end latency of a live node: for each output, the time
 //! from publishing the detection with its stamp to receiving it (one process, one monotonic
-//! clock; through both DDS stacks and the network).
+//! clock; through both DDS stacks and the network), in bounded memory: a publication waits 5 s
+//! for its outputs, and the latencies go into fixed histograms, so `--loop --latency` can run
+//! for hours.
 
 use std::collections::HashMap;
 use std::path::Path;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
+use crossbeam::channel::{self, Receiver, Sender};
 use futures::channel::oneshot;
 use futures::{FutureExt, StreamExt};
 use ros2_client::{NodeName, Publisher, Subscription};
@@ -23,6 +26,7 @@ use crate::config::Config;
 use crate::msgs::builtin_interfaces::Time;
 use crate::msgs::ttball_msgs::msg::{BallDetection, BallState, InterceptPrediction};
 use crate::replay::{INTERCEPT_TYPE, STATE_TYPE, detection_channel};
+use crate::stats::DurationHistogram;
 
 /// How to play.
 #[derive(Debug, Clone, PartialEq)]
@@ -55,29 +59,81 @@ pub struct Latency {
 }
 
 impl Latency {
-    /// The latencies of the first receipt of each stamp in `received` (stamp [ns], time) of a
-    /// detection published at the time `sent` gives for its stamp.
-    fn of(sent: &HashMap<i64, Instant>, received: &[(i64, Instant)]) -> Self {
-        let mut seen = std::collections::HashSet::new();
-        let mut seconds: Vec<f64> = received
-            .iter()
-            .filter(|(stamp, _)| seen.insert(*stamp))
-            .filter_map(|(stamp, at)| Some(at.saturating_duration_since(*sent.get(stamp)?)))
-            .map(|d| d.as_secs_f64())
-            .collect();
-        seconds.sort_by(f64::total_cmp);
-        let quantile = |q: f64| {
-            let last = seconds.len().saturating_sub(1);
-            seconds
-                .get((last as f64 * q).round() as usize)
-                .copied()
-                .unwrap_or(0.0)
-        };
+    fn of(histogram: &DurationHistogram) -> Self {
+        let summary = histogram.summary();
         Self {
-            received: seconds.len() as u64,
-            p50: quantile(0.5),
-            p99: quantile(0.99),
-            max: seconds.last().copied().unwrap_or(0.0),
+            received: summary.count as u64,
+            p50: summary.p50 * 1e-9,
+            p99: summary.p99 * 1e-9,
+            max: summary.max * 1e-9,
+        }
+    }
+}
+
+/// The node's outputs whose latency is measured.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Output {
+    State = 0,
+    Intercept = 1,
+}
+
+/// How long a publication waits for its outputs; later ones are not counted. Bounds the memory
+/// of a measurement that runs for hours (`--loop --latency`).
+const LATENCY_WINDOW: Duration = Duration::from_secs(5);
+
+/// Matches the outputs received to the detections published, by stamp, in bounded memory: the
+/// publications of the last [`LATENCY_WINDOW`] and one histogram per output.
+struct LatencyMeter {
+    /// Publication time of each recent stamp [ns], and whether each output has been received.
+    pending: HashMap<i64, (Instant, [bool; 2])>,
+    histograms: [DurationHistogram; 2],
+    oldest_kept: Instant,
+}
+
+impl LatencyMeter {
+    fn new() -> Self {
+        Self {
+            pending: HashMap::new(),
+            histograms: [DurationHistogram::new(), DurationHistogram::new()],
+            oldest_kept: Instant::now(),
+        }
+    }
+
+    fn published(&mut self, stamp: i64, at: Instant) {
+        self.pending.insert(stamp, (at, [false; 2]));
+        // Forget what is older than the window, at most once per second of publications.
+        if at.saturating_duration_since(self.oldest_kept) > LATENCY_WINDOW + Duration::from_secs(1)
+        {
+            let cutoff = at.checked_sub(LATENCY_WINDOW).unwrap_or(at);
+            self.pending.retain(|_, (sent, _)| *sent >= cutoff);
+            self.oldest_kept = cutoff;
+        }
+    }
+
+    /// Counts the first receipt of each published stamp per output; others are ignored.
+    fn received(&mut self, output: Output, stamp: i64, at: Instant) {
+        let Some((sent, done)) = self.pending.get_mut(&stamp) else {
+            return;
+        };
+        let index = output as usize;
+        if !done[index] {
+            done[index] = true;
+            let ns = at.saturating_duration_since(*sent).as_nanos();
+            self.histograms[index].record(u64::try_from(ns).unwrap_or(u64::MAX));
+        }
+    }
+
+    /// Counts the arrivals waiting in `arrivals`.
+    fn take(&mut self, arrivals: &Receiver<(Output, i64, Instant)>) {
+        for (output, stamp, at) in arrivals.try_iter() {
+            self.received(output, stamp, at);
+        }
+    }
+
+    fn report(&self) -> LatencyReport {
+        LatencyReport {
+            state: Latency::of(&self.histograms[Output::State as usize]),
+            intercept: Latency::of(&self.histograms[Output::Intercept as usize]),
         }
     }
 }
@@ -188,12 +244,7 @@ pub fn play(
     };
     let total = detections.len() as u64;
     let rate = options.rate;
-    // When each stamp was published [ns -> time], for the latency.
-    let mut sent = HashMap::with_capacity(if listener.is_some() {
-        detections.len()
-    } else {
-        0
-    });
+    let mut meter = listener.as_ref().map(|_| LatencyMeter::new());
     'passes: loop {
         let pass_start = Instant::now();
         let shift = i64::try_from(summary.passes)
@@ -209,12 +260,15 @@ pub fn play(
             if shift != 0 {
                 msg.header.stamp = Time::from_nanos(msg.header.stamp.to_nanos() + shift);
             }
-            if listener.is_some() {
-                sent.insert(msg.header.stamp.to_nanos(), Instant::now());
+            if let Some(meter) = meter.as_mut() {
+                meter.published(msg.header.stamp.to_nanos(), Instant::now());
             }
             match publisher.publish(msg) {
                 Ok(()) => summary.published += 1,
                 Err(_) => summary.errors += 1,
+            }
+            if let (Some(meter), Some(listener)) = (meter.as_mut(), listener.as_ref()) {
+                listener.drain_into(meter);
             }
             if i % 256 == 0 {
                 progress(i as u64, total);
@@ -236,12 +290,9 @@ pub fn play(
     } else {
         100
     }));
-    if let Some(listener) = listener {
-        let (states, intercepts) = listener.finish()?;
-        summary.latency = Some(LatencyReport {
-            state: Latency::of(&sent, &states),
-            intercept: Latency::of(&sent, &intercepts),
-        });
+    if let (Some(mut meter), Some(listener)) = (meter, listener) {
+        listener.finish(&mut meter)?;
+        summary.latency = Some(meter.report());
     }
     summary.seconds = started.elapsed().as_secs_f64();
     // Readers and writers go before their node, the node (and its spinner) before the
@@ -253,13 +304,12 @@ pub fn play(
     Ok(summary)
 }
 
-/// Stamps [ns] of received outputs and when they arrived.
-type Arrivals = Vec<(i64, Instant)>;
-
-/// A thread taking the node's state and intercept samples off DDS, noting when each arrived.
+/// A thread taking the node's state and intercept samples off DDS and handing over their stamps
+/// [ns] and when they arrived.
 struct Listener {
     stop: oneshot::Sender<()>,
-    thread: std::thread::JoinHandle<(Arrivals, Arrivals)>,
+    thread: std::thread::JoinHandle<()>,
+    arrivals: Receiver<(Output, i64, Instant)>,
 }
 
 impl Listener {
@@ -278,39 +328,65 @@ impl Listener {
             .create_subscription(&intercept_topic, None)
             .map_err(dds::error)?;
         let (stop, stopped) = oneshot::channel::<()>();
+        let (tx, arrivals) = channel::unbounded();
         let thread = std::thread::Builder::new()
             .name("ttball-play-listener".to_owned())
-            .spawn(move || {
-                let (mut state_arrivals, mut intercept_arrivals) = (Vec::new(), Vec::new());
-                futures::executor::block_on(async {
-                    let state_stream = states.async_stream();
-                    let intercept_stream = intercepts.async_stream();
-                    futures::pin_mut!(state_stream, intercept_stream);
-                    let mut stopped = stopped.fuse();
-                    loop {
-                        futures::select! {
-                            sample = state_stream.select_next_some() => if let Ok((m, _)) = sample {
-                                state_arrivals.push((m.header.stamp.to_nanos(), Instant::now()));
-                            },
-                            sample = intercept_stream.select_next_some() => if let Ok((m, _)) = sample {
-                                intercept_arrivals.push((m.header.stamp.to_nanos(), Instant::now()));
-                            },
-                            _ = stopped => break,
-                        }
-                    }
-                });
-                (state_arrivals, intercept_arrivals)
-            })
+            .spawn(move || listen(&states, &intercepts, stopped, &tx))
             .map_err(|e| NodeError::Thread(e.to_string()))?;
-        Ok(Self { stop, thread })
+        Ok(Self {
+            stop,
+            thread,
+            arrivals,
+        })
     }
 
-    fn finish(self) -> Result<(Arrivals, Arrivals), NodeError> {
-        let _ = self.stop.send(());
-        self.thread
-            .join()
-            .map_err(|_| NodeError::Thread("the latency listener panicked".to_owned()))
+    /// Hands the arrivals so far to `meter`.
+    fn drain_into(&self, meter: &mut LatencyMeter) {
+        meter.take(&self.arrivals);
     }
+
+    /// Stops the thread and hands the last arrivals to `meter`.
+    fn finish(self, meter: &mut LatencyMeter) -> Result<(), NodeError> {
+        let Self {
+            stop,
+            thread,
+            arrivals,
+        } = self;
+        let _ = stop.send(());
+        thread
+            .join()
+            .map_err(|_| NodeError::Thread("the latency listener panicked".to_owned()))?;
+        meter.take(&arrivals);
+        Ok(())
+    }
+}
+
+fn listen(
+    states: &Subscription<BallState>,
+    intercepts: &Subscription<InterceptPrediction>,
+    stopped: oneshot::Receiver<()>,
+    arrivals: &Sender<(Output, i64, Instant)>,
+) {
+    futures::executor::block_on(async {
+        let state_stream = states.async_stream();
+        let intercept_stream = intercepts.async_stream();
+        futures::pin_mut!(state_stream, intercept_stream);
+        let mut stopped = stopped.fuse();
+        loop {
+            let (output, stamp) = futures::select! {
+                sample = state_stream.select_next_some() => match sample {
+                    Ok((m, _)) => (Output::State, m.header.stamp.to_nanos()),
+                    Err(_) => continue,
+                },
+                sample = intercept_stream.select_next_some() => match sample {
+                    Ok((m, _)) => (Output::Intercept, m.header.stamp.to_nanos()),
+                    Err(_) => continue,
+                },
+                _ = stopped => break,
+            };
+            let _ = arrivals.send((output, stamp, Instant::now()));
+        }
+    });
 }
 
 /// Sleeps until `when` in short steps; false when cancelled.
@@ -335,20 +411,47 @@ mod tests {
     fn latency_matches_stamps_and_counts_the_first_receipt_only() {
         let t0 = Instant::now();
         let at = |us: u64| t0 + Duration::from_micros(us);
-        let published: HashMap<i64, Instant> =
-            (0..100).map(|i| (i * 1000, at(i as u64 * 1000))).collect();
-        // Stamp i arrives i + 1 us... 100 us after it was published; stamp 7 twice (the second
-        // receipt is not counted); a stamp never published is ignored.
-        let mut received: Vec<(i64, Instant)> = (0..100)
-            .map(|i| (i * 1000, at(i as u64 * 1000 + i as u64 + 1)))
-            .collect();
-        received.push((7000, at(900_000)));
-        received.push((123, at(5)));
-        let l = Latency::of(&published, &received);
+        let mut meter = LatencyMeter::new();
+        for i in 0..100 {
+            meter.published(i * 1000, at(i as u64 * 1000));
+        }
+        // Stamp i's state arrives i + 1 us after it was published; stamp 7's twice (the second
+        // receipt is not counted); a stamp never published is ignored; one intercept.
+        for i in 0..100 {
+            meter.received(Output::State, i * 1000, at(i as u64 * 1000 + i as u64 + 1));
+        }
+        meter.received(Output::State, 7000, at(900_000));
+        meter.received(Output::State, 123, at(5));
+        meter.received(Output::Intercept, 7000, at(7_250));
+        let report = meter.report();
+        let l = report.state;
         assert_eq!(l.received, 100);
-        assert!((l.p50 - 51e-6).abs() < 1e-9, "{}", l.p50);
-        assert!((l.p99 - 99e-6).abs() < 1e-9, "{}", l.p99);
-        assert!((l.max - 100e-6).abs() < 1e-9, "{}", l.max);
-        assert_eq!(Latency::of(&published, &[]), Latency::default());
+        // Histogram quantiles: the upper edge of a 10 ns bin.
+        assert!((l.p50 - 51e-6).abs() < 1.1e-8, "{}", l.p50);
+        assert!((l.p99 - 99e-6).abs() < 1.1e-8, "{}", l.p99);
+        assert!((l.max - 100e-6).abs() < 1e-12, "{}", l.max);
+        assert_eq!(report.intercept.received, 1);
+        assert!((report.intercept.max - 250e-6).abs() < 1e-12);
+        assert_eq!(LatencyMeter::new().report(), LatencyReport::default());
+    }
+
+    #[test]
+    fn the_latency_meter_keeps_only_the_recent_publications() {
+        let t0 = Instant::now();
+        let mut meter = LatencyMeter::new();
+        // An hour at 1000 publications per second.
+        for i in 0..3_600_000u64 {
+            meter.published(i as i64, t0 + Duration::from_millis(i));
+        }
+        assert!(
+            meter.pending.len() <= 7_000,
+            "{} publications kept",
+            meter.pending.len()
+        );
+        // An output of a publication forgotten long ago is not counted; a recent one is.
+        let now = t0 + Duration::from_millis(3_600_000);
+        meter.received(Output::State, 10, now);
+        meter.received(Output::State, 3_599_999, now);
+        assert_eq!(meter.report().state.received, 1);
     }
 }
