@@ -320,25 +320,22 @@ impl FlightModel {
 
     /// Spin parameter Sp = r |w x v| / |v|^2 (0 for a ball at rest).
     pub fn spin_parameter(&self, velocity: &Vector3<f64>, spin: &Vector3<f64>) -> f64 {
-        let speed_sq = velocity.norm_squared();
-        if speed_sq < TINY {
-            return 0.0;
-        }
-        self.radius * spin.cross(velocity).norm() / speed_sq
+        self.field_of(*velocity, *spin).sp
     }
 
     /// Drag and Magnus accelerations at one velocity and spin.
     pub fn forces(&self, velocity: &Vector3<f64>, spin: &Vector3<f64>) -> AeroForces {
-        let sp = self.spin_parameter(velocity, spin);
-        let cd = self.drag_coefficient(sp);
-        let cm = self.magnus_coefficient(sp);
+        let field = self.field_of(*velocity, *spin);
+        let cd = self.drag.value(field.sp_eval);
+        let cm = self.magnus.value(field.sp_eval);
+        let (drag, magnus) = self.accelerations(&field, cd, cm);
         AeroForces {
-            spin_parameter: sp,
-            clamped: sp > self.spin_parameter_max,
+            spin_parameter: field.sp,
+            clamped: field.sp > self.spin_parameter_max,
             drag_coefficient: cd,
             magnus_coefficient: cm,
-            drag: -self.drag_factor * cd * velocity.norm() * velocity,
-            magnus: self.magnus_factor * cm * spin.cross(velocity),
+            drag,
+            magnus,
         }
     }
 
@@ -350,14 +347,20 @@ impl FlightModel {
         self.state_derivative(&field, cd, cm)
     }
 
-    /// The velocity, spin and the norms both the derivative and its Jacobian need.
+    /// The field quantities of a state.
     fn field(&self, x: &StateVector) -> Field {
-        let v = Vector3::new(x[VELOCITY], x[VELOCITY + 1], x[VELOCITY + 2]);
-        let w = Vector3::new(x[SPIN], x[SPIN + 1], x[SPIN + 2]);
+        self.field_of(
+            Vector3::new(x[VELOCITY], x[VELOCITY + 1], x[VELOCITY + 2]),
+            Vector3::new(x[SPIN], x[SPIN + 1], x[SPIN + 2]),
+        )
+    }
+
+    /// The velocity, spin, norms and spin parameter that the forces, the derivative and its
+    /// Jacobian are made of.
+    fn field_of(&self, v: Vector3<f64>, w: Vector3<f64>) -> Field {
         let speed_sq = v.norm_squared();
         let c = w.cross(&v);
         let c_norm = c.norm();
-        // Sp as in `spin_parameter`.
         let sp = if speed_sq < TINY {
             0.0
         } else {
@@ -375,10 +378,18 @@ impl FlightModel {
         }
     }
 
+    /// The drag and Magnus accelerations from the field and the coefficients at its spin
+    /// parameter.
+    fn accelerations(&self, f: &Field, cd: f64, cm: f64) -> (Vector3<f64>, Vector3<f64>) {
+        (
+            -self.drag_factor * cd * f.speed * f.v,
+            self.magnus_factor * cm * f.c,
+        )
+    }
+
     /// dx/dt from the field and the coefficients at its spin parameter.
     fn state_derivative(&self, f: &Field, cd: f64, cm: f64) -> StateVector {
-        let drag = -self.drag_factor * cd * f.speed * f.v;
-        let magnus = self.magnus_factor * cm * f.c;
+        let (drag, magnus) = self.accelerations(f, cd, cm);
         let accel = drag + magnus - Vector3::new(0.0, 0.0, self.gravity);
         let spin = f.w * -self.spin_decay;
         StateVector::from_column_slice(&[
