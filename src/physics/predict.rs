@@ -2,6 +2,7 @@
 //! floor, a plane). The base of every later prediction (trajectory service, interception, return
 //! of the racket's hit).
 
+use super::aero::FlightModel;
 use super::propagate::{
     Cursor, Event, EventKind, Flow, Observer, Outcome, Propagator, WHOLE_STEPS_TOLERANCE, Watch,
 };
@@ -122,8 +123,8 @@ pub fn predict(propagator: &Propagator, start: &BallState, options: &PredictOpti
     });
     let mut end = TrajectoryEnd::Horizon;
     let flight = propagator.flight();
-    // The derivative at the cursor's state, kept from the end of the last step.
-    let mut slope_here = flight.derivative(&start.to_vector());
+    // The end of the last step, with its derivative once a sample has needed it.
+    let mut step_start = Knot::new(0.0, start.to_vector());
     let mut k = 0;
     while k < count {
         let last = (k + per_step).min(count);
@@ -131,28 +132,16 @@ pub fn predict(propagator: &Propagator, start: &BallState, options: &PredictOpti
         let duration = time_of(last) - cursor.t;
         // The samples strictly inside the step are interpolated piecewise: from the step's
         // start to the first event, from each event to the next, from the last to the end.
-        let mut knot = Knot {
-            t: cursor.t,
-            x: cursor.state,
-            slope: slope_here,
-        };
+        let mut knot = step_start;
         let outcome = propagator.advance(&mut cursor, duration, watch, &mut recorder);
         let mut j = k + 1;
         for event in &recorder.events[recorded..] {
-            let before = Knot {
-                t: event.t,
-                x: event.before,
-                slope: flight.derivative(&event.before),
-            };
+            let mut before = Knot::new(event.t, event.before);
             while j < last && time_of(j) < event.t {
-                samples.push(knot.interpolate(&before, time_of(j)));
+                samples.push(knot.interpolate(&mut before, flight, time_of(j)));
                 j += 1;
             }
-            knot = Knot {
-                t: event.t,
-                x: event.after,
-                slope: flight.derivative(&event.after),
-            };
+            knot = Knot::new(event.t, event.after);
         }
         let ended = match outcome {
             Outcome::Reached => None,
@@ -160,15 +149,10 @@ pub fn predict(propagator: &Propagator, start: &BallState, options: &PredictOpti
             Outcome::Terminated(EventKind::Floor) => Some(TrajectoryEnd::Floor),
             Outcome::Terminated(_) => Some(TrajectoryEnd::Net),
         };
+        let mut step_end = Knot::new(cursor.t, cursor.state);
         if ended.is_none() {
-            slope_here = flight.derivative(&cursor.state);
-            let step_end = Knot {
-                t: cursor.t,
-                x: cursor.state,
-                slope: slope_here,
-            };
             while j < last {
-                samples.push(knot.interpolate(&step_end, time_of(j)));
+                samples.push(knot.interpolate(&mut step_end, flight, time_of(j)));
                 j += 1;
             }
         }
@@ -180,6 +164,7 @@ pub fn predict(propagator: &Propagator, start: &BallState, options: &PredictOpti
             end = why;
             break;
         }
+        step_start = step_end;
         k = last;
     }
     Trajectory {
@@ -189,24 +174,33 @@ pub fn predict(propagator: &Propagator, start: &BallState, options: &PredictOpti
     }
 }
 
-/// A point of the flight with its derivative: one end of an interpolated piece.
+/// A point of the flight: one end of an interpolated piece. Its derivative is computed when a
+/// sample first needs it (with one sample per step, never).
 struct Knot {
     t: f64,
     x: StateVector,
-    slope: StateVector,
+    slope: Option<StateVector>,
 }
 
 impl Knot {
+    fn new(t: f64, x: StateVector) -> Self {
+        Self { t, x, slope: None }
+    }
+
+    fn slope(&mut self, flight: &FlightModel) -> StateVector {
+        *self.slope.get_or_insert_with(|| flight.derivative(&self.x))
+    }
+
     /// The sample at `t` (between this knot and `to`) of the cubic Hermite interpolant of the
     /// two knots.
-    fn interpolate(&self, to: &Knot, t: f64) -> Sample {
+    fn interpolate(&mut self, to: &mut Knot, flight: &FlightModel, t: f64) -> Sample {
         let h = to.t - self.t;
         let s = if h > 0.0 { (t - self.t) / h } else { 0.0 };
         let (s2, s3) = (s * s, s * s * s);
         let x = self.x * (2.0 * s3 - 3.0 * s2 + 1.0)
-            + self.slope * ((s3 - 2.0 * s2 + s) * h)
+            + self.slope(flight) * ((s3 - 2.0 * s2 + s) * h)
             + to.x * (3.0 * s2 - 2.0 * s3)
-            + to.slope * ((s3 - s2) * h);
+            + to.slope(flight) * ((s3 - s2) * h);
         Sample {
             t,
             state: BallState::from_vector(&x),
