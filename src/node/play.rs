@@ -118,8 +118,7 @@ impl LatencyMeter {
         let index = output as usize;
         if !done[index] {
             done[index] = true;
-            let ns = at.saturating_duration_since(*sent).as_nanos();
-            self.histograms[index].record(u64::try_from(ns).unwrap_or(u64::MAX));
+            self.histograms[index].record(super::nanos(at.saturating_duration_since(*sent)));
         }
     }
 
@@ -208,7 +207,7 @@ pub fn play(
     let topic = dds::detections_topic(&mut node, config)?;
     let publisher: Publisher<BallDetection> =
         node.create_publisher(&topic, None).map_err(dds::error)?;
-    let listener = if options.measure_latency {
+    let mut listener = if options.measure_latency {
         Some(Listener::start(&mut node, config)?)
     } else {
         None
@@ -244,7 +243,6 @@ pub fn play(
     };
     let total = detections.len() as u64;
     let rate = options.rate;
-    let mut meter = listener.as_ref().map(|_| LatencyMeter::new());
     'passes: loop {
         let pass_start = Instant::now();
         let shift = i64::try_from(summary.passes)
@@ -260,15 +258,17 @@ pub fn play(
             if shift != 0 {
                 msg.header.stamp = Time::from_nanos(msg.header.stamp.to_nanos() + shift);
             }
-            if let Some(meter) = meter.as_mut() {
-                meter.published(msg.header.stamp.to_nanos(), Instant::now());
+            if let Some(listener) = listener.as_mut() {
+                listener
+                    .meter
+                    .published(msg.header.stamp.to_nanos(), Instant::now());
             }
             match publisher.publish(msg) {
                 Ok(()) => summary.published += 1,
                 Err(_) => summary.errors += 1,
             }
-            if let (Some(meter), Some(listener)) = (meter.as_mut(), listener.as_ref()) {
-                listener.drain_into(meter);
+            if let Some(listener) = listener.as_mut() {
+                listener.take_arrivals();
             }
             if i % 256 == 0 {
                 progress(i as u64, total);
@@ -290,9 +290,8 @@ pub fn play(
     } else {
         100
     }));
-    if let (Some(mut meter), Some(listener)) = (meter, listener) {
-        listener.finish(&mut meter)?;
-        summary.latency = Some(meter.report());
+    if let Some(listener) = listener {
+        summary.latency = Some(listener.finish()?);
     }
     summary.seconds = started.elapsed().as_secs_f64();
     // Readers and writers go before their node, the node (and its spinner) before the
@@ -305,11 +304,12 @@ pub fn play(
 }
 
 /// A thread taking the node's state and intercept samples off DDS and handing over their stamps
-/// [ns] and when they arrived.
+/// [ns] and when they arrived, and the meter that matches them to the publications.
 struct Listener {
     stop: oneshot::Sender<()>,
     thread: std::thread::JoinHandle<()>,
     arrivals: Receiver<(Output, i64, Instant)>,
+    meter: LatencyMeter,
 }
 
 impl Listener {
@@ -337,27 +337,29 @@ impl Listener {
             stop,
             thread,
             arrivals,
+            meter: LatencyMeter::new(),
         })
     }
 
-    /// Hands the arrivals so far to `meter`.
-    fn drain_into(&self, meter: &mut LatencyMeter) {
-        meter.take(&self.arrivals);
+    /// Counts the arrivals so far.
+    fn take_arrivals(&mut self) {
+        self.meter.take(&self.arrivals);
     }
 
-    /// Stops the thread and hands the last arrivals to `meter`.
-    fn finish(self, meter: &mut LatencyMeter) -> Result<(), NodeError> {
+    /// Stops the thread, counts the last arrivals and reports.
+    fn finish(self) -> Result<LatencyReport, NodeError> {
         let Self {
             stop,
             thread,
             arrivals,
+            mut meter,
         } = self;
         let _ = stop.send(());
         thread
             .join()
             .map_err(|_| NodeError::Thread("the latency listener panicked".to_owned()))?;
         meter.take(&arrivals);
-        Ok(())
+        Ok(meter.report())
     }
 }
 
