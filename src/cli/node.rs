@@ -210,7 +210,7 @@ fn summary_text(name: &str, s: &NodeSummary) -> String {
         "{name} ran {:.1} s: detections received {}, fused {}, initialising {}, rejected {} ({}); tracks {}\n  \
          processing per detection: mean {:.1} us, max {:.1} us; in the node (off DDS to published): \
          p50 {:.1} us, p99 {:.1} us, max {:.1} us\n  \
-         service requests {}; publish errors {}\n",
+         lost before the node {}; service requests {}; publish errors {}\n",
         s.seconds,
         t.received,
         c.fused,
@@ -227,6 +227,7 @@ fn summary_text(name: &str, s: &NodeSummary) -> String {
         s.in_node.p50 * 1e-3,
         s.in_node.p99 * 1e-3,
         s.in_node.max * 1e-3,
+        t.lost_before_node,
         t.service_requests,
         t.publish_errors,
     )

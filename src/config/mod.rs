@@ -467,9 +467,10 @@ pub struct NodeParams {
     pub name: String,
     /// Node namespace: empty (the root namespace) or an absolute namespace such as "/robot1".
     pub namespace: String,
-    /// Capacity of the bounded detection queue between DDS and the estimator [detections]; when
-    /// full, the oldest detection is dropped and counted. 256 is about 0.25 s of both cameras
-    /// (150 + 900 detections per second).
+    /// Capacity of the estimator's detection queue [detections]: before each detection the
+    /// estimator thread takes every sample DDS holds into it; when full, the oldest detection is
+    /// dropped and counted. 256 is about 0.25 s of both cameras (150 + 900 detections per
+    /// second).
     pub queue_capacity: u32,
     /// How the node's services (`~/predict_trajectory`, `~/predict_rebound`, `~/plan_return`)
     /// frame requests and replies on DDS: `enhanced` (RPC over DDS enhanced mapping:

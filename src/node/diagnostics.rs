@@ -17,6 +17,9 @@ pub struct TransportCounters {
     pub undecodable: u64,
     /// Detections dropped because the queue to the estimator was full (the oldest goes).
     pub dropped_queue_full: u64,
+    /// Detections lost before the node took them: gaps in their publishers' sequence numbers
+    /// (not received, so not among the rejected).
+    pub lost_before_node: u64,
     /// Messages that DDS refused to publish.
     pub publish_errors: u64,
     /// Service requests answered (`~/predict_trajectory`, `~/predict_rebound`, `~/plan_return`).
@@ -83,11 +86,20 @@ pub fn diagnostics_msg(snapshot: &Snapshot<'_>, window: &mut Window) -> Diagnost
     let rate = processing.count as f64 / s.period.max(1e-9);
     let dropped_now = s.transport.dropped_queue_full - s.transport_before.dropped_queue_full;
     let undecodable_now = s.transport.undecodable - s.transport_before.undecodable;
+    let lost_now = s.transport.lost_before_node - s.transport_before.lost_before_node;
     let (level, message) = if dropped_now > 0 {
         (
             DiagnosticStatus::WARN,
             format!(
                 "{dropped_now} detections dropped in the last {:.1} s: the estimator falls behind (raise node.queue_capacity or lower the camera rate)",
+                s.period
+            ),
+        )
+    } else if lost_now > 0 {
+        (
+            DiagnosticStatus::WARN,
+            format!(
+                "{lost_now} detections lost before the node in the last {:.1} s (gaps in their publishers' sequence numbers): the network or DDS dropped them (check the network, raise qos.detections_depth)",
                 s.period
             ),
         )
@@ -132,6 +144,7 @@ pub fn diagnostics_msg(snapshot: &Snapshot<'_>, window: &mut Window) -> Diagnost
         ),
         kv("rejected: undecodable", t.undecodable.to_string()),
         kv("rejected: queue full", t.dropped_queue_full.to_string()),
+        kv("lost before the node", t.lost_before_node.to_string()),
     ];
     values.extend(Rejection::ALL.iter().map(|r| {
         kv(
@@ -268,5 +281,44 @@ mod tests {
         assert!(msg.status[0].message.starts_with("20 detections dropped"));
         assert_eq!(value(&msg, "rejected: queue full"), "20");
         assert_eq!(msg.status[0].name, "robot/ttball: estimator");
+    }
+
+    #[test]
+    fn losses_before_the_node_in_the_period_warn_and_are_not_rejections() {
+        let counters = Counters::default();
+        let before = TransportCounters {
+            received: 400,
+            lost_before_node: 2,
+            ..TransportCounters::default()
+        };
+        let now = TransportCounters {
+            received: 500,
+            lost_before_node: 9,
+            ..before
+        };
+        let msg = diagnostics_msg(
+            &Snapshot {
+                node: "/ttball",
+                detections_topic: "/ball/detections",
+                stamp: 0,
+                period: 1.0,
+                counters: &counters,
+                transport: &now,
+                transport_before: &before,
+                queue_len: 0,
+                track: None,
+            },
+            &mut Window::default(),
+        );
+        assert_eq!(msg.status[0].level, DiagnosticStatus::WARN);
+        assert!(
+            msg.status[0]
+                .message
+                .starts_with("7 detections lost before the node"),
+            "{}",
+            msg.status[0].message
+        );
+        assert_eq!(value(&msg, "lost before the node"), "9");
+        assert_eq!(value(&msg, "rejected"), "0");
     }
 }

@@ -10,29 +10,34 @@
 //!   track's ball (at its predicted interception) or a given ball to a target
 //!   ([`Pipeline::plan_return`]).
 //!
-//! Threads: the DDS thread takes detections and service requests off DDS and never waits for the
-//! estimator: detections go through a bounded crossbeam channel (`node.queue_capacity`; when
-//! full the oldest is dropped and counted) to the one estimator thread, which runs the pipeline
-//! and publishes its outputs and the diagnostics. Service requests, of every service, go to the
-//! estimator thread through a second small channel (so that they see the live track) and their
-//! replies come back to the DDS thread, which sends them. A third thread spins ros2-client's
-//! node (graph discovery, `ros_discovery_info`). [`NodeHandle::stop`] stops the DDS side first,
-//! lets the estimator finish what was queued, then shuts DDS down.
+//! Threads: the one estimator thread takes detections off the subscription itself (RustDDS's
+//! reader wakes it), runs the pipeline and publishes the outputs and the diagnostics. Before each
+//! detection it takes everything DDS holds into its queue (`node.queue_capacity`; when full the
+//! oldest is dropped and counted), so a burst is shed oldest first, as it would be by a queue
+//! between two threads, without a hand-over on the way of every detection. The DDS thread takes
+//! service requests, of every service, off DDS and hands them to the estimator thread through a
+//! small channel (so that they see the live track); their replies come back to it, and it sends
+//! them. A third thread spins ros2-client's node (graph discovery, `ros_discovery_info`).
+//! [`NodeHandle::stop`] stops the DDS thread first; the estimator then takes what DDS holds,
+//! processes and publishes what was queued, and ends; then DDS shuts down.
 
 mod dds;
 mod diagnostics;
+mod intake;
 mod play;
 mod services;
 
+use std::pin::Pin;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
+use std::task::{Context, Poll, Wake, Waker};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
-use crossbeam::channel::{self, Receiver, Sender, TrySendError};
+use crossbeam::channel::{self, Receiver, Select, Sender, TrySendError};
 use futures::channel::{mpsc, oneshot};
-use futures::{FutureExt, StreamExt};
-use ros2_client::{Node, Publisher, RmwRequestId, Subscription};
+use futures::{FutureExt, Stream, StreamExt};
+use ros2_client::{Gid, MessageInfo, Node, Publisher, ReadResult, RmwRequestId, Subscription};
 use serde::Serialize;
 use tracing::{debug, info, warn};
 
@@ -50,6 +55,7 @@ use crate::msgs::visualization_msgs::MarkerArray;
 use crate::pipeline::{Pipeline, Published};
 use crate::replay::{DETECTION_TYPE, INTERCEPT_TYPE, MARKERS_TYPE, STATE_TYPE, TRAJECTORY_TYPE};
 use crate::stats::{DurationHistogram, DurationSummary};
+use intake::{DetectionQueue, Queued, SequenceGaps};
 use services::{Reply, Servers, Service};
 
 impl ros2_client::Message for BallDetection {}
@@ -192,6 +198,7 @@ struct Shared {
     received: AtomicU64,
     undecodable: AtomicU64,
     dropped_queue_full: AtomicU64,
+    lost_before_node: AtomicU64,
     publish_errors: AtomicU64,
     service_requests: AtomicU64,
     service_busy: AtomicU64,
@@ -204,6 +211,7 @@ impl Shared {
             received: get(&self.received),
             undecodable: get(&self.undecodable),
             dropped_queue_full: get(&self.dropped_queue_full),
+            lost_before_node: get(&self.lost_before_node),
             publish_errors: get(&self.publish_errors),
             service_requests: get(&self.service_requests),
             service_busy: get(&self.service_busy),
@@ -215,8 +223,6 @@ impl Shared {
     }
 }
 
-/// A detection in the queue, with the instant DDS handed it over.
-type Queued = (BallDetection, Instant);
 /// A service request in the queue to the estimator thread, and its reply on the way back.
 type PendingRequest = (RmwRequestId, services::Request);
 type PendingReply = (RmwRequestId, Reply);
@@ -261,7 +267,6 @@ pub fn start(config: &Config, placement: &Placement) -> Result<NodeHandle, NodeE
 
     let shared = Arc::new(Shared::default());
     let capacity = usize::try_from(config.node.queue_capacity).unwrap_or(usize::MAX);
-    let (detection_tx, detection_rx) = channel::bounded::<Queued>(capacity);
     let (request_tx, request_rx) = channel::bounded::<PendingRequest>(REQUEST_QUEUE);
     let (reply_tx, reply_rx) = mpsc::unbounded::<PendingReply>();
     let (stop_tx, stop_rx) = oneshot::channel::<()>();
@@ -276,10 +281,9 @@ pub fn start(config: &Config, placement: &Placement) -> Result<NodeHandle, NodeE
         period: Duration::from_secs_f64(config.node.diagnostics_period),
         capacity,
     };
-    let queue_rx = detection_rx.clone();
     let estimator = std::thread::Builder::new()
         .name("ttball-estimator".to_owned())
-        .spawn(move || estimator.run(&detection_rx, &request_rx, &reply_tx))
+        .spawn(move || estimator.run(subscription, &request_rx, &reply_tx))
         .map_err(|e| NodeError::Thread(e.to_string()))?;
 
     let service_names = Service::ALL
@@ -306,27 +310,14 @@ pub fn start(config: &Config, placement: &Placement) -> Result<NodeHandle, NodeE
         .name("ttball-dds".to_owned())
         .spawn(move || {
             let started = Instant::now();
-            let queue = DetectionQueue {
-                tx: detection_tx,
-                rx: queue_rx,
-                shared: &shared,
-            };
-            dds_loop(
-                &subscription,
-                &servers,
-                queue,
-                &request_tx,
-                reply_rx,
-                stop_rx,
-                &shared,
-            );
-            // Detections stop here: the estimator drains its queue and ends.
+            dds_loop(&servers, &request_tx, reply_rx, stop_rx, &shared);
+            // The estimator takes this as its stop: it processes what DDS holds and ends.
             drop(request_tx);
             let estimator = estimator
                 .join()
                 .map_err(|_| NodeError::Thread("the estimator thread panicked".to_owned()))?;
-            // Readers and writers go before their node, the node before its participant.
-            drop(subscription);
+            // Readers and writers go before their node (the estimator's went with it), the node
+            // before its participant.
             drop(servers);
             spinner.stop_with(node);
             drop(context);
@@ -362,65 +353,35 @@ fn publisher<M: Serialize>(
     node.create_publisher(&topic, None).map_err(dds::error)
 }
 
-/// The DDS side of the bounded queue: pushing never blocks; when full, the oldest goes.
-struct DetectionQueue<'a> {
-    tx: Sender<Queued>,
-    rx: Receiver<Queued>,
-    shared: &'a Shared,
-}
+/// Wakes the estimator thread when RustDDS's reader has a new sample: the waker of the
+/// subscription's stream rings a crossbeam channel the thread selects on beside its others.
+struct Doorbell(Sender<()>);
 
-impl DetectionQueue<'_> {
-    fn push(&self, detection: BallDetection) {
-        let mut item = (detection, Instant::now());
-        loop {
-            match self.tx.try_send(item) {
-                Ok(()) => return,
-                Err(TrySendError::Full(back)) => {
-                    item = back;
-                    if self.rx.try_recv().is_ok() {
-                        let dropped = Shared::add(&self.shared.dropped_queue_full);
-                        if dropped == 1 || dropped.is_multiple_of(1000) {
-                            warn!(
-                                "the estimator falls behind: {dropped} detections dropped so far (queue full)"
-                            );
-                        }
-                    }
-                }
-                Err(TrySendError::Disconnected(_)) => return,
-            }
-        }
+impl Wake for Doorbell {
+    fn wake(self: Arc<Self>) {
+        self.wake_by_ref();
+    }
+
+    fn wake_by_ref(self: &Arc<Self>) {
+        // Full means already rung: one ring wakes the thread for everything that came.
+        let _ = self.0.try_send(());
     }
 }
 
-/// Takes detections and requests off DDS until `stop` fires.
+/// Takes service requests off DDS and sends the replies until `stop` fires.
 fn dds_loop(
-    subscription: &Subscription<BallDetection>,
     servers: &Servers,
-    queue: DetectionQueue<'_>,
     requests: &Sender<PendingRequest>,
     mut replies: mpsc::UnboundedReceiver<PendingReply>,
     stop: oneshot::Receiver<()>,
     shared: &Shared,
 ) {
     futures::executor::block_on(async {
-        let detections = subscription.async_stream();
         let incoming = servers.requests();
-        futures::pin_mut!(detections, incoming);
+        futures::pin_mut!(incoming);
         let mut stop = stop.fuse();
         loop {
             futures::select! {
-                sample = detections.select_next_some() => {
-                    Shared::add(&shared.received);
-                    match sample {
-                        Ok((detection, _info)) => queue.push(detection),
-                        Err(e) => {
-                            let n = Shared::add(&shared.undecodable);
-                            if n == 1 || n.is_multiple_of(1000) {
-                                warn!("{n} detection samples did not decode as BallDetection so far: {e:?}");
-                            }
-                        }
-                    }
-                }
                 request = incoming.select_next_some() => match request {
                     Ok((id, request)) => {
                         if let Err(TrySendError::Full((id, request))) = requests.try_send((id, request)) {
@@ -476,56 +437,97 @@ struct EstimatorResult {
     in_node: DurationSummary,
 }
 
+/// Processing and in-node times of the detections, over a diagnostics period and the run.
+struct Timings {
+    window: Window,
+    total_ns: f64,
+    max_ns: u64,
+    count: u64,
+    in_node: DurationHistogram,
+}
+
 impl EstimatorThread {
     fn run(
         mut self,
-        detections: &Receiver<Queued>,
+        subscription: Subscription<BallDetection>,
         requests: &Receiver<PendingRequest>,
         replies: &mpsc::UnboundedSender<PendingReply>,
     ) -> EstimatorResult {
+        let (bell, rung) = channel::bounded::<()>(1);
+        let waker = Waker::from(Arc::new(Doorbell(bell)));
+        let mut context = Context::from_waker(&waker);
+        let detections = subscription.async_stream();
+        futures::pin_mut!(detections);
+        let mut queue = DetectionQueue::new(self.capacity);
+        let mut gaps = SequenceGaps::new();
+        let mut timings = Timings {
+            window: Window::with_capacity(self.capacity.clamp(1024, 4096)),
+            total_ns: 0.0,
+            max_ns: 0,
+            count: 0,
+            in_node: DurationHistogram::new(),
+        };
         let ticker = channel::tick(self.period);
-        let mut window = Window::with_capacity(self.capacity.max(1024));
         let mut period_start = Instant::now();
         let mut transport_before = self.shared.snapshot();
-        let mut requests_open = true;
-        let (mut total_ns, mut max_ns, mut count) = (0.0, 0u64, 0u64);
-        let mut in_node = DurationHistogram::new();
+
+        let mut wake_on = Select::new();
+        let on_bell = wake_on.recv(&rung);
+        let on_request = wake_on.recv(requests);
+        wake_on.recv(&ticker);
         loop {
-            let never = channel::never();
-            channel::select! {
-                recv(detections) -> item => {
-                    let Ok((detection, queued_at)) = item else { break };
-                    let started = Instant::now();
-                    let step = self.pipeline.on_detection(&detection);
-                    let ns = nanos(started.elapsed());
-                    window.record(ns, nanos(started.duration_since(queued_at)));
-                    total_ns += ns as f64;
-                    max_ns = max_ns.max(ns);
-                    count += 1;
-                    self.publish(step.published);
-                    in_node.record(nanos(queued_at.elapsed()));
+            self.take_from_dds(detections.as_mut(), &mut context, &mut queue, &mut gaps);
+            if let Some(queued) = queue.pop() {
+                self.process(queued, &mut timings);
+            }
+            // Requests and diagnostics between detections; the thread waits only when no
+            // detection is queued (the doorbell rings for the next).
+            let operation = if queue.is_empty() {
+                wake_on.select()
+            } else {
+                match wake_on.try_select() {
+                    Ok(operation) => operation,
+                    Err(_) => continue,
                 }
-                recv(if requests_open { requests } else { &never }) -> request => match request {
+            };
+            match operation.index() {
+                i if i == on_bell => {
+                    let _ = operation.recv(&rung);
+                }
+                i if i == on_request => match operation.recv(requests) {
                     Ok((id, request)) => {
                         let reply = request.answer(&self.pipeline);
                         let (success, message) = reply.outcome();
                         debug!("{}: success {success} {message}", request.service().name());
                         let _ = replies.unbounded_send((id, reply));
                     }
-                    Err(_) => requests_open = false,
+                    // The DDS thread stopped: the node stops.
+                    Err(_) => break,
                 },
-                recv(ticker) -> _ => {
+                _ => {
+                    let _ = operation.recv(&ticker);
                     let now = Instant::now();
                     let transport = self.shared.snapshot();
-                    self.publish_diagnostics(&mut window, now - period_start, &transport, &transport_before, detections.len());
+                    self.publish_diagnostics(
+                        &mut timings.window,
+                        now - period_start,
+                        &transport,
+                        &transport_before,
+                        queue.len(),
+                    );
                     period_start = now;
                     transport_before = transport;
                 }
             }
         }
+        // What DDS holds when the node stops is processed and published too.
+        self.take_from_dds(detections.as_mut(), &mut context, &mut queue, &mut gaps);
+        while let Some(queued) = queue.pop() {
+            self.process(queued, &mut timings);
+        }
         let transport = self.shared.snapshot();
         self.publish_diagnostics(
-            &mut window,
+            &mut timings.window,
             period_start.elapsed(),
             &transport,
             &transport_before,
@@ -533,14 +535,77 @@ impl EstimatorThread {
         );
         EstimatorResult {
             counters: self.pipeline.counters(),
-            processing_mean_ns: if count > 0 {
-                total_ns / count as f64
+            processing_mean_ns: if timings.count > 0 {
+                timings.total_ns / timings.count as f64
             } else {
                 0.0
             },
-            processing_max_ns: max_ns as f64,
-            in_node: in_node.summary(),
+            processing_max_ns: timings.max_ns as f64,
+            in_node: timings.in_node.summary(),
         }
+    }
+
+    /// Takes every sample the subscription holds into the queue, counting what was dropped
+    /// and lost on the way; when none is left, the stream leaves the doorbell with RustDDS's
+    /// reader.
+    fn take_from_dds<S>(
+        &self,
+        mut detections: Pin<&mut S>,
+        context: &mut Context<'_>,
+        queue: &mut DetectionQueue,
+        gaps: &mut SequenceGaps<Gid>,
+    ) where
+        S: Stream<Item = ReadResult<(BallDetection, MessageInfo)>>,
+    {
+        let shared = &*self.shared;
+        while let Poll::Ready(Some(sample)) = detections.as_mut().poll_next(context) {
+            Shared::add(&shared.received);
+            match sample {
+                Ok((detection, info)) => {
+                    let lost = gaps.take(info.publisher_gid(), info.sequence_number());
+                    if lost > 0 {
+                        let before = shared.lost_before_node.fetch_add(lost, Ordering::Relaxed);
+                        if before == 0 || (before + lost) / 1000 > before / 1000 {
+                            warn!(
+                                "{} detections lost before the node so far (gaps in their publishers' sequence numbers): the network or DDS dropped them",
+                                before + lost
+                            );
+                        }
+                    }
+                    if queue.push(detection) {
+                        let dropped = Shared::add(&shared.dropped_queue_full);
+                        if dropped == 1 || dropped.is_multiple_of(1000) {
+                            warn!(
+                                "the estimator falls behind: {dropped} detections dropped so far (queue full)"
+                            );
+                        }
+                    }
+                }
+                Err(e) => {
+                    let n = Shared::add(&shared.undecodable);
+                    if n == 1 || n.is_multiple_of(1000) {
+                        warn!(
+                            "{n} detection samples did not decode as BallDetection so far: {e:?}"
+                        );
+                    }
+                }
+            }
+        }
+    }
+
+    /// Runs the pipeline on one detection and publishes what it gives.
+    fn process(&mut self, (detection, taken_at): Queued, timings: &mut Timings) {
+        let started = Instant::now();
+        let step = self.pipeline.on_detection(&detection);
+        let ns = nanos(started.elapsed());
+        timings
+            .window
+            .record(ns, nanos(started.duration_since(taken_at)));
+        timings.total_ns += ns as f64;
+        timings.max_ns = timings.max_ns.max(ns);
+        timings.count += 1;
+        self.publish(step.published);
+        timings.in_node.record(nanos(taken_at.elapsed()));
     }
 
     fn publish(&self, published: Published) {
@@ -603,32 +668,4 @@ fn wall_clock_ns() -> i64 {
     SystemTime::now()
         .duration_since(UNIX_EPOCH)
         .map_or(0, |d| i64::try_from(d.as_nanos()).unwrap_or(i64::MAX))
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    fn detection(sec: i32) -> BallDetection {
-        let mut d = BallDetection::default();
-        d.header.stamp.sec = sec;
-        d
-    }
-
-    #[test]
-    fn a_full_queue_drops_the_oldest_and_counts_it() {
-        let shared = Shared::default();
-        let (tx, rx) = channel::bounded::<Queued>(4);
-        let queue = DetectionQueue {
-            tx,
-            rx: rx.clone(),
-            shared: &shared,
-        };
-        for sec in 0..10 {
-            queue.push(detection(sec));
-        }
-        assert_eq!(shared.snapshot().dropped_queue_full, 6);
-        let kept: Vec<i32> = rx.try_iter().map(|(d, _)| d.header.stamp.sec).collect();
-        assert_eq!(kept, [6, 7, 8, 9], "the newest stay, in order");
-    }
 }
