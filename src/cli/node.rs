@@ -208,7 +208,7 @@ fn summary_text(name: &str, s: &NodeSummary) -> String {
     }
     format!(
         "{name} ran {:.1} s: detections received {}, fused {}, initialising {}, rejected {} ({}); tracks {}\n  \
-         processing per detection: mean {:.1} us, max {:.1} us; in the node (off DDS to published): \
+         processing per detection: mean {:.1} us, max {:.1} us; in the node (received by DDS to published): \
          p50 {:.1} us, p99 {:.1} us, max {:.1} us\n  \
          lost before the node {}; service requests {}; publish errors {}\n",
         s.seconds,

@@ -33,7 +33,7 @@ pub struct TransportCounters {
 pub struct Window {
     /// `Pipeline::on_detection` time per detection [ns].
     pub processing: Vec<u64>,
-    /// Time each detection waited in the queue [ns].
+    /// Time each detection waited from DDS receiving it to its processing [ns].
     pub queue_wait: Vec<u64>,
 }
 

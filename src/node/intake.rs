@@ -10,7 +10,7 @@ use std::time::Instant;
 
 use crate::msgs::ttball_msgs::msg::BallDetection;
 
-/// A detection taken off DDS, with the instant it was taken.
+/// A detection taken off DDS, with the instant DDS received it.
 pub type Queued = (BallDetection, Instant);
 
 /// The detections taken off DDS and waiting for the estimator: at most `capacity`; when full,
@@ -29,13 +29,14 @@ impl DetectionQueue {
         }
     }
 
-    /// Queues a detection taken now; returns whether the oldest had to be dropped for it.
-    pub fn push(&mut self, detection: BallDetection) -> bool {
+    /// Queues a detection DDS received at `received`; returns whether the oldest had to be
+    /// dropped for it.
+    pub fn push(&mut self, detection: BallDetection, received: Instant) -> bool {
         let full = self.waiting.len() >= self.capacity;
         if full {
             self.waiting.pop_front();
         }
-        self.waiting.push_back((detection, Instant::now()));
+        self.waiting.push_back((detection, received));
         full
     }
 
@@ -112,7 +113,10 @@ mod tests {
     #[test]
     fn a_full_queue_drops_the_oldest() {
         let mut queue = DetectionQueue::new(4);
-        let dropped = (0..10).filter(|&sec| queue.push(detection(sec))).count();
+        let now = Instant::now();
+        let dropped = (0..10)
+            .filter(|&sec| queue.push(detection(sec), now))
+            .count();
         assert_eq!(dropped, 6);
         assert_eq!(queue.len(), 4);
         let kept: Vec<i32> = std::iter::from_fn(|| queue.pop())

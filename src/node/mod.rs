@@ -149,9 +149,9 @@ pub struct NodeSummary {
     pub processing_mean_ns: f64,
     /// Longest processing time of one detection [ns].
     pub processing_max_ns: f64,
-    /// Time in the node per detection [ns]: from the DDS thread taking the sample off DDS to the
-    /// estimator thread having published its state and intercept (queue wait + processing +
-    /// publishing); over the whole run, in constant memory.
+    /// Time in the node per detection [ns]: from RustDDS receiving the sample (its reception
+    /// timestamp) to the estimator thread having published its state and intercept (waking the
+    /// estimator + queue wait + processing + publishing); over the whole run, in constant memory.
     pub in_node: DurationSummary,
     /// How long the node ran [s].
     pub seconds: f64,
@@ -559,6 +559,7 @@ impl EstimatorThread {
     {
         let shared = &*self.shared;
         while let Poll::Ready(Some(sample)) = detections.as_mut().poll_next(context) {
+            let taken = Instant::now();
             Shared::add(&shared.received);
             match sample {
                 Ok((detection, info)) => {
@@ -572,7 +573,8 @@ impl EstimatorThread {
                             );
                         }
                     }
-                    if queue.push(detection) {
+                    let received = taken.checked_sub(age(&info)).unwrap_or(taken);
+                    if queue.push(detection, received) {
                         let dropped = Shared::add(&shared.dropped_queue_full);
                         if dropped == 1 || dropped.is_multiple_of(1000) {
                             warn!(
@@ -658,6 +660,19 @@ impl EstimatorThread {
         }
     }
 }
+
+/// How long ago RustDDS received a sample (its reception timestamp, on the system clock); zero
+/// when unknown or implausible (a clock step), so that the node's times are never made up.
+fn age(info: &MessageInfo) -> Duration {
+    info.received_timestamp()
+        .map(|received| wall_clock_ns().saturating_sub(received.to_nanos()))
+        .and_then(|ns| u64::try_from(ns).ok())
+        .filter(|&ns| ns < MAX_PLAUSIBLE_AGE_NS)
+        .map_or(Duration::ZERO, Duration::from_nanos)
+}
+
+/// A reception timestamp older than this is taken for a clock step [ns].
+const MAX_PLAUSIBLE_AGE_NS: u64 = 1_000_000_000;
 
 fn nanos(d: Duration) -> u64 {
     u64::try_from(d.as_nanos()).unwrap_or(u64::MAX)
