@@ -7,7 +7,8 @@
 //! - `ttball play --latency` (RustDDS, native code): the node's latency with a light peer.
 //!
 //! `ttball node` and the peer run in a network namespace with only loopback (`unshare -n`), both
-//! limited to 127.0.0.1. The node prints its own share (off DDS to published) when it stops.
+//! limited to 127.0.0.1. The node prints its own share (received by DDS to published) when it
+//! stops.
 //!
 //! `TTBALL_PYTHON=target/interop-venv/bin/python cargo bench --bench node_latency` (the venv that
 //! `.ci/run` makes: `pip install cyclonedds mcap`). Needs permission to make a network namespace.
