@@ -254,29 +254,38 @@ mod tests {
         assert_eq!(msg.header.stamp, Time::from_nanos(1_500_000_000));
     }
 
+    /// The message of a 1 s period with no detection processed and no track.
+    fn transport_only(
+        node: &str,
+        now: &TransportCounters,
+        before: &TransportCounters,
+        queue_len: usize,
+    ) -> DiagnosticArray {
+        diagnostics_msg(
+            &Snapshot {
+                node,
+                detections_topic: "/ball/detections",
+                stamp: 0,
+                period: 1.0,
+                counters: &Counters::default(),
+                transport: now,
+                transport_before: before,
+                queue_len,
+                track: None,
+            },
+            &mut Window::default(),
+        )
+    }
+
     #[test]
     fn drops_in_the_period_warn() {
-        let counters = Counters::default();
         let before = TransportCounters::default();
         let now = TransportCounters {
             received: 500,
             dropped_queue_full: 20,
             ..before
         };
-        let msg = diagnostics_msg(
-            &Snapshot {
-                node: "/robot/ttball",
-                detections_topic: "/ball/detections",
-                stamp: 0,
-                period: 1.0,
-                counters: &counters,
-                transport: &now,
-                transport_before: &before,
-                queue_len: 256,
-                track: None,
-            },
-            &mut Window::default(),
-        );
+        let msg = transport_only("/robot/ttball", &now, &before, 256);
         assert_eq!(msg.status[0].level, DiagnosticStatus::WARN);
         assert!(msg.status[0].message.starts_with("20 detections dropped"));
         assert_eq!(value(&msg, "rejected: queue full"), "20");
@@ -285,7 +294,6 @@ mod tests {
 
     #[test]
     fn losses_before_the_node_in_the_period_warn_and_are_not_rejections() {
-        let counters = Counters::default();
         let before = TransportCounters {
             received: 400,
             lost_before_node: 2,
@@ -296,20 +304,7 @@ mod tests {
             lost_before_node: 9,
             ..before
         };
-        let msg = diagnostics_msg(
-            &Snapshot {
-                node: "/ttball",
-                detections_topic: "/ball/detections",
-                stamp: 0,
-                period: 1.0,
-                counters: &counters,
-                transport: &now,
-                transport_before: &before,
-                queue_len: 0,
-                track: None,
-            },
-            &mut Window::default(),
-        );
+        let msg = transport_only("/ttball", &now, &before, 0);
         assert_eq!(msg.status[0].level, DiagnosticStatus::WARN);
         assert!(
             msg.status[0]
