@@ -1,7 +1,7 @@
 //! `ttball node` and `ttball play` refuse what they cannot run, before any DDS traffic: a bad
-//! configuration, `ROS_DOMAIN_ID` or `--ros-args` exits with code 2 and says what to fix. (The
-//! running node is tested against Cyclone DDS in `tests/node_dds.rs`, in a loopback-only network
-//! namespace.)
+//! configuration, `ROS_DOMAIN_ID`, `--ros-args` or CPU list exits with code 2 and says what to
+//! fix; and `node.cpus` puts the running node's threads where it says (in a loopback-only network
+//! namespace). (The running node is tested against Cyclone DDS in `tests/node_dds.rs`.)
 #![cfg(feature = "cli")]
 #![allow(clippy::unwrap_used, reason = "test code: fail loudly")]
 
@@ -49,6 +49,81 @@ fn node_refuses_a_bad_configuration() {
         &["node", "--config", "no/such/file.yaml"],
         &["does not exist"],
     );
+    refused(
+        &[],
+        &["node", "-p", "node.cpus:=\"2-1\""],
+        &["node.cpus", "a range must go up"],
+    );
+    // A CPU this process may not use: refused before DDS starts, naming those it may use.
+    refused(
+        &[],
+        &["node", "-p", "node.cpus:=1023"],
+        &[
+            "node.cpus",
+            "cannot run on CPUs 1023",
+            "this process may use CPUs",
+        ],
+    );
+}
+
+/// The CPUs this process may run on (`Cpus_allowed_list` of /proc/self/status), read by the
+/// node's own parser of `taskset -c` lists.
+fn allowed_cpus() -> Vec<u32> {
+    let status = std::fs::read_to_string("/proc/self/status").unwrap();
+    let list = status
+        .lines()
+        .find_map(|line| line.strip_prefix("Cpus_allowed_list:"))
+        .unwrap();
+    let params = ttball::config::NodeParams {
+        cpus: list.trim().to_owned(),
+        ..Default::default()
+    };
+    params.cpu_list().unwrap()
+}
+
+/// With `node.cpus`, every thread the node starts, RustDDS's included, runs on that CPU; the
+/// main thread (which only waits for a signal) keeps the process's CPUs.
+#[test]
+fn node_threads_run_on_the_cpus_given() {
+    let cpu = *allowed_cpus().last().unwrap();
+    let dir = common::scratch("cpus");
+    let script = format!(
+        r#"
+export ROS_DOMAIN_ID=45 ROS_LOCALHOST_ONLY=1
+cd "{dir}"
+"{ttball}" node -p node.cpus:={cpu} > node.out 2> node.err &
+node=$!
+# The DDS thread starts last.
+for i in $(seq 100); do grep -qs ttball-dds /proc/$node/task/*/comm && break; sleep 0.1; done
+for t in /proc/$node/task/*; do
+  echo "$(cat $t/comm)|$(grep Cpus_allowed_list $t/status | cut -f2)"
+done > threads.txt
+kill -TERM $node
+wait $node
+"#,
+        dir = dir.display(),
+        ttball = env!("CARGO_BIN_EXE_ttball"),
+    );
+    assert!(common::run_on_loopback_only(&script).success());
+    let threads = std::fs::read_to_string(dir.join("threads.txt")).unwrap();
+    let node_threads: Vec<(&str, &str)> = threads
+        .lines()
+        .filter_map(|line| line.split_once('|'))
+        .filter(|(name, _)| *name != "ttball" && *name != "ctrl-c")
+        .collect();
+    let names: Vec<&str> = node_threads.iter().map(|(name, _)| *name).collect();
+    for expected in ["ttball-estimato", "ttball-dds", "ttball-spinner", "RustDDS"] {
+        assert!(
+            names.iter().any(|name| name.starts_with(expected)),
+            "no {expected} thread in {threads}"
+        );
+    }
+    for (name, cpus) in node_threads {
+        assert_eq!(cpus, cpu.to_string(), "thread {name}: {threads}");
+    }
+    let log = std::fs::read_to_string(dir.join("node.err")).unwrap();
+    assert!(log.contains(&format!("threads on CPUs {cpu}")), "{log}");
+    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]

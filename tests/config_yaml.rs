@@ -474,3 +474,18 @@ fn every_number_out_of_range_is_named_with_its_key() {
     eprintln!("{checked} values tried");
     assert!(checked > 100, "{checked} values tried");
 }
+
+/// `node.cpus` is a `taskset -c` list; one CPU may be a bare number, as `-p node.cpus:=1` gives.
+#[test]
+fn node_cpus_take_a_number_or_a_cpu_list() {
+    let cpus = |text: &str, overrides: &[&str]| {
+        load_text(text, overrides).unwrap().node.cpu_list().unwrap()
+    };
+    assert_eq!(cpus("", &["node.cpus:=1"]), [1]);
+    assert_eq!(cpus("", &["node.cpus:=\"0-1\""]), [0, 1]);
+    assert_eq!(cpus(&params("node:\n  cpus: \"2,3\""), &[]), [2, 3]);
+    assert_eq!(cpus(&params("node:\n  cpus: 3"), &[]), [3]);
+    let text = error("", &["node.cpus:=\"1,x\""]);
+    assert!(text.contains("is not a valid CPU list"), "{text}");
+    assert!(text.contains("taskset -c"), "{text}");
+}

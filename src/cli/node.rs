@@ -188,10 +188,12 @@ impl NodeArgs {
     }
 }
 
-/// A bad domain id or name is a usage error (exit code 2), the rest a failure.
+/// A bad domain id, name or CPU list is a usage error (exit code 2), the rest a failure.
 pub fn node_error(e: NodeError) -> anyhow::Error {
     match e {
-        NodeError::DomainId(_) | NodeError::Name(_) => BadUsage(e.to_string()).into(),
+        NodeError::DomainId(_) | NodeError::Name(_) | NodeError::Cpus(_) => {
+            BadUsage(e.to_string()).into()
+        }
         other => other.into(),
     }
 }

@@ -484,7 +484,58 @@ pub struct NodeParams {
     pub interface_address: String,
     /// Period of the `/diagnostics` messages [s]. ROS 2's diagnostic_updater publishes at 1 Hz.
     pub diagnostics_period: f64,
+    /// CPUs the node's threads run on, as `taskset -c` takes them: e.g. "1", "2,3" or "0-1".
+    /// Every thread of the node, RustDDS's included, then runs there; on one core, handing a
+    /// detection from thread to thread wakes no other core (see the README's latency numbers).
+    /// Empty: wherever the operating system puts them. ([`NodeParams::cpu_list`] reads it.) One
+    /// CPU may be given as a bare number (`-p node.cpus:=1`).
+    #[serde(deserialize_with = "text_or_number")]
+    pub cpus: String,
 }
+
+impl NodeParams {
+    /// The CPUs of [`NodeParams::cpus`], ascending and without repeats; empty for any.
+    pub fn cpu_list(&self) -> Result<Vec<u32>, &'static str> {
+        const SYNTAX: &str = "give CPU numbers and ranges as `taskset -c` takes them, e.g. \"1\", \"2,3\" or \"0-1\", or \"\" for any";
+        let number = |text: &str| text.trim().parse::<u32>().map_err(|_| SYNTAX);
+        let mut cpus = Vec::new();
+        for item in self.cpus.split(',').filter(|item| !item.trim().is_empty()) {
+            let (first, last) = match item.split_once('-') {
+                Some((first, last)) => (number(first)?, number(last)?),
+                None => (number(item)?, number(item)?),
+            };
+            if first > last {
+                return Err("a range must go up, e.g. \"2-3\"");
+            }
+            if last >= MAX_CPUS {
+                return Err(
+                    "CPU numbers go up to 1023 (`nproc --all` says how many this machine has)",
+                );
+            }
+            cpus.extend(first..=last);
+        }
+        cpus.sort_unstable();
+        cpus.dedup();
+        Ok(cpus)
+    }
+}
+
+/// A string, or a whole number taken as its digits.
+fn text_or_number<'de, D: serde::Deserializer<'de>>(input: D) -> Result<String, D::Error> {
+    #[derive(Deserialize)]
+    #[serde(untagged)]
+    enum TextOrNumber {
+        Text(String),
+        Number(u64),
+    }
+    Ok(match TextOrNumber::deserialize(input)? {
+        TextOrNumber::Text(text) => text,
+        TextOrNumber::Number(number) => number.to_string(),
+    })
+}
+
+/// CPU numbers [`NodeParams::cpus`] may name: the size of Linux's `cpu_set_t`.
+const MAX_CPUS: u32 = 1024;
 
 /// The request/reply framing of ROS 2 services on DDS (it differs between RMW implementations).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -508,6 +559,7 @@ impl Default for NodeParams {
             localhost_only: false,
             interface_address: String::new(),
             diagnostics_period: 1.0,
+            cpus: String::new(),
         }
     }
 }

@@ -620,6 +620,7 @@ impl Config {
                 && n.interface_address.parse::<std::net::IpAddr>().is_err())
             .then_some("give the address of one of this machine's interfaces, e.g. \"192.168.1.20\", or \"\" for all"),
         );
+        c.name("node.cpus", &n.cpus, "CPU list", n.cpu_list().err());
         c.real(
             "node.diagnostics_period",
             n.diagnostics_period,
@@ -703,6 +704,29 @@ mod tests {
         let text = c.validate().expect_err("invalid").to_string();
         assert!(
             text.contains("`racket.vibration_mode_masses` has 1 elements but `racket.vibration_mode_frequencies` has 2"),
+            "{text}"
+        );
+    }
+
+    #[test]
+    fn node_cpus_are_a_taskset_cpu_list() {
+        let mut c = Config::default();
+        let mut list = |text: &str| {
+            c.node.cpus = text.to_owned();
+            c.node.cpu_list()
+        };
+        assert_eq!(list(""), Ok(vec![]));
+        assert_eq!(list("1"), Ok(vec![1]));
+        assert_eq!(list(" 3, 0-1 ,1"), Ok(vec![0, 1, 3]));
+        assert_eq!(list("1023"), Ok(vec![1023]));
+        for bad in ["1024", "3-2", "x", "1-", "-1", "1;2"] {
+            assert!(list(bad).is_err(), "{bad:?}");
+        }
+        c.node.cpus = "2-1".to_owned();
+        assert_eq!(keys(&c), ["node.cpus"]);
+        let text = c.validate().expect_err("invalid").to_string();
+        assert!(
+            text.contains("`node.cpus` = \"2-1\" is not a valid CPU list: a range must go up"),
             "{text}"
         );
     }

@@ -21,6 +21,7 @@
 //! [`NodeHandle::stop`] stops the DDS thread first; the estimator then takes what DDS holds,
 //! processes and publishes what was queued, and ends; then DDS shuts down.
 
+mod affinity;
 mod dds;
 mod diagnostics;
 mod intake;
@@ -92,6 +93,9 @@ pub enum NodeError {
     /// DDS refused to create something (participant, topic, reader, writer).
     #[error("DDS: {0}")]
     Dds(String),
+    /// The node's threads cannot run on the CPUs `node.cpus` names.
+    #[error("{0}")]
+    Cpus(String),
     /// A thread of the node could not start or ended abnormally.
     #[error("node thread: {0}")]
     Thread(String),
@@ -237,8 +241,17 @@ struct Outputs {
 }
 
 /// Starts the node with a validated configuration: creates the participant, the node, its
-/// subscription, publishers and services, then starts its threads.
+/// subscription, publishers and services, then starts its threads, on the CPUs `node.cpus`
+/// names (all of them, RustDDS's included) or wherever the OS puts them.
 pub fn start(config: &Config, placement: &Placement) -> Result<NodeHandle, NodeError> {
+    let cpus = config
+        .node
+        .cpu_list()
+        .map_err(|reason| NodeError::Cpus(format!("node.cpus {:?}: {reason}", config.node.cpus)))?;
+    affinity::start_on(&cpus, || start_here(config, placement))
+}
+
+fn start_here(config: &Config, placement: &Placement) -> Result<NodeHandle, NodeError> {
     let context = dds::context(placement.domain, placement.interfaces.as_deref())?;
     let node_name = dds::node_name(config)?;
     let mut node = dds::node(&context, node_name.clone(), true)?;
@@ -292,9 +305,14 @@ pub fn start(config: &Config, placement: &Placement) -> Result<NodeHandle, NodeE
         .collect::<Vec<_>>()
         .join(", ");
     info!(
-        "node {fq_name} on DDS domain {}, {}: detections from {} (best effort, depth {}), outputs on {}, {}, {}, {}, {} (reliable, depth {}), services {service_names} ({:?} mapping)",
+        "node {fq_name} on DDS domain {}, {}{}: detections from {} (best effort, depth {}), outputs on {}, {}, {}, {}, {} (reliable, depth {}), services {service_names} ({:?} mapping)",
         placement.domain,
         placement.describe_interfaces(),
+        if config.node.cpus.is_empty() {
+            String::new()
+        } else {
+            format!(", threads on CPUs {}", config.node.cpus)
+        },
         topics.detections,
         config.qos.detections_depth,
         topics.state,
