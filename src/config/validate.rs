@@ -731,6 +731,22 @@ mod tests {
         );
     }
 
+    /// The range in `prediction.step`'s message is written out (a `&'static str`): it must say
+    /// the limit the check uses.
+    #[test]
+    fn step_message_states_the_limit_checked() {
+        let mut c = Config::default();
+        c.prediction.step = crate::config::MAX_STEP * 1.01;
+        let text = c.validate().expect_err("invalid").to_string();
+        let limit = crate::config::MAX_STEP;
+        assert!(
+            text.contains(&format!("at most {limit} (seconds)")),
+            "{text}"
+        );
+        c.prediction.step = crate::config::MAX_STEP;
+        assert_eq!(c.validate(), Ok(()));
+    }
+
     #[test]
     fn defaults_are_valid() {
         assert_eq!(Config::default().validate(), Ok(()));
