@@ -29,7 +29,7 @@ pub fn start_on<T: Send>(
 
 #[cfg(target_os = "linux")]
 fn pin_this_thread(cpus: &[u32]) -> Result<(), NodeError> {
-    use nix::sched::{CpuSet, sched_getaffinity, sched_setaffinity};
+    use nix::sched::{CpuSet, sched_setaffinity};
     use nix::unistd::Pid;
 
     let mut set = CpuSet::new();
@@ -43,21 +43,36 @@ fn pin_this_thread(cpus: &[u32]) -> Result<(), NodeError> {
         })?;
     }
     sched_setaffinity(Pid::from_raw(0), &set).map_err(|e| {
-        let allowed = sched_getaffinity(Pid::from_raw(0)).map_or_else(
-            |_| "unknown".to_owned(),
-            |allowed| {
-                (0..CpuSet::count())
-                    .filter(|&i| allowed.is_set(i).unwrap_or(false))
-                    .map(|i| i.to_string())
-                    .collect::<Vec<_>>()
-                    .join(", ")
-            },
-        );
+        let allowed = allowed_here().map_or_else(|| "unknown".to_owned(), |list| listed(&list));
         NodeError::Cpus(format!(
             "node.cpus: cannot run on CPUs {} ({e}); this process may use CPUs {allowed}: name some of them, or \"\" for any",
-            cpus.iter().map(u32::to_string).collect::<Vec<_>>().join(", ")
+            listed(cpus)
         ))
     })
+}
+
+/// The CPUs the calling thread may run on, ascending; `None` when Linux does not say.
+#[cfg(target_os = "linux")]
+fn allowed_here() -> Option<Vec<u32>> {
+    use nix::sched::{CpuSet, sched_getaffinity};
+    use nix::unistd::Pid;
+
+    let set = sched_getaffinity(Pid::from_raw(0)).ok()?;
+    Some(
+        (0..CpuSet::count())
+            .filter(|&i| set.is_set(i).unwrap_or(false))
+            .filter_map(|i| u32::try_from(i).ok())
+            .collect(),
+    )
+}
+
+/// CPU numbers as a message lists them: "0, 1".
+#[cfg(target_os = "linux")]
+fn listed(cpus: &[u32]) -> String {
+    cpus.iter()
+        .map(u32::to_string)
+        .collect::<Vec<_>>()
+        .join(", ")
 }
 
 #[cfg(not(target_os = "linux"))]
@@ -72,15 +87,9 @@ fn pin_this_thread(_cpus: &[u32]) -> Result<(), NodeError> {
 #[cfg(target_os = "linux")]
 mod tests {
     use super::*;
-    use nix::sched::{CpuSet, sched_getaffinity};
-    use nix::unistd::Pid;
 
     fn allowed_here() -> Vec<u32> {
-        let set = sched_getaffinity(Pid::from_raw(0)).expect("affinity");
-        (0..CpuSet::count())
-            .filter(|&i| set.is_set(i).unwrap_or(false))
-            .map(|i| u32::try_from(i).expect("cpu"))
-            .collect()
+        super::allowed_here().expect("affinity")
     }
 
     #[test]
