@@ -5,9 +5,9 @@
 use nalgebra::{SMatrix, Vector3};
 use ttball::config::Config;
 use ttball::physics::{
-    BallState, BounceRegime, Cursor, EventKind, FlightModel, Flow, Observer, Outcome,
-    PredictOptions, Propagator, StateMatrix, StateRow, StateVector, TableBounce, TrajectoryEnd,
-    Watch, predict, propagate::Event,
+    BallState, BounceRegime, Cursor, EventKind, FlightModel, Flow, Observer, Outcome, PARAMS,
+    ParamMatrix, PhysicsParams, PredictOptions, Propagator, StateMatrix, StateRow, StateVector,
+    TableBounce, TrajectoryEnd, Watch, predict, propagate::Event,
 };
 use ttball::sim::Rng;
 
@@ -264,6 +264,110 @@ fn propagation_jacobian_matches_finite_differences_through_bounces() {
             assert!(
                 err_after < 1e-6,
                 "event {i} state error {err_after:e} for {shot:?}"
+            );
+        }
+    }
+    assert!(regimes.contains(&BounceRegime::Sliding) && regimes.contains(&BounceRegime::Rolling));
+}
+
+/// The state's sensitivity to the physical parameters (drag and Magnus scales, the table's
+/// restitution and friction) through flights with sliding and rolling bounces and a plane
+/// crossing, and each event's time and state sensitivity, against central finite differences of
+/// propagations with perturbed parameters; the state transition is unchanged by tracking them.
+#[test]
+fn parameter_sensitivities_match_finite_differences_through_bounces() {
+    let propagator = Propagator::new(&Config::default());
+    let base = PhysicsParams {
+        drag_scale: 0.9,
+        magnus_scale: 0.7,
+        restitution: 0.92,
+        friction: 0.22,
+    };
+    let watch = Watch {
+        plane_x: Some(-1.6),
+        ..Watch::BOUNCES
+    };
+    let shots = [
+        state([1.3, 0.0, 0.30], [-4.5, 0.0, 1.6], [0.0, 0.0, 0.0]),
+        state([1.2, -0.2, 0.25], [-4.0, 0.3, 1.5], [0.0, 120.0, -30.0]),
+        state([-0.2, 0.0, 0.45], [-1.0, 0.1, -1.0], [0.0, -60.0, 0.0]),
+        state([1.1, 0.1, 0.3], [-7.0, -0.4, 0.8], [20.0, -250.0, 10.0]),
+    ];
+    let propagate = |params: &PhysicsParams, x: &StateVector, tracked: bool| {
+        struct Keep(Vec<Event>);
+        impl Observer for Keep {
+            fn on_event(&mut self, event: &Event) -> Flow {
+                self.0.push(*event);
+                Flow::Continue
+            }
+        }
+        let p = propagator.with_params(params);
+        let mut cursor = if tracked {
+            Cursor::tracking_params(0.0, *x)
+        } else {
+            Cursor::tracking(0.0, *x)
+        };
+        let mut keep = Keep(Vec::new());
+        assert_eq!(
+            p.advance(&mut cursor, 0.9, watch, &mut keep),
+            Outcome::Reached
+        );
+        (cursor, keep.0)
+    };
+    let mut regimes = Vec::new();
+    for shot in shots {
+        let x0 = shot.to_vector();
+        let (end, events) = propagate(&base, &x0, true);
+        let (plain, _) = propagate(&base, &x0, false);
+        assert_eq!(end.state, plain.state);
+        let tangent = end.tangent.expect("tangent");
+        assert_eq!(
+            tangent.transition(),
+            plain.tangent.expect("tangent").transition()
+        );
+        regimes.extend(events.iter().filter_map(|e| match e.kind {
+            EventKind::TableBounce { regime } => Some(regime),
+            _ => None,
+        }));
+        let theta = base.to_vector();
+        let perturbed: Vec<_> = (0..PARAMS)
+            .map(|j| {
+                let h = 1e-6;
+                let (mut plus, mut minus) = (theta, theta);
+                plus[j] += h;
+                minus[j] -= h;
+                let run = |t| propagate(&PhysicsParams::from_vector(&t), &x0, false);
+                (h, run(plus), run(minus))
+            })
+            .collect();
+        let numeric = |value: &dyn Fn(&Run) -> StateVector| {
+            ParamMatrix::from_fn(|i, j| {
+                let (h, plus, minus) = &perturbed[j];
+                (value(plus)[i] - value(minus)[i]) / (2.0 * h)
+            })
+        };
+        let check = |analytic: &ParamMatrix, numeric: &ParamMatrix, what: &str| {
+            let scale = numeric.norm().max(1e-9);
+            let err = (analytic - numeric).norm() / scale;
+            assert!(err < 1e-5, "{what}: relative error {err:e} for {shot:?}");
+        };
+        check(
+            &tangent.params().expect("params"),
+            &numeric(&|r| r.0.state),
+            "end state",
+        );
+        for (i, event) in events.iter().enumerate() {
+            let s = event
+                .sensitivity
+                .and_then(|s| s.params)
+                .expect("parameter sensitivity");
+            check(&s.after, &numeric(&|r| r.1[i].after), "event state");
+            let times = numeric(&|r| StateVector::from_element(r.1[i].t));
+            let err_t = (s.time_gradient - times.fixed_rows::<1>(0)).norm()
+                / times.fixed_rows::<1>(0).norm().max(1e-9);
+            assert!(
+                err_t < 1e-5,
+                "event {i} time gradient {err_t:e} for {shot:?}"
             );
         }
     }

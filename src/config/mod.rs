@@ -67,6 +67,11 @@ pub struct AeroParams {
     pub spin_parameter_max: f64,
     /// Exponential spin decay in flight, dw/dt = -rate * w [1/s]. The seed model has none (0).
     pub spin_decay_rate: f64,
+    /// Scale factor k_D on the drag force of `drag_coefficients` [-]: the start of the
+    /// estimator's adaptation (`adaptation.*`), 1 = the polynomial as given.
+    pub drag_scale: f64,
+    /// Scale factor k_M on the Magnus force of `magnus_coefficients` [-], likewise.
+    pub magnus_scale: f64,
 }
 
 impl Default for AeroParams {
@@ -76,6 +81,8 @@ impl Default for AeroParams {
             magnus_coefficients: vec![0.8254, -1.9501, 2.2813, -1.2055, 0.2313],
             spin_parameter_max: 2.0,
             spin_decay_rate: 0.0,
+            drag_scale: 1.0,
+            magnus_scale: 1.0,
         }
     }
 }

@@ -7,6 +7,7 @@
 use thiserror::Error;
 
 use super::{Config, SourceParams};
+use crate::physics::aero::MAX_POLYNOMIAL_COEFFICIENTS;
 
 /// One configuration value outside its allowed range. `key` is the dotted parameter name, as in
 /// the ROS 2 parameters file (`table.restitution`, `aero.drag_coefficients[2]`).
@@ -74,6 +75,16 @@ pub enum Violation {
         /// Why the one must not exceed the other.
         reason: &'static str,
     },
+    /// A list holds more elements than the model takes.
+    #[error("`{key}` has {len} elements: at most {max} are taken")]
+    TooLong {
+        /// Dotted key of the list.
+        key: String,
+        /// Its length.
+        len: usize,
+        /// The most it may hold.
+        max: usize,
+    },
     /// Two lists that pair up element by element have different lengths.
     #[error(
         "`{key}` has {len} elements but `{other_key}` has {other_len}: give one per element of `{other_key}`"
@@ -100,6 +111,7 @@ impl Violation {
             | Self::EmptyList { key, .. }
             | Self::BadName { key, .. }
             | Self::Exceeds { key, .. }
+            | Self::TooLong { key, .. }
             | Self::LengthMismatch { key, .. } => key,
         }
     }
@@ -165,6 +177,13 @@ impl Checker {
             self.violations.push(Violation::EmptyList {
                 key: key.to_owned(),
                 element: "polynomial coefficient (lowest order first)",
+            });
+        }
+        if coefficients.len() > MAX_POLYNOMIAL_COEFFICIENTS {
+            self.violations.push(Violation::TooLong {
+                key: key.to_owned(),
+                len: coefficients.len(),
+                max: MAX_POLYNOMIAL_COEFFICIENTS,
             });
         }
         for (i, &c) in coefficients.iter().enumerate() {
@@ -331,6 +350,17 @@ impl Config {
         c.polynomial("aero.magnus_coefficients", &ae.magnus_coefficients);
         c.positive("aero.spin_parameter_max", ae.spin_parameter_max);
         c.non_negative("aero.spin_decay_rate", ae.spin_decay_rate);
+        for (key, value) in [
+            ("aero.drag_scale", ae.drag_scale),
+            ("aero.magnus_scale", ae.magnus_scale),
+        ] {
+            c.real(
+                key,
+                value,
+                |v| (0.0..=5.0).contains(&v),
+                "between 0 and 5 (a factor on the configured polynomial's force)",
+            );
+        }
 
         let t = &self.table;
         for (key, value) in [

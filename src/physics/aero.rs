@@ -14,28 +14,45 @@
 
 use nalgebra::{Matrix3, SMatrix, Vector3};
 
+use super::params::{DRAG_SCALE, ParamMatrix};
 use super::state::{SPIN, StateVector, VELOCITY};
 use crate::config::Config;
 
-/// A polynomial sum_i c_i x^i with its coefficients lowest order first.
-#[derive(Debug, Clone, PartialEq)]
+/// Most coefficients a [`Polynomial`] holds (degree 7); the configuration's polynomials are
+/// validated against it.
+pub const MAX_POLYNOMIAL_COEFFICIENTS: usize = 8;
+
+/// A polynomial sum_i c_i x^i with its coefficients lowest order first, held inline (no heap:
+/// a model that holds polynomials can be copied in the per-detection path).
+#[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Polynomial {
-    coefficients: Vec<f64>,
+    coefficients: [f64; MAX_POLYNOMIAL_COEFFICIENTS],
+    len: usize,
 }
 
 impl Polynomial {
-    /// A polynomial from its coefficients, lowest order first.
+    /// A polynomial from its coefficients, lowest order first. At most
+    /// [`MAX_POLYNOMIAL_COEFFICIENTS`] are kept (the configuration refuses longer lists).
     pub fn new(coefficients: &[f64]) -> Self {
+        let len = coefficients.len().min(MAX_POLYNOMIAL_COEFFICIENTS);
+        let mut kept = [0.0; MAX_POLYNOMIAL_COEFFICIENTS];
+        kept[..len].copy_from_slice(&coefficients[..len]);
         Self {
-            coefficients: coefficients.to_vec(),
+            coefficients: kept,
+            len,
         }
+    }
+
+    /// The coefficients, lowest order first.
+    pub fn coefficients(&self) -> &[f64] {
+        &self.coefficients[..self.len]
     }
 
     /// The value and the first derivative at `x` (Horner's scheme).
     pub fn value_and_slope(&self, x: f64) -> (f64, f64) {
         let mut value = 0.0;
         let mut slope = 0.0;
-        for &c in self.coefficients.iter().rev() {
+        for &c in self.coefficients().iter().rev() {
             slope = slope * x + value;
             value = value * x + c;
         }
@@ -44,7 +61,7 @@ impl Polynomial {
 
     /// The value at `x` (the same as [`Self::value_and_slope`]'s, bit for bit).
     pub fn value(&self, x: f64) -> f64 {
-        self.coefficients
+        self.coefficients()
             .iter()
             .rev()
             .fold(0.0, |value, &c| value * x + c)
@@ -78,6 +95,8 @@ pub struct FlightJacobian {
     pub dv_dw: Matrix3<f64>,
     /// Spin decay rate lambda [1/s]: d(dw/dt)/dw = -lambda I.
     pub spin_decay: f64,
+    /// d(acceleration)/d(k_D, k_M): the drag and Magnus accelerations at unit scale [m/s^2].
+    pub dv_dscales: SMatrix<f64, 3, 2>,
 }
 
 impl FlightJacobian {
@@ -98,6 +117,17 @@ impl FlightJacobian {
     /// The full 9x9 matrix.
     pub fn to_matrix(&self) -> SMatrix<f64, 9, 9> {
         self.apply(&SMatrix::<f64, 9, 9>::identity())
+    }
+
+    /// `A m + B`, with B = d(flight field)/d(physical parameters): the rate of a state's
+    /// sensitivity `m` to the parameters ([`super::PhysicsParams`] order: k_D, k_M, e_t, mu_t;
+    /// the table's two do not act in flight).
+    #[inline]
+    pub fn apply_params(&self, m: &ParamMatrix) -> ParamMatrix {
+        let mut out = self.apply(m);
+        let mut forcing = out.fixed_view_mut::<3, 2>(VELOCITY, DRAG_SCALE);
+        forcing += self.dv_dscales;
+        out
     }
 
     /// The product `A m` of a matrix of free-flight structure (again of that structure).
@@ -258,13 +288,18 @@ struct Field {
     sp_eval: f64,
 }
 
-/// The flight model: constants of the ball and the air folded into two factors.
-#[derive(Debug, Clone, PartialEq)]
+/// The flight model: constants of the ball and the air folded into two factors, and the scale
+/// factors on the drag and Magnus forces that the estimator adapts ([`super::PhysicsParams`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
 pub struct FlightModel {
     gravity: f64,
     radius: f64,
     drag_factor: f64,
     magnus_factor: f64,
+    /// k_D: the drag acceleration is k_D C_D(Sp) rho S_b / m |v| v.
+    drag_scale: f64,
+    /// k_M: the Magnus acceleration is k_M C_M(Sp) rho V_b / m (w x v).
+    magnus_scale: f64,
     drag: Polynomial,
     magnus: Polynomial,
     spin_parameter_max: f64,
@@ -284,6 +319,8 @@ impl FlightModel {
             radius: r,
             drag_factor: rho * cross_section / m,
             magnus_factor: rho * volume / m,
+            drag_scale: config.aero.drag_scale,
+            magnus_scale: config.aero.magnus_scale,
             drag: Polynomial::new(&config.aero.drag_coefficients),
             magnus: Polynomial::new(&config.aero.magnus_coefficients),
             spin_parameter_max: config.aero.spin_parameter_max,
@@ -291,12 +328,26 @@ impl FlightModel {
         }
     }
 
-    /// rho S_b / m [1/m]: multiplied by C_D |v| v it gives the drag acceleration.
+    /// The same model with other scale factors on the drag and the Magnus force [-].
+    pub fn with_scales(&self, drag_scale: f64, magnus_scale: f64) -> Self {
+        Self {
+            drag_scale,
+            magnus_scale,
+            ..*self
+        }
+    }
+
+    /// The scale factors (k_D, k_M) on the drag and the Magnus force [-].
+    pub fn scales(&self) -> (f64, f64) {
+        (self.drag_scale, self.magnus_scale)
+    }
+
+    /// rho S_b / m [1/m]: multiplied by k_D C_D |v| v it gives the drag acceleration.
     pub fn drag_factor(&self) -> f64 {
         self.drag_factor
     }
 
-    /// rho V_b / m [-]: multiplied by C_M (w x v) it gives the Magnus acceleration.
+    /// rho V_b / m [-]: multiplied by k_M C_M (w x v) it gives the Magnus acceleration.
     pub fn magnus_factor(&self) -> f64 {
         self.magnus_factor
     }
@@ -382,8 +433,8 @@ impl FlightModel {
     /// parameter.
     fn accelerations(&self, f: &Field, cd: f64, cm: f64) -> (Vector3<f64>, Vector3<f64>) {
         (
-            -self.drag_factor * cd * f.speed * f.v,
-            self.magnus_factor * cm * f.c,
+            -(self.drag_factor * self.drag_scale) * cd * f.speed * f.v,
+            (self.magnus_factor * self.magnus_scale) * cm * f.c,
         )
     }
 
@@ -436,9 +487,11 @@ impl FlightModel {
         // Drag: -k_D C_D |v| v, d(|v| v)/dv = |v| I + v v' / |v|.
         // Magnus: k_M C_M (w x v);  d(w x v)/dv = [w]x,  d(w x v)/dw = -[v]x.
         // Both coefficients move with Sp: the rank-one term (dC_D, dC_M part) is shared.
-        let drag_scale = -self.drag_factor * cd;
-        let magnus_scale = self.magnus_factor * cm;
-        let sp_direction = v * (-self.drag_factor * dcd * speed) + c * (self.magnus_factor * dcm);
+        let drag_factor = self.drag_factor * self.drag_scale;
+        let magnus_factor = self.magnus_factor * self.magnus_scale;
+        let drag_scale = -drag_factor * cd;
+        let magnus_scale = magnus_factor * cm;
+        let sp_direction = v * (-drag_factor * dcd * speed) + c * (magnus_factor * dcm);
         let mut dv_dv = sp_direction * dsp_dv.transpose() + w.cross_matrix() * magnus_scale;
         if speed >= TINY {
             let diagonal = drag_scale * speed;
@@ -449,10 +502,14 @@ impl FlightModel {
         }
         let dv_dw = sp_direction * dsp_dw.transpose() - v.cross_matrix() * magnus_scale;
 
+        let mut dv_dscales = SMatrix::<f64, 3, 2>::zeros();
+        dv_dscales.set_column(0, &(v * (-self.drag_factor * cd * speed)));
+        dv_dscales.set_column(1, &(c * (self.magnus_factor * cm)));
         let jacobian = FlightJacobian {
             dv_dv,
             dv_dw,
             spin_decay: self.spin_decay,
+            dv_dscales,
         };
         (dx, jacobian)
     }

@@ -36,6 +36,8 @@ pub struct Bounce {
     pub state: StateVector,
     /// d(state after)/d(state before) at a fixed contact point.
     pub jacobian: StateMatrix,
+    /// d(state after)/d(e_t, mu_t): the restitution's and the friction's columns.
+    pub table_jacobian: SMatrix<f64, 9, 2>,
     /// Sliding or rolling.
     pub regime: BounceRegime,
 }
@@ -56,6 +58,20 @@ impl TableBounce {
             friction: config.table.friction,
             radius: config.ball.radius,
         }
+    }
+
+    /// The same model with another restitution e_t and friction mu_t [-].
+    pub fn with_table(&self, restitution: f64, friction: f64) -> Self {
+        Self {
+            restitution,
+            friction,
+            ..*self
+        }
+    }
+
+    /// The restitution e_t and friction mu_t [-].
+    pub fn table(&self) -> (f64, f64) {
+        (self.restitution, self.friction)
     }
 
     /// Slip velocity of the contact point, (v_x - r w_y, v_y + r w_x) [m/s].
@@ -103,7 +119,9 @@ impl TableBounce {
         du_dx[(1, VELOCITY + 1)] = 1.0;
         du_dx[(1, SPIN)] = r;
 
-        // Tangential impulse per unit mass, delta = alpha u, and its Jacobian.
+        // Tangential impulse per unit mass, delta = alpha u, and its Jacobian; with its
+        // derivative with respect to (e, mu) (zero when the ball rolls out).
+        let mut ddelta_dtable = Matrix2::zeros();
         let (regime, delta, ddelta_dx) = if sliding_alpha >= ROLLING_ALPHA {
             (
                 BounceRegime::Rolling,
@@ -120,6 +138,8 @@ impl TableBounce {
             let dabs_vz = if vz < 0.0 { -1.0 } else { 1.0 };
             for row in 0..2 {
                 ddelta_dx[(row, VELOCITY + 2)] += k * dabs_vz * u_hat[row];
+                ddelta_dtable[(row, 0)] = self.friction * vz.abs() * u_hat[row];
+                ddelta_dtable[(row, 1)] = (1.0 + e) * vz.abs() * u_hat[row];
             }
             (BounceRegime::Sliding, delta, ddelta_dx)
         };
@@ -141,9 +161,19 @@ impl TableBounce {
             jacobian[(SPIN + 1, col)] += spin_gain * ddelta_dx[(0, col)];
         }
 
+        let mut table_jacobian = SMatrix::<f64, 9, 2>::zeros();
+        table_jacobian[(VELOCITY + 2, 0)] = -vz;
+        for col in 0..2 {
+            table_jacobian[(VELOCITY, col)] = -ddelta_dtable[(0, col)];
+            table_jacobian[(VELOCITY + 1, col)] = -ddelta_dtable[(1, col)];
+            table_jacobian[(SPIN, col)] = -spin_gain * ddelta_dtable[(1, col)];
+            table_jacobian[(SPIN + 1, col)] = spin_gain * ddelta_dtable[(0, col)];
+        }
+
         Bounce {
             state: after,
             jacobian,
+            table_jacobian,
             regime,
         }
     }

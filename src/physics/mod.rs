@@ -10,10 +10,13 @@
 //!   rebound, spin from the rubber's friction, load on the grip.
 //! - [`contact`]: contact time, force and deformation of that impact, and the plate's vibration
 //!   loss.
+//! - [`params`]: the physical parameters the estimator adapts (drag and Magnus scales, the
+//!   table's restitution and friction), whose sensitivities the propagator carries.
 
 pub mod aero;
 pub mod bounce;
 pub mod contact;
+pub mod params;
 pub mod predict;
 pub mod propagate;
 pub mod racket;
@@ -22,9 +25,11 @@ pub mod state;
 pub use aero::{AeroForces, FlightJacobian, FlightMatrix, FlightModel};
 pub use bounce::{Bounce, BounceRegime, TableBounce};
 pub use contact::{Contact, ContactError, RestoringCharacteristic};
+pub use params::{PARAMS, ParamMatrix, ParamRow, ParamVector, PhysicsParams};
 pub use predict::{PredictOptions, Sample, Trajectory, TrajectoryEnd, predict};
 pub use propagate::{
-    Cursor, Event, EventKind, Flow, Observer, Outcome, Propagator, Tangent, Watch,
+    Cursor, Event, EventKind, EventParamSensitivity, EventSensitivity, Flow, Observer, Outcome,
+    Propagator, Tangent, Watch,
 };
 pub use racket::{Hit, ImpactError, NormalImpact, RacketModel, RacketState, WristLoad};
 pub use state::{BallState, StateMatrix, StateRow, StateVector};

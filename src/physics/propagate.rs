@@ -17,6 +17,7 @@
 
 use super::aero::{FlightMatrix, FlightModel};
 use super::bounce::{BounceRegime, TableBounce};
+use super::params::{ParamMatrix, ParamRow, PhysicsParams, RESTITUTION};
 use super::state::{BallState, StateMatrix, StateRow, StateVector, VELOCITY};
 use crate::config::Config;
 
@@ -34,6 +35,30 @@ pub struct Tangent {
     /// d(current time)/d(initial state) [s per state unit]; non-zero only at an event, whose time
     /// moves with the initial state.
     pub time_gradient: StateRow,
+    /// The sensitivities to the physical parameters, when asked for ([`Cursor::tracking_params`]).
+    params: Option<ParamTangent>,
+}
+
+/// d(state)/d(physical parameters) of a [`Cursor`] ([`super::params`]), kept like the state
+/// transition: up to the last event, and over the flight since at a fixed state after it.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct ParamTangent {
+    /// d(state after the last event)/d(parameters).
+    until_event: ParamMatrix,
+    /// d(current state)/d(parameters) at a fixed state after the last event.
+    flight: ParamMatrix,
+    /// d(current time)/d(parameters); non-zero only at an event.
+    time_gradient: ParamRow,
+}
+
+impl ParamTangent {
+    fn zero() -> Self {
+        Self {
+            until_event: ParamMatrix::zeros(),
+            flight: ParamMatrix::zeros(),
+            time_gradient: ParamRow::zeros(),
+        }
+    }
 }
 
 impl Tangent {
@@ -42,7 +67,31 @@ impl Tangent {
             until_event: None,
             flight: FlightMatrix::identity(),
             time_gradient: StateRow::zeros(),
+            params: None,
         }
+    }
+
+    /// d(current state)/d(physical parameters), when the cursor tracks them.
+    pub fn params(&self) -> Option<ParamMatrix> {
+        self.params
+            .as_ref()
+            .map(|p| self.flight.times(&p.until_event) + p.flight)
+    }
+
+    /// d(current time)/d(physical parameters), when the cursor tracks them [s per unit];
+    /// non-zero only at an event.
+    pub fn param_time_gradient(&self) -> Option<ParamRow> {
+        self.params.as_ref().map(|p| p.time_gradient)
+    }
+
+    /// True when the current time moves with the initial state or the parameters (just after
+    /// an event).
+    fn time_moves(&self) -> bool {
+        self.time_gradient != StateRow::zeros()
+            || self
+                .params
+                .as_ref()
+                .is_some_and(|p| p.time_gradient != ParamRow::zeros())
     }
 
     /// The state-transition matrix: d(current state)/d(initial state).
@@ -53,8 +102,7 @@ impl Tangent {
     /// The state-transition matrix in its block structure when the propagation met no event (the
     /// transition of free flight); `None` after an event.
     pub fn free_flight(&self) -> Option<&FlightMatrix> {
-        (self.until_event.is_none() && self.time_gradient == StateRow::zeros())
-            .then_some(&self.flight)
+        (self.until_event.is_none() && !self.time_moves()).then_some(&self.flight)
     }
 
     /// `transition * p * transition'`: a covariance `p` of the initial state carried to the
@@ -80,10 +128,15 @@ impl Tangent {
         }
     }
 
-    /// Restarts the flight part at an event whose full transition is `transition`.
-    fn restart_at(&mut self, transition: StateMatrix) {
+    /// Restarts the flight part at an event whose full transition is `transition` (and whose
+    /// full sensitivity to the parameters is `params`, when tracked).
+    fn restart_at(&mut self, transition: StateMatrix, params: Option<ParamMatrix>) {
         self.until_event = Some(transition);
         self.flight = FlightMatrix::identity();
+        if let (Some(p), Some(until_event)) = (self.params.as_mut(), params) {
+            p.until_event = until_event;
+            p.flight = ParamMatrix::zeros();
+        }
     }
 }
 
@@ -122,6 +175,19 @@ impl Cursor {
             t,
             state,
             tangent: Some(Tangent::identity()),
+        }
+    }
+
+    /// A cursor at time `t` on a state vector that also propagates the state-transition matrix
+    /// and the state's sensitivity to the physical parameters (starting at I and 0).
+    pub fn tracking_params(t: f64, state: StateVector) -> Self {
+        Self {
+            t,
+            state,
+            tangent: Some(Tangent {
+                params: Some(ParamTangent::zero()),
+                ..Tangent::identity()
+            }),
         }
     }
 
@@ -207,6 +273,19 @@ pub struct EventSensitivity {
     pub after: StateMatrix,
     /// d(event time)/d(initial state) [s per state unit].
     pub time_gradient: StateRow,
+    /// d(state just before, just after, event time)/d(physical parameters), when tracked.
+    pub params: Option<EventParamSensitivity>,
+}
+
+/// Sensitivities of an event to the physical parameters.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct EventParamSensitivity {
+    /// d(state just before the event)/d(parameters), the event time moving with them.
+    pub before: ParamMatrix,
+    /// d(state just after the event)/d(parameters).
+    pub after: ParamMatrix,
+    /// d(event time)/d(parameters) [s per parameter unit].
+    pub time_gradient: ParamRow,
 }
 
 /// One event of a propagation.
@@ -263,6 +342,9 @@ struct TangentStep {
     state: StateVector,
     /// d(state after the step)/d(state after the last event), at a fixed step size.
     flight: FlightMatrix,
+    /// d(state after the step)/d(parameters) at a fixed state after the last event and a fixed
+    /// step size, when tracked.
+    params: Option<ParamMatrix>,
     /// d(state after the step)/d(step size).
     rate: StateVector,
 }
@@ -280,6 +362,13 @@ impl TangentStep {
             None => self.flight.row(i),
             Some(until_event) => self.flight.row(i) * until_event,
         }
+    }
+
+    /// d(state after the step)/d(parameters) at a fixed step size, for a cursor whose tangent
+    /// was `tangent` at the step's start; `None` when the parameters are not tracked.
+    fn param_sensitivity(&self, tangent: &Tangent) -> Option<ParamMatrix> {
+        let p = tangent.params.as_ref()?;
+        Some(self.flight.times(&p.until_event) + self.params?)
     }
 }
 
@@ -311,7 +400,9 @@ const MAX_ROOT_ITERATIONS: usize = 100;
 pub(crate) const WHOLE_STEPS_TOLERANCE: f64 = 1e-9;
 
 /// The propagator: flight model, table bounce, table geometry and the largest RK4 step.
-#[derive(Debug, Clone, PartialEq)]
+/// Small and on the stack: a copy with other physical parameters ([`Self::with_params`]) costs
+/// nothing on the heap.
+#[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Propagator {
     flight: FlightModel,
     bounce: TableBounce,
@@ -353,7 +444,31 @@ impl Propagator {
     pub fn with_edge_margin(&self, margin: f64) -> Self {
         Self {
             edge_margin: margin,
-            ..self.clone()
+            ..*self
+        }
+    }
+
+    /// The same propagator with other physical parameters (drag and Magnus scales, the
+    /// table's restitution and friction).
+    pub fn with_params(&self, params: &PhysicsParams) -> Self {
+        Self {
+            flight: self
+                .flight
+                .with_scales(params.drag_scale, params.magnus_scale),
+            bounce: self.bounce.with_table(params.restitution, params.friction),
+            ..*self
+        }
+    }
+
+    /// The physical parameters it propagates with.
+    pub fn params(&self) -> PhysicsParams {
+        let (drag_scale, magnus_scale) = self.flight.scales();
+        let (restitution, friction) = self.bounce.table();
+        PhysicsParams {
+            drag_scale,
+            magnus_scale,
+            restitution,
+            friction,
         }
     }
 
@@ -495,7 +610,7 @@ impl Propagator {
             let full = cursor
                 .tangent
                 .as_ref()
-                .map(|tangent| self.rk4_tangent(&start, h, &tangent.flight));
+                .map(|tangent| self.rk4_tangent(&start, h, tangent));
             let end = full
                 .as_ref()
                 .map_or_else(|| self.rk4(&start, h), |step| step.state);
@@ -558,6 +673,13 @@ impl Propagator {
                     before: transition,
                     after: transition,
                     time_gradient: t.time_gradient,
+                    params: t.params().zip(t.param_time_gradient()).map(|(p, time)| {
+                        EventParamSensitivity {
+                            before: p,
+                            after: p,
+                            time_gradient: time,
+                        }
+                    }),
                 }
             }),
         }
@@ -571,11 +693,25 @@ impl Propagator {
         let sensitivity = cursor.tangent.as_mut().map(|tangent| {
             let transition_before = tangent.transition();
             let transition_after = bounce.jacobian * transition_before;
-            tangent.restart_at(transition_after);
+            // dx+/dtheta = J dx-/dtheta + db/dtheta (the table's columns).
+            let params = tangent.params().map(|before| {
+                let mut after = bounce.jacobian * before;
+                let mut table = after.fixed_columns_mut::<2>(RESTITUTION);
+                table += bounce.table_jacobian;
+                (before, after)
+            });
+            tangent.restart_at(transition_after, params.map(|(_, after)| after));
             EventSensitivity {
                 before: transition_before,
                 after: transition_after,
                 time_gradient: tangent.time_gradient,
+                params: params
+                    .zip(tangent.param_time_gradient())
+                    .map(|((before, after), time)| EventParamSensitivity {
+                        before,
+                        after,
+                        time_gradient: time,
+                    }),
             }
         });
         Event {
@@ -686,7 +822,7 @@ impl Propagator {
         match &cursor.tangent {
             None => cursor.state = self.rk4(&cursor.state, h),
             Some(tangent) => {
-                let step = self.rk4_tangent(&cursor.state, h, &tangent.flight);
+                let step = self.rk4_tangent(&cursor.state, h, tangent);
                 Self::commit_step(cursor, &step, event_axis);
             }
         }
@@ -701,19 +837,39 @@ impl Propagator {
             return;
         };
         match event_axis {
-            None if tangent.time_gradient == StateRow::zeros() => tangent.flight = step.flight,
+            None if !tangent.time_moves() => {
+                tangent.flight = step.flight;
+                if let (Some(p), Some(flight)) = (tangent.params.as_mut(), step.params) {
+                    p.flight = flight;
+                }
+            }
             None => {
                 // The step ends at a fixed time: h = target - t moves with -time_gradient.
                 let transition = step.transition(tangent) - step.rate * tangent.time_gradient;
-                tangent.restart_at(transition);
+                let params = step
+                    .param_sensitivity(tangent)
+                    .zip(tangent.params)
+                    .map(|(sensitivity, p)| sensitivity - step.rate * p.time_gradient);
+                tangent.restart_at(transition, params);
                 tangent.time_gradient = StateRow::zeros();
+                if let Some(p) = tangent.params.as_mut() {
+                    p.time_gradient = ParamRow::zeros();
+                }
             }
             Some(axis) => {
-                // g(x(tau)) = 0 fixes tau: dtau = -dg/dx0 / dg/dtau.
+                // g(x(tau)) = 0 fixes tau: dtau = -dg/dx0 / dg/dtau (and likewise for the
+                // parameters).
                 let dtau = -step.transition_row(tangent, axis) / step.rate[axis];
                 let transition = step.transition(tangent) + step.rate * dtau;
-                tangent.restart_at(transition);
+                let params = step.param_sensitivity(tangent).map(|sensitivity| {
+                    let dtau = -sensitivity.row(axis) / step.rate[axis];
+                    (sensitivity + step.rate * dtau, dtau)
+                });
+                tangent.restart_at(transition, params.map(|(sensitivity, _)| sensitivity));
                 tangent.time_gradient += dtau;
+                if let (Some(p), Some((_, dtau))) = (tangent.params.as_mut(), params) {
+                    p.time_gradient += dtau;
+                }
             }
         }
     }
@@ -729,8 +885,10 @@ impl Propagator {
     }
 
     /// One RK4 step with the exact derivatives of the discrete map with respect to the initial
-    /// state (pre-multiplied into the flight transition `flight`) and to the step size.
-    fn rk4_tangent(&self, x: &StateVector, h: f64, flight: &FlightMatrix) -> TangentStep {
+    /// state (pre-multiplied into the tangent's flight transition), to the step size and, when
+    /// the tangent tracks them, to the physical parameters.
+    fn rk4_tangent(&self, x: &StateVector, h: f64, tangent: &Tangent) -> TangentStep {
+        let flight = &tangent.flight;
         let f = &self.flight;
         let half = 0.5 * h;
         let (k1, a1) = f.derivative_and_jacobian(x);
@@ -749,9 +907,21 @@ impl Propagator {
         let d3 = a3.apply(&(k2 * 0.5 + d2 * half));
         let d4 = a4.apply(&(k3 + d3 * h));
 
+        // The parameters' sensitivity S at a fixed state after the last event:
+        // dk_i = A_i (S + c_i h dk_(i-1)) + B_i, S' = S + h/6 (dk1 + 2 dk2 + 2 dk3 + dk4).
+        let params = tangent.params.as_ref().map(|p| {
+            let s = &p.flight;
+            let q1 = a1.apply_params(s);
+            let q2 = a2.apply_params(&(s + q1 * half));
+            let q3 = a3.apply_params(&(s + q2 * half));
+            let q4 = a4.apply_params(&(s + q3 * h));
+            s + (q1 + (q2 + q3) * 2.0 + q4) * (h / 6.0)
+        });
+
         TangentStep {
             state: x + slope * h,
             flight: flight.add_scaled(&p1.add_scaled(&p23, 2.0).add_scaled(&p4, 1.0), h / 6.0),
+            params,
             rate: slope + ((d2 + d3) * 2.0 + d4) * (h / 6.0),
         }
     }
