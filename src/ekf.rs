@@ -1,20 +1,40 @@
-//! The extended Kalman filter over the 9-state (position, velocity, spin) in the `table` frame.
+//! The extended Kalman filter over the ball's 9-state (position, velocity, spin) in the `table`
+//! frame, augmented with the 4 physical parameters it learns (drag and Magnus scale factors,
+//! the table's restitution and friction: [`crate::physics::params`]).
 //!
-//! - Prediction: the physics core's propagation (spin-parameter aero model, table bounce inside
-//!   the step, with its Jacobian and contact-time sensitivity) gives x and F; P = F P F' + Q.
-//! - Process noise Q: continuous white acceleration of density q_a [m^2/s^3] on the velocity and
-//!   a spin random walk of density q_w [(rad/s)^2/s], discretised over dt:
-//!   Q_pp = q_a dt^3/3, Q_pv = q_a dt^2/2, Q_vv = q_a dt, Q_ww = q_w dt (each times I_3).
+//! - Prediction: the physics core's propagation at the filter's own parameters (spin-parameter
+//!   aero model, table bounce inside the step, with the state transition Phi, its contact-time
+//!   sensitivity and the state's sensitivity S to the parameters) gives x and
+//!   F = [[Phi, S], [0, I]]; P = F P F' + Q.
+//! - Process noise Q: continuous white acceleration of density q_a [m^2/s^3] on the velocity, a
+//!   spin random walk of density q_w [(rad/s)^2/s] and a random walk of each parameter,
+//!   discretised over dt: Q_pp = q_a dt^3/3, Q_pv = q_a dt^2/2, Q_vv = q_a dt, Q_ww = q_w dt
+//!   (each times I_3), Q_theta = q_theta dt.
+//! - At a table bounce ([`BounceNoise`]): the bounce's own scatter, an uncertain tangential
+//!   impulse (sigma_i per axis, per unit mass, which moves the velocity and, through the shell's
+//!   inertia, the spin: 3/(2r) per m/s) and an uncertain restitution of that one bounce
+//!   (sigma_e |v_z|); and the sliding/rolling regime: with the margin m that decides it
+//!   (`TableBounce::regime_margin`, Gaussian with the variance g P g' of its gradient g over state
+//!   and parameters), the probability p of the other regime and its output's offset d from the
+//!   linearised one add the mixture's spread p (1 - p) d d'. Both are carried to the end of the
+//!   step by the flight after the bounce.
 //! - Update: S = H P H' + R factored by Cholesky (a typed error when S is not positive definite),
 //!   NIS = y' S^-1 y, the gain from the factor, and the Joseph form
-//!   P = (I - K H) P (I - K H)' + K R K' (multiplied out), symmetrised. Fixed-size matrices: no
-//!   heap allocation.
+//!   P = (I - K H) P (I - K H)' + K R K' (multiplied out), symmetrised; the parameters are kept
+//!   inside their physical box ([`PARAM_BOUNDS`]). Fixed-size matrices: no heap allocation.
 
 use nalgebra::{SMatrix, SVector};
 
+pub use crate::physics::params::{AUGMENTED, AugmentedMatrix, ParamCovariance};
+use crate::physics::params::{FRICTION, RESTITUTION};
 use crate::physics::{
-    Cursor, Event, EventKind, Flow, Observer, Propagator, StateMatrix, StateVector, Watch,
+    Cursor, Event, EventKind, Flow, Observer, PARAMS, ParamVector, PhysicsParams, Propagator,
+    StateMatrix, StateVector, Watch,
 };
+use crate::stats::normal_cdf;
+
+/// The box the parameters are kept in (k_D, k_M, e_t, mu_t): (lowest, highest).
+pub const PARAM_BOUNDS: [(f64, f64); PARAMS] = [(0.3, 3.0), (0.05, 3.0), (0.5, 1.0), (0.02, 1.0)];
 
 /// Why an update was not applied.
 #[derive(Debug, Clone, Copy, PartialEq, thiserror::Error)]
@@ -42,10 +62,12 @@ pub struct ProcessNoise {
     pub acceleration_density: f64,
     /// Spin random-walk density q_w [(rad/s)^2/s].
     pub spin_density: f64,
+    /// Random-walk density of each parameter [unit^2/s] (k_D, k_M, e_t, mu_t).
+    pub param_density: ParamVector,
 }
 
 impl ProcessNoise {
-    /// Q over a step of `dt` seconds (see the module doc).
+    /// Q of the ball's state over a step of `dt` seconds (see the module doc).
     #[expect(non_snake_case, reason = "matrix notation")]
     pub fn discretise(&self, dt: f64) -> StateMatrix {
         let dt = dt.abs();
@@ -60,6 +82,17 @@ impl ProcessNoise {
         }
         Q
     }
+}
+
+/// The scatter of one table bounce (see the module doc).
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct BounceNoise {
+    /// sigma_i: the tangential impulse per unit mass, per axis [m/s].
+    pub impulse_sigma: f64,
+    /// sigma_e: the restitution of one bounce about the table's [-].
+    pub restitution_sigma: f64,
+    /// Whether the spread between the sliding and the rolling regime is added.
+    pub regime: bool,
 }
 
 /// What a prediction went through.
@@ -83,47 +116,208 @@ impl Observer for PredictReport {
     }
 }
 
-/// The filter's estimate: state and covariance.
+/// Counts the bounces of a prediction and adds up their scatter (in the state just after the
+/// last one).
+struct BounceWatch<'a> {
+    report: PredictReport,
+    propagator: &'a Propagator,
+    noise: &'a BounceNoise,
+    /// The covariance the prediction starts from.
+    start: &'a AugmentedMatrix,
+    /// The scatter of the bounces so far.
+    scatter: StateMatrix,
+}
+
+impl Observer for BounceWatch<'_> {
+    fn on_event(&mut self, event: &Event) -> Flow {
+        self.report.on_event(event);
+        if matches!(event.kind, EventKind::TableBounce { .. }) {
+            self.scatter += self.bounce_scatter(event);
+        }
+        Flow::Continue
+    }
+}
+
+impl BounceWatch<'_> {
+    /// The scatter of one bounce in the state just after it.
+    fn bounce_scatter(&self, event: &Event) -> StateMatrix {
+        let bounce = self.propagator.bounce();
+        let r = self.propagator.flight().radius();
+        let spin_gain = 1.5 / r;
+        let mut q = StateMatrix::zeros();
+        let si2 = self.noise.impulse_sigma * self.noise.impulse_sigma;
+        if si2 > 0.0 {
+            // An impulse error d along x moves v_x by -d and w_y by +3/(2r) d; along y, v_y by
+            // -d and w_x by -3/(2r) d.
+            for (v, w, sign) in [(3, 7, 1.0), (4, 6, -1.0)] {
+                let mut column = StateVector::zeros();
+                column[v] = -1.0;
+                column[w] = sign * spin_gain;
+                q += column * column.transpose() * si2;
+            }
+        }
+        let se = self.noise.restitution_sigma * event.before[5];
+        q[(5, 5)] += se * se;
+        if self.noise.regime
+            && let Some(s) = event.sensitivity
+        {
+            let (margin, gradient) = bounce.regime_margin(&event.before);
+            // The margin's gradient over the starting state and the parameters.
+            let mut g = SMatrix::<f64, 1, AUGMENTED>::zeros();
+            g.fixed_columns_mut::<9>(0)
+                .copy_from(&(gradient * s.before));
+            let (e, mu) = bounce.table();
+            let vz = event.before[5].abs();
+            let mut g_params = s
+                .params
+                .map_or(SMatrix::<f64, 1, PARAMS>::zeros(), |p| gradient * p.before);
+            g_params[RESTITUTION] += mu * vz;
+            g_params[FRICTION] += (1.0 + e) * vz;
+            g.fixed_columns_mut::<PARAMS>(9).copy_from(&g_params);
+            let variance = (g * self.start * g.transpose())[(0, 0)];
+            if variance > 0.0 {
+                let p_other = normal_cdf(-margin.abs() / variance.sqrt());
+                if p_other > 1e-4 {
+                    let d = bounce.apply_other_regime(&event.before).state - event.after;
+                    q += d * d.transpose() * (p_other * (1.0 - p_other));
+                }
+            }
+        }
+        q
+    }
+}
+
+/// The filter's estimate: state, parameters and their joint covariance.
 #[derive(Debug, Clone, Copy, PartialEq)]
 #[expect(non_snake_case, reason = "matrix notation")]
 pub struct Ekf {
     /// State (position [m], velocity [m/s], spin [rad/s]).
     pub x: StateVector,
-    /// Covariance of the state.
-    pub P: StateMatrix,
+    /// The physical parameters (k_D, k_M, e_t, mu_t) [-].
+    pub theta: ParamVector,
+    /// Covariance of (state, parameters).
+    pub P: AugmentedMatrix,
 }
 
 impl Ekf {
-    /// A filter at a given estimate.
+    /// A filter at a given estimate of the state, with parameters `theta` of covariance
+    /// `p_theta`, uncorrelated with the state.
     #[expect(non_snake_case, reason = "matrix notation")]
-    pub fn new(x: StateVector, P: StateMatrix) -> Self {
-        Self { x, P }
+    pub fn new(
+        x: StateVector,
+        P: StateMatrix,
+        theta: ParamVector,
+        p_theta: ParamCovariance,
+    ) -> Self {
+        let mut augmented = AugmentedMatrix::zeros();
+        augmented.fixed_view_mut::<9, 9>(0, 0).copy_from(&P);
+        augmented
+            .fixed_view_mut::<PARAMS, PARAMS>(9, 9)
+            .copy_from(&p_theta);
+        Self {
+            x,
+            theta,
+            P: augmented,
+        }
     }
 
-    /// Propagates the estimate by `dt` seconds (dt >= 0) through flight and bounces.
+    /// A filter at a given estimate of the state with the parameters known exactly (those of
+    /// `propagator`).
+    #[expect(non_snake_case, reason = "matrix notation")]
+    pub fn with_known_params(x: StateVector, P: StateMatrix, propagator: &Propagator) -> Self {
+        Self::new(
+            x,
+            P,
+            propagator.params().to_vector(),
+            ParamCovariance::zeros(),
+        )
+    }
+
+    /// The covariance of the ball's state.
+    pub fn state_covariance(&self) -> StateMatrix {
+        self.P.fixed_view::<9, 9>(0, 0).into_owned()
+    }
+
+    /// The covariance of the parameters.
+    pub fn param_covariance(&self) -> ParamCovariance {
+        self.P.fixed_view::<PARAMS, PARAMS>(9, 9).into_owned()
+    }
+
+    /// The parameters.
+    pub fn params(&self) -> PhysicsParams {
+        PhysicsParams::from_vector(&self.theta)
+    }
+
+    /// Propagates the estimate by `dt` seconds (dt >= 0) through flight and bounces, with the
+    /// filter's parameters in `propagator`'s model.
+    #[expect(non_snake_case, reason = "matrix notation")]
     pub fn predict(
         &mut self,
         propagator: &Propagator,
         noise: &ProcessNoise,
+        bounce_noise: &BounceNoise,
         dt: f64,
     ) -> PredictReport {
-        let mut report = PredictReport::default();
         if dt <= 0.0 {
-            return report;
+            return PredictReport::default();
         }
-        let mut cursor = Cursor::tracking(0.0, self.x);
-        propagator.advance(&mut cursor, dt, Watch::BOUNCES, &mut report);
-        // F P F' with F the transition of the step (the filter always tracks it).
-        let carried = cursor
-            .tangent
-            .as_ref()
-            .map_or(self.P, |t| t.carry_covariance(&self.P));
+        let propagator = propagator.with_params(&self.params());
+        let tracks_params = self.param_covariance() != ParamCovariance::zeros();
+        let mut cursor = if tracks_params {
+            Cursor::tracking_params(0.0, self.x)
+        } else {
+            Cursor::tracking(0.0, self.x)
+        };
+        let mut watch = BounceWatch {
+            report: PredictReport::default(),
+            propagator: &propagator,
+            noise: bounce_noise,
+            start: &self.P,
+            scatter: StateMatrix::zeros(),
+        };
+        propagator.advance(&mut cursor, dt, Watch::BOUNCES, &mut watch);
+        let (report, scatter) = (watch.report, watch.scatter);
+        let P_xx = self.state_covariance();
+        let mut next = AugmentedMatrix::zeros();
+        let mut P_xx_next = noise.discretise(dt);
+        match cursor.tangent {
+            Some(tangent) => {
+                // Phi P_xx Phi' (in the flight's block structure before any event).
+                P_xx_next += tangent.carry_covariance(&P_xx);
+                if report.bounces > 0 {
+                    // The bounces' scatter, carried by the flight since the last one.
+                    P_xx_next += tangent.carry_flight(&scatter);
+                }
+                if let Some(S) = tangent.params() {
+                    let P_xt = self.P.fixed_view::<9, PARAMS>(0, 9).into_owned();
+                    let P_tt = self.param_covariance();
+                    // [[Phi, S], [0, I]] P [[Phi, S], [0, I]]'.
+                    let B = tangent.transition() * P_xt;
+                    let C = S * P_tt;
+                    let cross = B + C;
+                    P_xx_next += B * S.transpose() + S * B.transpose() + C * S.transpose();
+                    next.fixed_view_mut::<9, PARAMS>(0, 9).copy_from(&cross);
+                    next.fixed_view_mut::<PARAMS, 9>(9, 0)
+                        .copy_from(&cross.transpose());
+                }
+            }
+            None => P_xx_next += P_xx + scatter,
+        }
+        next.fixed_view_mut::<9, 9>(0, 0).copy_from(&P_xx_next);
+        let mut P_tt = self.param_covariance();
+        if tracks_params {
+            for i in 0..PARAMS {
+                P_tt[(i, i)] += noise.param_density[i] * dt;
+            }
+        }
+        next.fixed_view_mut::<PARAMS, PARAMS>(9, 9).copy_from(&P_tt);
         self.x = cursor.state;
-        self.P = symmetrise(&(carried + noise.discretise(dt)));
+        self.P = symmetrise(&next);
         report
     }
 
-    /// Fuses a measurement z = H x + noise(R) when its NIS is within `gate`; returns the NIS.
+    /// Fuses a measurement of the ball's state z = H x + noise(R) when its NIS is within `gate`;
+    /// returns the NIS. The parameters move with their correlation to the state.
     #[expect(non_snake_case, reason = "matrix notation")]
     pub fn update<const M: usize>(
         &mut self,
@@ -136,8 +330,8 @@ impl Ekf {
             return Err(UpdateError::NotFinite);
         }
         let y = z - H * self.x;
-        let PHt = self.P * H.transpose();
-        let S = H * PHt + R;
+        let PHt: SMatrix<f64, AUGMENTED, M> = self.P.fixed_columns::<9>(0) * H.transpose();
+        let S = H * PHt.fixed_rows::<9>(0) + R;
         let chol = symmetrise_small(&S)
             .cholesky()
             .ok_or(UpdateError::NotPositiveDefinite)?;
@@ -150,10 +344,15 @@ impl Ekf {
         }
         // K = P H' S^-1 = (S^-1 H P)'.
         let K = chol.solve(&PHt.transpose()).transpose();
-        self.x += K * y;
+        let dx = K * y;
+        self.x += dx.fixed_rows::<9>(0);
+        self.theta += dx.fixed_rows::<PARAMS>(9);
+        for (i, (low, high)) in PARAM_BOUNDS.iter().enumerate() {
+            self.theta[i] = self.theta[i].clamp(*low, *high);
+        }
         // The Joseph form (I - K H) P (I - K H)' + K R K', multiplied out with S = H P H' + R:
         // P - K (P H')' - (P H') K' + K S K'. Equal to it for any gain, so a rounding error in K
-        // still changes P to second order only; a third of the arithmetic of the 9x9 products.
+        // still changes P to second order only.
         let K_PHt = K * PHt.transpose();
         self.P = symmetrise(&(self.P - K_PHt - K_PHt.transpose() + K * S * K.transpose()));
         Ok(nis)
@@ -163,7 +362,7 @@ impl Ekf {
     /// [(rad/s)^2] per axis, uncorrelated with the rest (the estimate itself is kept).
     pub fn reset_spin(&mut self, variance: f64) {
         for i in 6..9 {
-            for j in 0..9 {
+            for j in 0..AUGMENTED {
                 self.P[(i, j)] = 0.0;
                 self.P[(j, i)] = 0.0;
             }
@@ -180,19 +379,19 @@ impl Ekf {
         R: &SMatrix<f64, M, M>,
     ) -> Option<f64> {
         let y = z - H * self.x;
-        let S = H * self.P * H.transpose() + R;
+        let S = H * self.state_covariance() * H.transpose() + R;
         let chol = symmetrise_small(&S).cholesky()?;
         Some(y.dot(&chol.solve(&y)))
     }
 }
 
 /// (A + A') / 2.
-pub fn symmetrise(a: &StateMatrix) -> StateMatrix {
+pub fn symmetrise<const N: usize>(a: &SMatrix<f64, N, N>) -> SMatrix<f64, N, N> {
     (a + a.transpose()) * 0.5
 }
 
 fn symmetrise_small<const M: usize>(a: &SMatrix<f64, M, M>) -> SMatrix<f64, M, M> {
-    (a + a.transpose()) * 0.5
+    symmetrise(a)
 }
 
 /// H of a position measurement: [I 0 0].
@@ -224,6 +423,7 @@ mod tests {
         let q = ProcessNoise {
             acceleration_density: 2.0,
             spin_density: 5.0,
+            param_density: ParamVector::zeros(),
         }
         .discretise(0.1);
         assert!((q[(0, 0)] - 2.0 * 1e-3 / 3.0).abs() < 1e-15);
@@ -239,7 +439,12 @@ mod tests {
     #[test]
     #[expect(non_snake_case, reason = "matrix notation")]
     fn update_halves_variance_for_equal_prior_and_noise() {
-        let mut ekf = Ekf::new(StateVector::zeros(), StateMatrix::identity());
+        let mut ekf = Ekf::new(
+            StateVector::zeros(),
+            StateMatrix::identity(),
+            ParamVector::repeat(0.5),
+            ParamCovariance::zeros(),
+        );
         let z = Vector3::new(1.0, -2.0, 0.5);
         let R = Matrix3::identity();
         let nis = ekf.update(&z, &position_H(), &R, 100.0).expect("fused");
@@ -247,6 +452,7 @@ mod tests {
         assert!((ekf.x[0] - 0.5).abs() < 1e-12 && (ekf.x[1] + 1.0).abs() < 1e-12);
         assert!((ekf.P[(0, 0)] - 0.5).abs() < 1e-12);
         assert_eq!(ekf.P[(3, 3)], 1.0);
+        assert_eq!(ekf.theta, ParamVector::repeat(0.5));
         let far = Vector3::new(50.0, 0.0, 0.0);
         assert!(matches!(
             ekf.update(&far, &position_H(), &R, 10.0),
@@ -265,16 +471,17 @@ mod tests {
         let H = position_spin_H();
         let R = SMatrix::<f64, 6, 6>::from_diagonal_element(0.2);
         let z = H * x + SVector::<f64, 6>::from_fn(|i, _| 0.1 * i as f64 - 0.2);
-        let mut ekf = Ekf::new(x, P);
+        let mut ekf = Ekf::new(x, P, ParamVector::repeat(0.5), ParamCovariance::zeros());
         ekf.update(&z, &H, &R, 1e6).expect("fused");
         let S = H * P * H.transpose() + R;
         let K = P * H.transpose() * S.try_inverse().expect("S invertible");
         let I_KH = StateMatrix::identity() - K * H;
         let joseph = I_KH * P * I_KH.transpose() + K * R * K.transpose();
+        let p9 = ekf.state_covariance();
         assert!(
-            (ekf.P - joseph).amax() < 1e-13 * P.amax(),
+            (p9 - joseph).amax() < 1e-13 * P.amax(),
             "{}",
-            (ekf.P - joseph).amax()
+            (p9 - joseph).amax()
         );
         assert!((ekf.x - (x + K * (z - H * x))).amax() < 1e-13);
         assert_eq!(ekf.P, ekf.P.transpose());
@@ -290,12 +497,13 @@ mod tests {
             Vector3::zeros(),
         )
         .to_vector();
-        let mut ekf = Ekf::new(x, StateMatrix::identity() * 1e-6);
+        let mut ekf = Ekf::with_known_params(x, StateMatrix::identity() * 1e-6, &propagator);
         let noise = ProcessNoise {
             acceleration_density: 1.0,
             spin_density: 1.0,
+            param_density: ParamVector::zeros(),
         };
-        let report = ekf.predict(&propagator, &noise, 0.05);
+        let report = ekf.predict(&propagator, &noise, &BounceNoise::default(), 0.05);
         assert_eq!(report.bounces, 1);
         assert_eq!(report.robot_half_bounces, 1);
         assert!(ekf.x[5] > 0.0);

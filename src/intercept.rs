@@ -24,9 +24,11 @@
 use nalgebra::{SMatrix, Vector3};
 
 use crate::config::RefreshParams;
+use crate::physics::params::{FRICTION, RESTITUTION, with_known_params};
 use crate::physics::{
-    BallState, Cursor, Event, EventKind, Flow, Observer, Outcome, Propagator, StateMatrix,
-    StateRow, StateVector, Watch,
+    AUGMENTED, AugmentedMatrix, BallState, Cursor, Event, EventKind, Flow, Observer, Outcome,
+    PARAMS, ParamMatrix, ParamRow, ParamVector, Propagator, StateMatrix, StateRow, StateVector,
+    Watch,
 };
 
 /// Why there is no valid interception.
@@ -99,18 +101,44 @@ pub struct InterceptQuery {
     pub bounced_on_robot_half: bool,
 }
 
-/// d(an event's position and time)/d(the state predicted from).
+/// d(an event's position and time)/d(the state predicted from), and d/d(the parameters) when
+/// they are uncertain.
 #[derive(Debug, Clone, Copy, PartialEq)]
 struct BounceSensitivity {
     position: SMatrix<f64, 3, 9>,
     time: StateRow,
+    params: Option<(SMatrix<f64, 3, PARAMS>, ParamRow)>,
 }
 
-/// d(state at the crossing)/d(state) and d(crossing time)/d(state).
+/// d(state at the crossing)/d(state) and d(crossing time)/d(state), and d/d(the parameters)
+/// when they are uncertain.
 #[derive(Debug, Clone, Copy, PartialEq)]
 struct CrossingSensitivity {
     state: StateMatrix,
     time: StateRow,
+    params: Option<(ParamMatrix, ParamRow)>,
+}
+
+impl CrossingSensitivity {
+    /// d(state at the crossing)/d(state, parameters).
+    fn augmented_state(&self) -> SMatrix<f64, 9, AUGMENTED> {
+        let mut j = SMatrix::<f64, 9, AUGMENTED>::zeros();
+        j.fixed_columns_mut::<9>(0).copy_from(&self.state);
+        if let Some((params, _)) = &self.params {
+            j.fixed_columns_mut::<PARAMS>(9).copy_from(params);
+        }
+        j
+    }
+
+    /// d(crossing time)/d(state, parameters).
+    fn augmented_time(&self) -> SMatrix<f64, 1, AUGMENTED> {
+        let mut j = SMatrix::<f64, 1, AUGMENTED>::zeros();
+        j.fixed_columns_mut::<9>(0).copy_from(&self.time);
+        if let Some((_, time)) = &self.params {
+            j.fixed_columns_mut::<PARAMS>(9).copy_from(time);
+        }
+        j
+    }
 }
 
 /// Most branch points a prediction may meet and still be moved to first order.
@@ -123,6 +151,8 @@ const MAX_BRANCHES: usize = 8;
 struct Branches {
     margins: [f64; MAX_BRANCHES],
     gradients: SMatrix<f64, MAX_BRANCHES, 9>,
+    /// The margins' gradients with respect to the parameters (zero when they are known).
+    param_gradients: SMatrix<f64, MAX_BRANCHES, PARAMS>,
     count: usize,
     /// More than [`MAX_BRANCHES`], or one without its gradient.
     overflow: bool,
@@ -133,27 +163,32 @@ impl Branches {
         Self {
             margins: [0.0; MAX_BRANCHES],
             gradients: SMatrix::zeros(),
+            param_gradients: SMatrix::zeros(),
             count: 0,
             overflow: false,
         }
     }
 
-    /// Records a margin of the event state whose gradient there is `gradient`.
-    fn record(&mut self, event: &Event, (margin, gradient): (f64, StateRow)) {
+    /// Records a margin of the event state whose gradient there is `gradient` (and whose own
+    /// gradient with respect to the parameters, at a fixed event state, is `direct`).
+    fn record(&mut self, event: &Event, (margin, gradient): (f64, StateRow), direct: ParamRow) {
         match event.sensitivity {
             Some(s) if self.count < MAX_BRANCHES => {
                 self.margins[self.count] = margin;
                 self.gradients.set_row(self.count, &(gradient * s.before));
+                let through_state = s.params.map_or(ParamRow::zeros(), |p| gradient * p.before);
+                self.param_gradients
+                    .set_row(self.count, &(through_state + direct));
                 self.count += 1;
             }
             _ => self.overflow = true,
         }
     }
 
-    /// True when a drift of the state keeps every branch: each margin moves by at most half of
-    /// itself (to first order).
-    fn kept_by(&self, drift: &StateVector) -> bool {
-        let moved = self.gradients * drift;
+    /// True when a drift of the state and the parameters keeps every branch: each margin moves
+    /// by at most half of itself (to first order).
+    fn kept_by(&self, drift: &StateVector, param_drift: &ParamVector) -> bool {
+        let moved = self.gradients * drift + self.param_gradients * param_drift;
         !self.overflow && (0..self.count).all(|i| moved[i].abs() <= 0.5 * self.margins[i].abs())
     }
 }
@@ -168,20 +203,28 @@ struct Watcher<'a> {
 
 impl Observer for Watcher<'_> {
     fn on_event(&mut self, event: &Event) -> Flow {
+        let none = ParamRow::zeros();
         match event.kind {
             EventKind::TableBounce { .. } => {
                 let p = self.propagator;
+                // The regime margin mu (1 + e) |v_z| - 2/5 |u| moves with the table's two.
+                let (e, mu) = p.bounce().table();
+                let vz = event.before[5].abs();
+                let mut direct = ParamRow::zeros();
+                direct[RESTITUTION] = mu * vz;
+                direct[FRICTION] = (1.0 + e) * vz;
                 self.branches
-                    .record(event, p.bounce().regime_margin(&event.before));
-                self.branches.record(event, p.landing_margin(&event.before));
+                    .record(event, p.bounce().regime_margin(&event.before), direct);
+                self.branches
+                    .record(event, p.landing_margin(&event.before), none);
             }
             EventKind::Net { .. } => {
                 self.branches
-                    .record(event, self.propagator.net_margin(&event.before));
+                    .record(event, self.propagator.net_margin(&event.before), none);
             }
             EventKind::TableMiss { .. } => {
                 self.branches
-                    .record(event, self.propagator.outline_margin(&event.before));
+                    .record(event, self.propagator.outline_margin(&event.before), none);
             }
             _ => {}
         }
@@ -199,6 +242,9 @@ impl Observer for Watcher<'_> {
                 let sensitivity = event.sensitivity.map(|s| BounceSensitivity {
                     position: s.before.fixed_rows::<3>(0).into_owned(),
                     time: s.time_gradient,
+                    params: s
+                        .params
+                        .map(|p| (p.before.fixed_rows::<3>(0).into_owned(), p.time_gradient)),
                 });
                 self.bounce = Some((bounce, sensitivity));
             }
@@ -218,14 +264,34 @@ impl Observer for Watcher<'_> {
     }
 }
 
-/// Predicts the interception from state `x` with covariance `p` (see the module doc).
+/// Predicts the interception from state `x` with covariance `p`, the propagator's parameters
+/// known exactly (see the module doc).
 pub fn predict_intercept(
     propagator: &Propagator,
     x: &StateVector,
     p: &StateMatrix,
     query: &InterceptQuery,
 ) -> Intercept {
+    predict_in_full(propagator, x, &with_known_params(p), query).0
+}
+
+/// Predicts the interception from state `x` and the propagator's parameters, with the covariance
+/// `p` of both: the parameters' uncertainty enters the crossing's covariance through the
+/// crossing's sensitivity to them.
+pub fn predict_intercept_augmented(
+    propagator: &Propagator,
+    x: &StateVector,
+    p: &AugmentedMatrix,
+    query: &InterceptQuery,
+) -> Intercept {
     predict_in_full(propagator, x, p, query).0
+}
+
+/// True when the parameters in `p` are uncertain (their sensitivities are then carried).
+fn params_uncertain(p: &AugmentedMatrix) -> bool {
+    p.fixed_view::<PARAMS, PARAMS>(9, 9)
+        .iter()
+        .any(|v| *v != 0.0)
 }
 
 /// Sensitivities of a predicted interception to the state it was predicted from.
@@ -239,7 +305,7 @@ struct Sensitivity {
 fn predict_in_full(
     propagator: &Propagator,
     x: &StateVector,
-    p: &StateMatrix,
+    p: &AugmentedMatrix,
     query: &InterceptQuery,
 ) -> (Intercept, Sensitivity) {
     let mut watcher = Watcher {
@@ -249,7 +315,11 @@ fn predict_in_full(
         bounce: None,
         result: None,
     };
-    let mut cursor = Cursor::tracking(0.0, *x);
+    let mut cursor = if params_uncertain(p) {
+        Cursor::tracking_params(0.0, *x)
+    } else {
+        Cursor::tracking(0.0, *x)
+    };
     let watch = Watch {
         plane_x: Some(query.plane_x),
         table_misses: true,
@@ -267,6 +337,7 @@ fn predict_in_full(
         event.sensitivity.map(|s| CrossingSensitivity {
             state: s.before,
             time: s.time_gradient,
+            params: s.params.map(|p| (p.before, p.time_gradient)),
         })
     });
     let intercept = Intercept {
@@ -293,10 +364,18 @@ fn crossing_with(
     time: f64,
     state: BallState,
     sensitivity: Option<&CrossingSensitivity>,
-    p: &StateMatrix,
+    p: &AugmentedMatrix,
 ) -> Crossing {
     let (covariance, time_sigma) = match sensitivity {
+        Some(s) if s.params.is_some() => {
+            let j = s.augmented_state();
+            let t = s.augmented_time();
+            let cov = j * p * j.transpose();
+            let var_t = (t * p * t.transpose())[(0, 0)];
+            ((cov + cov.transpose()) * 0.5, var_t.max(0.0).sqrt())
+        }
         Some(s) => {
+            let p = p.fixed_view::<9, 9>(0, 0);
             let cov = s.state * p * s.state.transpose();
             let var_t = (s.time * p * s.time.transpose())[(0, 0)];
             ((cov + cov.transpose()) * 0.5, var_t.max(0.0).sqrt())
@@ -326,11 +405,19 @@ pub struct TrackerCounts {
     pub moved: u64,
 }
 
+/// How far each physical parameter (k_D, k_M, e_t, mu_t) may move from the last full
+/// prediction's before the interception is predicted in full again (the moved interception
+/// follows them to first order; the crossing moves by about 0.1 m per unit of the Magnus scale
+/// at 0.3 s ahead).
+const PARAM_REFRESH: [f64; PARAMS] = [0.01, 0.02, 0.005, 0.01];
+
 /// The last full prediction, its start state flown to the latest stamp.
 #[derive(Debug, Clone, Copy, PartialEq)]
 struct Anchor {
     track_id: u32,
     query: InterceptQuery,
+    /// The physical parameters it was predicted with.
+    params: ParamVector,
     /// Stamp of `flown` [ns].
     stamp: i64,
     /// The full prediction's start state, flown to `stamp`.
@@ -357,7 +444,15 @@ impl Anchor {
     /// The anchor flown on by `dt` seconds, its sensitivities carried along; `None` when the
     /// flight meets an event (the last full prediction's events are then at hand).
     fn flown_on(&self, propagator: &Propagator, dt: f64, stamp: i64) -> Option<Self> {
-        let mut cursor = Cursor::tracking(0.0, self.flown);
+        let tracks_params = self
+            .sensitivity
+            .crossing
+            .is_some_and(|c| c.params.is_some());
+        let mut cursor = if tracks_params {
+            Cursor::tracking_params(0.0, self.flown)
+        } else {
+            Cursor::tracking(0.0, self.flown)
+        };
         let watch = Watch {
             plane_x: Some(self.query.plane_x),
             table_misses: true,
@@ -368,17 +463,50 @@ impl Anchor {
         if event.0 {
             return None;
         }
-        let back = cursor.tangent?.free_flight()?.inverse()?;
-        let crossing = self.sensitivity.crossing.map(|s| CrossingSensitivity {
-            state: back.premultiplied_by(&s.state),
-            time: back.premultiplied_by(&s.time),
+        let tangent = cursor.tangent?;
+        let back = tangent.free_flight()?.inverse()?;
+        // The flight's own sensitivity to the parameters, S: a quantity g(start, theta) of the
+        // start flown to x = phi(start, theta) moves with theta at a fixed x by
+        // dg/dtheta - (dg/dx) S, dg/dx being the sensitivity carried back.
+        let flight_params = tangent.params();
+        let carry = |on_x: &SMatrix<f64, 1, 9>, on_theta: &ParamRow| -> ParamRow {
+            flight_params.map_or(*on_theta, |s| on_theta - on_x * s)
+        };
+        let crossing = self.sensitivity.crossing.map(|s| {
+            let state = back.premultiplied_by(&s.state);
+            let time = back.premultiplied_by(&s.time);
+            CrossingSensitivity {
+                state,
+                time,
+                params: s.params.map(|(p, t)| {
+                    let p = match flight_params {
+                        Some(flight) => p - state * flight,
+                        None => p,
+                    };
+                    (p, carry(&time, &t))
+                }),
+            }
         });
-        let bounce = self.sensitivity.bounce.map(|s| BounceSensitivity {
-            position: back.premultiplied_by(&s.position),
-            time: back.premultiplied_by(&s.time),
+        let bounce = self.sensitivity.bounce.map(|s| {
+            let position = back.premultiplied_by(&s.position);
+            let time = back.premultiplied_by(&s.time);
+            BounceSensitivity {
+                position,
+                time,
+                params: s.params.map(|(p, t)| {
+                    let p = match flight_params {
+                        Some(flight) => p - position * flight,
+                        None => p,
+                    };
+                    (p, carry(&time, &t))
+                }),
+            }
         });
         let mut branches = self.sensitivity.branches;
         branches.gradients = back.premultiplied_by(&branches.gradients);
+        if let Some(flight) = flight_params {
+            branches.param_gradients -= branches.gradients * flight;
+        }
         Some(Self {
             stamp,
             flown: cursor.state,
@@ -392,30 +520,51 @@ impl Anchor {
         })
     }
 
-    /// The interception from `x` (covariance `p`) at the anchor's stamp, to first order in its
-    /// drift from the anchor; `None` when a sensitivity is missing or the crossing or the bounce
-    /// comes so soon that the drift could move it into the past (an event ahead is a branch too).
-    fn moved_to(&self, x: &StateVector, p: &StateMatrix) -> Option<Intercept> {
+    /// The interception from `x` and parameters `theta` (covariance `p`) at the anchor's
+    /// stamp, to first order in their drift from the anchor's; `None` when a sensitivity is
+    /// missing or the crossing or the bounce comes so soon that the drift could move it into the
+    /// past (an event ahead is a branch too).
+    fn moved_to(
+        &self,
+        x: &StateVector,
+        theta: &ParamVector,
+        p: &AugmentedMatrix,
+    ) -> Option<Intercept> {
         let drift = x - self.flown;
-        let ahead = |time: f64, gradient: &StateRow| {
+        let param_drift = theta - self.params;
+        let by_params = |params: &Option<(SMatrix<f64, 3, PARAMS>, ParamRow)>| {
+            params.map_or((nalgebra::Vector3::zeros(), 0.0), |(p, t)| {
+                (p * param_drift, t.dot(&param_drift.transpose()))
+            })
+        };
+        let ahead = |time: f64, gradient: &StateRow, by_params: f64| {
             let ahead = time - self.elapsed;
-            let moved = gradient.dot(&drift.transpose());
+            let moved = gradient.dot(&drift.transpose()) + by_params;
             (moved.abs() <= 0.5 * ahead).then_some(ahead + moved)
         };
         let crossing = match self.base.crossing {
             Ok(c) => {
                 let s = self.sensitivity.crossing?;
-                let state = BallState::from_vector(&(c.state.to_vector() + s.state * drift));
-                let time = ahead(c.time, &s.time)?;
+                let (state_by_params, time_by_params) = match &s.params {
+                    Some((p, t)) => (p * param_drift, t.dot(&param_drift.transpose())),
+                    None => (StateVector::zeros(), 0.0),
+                };
+                let state = BallState::from_vector(
+                    &(c.state.to_vector() + s.state * drift + state_by_params),
+                );
+                let time = ahead(c.time, &s.time, time_by_params)?;
                 Ok(crossing_with(time, state, Some(&s), p))
             }
             Err(reason) => Err(reason),
         };
         let bounce = match (self.base.bounce, self.sensitivity.bounce) {
-            (Some(b), Some(s)) => Some(PredictedBounce {
-                time: ahead(b.time, &s.time)?,
-                position: b.position + s.position * drift,
-            }),
+            (Some(b), Some(s)) => {
+                let (position_by_params, time_by_params) = by_params(&s.params);
+                Some(PredictedBounce {
+                    time: ahead(b.time, &s.time, time_by_params)?,
+                    position: b.position + s.position * drift + position_by_params,
+                })
+            }
             (None, _) => None,
             (Some(_), None) => return None,
         };
@@ -447,14 +596,15 @@ impl InterceptTracker {
         self.counts
     }
 
-    /// The interception of track `track_id` from state `x` with covariance `p` at `stamp` [ns].
+    /// The interception of track `track_id` from state `x` and the propagator's parameters,
+    /// with covariance `p` over both, at `stamp` [ns].
     pub fn predict(
         &mut self,
         propagator: &Propagator,
         track_id: u32,
         stamp: i64,
         x: &StateVector,
-        p: &StateMatrix,
+        p: &AugmentedMatrix,
         query: &InterceptQuery,
     ) -> Intercept {
         if let Some(intercept) = self.move_anchor(propagator, track_id, stamp, x, p, query) {
@@ -466,6 +616,7 @@ impl InterceptTracker {
         self.anchor = (self.refresh.max_age > 0.0).then_some(Anchor {
             track_id,
             query: *query,
+            params: propagator.params().to_vector(),
             stamp,
             flown: *x,
             elapsed: 0.0,
@@ -481,11 +632,16 @@ impl InterceptTracker {
         track_id: u32,
         stamp: i64,
         x: &StateVector,
-        p: &StateMatrix,
+        p: &AugmentedMatrix,
         query: &InterceptQuery,
     ) -> Option<Intercept> {
         let anchor = self.anchor.as_ref()?;
         if anchor.track_id != track_id || anchor.query != *query || stamp < anchor.stamp {
+            return None;
+        }
+        let theta = propagator.params().to_vector();
+        let param_drift = theta - anchor.params;
+        if (0..PARAMS).any(|i| param_drift[i].abs() > PARAM_REFRESH[i]) {
             return None;
         }
         let dt = (stamp - anchor.stamp) as f64 * 1e-9;
@@ -493,15 +649,20 @@ impl InterceptTracker {
             return None;
         }
         if dt > 0.0 {
-            let flown = anchor.flown_on(propagator, dt, stamp)?;
+            // The anchor flies on with its own parameters.
+            let anchor_propagator =
+                propagator.with_params(&crate::physics::PhysicsParams::from_vector(&anchor.params));
+            let flown = anchor.flown_on(&anchor_propagator, dt, stamp)?;
             self.anchor = Some(flown);
         }
         let anchor = self.anchor.as_ref()?;
         let drift = x - anchor.flown;
-        if !within_limits(&self.refresh, &drift) || !anchor.sensitivity.branches.kept_by(&drift) {
+        if !within_limits(&self.refresh, &drift)
+            || !anchor.sensitivity.branches.kept_by(&drift, &param_drift)
+        {
             return None;
         }
-        anchor.moved_to(x, p)
+        anchor.moved_to(x, &theta, p)
     }
 }
 
@@ -560,7 +721,7 @@ mod tests {
         };
         let mut tracker = InterceptTracker::new(always);
         for k in 0..3 {
-            let got = tracker.predict(&propagator, 1, k * MS, &x, &p, &query());
+            let got = tracker.predict(&propagator, 1, k * MS, &x, &with_known_params(&p), &query());
             assert_eq!(got, predict_intercept(&propagator, &x, &p, &query()));
         }
         assert_eq!(tracker.counts(), TrackerCounts { full: 3, moved: 0 });
@@ -581,7 +742,14 @@ mod tests {
             propagator.advance(&mut cursor, dt, Watch::BOUNCES, &mut ());
             let phi = cursor.tangent.expect("tangent").transition();
             let p = phi * p0 * phi.transpose();
-            let got = tracker.predict(&propagator, 1, k * step, &cursor.state, &p, &query());
+            let got = tracker.predict(
+                &propagator,
+                1,
+                k * step,
+                &cursor.state,
+                &with_known_params(&p),
+                &query(),
+            );
             let full = predict_intercept(&propagator, &cursor.state, &p, &query());
             let (got_c, full_c) = (got.crossing.expect("moved"), full.crossing.expect("full"));
             assert!((got_c.state.to_vector() - full_c.state.to_vector()).norm() < 1e-6);
@@ -629,16 +797,30 @@ mod tests {
         before[7] -= 1.0;
         assert_ne!(regime(&before), regime(&flipped));
         let mut tracker = InterceptTracker::new(refresh());
-        tracker.predict(&propagator, 1, 0, &before, &p, &query());
-        let got = tracker.predict(&propagator, 1, 0, &flipped, &p, &query());
+        tracker.predict(&propagator, 1, 0, &before, &with_known_params(&p), &query());
+        let got = tracker.predict(
+            &propagator,
+            1,
+            0,
+            &flipped,
+            &with_known_params(&p),
+            &query(),
+        );
         assert_eq!(got, predict_intercept(&propagator, &flipped, &p, &query()));
         assert_eq!(tracker.counts().full, 2);
         // Far from the boundary the same drift is moved.
         let mut tracker = InterceptTracker::new(refresh());
-        tracker.predict(&propagator, 1, 0, &base, &p, &query());
+        tracker.predict(&propagator, 1, 0, &base, &with_known_params(&p), &query());
         let mut drifted = base;
         drifted[7] -= 1.0;
-        tracker.predict(&propagator, 1, 0, &drifted, &p, &query());
+        tracker.predict(
+            &propagator,
+            1,
+            0,
+            &drifted,
+            &with_known_params(&p),
+            &query(),
+        );
         assert_eq!(tracker.counts(), TrackerCounts { full: 1, moved: 1 });
     }
 
@@ -663,15 +845,113 @@ mod tests {
         ];
         for (track, stamp, y) in cases {
             let mut tracker = InterceptTracker::new(refresh());
-            tracker.predict(&propagator, 1, 0, &x, &p, &query());
-            tracker.predict(&propagator, track, stamp, &y, &p, &query());
+            tracker.predict(&propagator, 1, 0, &x, &with_known_params(&p), &query());
+            tracker.predict(
+                &propagator,
+                track,
+                stamp,
+                &y,
+                &with_known_params(&p),
+                &query(),
+            );
             assert_eq!(tracker.counts().full, 2, "track {track} stamp {stamp}");
         }
         // Within every limit: moved.
         let mut tracker = InterceptTracker::new(refresh());
-        tracker.predict(&propagator, 1, 0, &x, &p, &query());
-        tracker.predict(&propagator, 1, MS, &nudge(3, 0.01), &p, &query());
+        tracker.predict(&propagator, 1, 0, &x, &with_known_params(&p), &query());
+        tracker.predict(
+            &propagator,
+            1,
+            MS,
+            &nudge(3, 0.01),
+            &with_known_params(&p),
+            &query(),
+        );
         assert_eq!(tracker.counts(), TrackerCounts { full: 1, moved: 1 });
+    }
+
+    /// With the Magnus scale uncertain (and the state known), the crossing's covariance is
+    /// (dc/dk_M) sigma^2 (dc/dk_M)', dc/dk_M from central differences of full predictions, and
+    /// its time sigma likewise.
+    #[test]
+    fn uncertain_parameters_enter_the_crossing_covariance() {
+        let propagator = Propagator::new(&Config::default());
+        let x = shot([1.3, 0.0, 0.30], [-5.0, 0.1, 1.4], [0.0, -150.0, 20.0]);
+        let sigma = 0.1;
+        let mut p = AugmentedMatrix::zeros();
+        p[(
+            9 + crate::physics::params::MAGNUS_SCALE,
+            9 + crate::physics::params::MAGNUS_SCALE,
+        )] = sigma * sigma;
+        let got = predict_intercept_augmented(&propagator, &x, &p, &query())
+            .crossing
+            .expect("valid");
+        let at = |k_m: f64| {
+            let params = crate::physics::PhysicsParams {
+                magnus_scale: k_m,
+                ..propagator.params()
+            };
+            let q = propagator.with_params(&params);
+            predict_intercept(&q, &x, &StateMatrix::zeros(), &query())
+                .crossing
+                .expect("valid")
+        };
+        let h = 1e-5;
+        let (plus, minus) = (at(1.0 + h), at(1.0 - h));
+        let dc = (plus.state.to_vector() - minus.state.to_vector()) / (2.0 * h);
+        let dt = (plus.time - minus.time) / (2.0 * h);
+        let expected = dc * dc.transpose() * (sigma * sigma);
+        assert!(
+            (got.covariance - expected).norm() < 1e-5 * expected.norm(),
+            "{} vs {}",
+            got.covariance,
+            expected
+        );
+        assert!((got.time_sigma - dt.abs() * sigma).abs() < 1e-5 * got.time_sigma);
+        assert!(
+            got.covariance[(2, 2)] > 1e-6,
+            "the Magnus scale moves the crossing's z"
+        );
+    }
+
+    /// Along its own flight, with the parameters drifting a little (as the filter learns
+    /// them), the moved interception follows the full one to first order.
+    #[test]
+    fn the_moved_interception_follows_the_parameters() {
+        let base = Propagator::new(&Config::default());
+        let start = shot([1.2, 0.1, 0.3], [-5.0, -0.3, 1.2], [10.0, -60.0, 20.0]);
+        let mut p = with_known_params(&(StateMatrix::identity() * 1e-4));
+        for i in 9..AUGMENTED {
+            p[(i, i)] = 1e-4;
+        }
+        let mut tracker = InterceptTracker::new(refresh());
+        let mut cursor = Cursor::tracking(0.0, start);
+        let step = 10 * MS / 9;
+        let mut worst = 0.0f64;
+        for k in 0..60 {
+            let dt = (k * step) as f64 * 1e-9 - cursor.t;
+            base.advance(&mut cursor, dt, Watch::BOUNCES, &mut ());
+            let drift = 1e-4 * k as f64;
+            let params = crate::physics::PhysicsParams {
+                drag_scale: 1.0 + drift,
+                magnus_scale: 1.0 - 2.0 * drift,
+                restitution: 0.9 + 0.2 * drift,
+                friction: 0.25 - drift,
+            };
+            let propagator = base.with_params(&params);
+            let got = tracker.predict(&propagator, 1, k * step, &cursor.state, &p, &query());
+            let full = predict_intercept_augmented(&propagator, &cursor.state, &p, &query());
+            let (g, f) = (got.crossing.expect("moved"), full.crossing.expect("full"));
+            worst = worst.max((g.state.position - f.state.position).norm());
+            assert!(
+                (g.time - f.time).abs() < 2e-5,
+                "{k}: {} vs {}",
+                g.time,
+                f.time
+            );
+        }
+        assert!(worst < 2e-4, "worst {worst}");
+        assert!(tracker.counts().moved > 40, "{:?}", tracker.counts());
     }
 
     #[test]

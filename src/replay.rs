@@ -107,6 +107,8 @@ pub struct ReplaySummary {
     pub counters: Counters,
     /// How many interceptions were predicted in full and how many moved from the last full one.
     pub intercepts: crate::intercept::TrackerCounts,
+    /// The physical parameters the estimator learned, as it ended.
+    pub learned: crate::estimator::LearnedParams,
     /// Messages written to the output bag.
     pub written: u64,
     /// Processing time per detection [ns], mean and 99th percentile.
@@ -388,6 +390,7 @@ pub fn replay(
         undecodable,
         counters,
         intercepts: pipeline.estimator().intercept_counts(),
+        learned: pipeline.estimator().learned_params(),
         written,
         processing_mean_ns: timing.mean,
         processing_p99_ns: timing.p99,

@@ -167,6 +167,16 @@ pub fn chi_square_cdf(x: f64, dof: u32) -> f64 {
     (log_prefix.exp() * sum).min(1.0)
 }
 
+/// P(Z <= x) for a standard normal Z (from the chi-square distribution of Z^2 with 1 degree
+/// of freedom; accurate to a few 1e-16 absolute, so tail probabilities to about 1e-12).
+pub fn normal_cdf(x: f64) -> f64 {
+    if x.is_nan() {
+        return f64::NAN;
+    }
+    let tail = 0.5 * (1.0 - chi_square_cdf(x * x, 1));
+    if x < 0.0 { tail } else { 1.0 - tail }
+}
+
 /// The `probability` quantile of the chi-square distribution with `dof` degrees of freedom.
 pub fn chi_square_quantile(probability: f64, dof: u32) -> f64 {
     let p = probability.clamp(0.0, 1.0 - 1e-15);
@@ -192,6 +202,17 @@ pub fn chi_square_quantile(probability: f64, dof: u32) -> f64 {
 mod tests {
     use super::*;
     use approx::assert_relative_eq;
+
+    /// Standard normal probabilities from tables: Phi(0) = 0.5, Phi(1) = 0.841345,
+    /// Phi(-1.96) = 0.024998, Phi(-3) = 0.0013499.
+    #[test]
+    fn normal_cdf_matches_tables() {
+        assert_relative_eq!(normal_cdf(0.0), 0.5, epsilon = 1e-12);
+        assert_relative_eq!(normal_cdf(1.0), 0.841_344_746, epsilon = 1e-8);
+        assert_relative_eq!(normal_cdf(-1.96), 0.024_997_895, epsilon = 1e-8);
+        assert_relative_eq!(normal_cdf(-3.0), 0.001_349_898, epsilon = 1e-8);
+        assert_relative_eq!(normal_cdf(2.5) + normal_cdf(-2.5), 1.0, epsilon = 1e-12);
+    }
 
     /// The histogram's quantiles are the sorted sample's, to its 10 ns bins (1 us above 100 us);
     /// mean, total and maximum exact; beyond 10 ms only the maximum is kept.

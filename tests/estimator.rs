@@ -76,8 +76,21 @@ fn wide_config() -> Config {
     Config::default()
 }
 
+/// With the physics known (adaptation off) the curvature alone pins the spin to within
+/// 20 rad/s (1 sigma) and 30 rad/s; learning the Magnus scale at the same time (its prior sigma
+/// 0.4 and the flight's own 0.15, this being the first flight) leaves it less certain (the
+/// curvature fixes k_M C_M(Sp) |w| much better than either), the error within 50 rad/s and the
+/// filter's own uncertainty.
 #[test]
 fn spin_is_learned_from_the_curvature_of_the_flight_alone() {
+    let mut known = wide_config();
+    known.adaptation.enabled = false;
+    for (config, sigma_limit, error_limit) in [(known, 20.0, 30.0), (wide_config(), 60.0, 50.0)] {
+        spin_from_curvature(&config, sigma_limit, error_limit);
+    }
+}
+
+fn spin_from_curvature(config: &Config, sigma_limit: f64, error_limit: f64) {
     for wy in [-150.0, 150.0] {
         let truth_start = shot([1.3, 0.0, 0.30], [-4.5, 0.0, 1.6], [0.0, wy, 0.0]);
         let detections = camera(
@@ -89,7 +102,7 @@ fn spin_is_learned_from_the_curvature_of_the_flight_alone() {
             Source::Wide150Fps,
             &mut Rng::new(3),
         );
-        let mut estimator = Estimator::new(&wide_config());
+        let mut estimator = Estimator::new(config);
         let mut last = None;
         for (d, truth) in &detections {
             let out = estimator.handle(d);
@@ -104,7 +117,7 @@ fn spin_is_learned_from_the_curvature_of_the_flight_alone() {
         // the filter's own uncertainty. At Sp ~ 0.6 the Magnus force grows slowly with spin
         // (C_M falls with Sp): 1 rad/s moves the ball's acceleration by only about 5 mm/s^2.
         assert!(
-            spin_error < 30.0,
+            spin_error < error_limit,
             "w_y {} vs {}",
             estimate.state.spin.y,
             truth.spin.y
@@ -113,7 +126,7 @@ fn spin_is_learned_from_the_curvature_of_the_flight_alone() {
             spin_error < 3.0 * sigma,
             "error {spin_error} vs sigma {sigma}"
         );
-        assert!(sigma < 20.0, "sigma of w_y {sigma}");
+        assert!(sigma < sigma_limit, "sigma of w_y {sigma}");
         assert!(velocity_error < 0.1, "velocity error {velocity_error}");
     }
 }
@@ -133,8 +146,12 @@ fn tracks_through_the_bounce_without_a_reset() {
     let mut estimator = Estimator::new(&wide_config());
     let mut ids = std::collections::BTreeSet::new();
     let mut last = None;
+    let (mut rejected_in_a_row, mut previous_rejected) = (false, false);
     for (d, truth) in &detections {
         let out = estimator.handle(d);
+        let rejected = matches!(out.verdict, Verdict::Rejected(_));
+        rejected_in_a_row |= rejected && previous_rejected;
+        previous_rejected = rejected;
         if let Some(e) = out
             .estimate
             .filter(|e| e.status != TrackStatus::Initializing)
@@ -149,7 +166,12 @@ fn tracks_through_the_bounce_without_a_reset() {
     assert!((estimate.state.position - truth.position).norm() < 0.005);
     assert!((estimate.state.velocity - truth.velocity).norm() < 0.1);
     // A 99.73 % gate rejects a good detection now and then (about 1 in 370), never a run.
-    assert!(estimator.counters().total_rejected() <= 2);
+    assert!(
+        estimator.counters().total_rejected() <= 3,
+        "{:?}",
+        estimator.counters()
+    );
+    assert!(!rejected_in_a_row);
     // The predicted trajectory starts at the estimate and is sampled as asked.
     let (stamp, trajectory) = estimator.predicted_trajectory(0.01, 0.2).unwrap();
     assert_eq!(stamp, estimate.stamp);

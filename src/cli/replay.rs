@@ -8,7 +8,8 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 
 use anyhow::{Context, bail};
 use clap::Args;
-use ttball::estimator::Rejection;
+use ttball::estimator::{LearnedParams, Rejection};
+use ttball::physics::PhysicsParams;
 use ttball::replay::{ReplaySummary, replay};
 
 use super::report::accuracy_table;
@@ -181,6 +182,7 @@ pub fn summary_text(s: &ReplaySummary) -> String {
         "  late detections rolled back and re-applied {}; interceptions predicted in full {}, moved from the last full one {}",
         c.rollbacks, s.intercepts.full, s.intercepts.moved
     );
+    let _ = writeln!(out, "  {}", learned_text(&s.learned));
     let _ = writeln!(
         out,
         "  processing per detection: mean {:.1} us, p99 {:.1} us; {:.1} s recorded in {:.2} s ({:.0}x real time); {} messages written",
@@ -204,6 +206,38 @@ pub fn summary_text(s: &ReplaySummary) -> String {
     out
 }
 
+/// The learned physical parameters in one line: "learned physics over N tracks: drag_scale
+/// 0.93 +- 0.02, ...".
+pub fn learned_text(l: &LearnedParams) -> String {
+    let values = l.params.to_vector();
+    let parts: Vec<String> = PhysicsParams::NAMES
+        .iter()
+        .enumerate()
+        .map(|(i, name)| format!("{name} {:.3} +- {:.3}", values[i], l.sigma[i]))
+        .collect();
+    format!(
+        "learned physics over {} tracks: {}",
+        l.tracks,
+        parts.join(", ")
+    )
+}
+
+/// The learned physical parameters as JSON: each by name with its value and sigma.
+pub fn learned_json(l: &LearnedParams) -> serde_json::Value {
+    let values = l.params.to_vector();
+    let params: serde_json::Map<String, serde_json::Value> = PhysicsParams::NAMES
+        .iter()
+        .enumerate()
+        .map(|(i, name)| {
+            (
+                (*name).to_string(),
+                serde_json::json!({"value": values[i], "sigma": l.sigma[i]}),
+            )
+        })
+        .collect();
+    serde_json::json!({"tracks": l.tracks, "params": params})
+}
+
 fn summary_json(s: &ReplaySummary) -> serde_json::Value {
     let c = &s.counters;
     let rejected: serde_json::Map<String, serde_json::Value> = Rejection::ALL
@@ -224,6 +258,7 @@ fn summary_json(s: &ReplaySummary) -> serde_json::Value {
         "rollbacks": c.rollbacks,
         "intercepts_full": s.intercepts.full,
         "intercepts_moved": s.intercepts.moved,
+        "learned_physics": learned_json(&s.learned),
         "zero_spin_ignored": c.zero_spin_ignored,
         "processing_mean_ns": s.processing_mean_ns,
         "processing_p99_ns": s.processing_p99_ns,

@@ -402,6 +402,14 @@ pub struct EkfParams {
     pub spin_prior_sigma: f64,
     /// Detections with a confidence below this are ignored [-] in [0, 1]; 0 accepts all.
     pub min_confidence: f64,
+    /// The scatter of one table bounce about the model: the tangential impulse per unit mass,
+    /// per axis [m/s] (it moves the velocity and, through the shell's inertia, the spin).
+    pub bounce_impulse_sigma: f64,
+    /// The scatter of one bounce's restitution about the table's [-].
+    pub bounce_restitution_sigma: f64,
+    /// Whether the filter adds the spread between the sliding and the rolling bounce when the
+    /// state is uncertain enough that either could happen.
+    pub bounce_regime_spread: bool,
 }
 
 impl Default for EkfParams {
@@ -413,6 +421,58 @@ impl Default for EkfParams {
             init_max_span: 0.1,
             spin_prior_sigma: 300.0,
             min_confidence: 0.0,
+            bounce_impulse_sigma: 0.05,
+            bounce_restitution_sigma: 0.01,
+            bounce_regime_spread: true,
+        }
+    }
+}
+
+/// The physical parameters the estimator learns online and carries from track to track: scale
+/// factors on the drag and Magnus forces and the table's restitution and friction, starting
+/// from `aero.drag_scale`, `aero.magnus_scale`, `table.restitution` and `table.friction`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct AdaptationParams {
+    /// Learn the parameters (false: they stay at their configured values).
+    pub enabled: bool,
+    /// Prior standard deviation of the drag scale k_D about its configured value [-]; 0 keeps
+    /// it fixed.
+    pub drag_scale_sigma: f64,
+    /// Prior standard deviation of the Magnus scale k_M [-]; 0 keeps it fixed.
+    pub magnus_scale_sigma: f64,
+    /// Prior standard deviation of the table's restitution e_t [-]; 0 keeps it fixed.
+    pub restitution_sigma: f64,
+    /// Prior standard deviation of the table's friction mu_t [-]; 0 keeps it fixed.
+    pub friction_sigma: f64,
+    /// How much one flight's drag scale scatters about the ball's [-] (each flight's filter
+    /// learns its own, about the global one it updates).
+    pub drag_scale_flight_sigma: f64,
+    /// How much one flight's Magnus scale scatters about the ball's [-].
+    pub magnus_scale_flight_sigma: f64,
+    /// How much the restitution a flight sees scatters about the table's [-].
+    pub restitution_flight_sigma: f64,
+    /// How much the friction a flight sees scatters about the table's [-].
+    pub friction_flight_sigma: f64,
+    /// How far each parameter may drift in an hour, as a fraction of its prior standard
+    /// deviation [-]: a random walk of variance (drift sigma)^2 t / 3600 s, capped at the prior
+    /// variance (after a long pause the estimator is back at its prior uncertainty).
+    pub drift_per_hour: f64,
+}
+
+impl Default for AdaptationParams {
+    fn default() -> Self {
+        Self {
+            enabled: true,
+            drag_scale_sigma: 0.15,
+            magnus_scale_sigma: 0.4,
+            restitution_sigma: 0.03,
+            friction_sigma: 0.1,
+            drag_scale_flight_sigma: 0.03,
+            magnus_scale_flight_sigma: 0.15,
+            restitution_flight_sigma: 0.0,
+            friction_flight_sigma: 0.0,
+            drift_per_hour: 0.5,
         }
     }
 }
@@ -655,6 +715,8 @@ pub struct Config {
     pub sources: SourcesParams,
     /// The extended Kalman filter.
     pub ekf: EkfParams,
+    /// The physical parameters learned online.
+    pub adaptation: AdaptationParams,
     /// Outlier gating.
     pub gating: GatingParams,
     /// Track life cycle and out-of-order detections.
@@ -682,6 +744,7 @@ impl Default for Config {
             intercept: InterceptParams::default(),
             sources: SourcesParams::default(),
             ekf: EkfParams::default(),
+            adaptation: AdaptationParams::default(),
             gating: GatingParams::default(),
             tracking: TrackingParams::default(),
             node: NodeParams::default(),

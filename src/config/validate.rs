@@ -363,11 +363,7 @@ impl Config {
         }
 
         let t = &self.table;
-        for (key, value) in [
-            ("table.length", t.length),
-            ("table.width", t.width),
-            ("table.net_height", t.net_height),
-        ] {
+        for (key, value) in [("table.length", t.length), ("table.width", t.width)] {
             c.real(
                 key,
                 value,
@@ -375,6 +371,12 @@ impl Config {
                 "greater than 0 and at most 10 (metres)",
             );
         }
+        c.real(
+            "table.net_height",
+            t.net_height,
+            |v| (0.0..=10.0).contains(&v),
+            "between 0 (a table without a net) and 10 (metres)",
+        );
         c.real(
             "table.height",
             t.height,
@@ -594,6 +596,70 @@ impl Config {
             e.min_confidence,
             |v| (0.0..=1.0).contains(&v),
             "between 0 and 1",
+        );
+        c.real(
+            "ekf.bounce_impulse_sigma",
+            e.bounce_impulse_sigma,
+            |v| (0.0..=5.0).contains(&v),
+            "between 0 and 5 (m/s)",
+        );
+        c.real(
+            "ekf.bounce_restitution_sigma",
+            e.bounce_restitution_sigma,
+            |v| (0.0..=0.5).contains(&v),
+            "between 0 and 0.5",
+        );
+
+        let ad = &self.adaptation;
+        for (key, value, allowed) in [
+            (
+                "adaptation.drag_scale_sigma",
+                ad.drag_scale_sigma,
+                "between 0 (fixed) and 1",
+            ),
+            (
+                "adaptation.magnus_scale_sigma",
+                ad.magnus_scale_sigma,
+                "between 0 (fixed) and 1",
+            ),
+            (
+                "adaptation.restitution_sigma",
+                ad.restitution_sigma,
+                "between 0 (fixed) and 1",
+            ),
+            (
+                "adaptation.friction_sigma",
+                ad.friction_sigma,
+                "between 0 (fixed) and 1",
+            ),
+            (
+                "adaptation.drag_scale_flight_sigma",
+                ad.drag_scale_flight_sigma,
+                "between 0 and 1",
+            ),
+            (
+                "adaptation.magnus_scale_flight_sigma",
+                ad.magnus_scale_flight_sigma,
+                "between 0 and 1",
+            ),
+            (
+                "adaptation.restitution_flight_sigma",
+                ad.restitution_flight_sigma,
+                "between 0 and 1",
+            ),
+            (
+                "adaptation.friction_flight_sigma",
+                ad.friction_flight_sigma,
+                "between 0 and 1",
+            ),
+        ] {
+            c.real(key, value, |v| (0.0..=1.0).contains(&v), allowed);
+        }
+        c.real(
+            "adaptation.drift_per_hour",
+            ad.drift_per_hour,
+            |v| (0.0..=100.0).contains(&v),
+            "between 0 and 100 (a fraction of each prior sigma per hour)",
         );
 
         c.real(

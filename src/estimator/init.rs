@@ -12,14 +12,16 @@ use nalgebra::{Matrix2, Vector2, Vector3};
 
 use super::Settings;
 use crate::detection::Detection;
-use crate::ekf::Ekf;
 use crate::physics::{FlightModel, StateMatrix, StateVector};
 
 /// A fitted initial estimate.
 #[derive(Debug, Clone, Copy, PartialEq)]
+#[expect(non_snake_case, reason = "matrix notation")]
 pub(crate) struct InitialFit {
-    /// The estimate at `stamp`.
-    pub ekf: Ekf,
+    /// The state at `stamp`.
+    pub x: StateVector,
+    /// Its covariance.
+    pub P: StateMatrix,
     /// The newest stamp of the fitted detections [ns].
     pub stamp: i64,
     /// Sum of squared normalised residuals.
@@ -119,6 +121,7 @@ pub(crate) fn fit(
         0.0
     } else {
         flight.magnus_factor()
+            * flight.scales().1
             * flight.magnus_coefficient(0.0)
             * settings.spin_prior_var.sqrt()
             * v.norm()
@@ -141,7 +144,8 @@ pub(crate) fn fit(
     }
     let n = u32::try_from(detections.len()).unwrap_or(u32::MAX);
     Some(InitialFit {
-        ekf: Ekf::new(x, big_p),
+        x,
+        P: big_p,
         stamp,
         chi_square,
         dof: (3 * n).saturating_sub(6),

@@ -20,6 +20,7 @@
 //! No heap allocation per detection: the history and buffers are allocated once.
 
 mod init;
+mod learning;
 
 use std::collections::VecDeque;
 
@@ -27,12 +28,16 @@ use nalgebra::{Matrix3, Matrix6, SVector, Vector3};
 
 use crate::config::{Config, SourceParams};
 use crate::detection::{Detection, Source, seconds_to_ns};
-use crate::ekf::{Ekf, ProcessNoise, UpdateError, position_H, position_spin_H};
+use crate::ekf::{
+    BounceNoise, Ekf, ParamCovariance, ProcessNoise, UpdateError, position_H, position_spin_H,
+};
 use crate::intercept::{Intercept, InterceptQuery, InterceptTracker};
 use crate::physics::{
-    BallState, FlightModel, PredictOptions, Propagator, StateMatrix, Trajectory, predict,
+    BallState, FlightModel, PARAMS, ParamVector, PhysicsParams, PredictOptions, Propagator,
+    StateMatrix, Trajectory, predict,
 };
 use crate::stats::chi_square_quantile;
+use learning::Learned;
 
 /// Track status, with the codes of `BallState.msg`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -247,6 +252,13 @@ impl SourceNoise {
 #[derive(Debug, Clone, PartialEq)]
 pub(crate) struct Settings {
     noise: ProcessNoise,
+    bounce: BounceNoise,
+    /// The adaptation's prior: the configured parameters, and their variances (zero for those
+    /// not adapted).
+    param_prior: ParamVector,
+    param_prior_var: ParamVector,
+    /// The flight-to-flight dispersion of the parameters (variances).
+    param_dispersion: ParamVector,
     gate_position: f64,
     gate_position_spin: f64,
     gate_probability: f64,
@@ -267,10 +279,36 @@ pub(crate) struct Settings {
 impl Settings {
     pub(crate) fn new(config: &Config) -> Self {
         let p = config.gating.probability;
+        let adaptation = &config.adaptation;
+        let sigmas = ParamVector::new(
+            adaptation.drag_scale_sigma,
+            adaptation.magnus_scale_sigma,
+            adaptation.restitution_sigma,
+            adaptation.friction_sigma,
+        ) * if adaptation.enabled { 1.0 } else { 0.0 };
+        let param_prior_var = sigmas.component_mul(&sigmas);
         Self {
             noise: ProcessNoise {
                 acceleration_density: config.ekf.acceleration_noise_density,
                 spin_density: config.ekf.spin_noise_density,
+                param_density: param_prior_var
+                    * (adaptation.drift_per_hour * adaptation.drift_per_hour / 3600.0),
+            },
+            bounce: BounceNoise {
+                impulse_sigma: config.ekf.bounce_impulse_sigma,
+                restitution_sigma: config.ekf.bounce_restitution_sigma,
+                regime: config.ekf.bounce_regime_spread,
+            },
+            param_prior: PhysicsParams::from_config(config).to_vector(),
+            param_prior_var,
+            param_dispersion: {
+                let d = ParamVector::new(
+                    adaptation.drag_scale_flight_sigma,
+                    adaptation.magnus_scale_flight_sigma,
+                    adaptation.restitution_flight_sigma,
+                    adaptation.friction_flight_sigma,
+                );
+                d.component_mul(&d)
             },
             gate_position: chi_square_quantile(p, 3),
             gate_position_spin: chi_square_quantile(p, 6),
@@ -412,6 +450,8 @@ struct Track {
     base: Snapshot,
     history: VecDeque<Entry>,
     consecutive_rejections: u32,
+    /// The physical parameters (and their covariance) the track started from.
+    param_prior: (ParamVector, ParamCovariance),
 }
 
 /// The estimator (see the module doc).
@@ -441,6 +481,24 @@ pub struct Estimator {
     held: Option<(Detection, Measurement)>,
     /// The interception kept up to date from detection to detection.
     intercepts: InterceptTracker,
+    /// What the estimator knows of the physical parameters between tracks.
+    learned: Learned,
+}
+
+/// What an estimator has learned of the physical parameters, carried to another
+/// ([`Estimator::learned_physics`], [`Estimator::adopt_learned_physics`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct LearnedPhysics(Learned);
+
+/// The physical parameters the estimator has learned ([`Estimator::learned_params`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct LearnedParams {
+    /// The estimate (of the live track, else as the last track left it).
+    pub params: PhysicsParams,
+    /// Standard deviation of each parameter, in the order of [`PhysicsParams::NAMES`] [-].
+    pub sigma: [f64; PARAMS],
+    /// Tracks that have contributed, the live one included.
+    pub tracks: u64,
 }
 
 /// How far from the table's edge [m] a detection is also fused with the table grown and shrunk
@@ -475,9 +533,68 @@ impl Estimator {
             edge_retries: std::cell::Cell::new(0),
             held: None,
             intercepts: InterceptTracker::new(config.intercept.refresh.clone()),
+            learned: Learned::new(
+                settings.param_prior,
+                settings.param_prior_var,
+                settings.noise.param_density,
+                settings.param_dispersion,
+            ),
             propagator,
             settings,
         }
+    }
+
+    /// What the estimator has learned of the physical parameters, to start another estimator
+    /// from ([`Self::adopt_learned_physics`]): the ball's and table's, the live track's lesson
+    /// included.
+    pub fn learned_physics(&self) -> LearnedPhysics {
+        LearnedPhysics(self.learned_with_live_track())
+    }
+
+    /// Starts from what another estimator (of the same configuration) learned of the physical
+    /// parameters, as if its tracks had been this one's.
+    pub fn adopt_learned_physics(&mut self, learned: &LearnedPhysics) {
+        self.learned = learned.0;
+    }
+
+    fn learned_with_live_track(&self) -> Learned {
+        match &self.track {
+            Some(track) => self.learned.absorbed(
+                &track.param_prior,
+                &(track.now.ekf.theta, track.now.ekf.param_covariance()),
+                track.now.stamp,
+            ),
+            None => self.learned,
+        }
+    }
+
+    /// The live track's own physical parameters (its flight's, see [`Self::learned_params`] for
+    /// the ball's and table's), if a track is live.
+    pub fn track_params(&self) -> Option<LearnedParams> {
+        let track = self.track.as_ref()?;
+        let covariance = track.now.ekf.param_covariance();
+        Some(LearnedParams {
+            params: track.now.ekf.params(),
+            sigma: std::array::from_fn(|i| covariance[(i, i)].max(0.0).sqrt()),
+            tracks: self.learned.tracks() + 1,
+        })
+    }
+
+    /// The physical parameters learned so far, over all tracks (the live one included as far as
+    /// it has come); the configured values, with their prior uncertainty, before any track.
+    pub fn learned_params(&self) -> LearnedParams {
+        let learned = self.learned_with_live_track();
+        let (theta, covariance) = learned.global();
+        LearnedParams {
+            params: PhysicsParams::from_vector(&theta),
+            sigma: std::array::from_fn(|i| covariance[(i, i)].max(0.0).sqrt()),
+            tracks: learned.tracks(),
+        }
+    }
+
+    /// The propagator at a snapshot's parameters.
+    fn propagator_of(&self, snapshot: &Snapshot) -> Propagator {
+        self.propagator.with_params(&snapshot.ekf.params())
     }
 
     /// What happened to the detections so far.
@@ -515,8 +632,9 @@ impl Estimator {
         Some((track.now.stamp, self.predict_flight(&start, dt, horizon)))
     }
 
-    /// The predicted flight of any ball state with this estimator's model, sampled every `dt`
-    /// seconds over `horizon` seconds (events: table, net, floor, the hitting plane).
+    /// The predicted flight of any ball state with this estimator's model and learned
+    /// parameters, sampled every `dt` seconds over `horizon` seconds (events: table, net,
+    /// floor, the hitting plane).
     pub fn predict_flight(&self, start: &BallState, dt: f64, horizon: f64) -> Trajectory {
         let options = PredictOptions {
             horizon,
@@ -524,7 +642,8 @@ impl Estimator {
             plane_x: Some(self.settings.plane_x),
             stop_at_plane: false,
         };
-        predict(&self.propagator, start, &options)
+        let propagator = self.propagator.with_params(&self.learned_params().params);
+        predict(&propagator, start, &options)
     }
 
     /// Counts a detection that an adapter rejected before it reached the filter (e.g. its
@@ -657,7 +776,7 @@ impl Estimator {
             bounced_on_robot_half: snapshot.robot_half_bounces > 0,
         };
         let intercept = self.intercepts.predict(
-            &self.propagator,
+            &self.propagator_of(&snapshot),
             track.id,
             snapshot.stamp,
             &snapshot.ekf.x,
@@ -686,7 +805,7 @@ impl Estimator {
             track_id: track.id,
             status,
             state: BallState::from_vector(&snapshot.ekf.x),
-            covariance: snapshot.ekf.P,
+            covariance: snapshot.ekf.state_covariance(),
             bounces: snapshot.bounces,
             nis: snapshot.nis,
         }
@@ -702,8 +821,8 @@ impl Estimator {
             stamp: fit.stamp,
             track_id: self.next_track_id,
             status: TrackStatus::Initializing,
-            state: BallState::from_vector(&fit.ekf.x),
-            covariance: fit.ekf.P,
+            state: BallState::from_vector(&fit.x),
+            covariance: fit.P,
             bounces: 0,
             nis: 0.0,
         })
@@ -765,6 +884,12 @@ impl Estimator {
 
     fn end_track(&mut self) {
         if let Some(track) = self.track.take() {
+            // What the track learned of the physics carries over to the next.
+            self.learned = self.learned.absorbed(
+                &track.param_prior,
+                &(track.now.ekf.theta, track.now.ekf.param_covariance()),
+                track.now.stamp,
+            );
             // Keep the history's buffer for the next track: no allocation per track.
             self.spare_history = track.history;
             self.spare_history.clear();
@@ -780,7 +905,10 @@ impl Estimator {
     fn advance_with(&self, propagator: &Propagator, snapshot: &mut Snapshot, stamp: i64) {
         let dt = (stamp - snapshot.stamp) as f64 * 1e-9;
         if dt > 0.0 {
-            let report = snapshot.ekf.predict(propagator, &self.settings.noise, dt);
+            let report =
+                snapshot
+                    .ekf
+                    .predict(propagator, &self.settings.noise, &self.settings.bounce, dt);
             snapshot.bounces += report.bounces;
             snapshot.robot_half_bounces += report.robot_half_bounces;
         }
@@ -1038,10 +1166,15 @@ impl Estimator {
         if self.pending.first()?.stamp == self.pending.last()?.stamp {
             return None;
         }
+        let theta = self.learned.global().0;
+        let (k_d, k_m) = (
+            theta[crate::physics::params::DRAG_SCALE],
+            theta[crate::physics::params::MAGNUS_SCALE],
+        );
         init::fit(
             &self.pending,
             &weights,
-            &self.flight,
+            &self.flight.with_scales(k_d, k_m),
             self.settings.gravity,
             &self.settings,
         )
@@ -1053,15 +1186,17 @@ impl Estimator {
             return false;
         };
         let gate = chi_square_quantile(self.settings.gate_probability, fit.dof.max(1));
-        let speed = fit.ekf.x.fixed_rows::<3>(3).norm();
+        let speed = fit.x.fixed_rows::<3>(3).norm();
         if fit.chi_square > gate || speed > 40.0 {
             return false;
         }
+        let param_prior = self.learned.track_prior(fit.stamp);
+        let (theta, p_theta) = param_prior;
         let snapshot = Snapshot {
-            ekf: fit.ekf,
+            ekf: Ekf::new(fit.x, fit.P, theta, p_theta),
             stamp: fit.stamp,
             bounces: 0,
-            robot_half_bounces: u32::from(already_bounced(&fit.ekf.x)),
+            robot_half_bounces: u32::from(already_bounced(&fit.x)),
             last_fused: fit.stamp,
             nis: 0.0,
         };
@@ -1072,6 +1207,7 @@ impl Estimator {
             base: snapshot,
             history,
             consecutive_rejections: 0,
+            param_prior,
         });
         self.next_track_id = self.next_track_id.wrapping_add(1).max(1);
         self.counters.tracks += 1;

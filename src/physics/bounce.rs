@@ -101,6 +101,22 @@ impl TableBounce {
 
     /// The state just after an impact with the table, and its Jacobian.
     pub fn apply(&self, x: &StateVector) -> Bounce {
+        self.apply_in(x, None)
+    }
+
+    /// The impact as the other regime would make it (sliding where the ball rolls out, or
+    /// rolling where it slides): the other branch of the bounce map, for the spread between the
+    /// two when the state is uncertain.
+    pub fn apply_other_regime(&self, x: &StateVector) -> Bounce {
+        let other = match self.apply(x).regime {
+            BounceRegime::Sliding => BounceRegime::Rolling,
+            BounceRegime::Rolling => BounceRegime::Sliding,
+        };
+        self.apply_in(x, Some(other))
+    }
+
+    /// The impact in the regime the state decides, or in `forced`.
+    fn apply_in(&self, x: &StateVector, forced: Option<BounceRegime>) -> Bounce {
         let r = self.radius;
         let e = self.restitution;
         let u = self.slip(x);
@@ -122,7 +138,11 @@ impl TableBounce {
         // Tangential impulse per unit mass, delta = alpha u, and its Jacobian; with its
         // derivative with respect to (e, mu) (zero when the ball rolls out).
         let mut ddelta_dtable = Matrix2::zeros();
-        let (regime, delta, ddelta_dx) = if sliding_alpha >= ROLLING_ALPHA {
+        let rolls = match forced {
+            Some(regime) => regime == BounceRegime::Rolling || u_norm == 0.0,
+            None => sliding_alpha >= ROLLING_ALPHA,
+        };
+        let (regime, delta, ddelta_dx) = if rolls {
             (
                 BounceRegime::Rolling,
                 u * ROLLING_ALPHA,

@@ -25,7 +25,10 @@ pub mod state;
 pub use aero::{AeroForces, FlightJacobian, FlightMatrix, FlightModel};
 pub use bounce::{Bounce, BounceRegime, TableBounce};
 pub use contact::{Contact, ContactError, RestoringCharacteristic};
-pub use params::{PARAMS, ParamMatrix, ParamRow, ParamVector, PhysicsParams};
+pub use params::{
+    AUGMENTED, AugmentedMatrix, PARAMS, ParamCovariance, ParamMatrix, ParamRow, ParamVector,
+    PhysicsParams,
+};
 pub use predict::{PredictOptions, Sample, Trajectory, TrajectoryEnd, predict};
 pub use propagate::{
     Cursor, Event, EventKind, EventParamSensitivity, EventSensitivity, Flow, Observer, Outcome,

@@ -33,6 +33,20 @@ pub type ParamVector = SVector<f64, PARAMS>;
 pub type ParamMatrix = SMatrix<f64, 9, PARAMS>;
 /// d(a scalar)/d(parameters), e.g. of an event's time [s per parameter unit].
 pub type ParamRow = SMatrix<f64, 1, PARAMS>;
+/// A covariance over the parameters.
+pub type ParamCovariance = SMatrix<f64, PARAMS, PARAMS>;
+/// Dimension of the augmented state: the ball's 9 and the parameters.
+pub const AUGMENTED: usize = 9 + PARAMS;
+/// A covariance over the augmented state (ball, parameters).
+pub type AugmentedMatrix = SMatrix<f64, AUGMENTED, AUGMENTED>;
+
+/// The covariance over (state, parameters) of a state of covariance `p` and parameters known
+/// exactly.
+pub fn with_known_params(p: &super::StateMatrix) -> AugmentedMatrix {
+    let mut augmented = AugmentedMatrix::zeros();
+    augmented.fixed_view_mut::<9, 9>(0, 0).copy_from(p);
+    augmented
+}
 
 /// The adaptable physical parameters.
 #[derive(Debug, Clone, Copy, PartialEq)]

@@ -120,6 +120,13 @@ impl Tangent {
         }
     }
 
+    /// `flight * q * flight'`: a covariance `q` of the state just after the last event (the
+    /// start, before any) carried by the flight since.
+    pub fn carry_flight(&self, q: &StateMatrix) -> StateMatrix {
+        let fq = self.flight.times(q);
+        self.flight.times(&fq.transpose()).transpose()
+    }
+
     /// The full transition when `flight` is the flight since the last event.
     fn through(&self, flight: &FlightMatrix) -> StateMatrix {
         match &self.until_event {

@@ -35,7 +35,7 @@ use super::fit::{MeasuredBounce, detect_bounce, fit_ballistic};
 use super::mpi::{Flight, SpinKind, flight_detections};
 use crate::config::Config;
 use crate::detection::{Source, seconds_to_ns};
-use crate::estimator::{Counters, Estimator, InterceptEstimate};
+use crate::estimator::{Counters, Estimator, InterceptEstimate, LearnedPhysics};
 use crate::eval::ErrorStats;
 use crate::intercept::NoIntercept;
 use crate::physics::BallState;
@@ -63,6 +63,10 @@ pub struct RealEvalOptions {
     pub epoch_ns: i64,
     /// Source of the detections (see [`flight_detections`]).
     pub source: Source,
+    /// Each flight's estimator starts from what the previous flights' estimators learned of
+    /// the physics (in the flights' order), as one estimator running through them would; else
+    /// every flight starts from the configuration.
+    pub carry_over: bool,
 }
 
 impl Default for RealEvalOptions {
@@ -72,6 +76,7 @@ impl Default for RealEvalOptions {
             plane: Plane::AfterBounce(0.02),
             epoch_ns: 1_700_000_000_000_000_000,
             source: Source::Wide150Fps,
+            carry_over: true,
         }
     }
 }
@@ -248,7 +253,7 @@ pub struct FlightResult {
     /// The estimated state the prediction at each lead was made from, when there was a track
     /// (empty when not scored).
     pub lead_states: Vec<Option<BallState>>,
-    /// What the estimator did with the flight's detections up to the last scored lead.
+    /// What the estimator did with all the flight's detections.
     pub counters: Counters,
 }
 
@@ -403,15 +408,23 @@ pub fn drag_only(config: &Config) -> Config {
 }
 
 /// Runs every flight through its own [`Estimator`] under `config` (with `intercept.plane_x`
-/// set per flight) and scores it (see the module doc).
+/// set per flight; with [`RealEvalOptions::carry_over`], started from what the flights before
+/// it taught) and scores it (see the module doc).
 pub fn evaluate_flights(
     config: &Config,
     flights: &[Flight],
     options: &RealEvalOptions,
 ) -> RealReport {
+    let mut learned: Option<LearnedPhysics> = None;
     let results: Vec<FlightResult> = flights
         .iter()
-        .map(|f| evaluate_flight(config, f, options))
+        .map(|f| {
+            let (result, after) = evaluate_flight(config, f, options, learned.as_ref());
+            if options.carry_over {
+                learned = Some(after);
+            }
+            result
+        })
         .collect();
     let mut groups: Vec<GroupSummary> = SpinKind::ALL
         .iter()
@@ -426,7 +439,13 @@ pub fn evaluate_flights(
     }
 }
 
-fn evaluate_flight(config: &Config, flight: &Flight, options: &RealEvalOptions) -> FlightResult {
+/// One flight's result, and what its estimator learned of the physics over the whole flight.
+fn evaluate_flight(
+    config: &Config,
+    flight: &Flight,
+    options: &RealEvalOptions,
+    learned: Option<&LearnedPhysics>,
+) -> (FlightResult, LearnedPhysics) {
     let crossing = measured_crossing(flight, options.plane, config.gravity);
     let mut result = FlightResult {
         id: flight.id,
@@ -436,13 +455,22 @@ fn evaluate_flight(config: &Config, flight: &Flight, options: &RealEvalOptions) 
         lead_states: Vec::new(),
         counters: Counters::default(),
     };
-    let Ok(measured) = crossing else {
-        return result;
-    };
     let mut flight_config = config.clone();
-    flight_config.intercept.plane_x = measured.position.x;
+    if let Ok(measured) = crossing {
+        flight_config.intercept.plane_x = measured.position.x;
+    }
     let mut estimator = Estimator::new(&flight_config);
+    if let Some(learned) = learned {
+        estimator.adopt_learned_physics(learned);
+    }
     let epoch = options.epoch_ns;
+    let detections = flight_detections(flight, epoch, options.source);
+    let Ok(measured) = crossing else {
+        for d in &detections {
+            estimator.handle(d);
+        }
+        return (result, estimator.learned_physics());
+    };
     let deadlines: Vec<i64> = options
         .leads
         .iter()
@@ -451,11 +479,12 @@ fn evaluate_flight(config: &Config, flight: &Flight, options: &RealEvalOptions) 
     let last_deadline = deadlines.iter().copied().max().unwrap_or(epoch);
     let mut latest: Vec<Option<(InterceptEstimate, Option<BallState>)>> =
         vec![None; deadlines.len()];
-    for detection in flight_detections(flight, epoch, options.source) {
+    for detection in &detections {
+        let out = estimator.handle(detection);
         if detection.stamp > last_deadline {
-            break;
+            // After the last lead: only learning.
+            continue;
         }
-        let out = estimator.handle(&detection);
         let Some(intercept) = out.intercept else {
             continue;
         };
@@ -467,6 +496,7 @@ fn evaluate_flight(config: &Config, flight: &Flight, options: &RealEvalOptions) 
         }
     }
     result.counters = estimator.counters();
+    let learned_after = estimator.learned_physics();
     result.leads = latest
         .iter()
         .map(|p| match p {
@@ -475,7 +505,7 @@ fn evaluate_flight(config: &Config, flight: &Flight, options: &RealEvalOptions) 
         })
         .collect();
     result.lead_states = latest.iter().map(|p| p.and_then(|(_, s)| s)).collect();
-    result
+    (result, learned_after)
 }
 
 fn outcome(p: &InterceptEstimate, measured: &MeasuredCrossing, epoch: i64) -> LeadOutcome {

@@ -99,18 +99,53 @@ pub(crate) struct Measurement {
     pub outlier: bool,
 }
 
+/// A free-running frame clock whose intervals are the period plus -1, 0 or +1 jitter, drawn
+/// from its own stream; frames are asked for in increasing time, so it keeps its last frame.
+#[derive(Debug, Clone)]
+pub(crate) struct JitteredClock {
+    /// The next frame's stamp [ns].
+    next: i64,
+    period: f64,
+    jitter: f64,
+    rng: Rng,
+}
+
+impl JitteredClock {
+    /// The frames in [from, to], in order (from at or after the previous call's `to`).
+    fn frames(&mut self, from: i64, to: i64) -> Vec<i64> {
+        let mut frames = Vec::new();
+        while self.next <= to {
+            if self.next >= from {
+                frames.push(self.next);
+            }
+            let step = (self.rng.index(3) as f64 - 1.0).mul_add(self.jitter, self.period);
+            self.next += step.round() as i64;
+        }
+        frames
+    }
+}
+
 /// A camera during a session: its parameters, clock, random stream and counts.
 #[derive(Debug, Clone)]
 pub(crate) struct Camera<'a> {
     pub params: &'a CameraParams,
     pub clock: FrameClock,
+    /// The clock that replaces `clock` when the frame intervals are jittered.
+    pub jittered: Option<JitteredClock>,
     pub rng: Rng,
     pub counts: CameraCounts,
 }
 
 impl<'a> Camera<'a> {
-    /// A camera whose frame clock starts at `epoch` plus a phase uniform in one period.
-    pub fn new(params: &'a CameraParams, epoch: i64, clock_rng: &mut Rng, rng: Rng) -> Self {
+    /// A camera whose frame clock starts at `epoch` plus a phase uniform in one period (its
+    /// intervals jittered from `jitter_rng` when the camera's are).
+    pub fn new(
+        params: &'a CameraParams,
+        epoch: i64,
+        clock_rng: &mut Rng,
+        rng: Rng,
+        jitter_rng: Rng,
+    ) -> Self {
         let period = NS_PER_S / params.frame_rate;
         let phase = (clock_rng.uniform() * period).floor() as i64;
         Self {
@@ -119,6 +154,12 @@ impl<'a> Camera<'a> {
                 origin: epoch + phase,
                 period,
             },
+            jittered: (params.interval_jitter > 0.0).then(|| JitteredClock {
+                next: epoch + phase,
+                period,
+                jitter: params.interval_jitter * NS_PER_S,
+                rng: jitter_rng,
+            }),
             rng,
             counts: CameraCounts::default(),
         }
@@ -136,8 +177,11 @@ impl<'a> Camera<'a> {
     ) -> Vec<(Measurement, BallState)> {
         let mut out = Vec::new();
         let mut cursor = Cursor::new(0.0, launch);
-        let clock = self.clock;
-        for stamp in clock.frames(launch_stamp, end_stamp) {
+        let frames: Vec<i64> = match self.jittered.as_mut() {
+            Some(jittered) => jittered.frames(launch_stamp, end_stamp),
+            None => self.clock.frames(launch_stamp, end_stamp).collect(),
+        };
+        for stamp in frames {
             let t = (stamp - launch_stamp) as f64 / NS_PER_S;
             let duration = t - cursor.t;
             let outcome = propagator.advance(&mut cursor, duration, Watch::FLIGHT, &mut ());
@@ -188,6 +232,13 @@ impl<'a> Camera<'a> {
             .then(|| truth.spin + p.spin_sigma * draws.spin_noise);
         let latency = (p.latency_mean + p.latency_jitter * draws.latency).max(0.0);
         let arrival = stamp + seconds_to_ns(latency);
+        // The tracker's clock: the exposure time rounded to its resolution.
+        let stamp = if p.stamp_resolution > 0.0 {
+            let resolution = seconds_to_ns(p.stamp_resolution).max(1);
+            (stamp as f64 / resolution as f64).round() as i64 * resolution
+        } else {
+            stamp
+        };
         self.counts.detections += 1;
         self.counts.outliers += u64::from(outlier);
         self.counts.with_spin += u64::from(spin.is_some());

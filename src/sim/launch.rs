@@ -15,7 +15,7 @@
 
 use nalgebra::Vector3;
 
-use super::params::{Interval, RandomLaunchParams};
+use super::params::{Interval, RandomLaunchParams, Spread};
 use super::rng::Rng;
 use crate::physics::{
     BallState, Cursor, Event, EventKind, Flow, Observer, Outcome, PredictOptions, Propagator,
@@ -368,6 +368,23 @@ fn sample(rng: &mut Rng, interval: Interval) -> f64 {
     rng.uniform_in(interval.min, interval.max)
 }
 
+/// A draw from `spread` (log-normal) cut to `interval` (redrawn while outside, at most 100
+/// times, then clamped), or uniform in `interval` without one.
+fn sample_spread(rng: &mut Rng, interval: Interval, spread: Option<Spread>) -> f64 {
+    let Some(spread) = spread else {
+        return sample(rng, interval);
+    };
+    let sigma = spread.log_sigma();
+    let mut value = spread.median;
+    for _ in 0..100 {
+        value = spread.median * (sigma * rng.normal()).exp();
+        if interval.contains(value) {
+            return value;
+        }
+    }
+    value.clamp(interval.min, interval.max)
+}
+
 /// Bisection steps on the elevation: the searched range over 2^24, about 1e-7 rad.
 const AIM_ITERATIONS: usize = 24;
 
@@ -393,8 +410,8 @@ pub fn random_launch(
         sample(rng, params.target_y),
         0.0,
     );
-    let speed = sample(rng, params.speed);
-    let spin_magnitude = sample(rng, params.spin);
+    let speed = sample_spread(rng, params.speed, params.speed_spread);
+    let spin_magnitude = sample_spread(rng, params.spin, params.spin_spread);
     let side_sign = if rng.bernoulli(0.5) { 1.0 } else { -1.0 };
     let random_axis = rng.unit_vector();
 

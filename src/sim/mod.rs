@@ -21,7 +21,7 @@ pub use launch::{
 };
 pub use params::{
     CameraParams, Cameras, FieldOfView, Interval, ParamError, RandomLaunchParams, ShotParams,
-    SimParams,
+    SimParams, Spread,
 };
 pub use rng::{Rng, SplitMix64, Stream};
 pub use session::{

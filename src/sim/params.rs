@@ -75,6 +75,13 @@ pub struct CameraParams {
     pub latency_mean: f64,
     /// Standard deviation of the gaussian latency jitter [s]; latencies are clipped at 0.
     pub latency_jitter: f64,
+    /// Each frame interval is the period plus -1, 0 or +1 times this, each equally likely [s]
+    /// (a free-running tracker: 7 ms +- 1 ms gives intervals of 6, 7 or 8 ms); 0: a regular
+    /// clock.
+    pub interval_jitter: f64,
+    /// The stamps are rounded to a multiple of this [s] (0.001: millisecond stamps), the
+    /// positions measured at the true exposure time; 0: exact stamps.
+    pub stamp_resolution: f64,
     /// Probability that a frame with the ball in view yields no detection [-].
     pub dropout_probability: f64,
     /// Probability that a detection is an outlier [-]: displaced from the ball, flagged in truth.
@@ -104,6 +111,8 @@ impl CameraParams {
             spin_sigma: 0.0,
             latency_mean: 0.008,
             latency_jitter: 0.0015,
+            interval_jitter: 0.0,
+            stamp_resolution: 0.0,
             dropout_probability: 0.02,
             outlier_probability: 0.005,
             outlier_displacement: Interval::new(0.05, 0.30),
@@ -195,6 +204,16 @@ impl CameraParams {
             self.latency_jitter,
         )?;
         check(
+            non_negative(self.interval_jitter) && self.interval_jitter * self.frame_rate < 0.5,
+            "interval_jitter",
+            self.interval_jitter,
+        )?;
+        check(
+            non_negative(self.stamp_resolution),
+            "stamp_resolution",
+            self.stamp_resolution,
+        )?;
+        check(
             probability(self.dropout_probability),
             "dropout_probability",
             self.dropout_probability,
@@ -221,14 +240,42 @@ pub enum Cameras {
     WideAndHighSpeed,
 }
 
-/// The random launch generator: uniform draws in these ranges, aimed at a uniform target on the
-/// robot's half by solving for the elevation.
+/// A log-normal distribution given by two of its quantiles (of a quantity in its own unit).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Spread {
+    /// The median.
+    pub median: f64,
+    /// The 90th percentile (above the median).
+    pub p90: f64,
+}
+
+impl Spread {
+    /// sigma of the underlying normal: ln(p90 / median) / z_0.9.
+    pub fn log_sigma(&self) -> f64 {
+        (self.p90 / self.median).ln() / 1.281_551_565_5
+    }
+
+    fn is_valid(&self) -> bool {
+        self.median.is_finite()
+            && self.median > 0.0
+            && self.p90.is_finite()
+            && self.p90 > self.median
+    }
+}
+
+/// The random launch generator: uniform draws in these ranges (or, with a spread, log-normal
+/// draws cut to them), aimed at a uniform target on the robot's half by solving for the
+/// elevation.
 #[derive(Debug, Clone, PartialEq)]
 pub struct RandomLaunchParams {
     /// Launch speed [m/s]. Default 3-14 m/s.
     pub speed: Interval,
     /// Spin magnitude [rad/s]. Default 30-600 rad/s.
     pub spin: Interval,
+    /// Draw the speed log-normal with these quantiles, within `speed`, instead of uniform.
+    pub speed_spread: Option<Spread>,
+    /// Draw the spin log-normal with these quantiles, within `spin`, instead of uniform.
+    pub spin_spread: Option<Spread>,
     /// Launch x, on the opponent's side [m]. Default 1.2-2.2 m.
     pub x: Interval,
     /// Launch y [m]. Default -0.6..0.6 m.
@@ -248,6 +295,8 @@ impl Default for RandomLaunchParams {
         Self {
             speed: Interval::new(3.0, 14.0),
             spin: Interval::new(30.0, 600.0),
+            speed_spread: None,
+            spin_spread: None,
             x: Interval::new(1.2, 2.2),
             y: Interval::new(-0.6, 0.6),
             z: Interval::new(0.1, 0.5),
@@ -402,6 +451,14 @@ impl SimParams {
             "shots.random.speed",
             random.speed.min,
         )?;
+        for (name, spread) in [
+            ("shots.random.speed_spread", random.speed_spread),
+            ("shots.random.spin_spread", random.spin_spread),
+        ] {
+            if let Some(spread) = spread {
+                check(spread.is_valid(), name, spread.median)?;
+            }
+        }
         check(
             self.truth_step.is_finite() && self.truth_step > 0.0,
             "truth_step",

@@ -42,6 +42,10 @@ pub enum Stream {
     WideCamera,
     /// Everything per frame of the high-speed camera (dropout, noise, outliers, spin, latency).
     HighSpeedCamera,
+    /// The wide camera's frame intervals, when they are jittered.
+    WideClockJitter,
+    /// The high-speed camera's frame intervals, when they are jittered.
+    HighSpeedClockJitter,
 }
 
 impl Stream {
@@ -52,6 +56,8 @@ impl Stream {
             Self::Clock => 3,
             Self::WideCamera => 4,
             Self::HighSpeedCamera => 5,
+            Self::WideClockJitter => 6,
+            Self::HighSpeedClockJitter => 7,
         }
     }
 }

@@ -281,6 +281,7 @@ pub fn simulate(config: &Config, options: &SimOptions) -> Result<Session, SimErr
         options.epoch,
         &mut clock_rng,
         Rng::stream(seed, Stream::WideCamera),
+        Rng::stream(seed, Stream::WideClockJitter),
     )];
     // The high-speed clock's phase is drawn either way, so the wide camera's is the same.
     let high_speed = Camera::new(
@@ -288,6 +289,7 @@ pub fn simulate(config: &Config, options: &SimOptions) -> Result<Session, SimErr
         options.epoch,
         &mut clock_rng,
         Rng::stream(seed, Stream::HighSpeedCamera),
+        Rng::stream(seed, Stream::HighSpeedClockJitter),
     );
     if options.cameras == Cameras::WideAndHighSpeed {
         cameras.push(high_speed);

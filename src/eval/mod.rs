@@ -18,10 +18,12 @@ use nalgebra::{Matrix2, Vector2, Vector3};
 use crate::batch::fit_whole_flight;
 use crate::config::Config;
 use crate::detection::{Detection, Source, seconds_to_ns};
-use crate::estimator::{Counters, Estimator, Output, TrackStatus};
+use crate::estimator::{Counters, Estimator, Output, Rejection, TrackStatus, Verdict};
 use crate::intercept::{InterceptQuery, predict_intercept};
 use crate::physics::{BallState, Propagator};
 use crate::sim::Session;
+
+pub mod sets;
 
 /// The leads before the true crossing at which interceptions are scored [s].
 pub const LEADS: [f64; 3] = [0.3, 0.2, 0.1];
@@ -33,6 +35,9 @@ pub const HIGH_SPEED_SETTLE: f64 = 0.01;
 /// tenth of a millisecond (0.3 mm of height) puts one of estimate and truth before the bounce
 /// and the other after it, a velocity error of twice the vertical speed for that instant.
 pub const BOUNCE_WINDOW: f64 = 0.002;
+/// A good detection gated this soon after the true bounce [s] counts against the bounce
+/// model's uncertainty ([`EvalReport::gated_after_bounce_shots`]).
+pub const AFTER_BOUNCE: f64 = 0.05;
 
 /// Root mean square, median and count of a set of errors.
 #[derive(Debug, Clone, Copy, PartialEq, Default, serde::Serialize)]
@@ -112,6 +117,13 @@ pub struct EvalReport {
     pub bounce_nees: [f64; 2],
     /// Interception accuracy at each of [`LEADS`].
     pub leads: Vec<LeadReport>,
+    /// Shots whose fused detections (outliers aside) all went to one track [-].
+    pub single_track_shots: usize,
+    /// Shots with a good detection (not an outlier) gated within [`AFTER_BOUNCE`] after the
+    /// true bounce [-].
+    pub gated_after_bounce_shots: usize,
+    /// Good detections (not outliers) that were gated [-].
+    pub gated_good_detections: usize,
     /// What the estimator did with the detections.
     #[serde(skip)]
     pub counters: Counters,
@@ -141,6 +153,10 @@ impl From<&crate::sim::ShotTruth> for ShotTruth {
 /// What was kept of one shot while the session ran.
 #[derive(Debug, Clone, Default)]
 struct ShotRecord {
+    /// The tracks its good detections were fused into.
+    tracks: Vec<u32>,
+    /// A good detection was gated soon after the bounce.
+    gated_after_bounce: bool,
     track_start: Option<i64>,
     scored_at_age: bool,
     high_speed_start: Option<i64>,
@@ -166,6 +182,7 @@ pub struct Scorer {
     block_sum: [f64; 3],
     bounce_sum: [(f64, usize); 2],
     nees_count: usize,
+    gated_good: usize,
 }
 
 impl Scorer {
@@ -193,6 +210,21 @@ impl Scorer {
         else {
             return;
         };
+        if !outlier {
+            if out.verdict == Verdict::Rejected(Rejection::Gated) {
+                self.gated_good += 1;
+                let since_bounce = detection.stamp - truth_shot.bounce_stamp;
+                if (0..=seconds_to_ns(AFTER_BOUNCE)).contains(&since_bounce) {
+                    record.gated_after_bounce = true;
+                }
+            }
+            // The track a fused detection went to.
+            if let (Verdict::Fused { .. }, Some(e)) = (out.verdict, out.estimate)
+                && !record.tracks.contains(&e.track_id)
+            {
+                record.tracks.push(e.track_id);
+            }
+        }
         let Some(estimate) = out
             .estimate
             .filter(|e| e.status != TrackStatus::Initializing)
@@ -282,8 +314,38 @@ impl Scorer {
             block_nees: self.block_sum.map(|b| b / n),
             bounce_nees: self.bounce_sum.map(|(sum, k)| sum / k.max(1) as f64),
             leads,
+            single_track_shots: self.records.iter().filter(|r| r.tracks.len() == 1).count(),
+            gated_after_bounce_shots: self.records.iter().filter(|r| r.gated_after_bounce).count(),
+            gated_good_detections: self.gated_good,
             counters,
         }
+    }
+
+    /// The interception errors at each of [`LEADS`] over the shots from `first` on (after the
+    /// estimator has seen `first` flights): distance in the plane [m].
+    pub fn lead_errors_from(&self, first: usize) -> Vec<Vec<f64>> {
+        (0..LEADS.len())
+            .map(|slot| {
+                self.shots
+                    .iter()
+                    .zip(&self.records)
+                    .skip(first)
+                    .filter_map(|(shot, record)| {
+                        let crossing = record.at_lead[slot]
+                            .and_then(|(_, out)| out.intercept)
+                            .and_then(|i| i.intercept.crossing.ok())?;
+                        let truth = shot.intercept_position;
+                        Some(
+                            Vector2::new(
+                                crossing.state.position.y - truth.y,
+                                crossing.state.position.z - truth.z,
+                            )
+                            .norm(),
+                        )
+                    })
+                    .collect()
+            })
+            .collect()
     }
 
     fn lead_report(&self, slot: usize, lead: f64) -> LeadReport {
@@ -343,9 +405,11 @@ pub fn evaluate(config: &Config, session: &Session) -> EvalReport {
 }
 
 /// The estimator run over a session, scored.
-struct Run {
-    scorer: Scorer,
-    counters: Counters,
+pub(crate) struct Run {
+    pub(crate) scorer: Scorer,
+    pub(crate) counters: Counters,
+    /// The physical parameters it had learned at the end.
+    pub(crate) learned: crate::estimator::LearnedParams,
 }
 
 impl Run {
@@ -354,7 +418,7 @@ impl Run {
     }
 }
 
-fn run(config: &Config, session: &Session) -> Run {
+pub(crate) fn run(config: &Config, session: &Session) -> Run {
     let mut estimator = Estimator::new(config);
     let mut scorer = Scorer::new(session.shots.iter().map(ShotTruth::from).collect());
     for sim in &session.stream {
@@ -364,6 +428,7 @@ fn run(config: &Config, session: &Session) -> Run {
     Run {
         scorer,
         counters: estimator.counters(),
+        learned: estimator.learned_params(),
     }
 }
 
