@@ -149,7 +149,7 @@ impl Observations {
 /// A measurement as (z, L^-1) padded to six dimensions, and its dimensions.
 fn whiten(m: &Measurement) -> Result<(SVector<f64, 6>, SMatrix<f64, 6, 6>, usize), Rejection> {
     match m {
-        Measurement::Position { z: p, r } => {
+        Measurement::Position { z: p, r, .. } => {
             let mut z = SVector::<f64, 6>::zeros();
             let mut white = SMatrix::<f64, 6, 6>::zeros();
             z.fixed_rows_mut::<3>(0).copy_from(p);
@@ -158,7 +158,7 @@ fn whiten(m: &Measurement) -> Result<(SVector<f64, 6>, SMatrix<f64, 6, 6>, usize
                 .copy_from(&inverse_factor(r)?);
             Ok((z, white, 3))
         }
-        Measurement::PositionSpin { z, r } => Ok((*z, inverse_factor(r)?, 6)),
+        Measurement::PositionSpin { z, r, .. } => Ok((*z, inverse_factor(r)?, 6)),
     }
 }
 

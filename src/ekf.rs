@@ -17,7 +17,9 @@
 //!   (`TableBounce::regime_margin`, Gaussian with the variance g P g' of its gradient g over state
 //!   and parameters), the probability p of the other regime and its output's offset d from the
 //!   linearised one add the mixture's spread p (1 - p) d d'. Both are carried to the end of the
-//!   step by the flight after the bounce.
+//!   step by the flight after the bounce. When the other regime is at all probable
+//!   ([`AMBIGUOUS_REGIME`]) the state forgets its correlation with the friction: a rolling
+//!   bounce says nothing of it, and one read as sliding would teach it a value too low.
 //! - Update: S = H P H' + R factored by Cholesky (a typed error when S is not positive definite),
 //!   NIS = y' S^-1 y, the gain from the factor, and the Joseph form
 //!   P = (I - K H) P (I - K H)' + K R K' (multiplied out), symmetrised; the parameters are kept
@@ -32,6 +34,10 @@ use crate::physics::{
     StateMatrix, StateVector, Watch,
 };
 use crate::stats::normal_cdf;
+
+/// A bounce whose other regime is at least this probable leaves the friction unlearned
+/// ([`Ekf::predict`]).
+pub const AMBIGUOUS_REGIME: f64 = 0.01;
 
 /// The box the parameters are kept in (k_D, k_M, e_t, mu_t): (lowest, highest).
 pub const PARAM_BOUNDS: [(f64, f64); PARAMS] = [(0.3, 3.0), (0.05, 3.0), (0.5, 1.0), (0.02, 1.0)];
@@ -126,21 +132,26 @@ struct BounceWatch<'a> {
     start: &'a AugmentedMatrix,
     /// The scatter of the bounces so far.
     scatter: StateMatrix,
+    /// The largest probability of the other regime over the bounces so far.
+    other_regime: f64,
 }
 
 impl Observer for BounceWatch<'_> {
     fn on_event(&mut self, event: &Event) -> Flow {
         self.report.on_event(event);
         if matches!(event.kind, EventKind::TableBounce { .. }) {
-            self.scatter += self.bounce_scatter(event);
+            let (scatter, other) = self.bounce_scatter(event);
+            self.scatter += scatter;
+            self.other_regime = self.other_regime.max(other);
         }
         Flow::Continue
     }
 }
 
 impl BounceWatch<'_> {
-    /// The scatter of one bounce in the state just after it.
-    fn bounce_scatter(&self, event: &Event) -> StateMatrix {
+    /// The scatter of one bounce in the state just after it, and the probability of the
+    /// other regime.
+    fn bounce_scatter(&self, event: &Event) -> (StateMatrix, f64) {
         let bounce = self.propagator.bounce();
         let r = self.propagator.flight().radius();
         let spin_gain = 1.5 / r;
@@ -158,6 +169,7 @@ impl BounceWatch<'_> {
         }
         let se = self.noise.restitution_sigma * event.before[5];
         q[(5, 5)] += se * se;
+        let mut p_other = 0.0;
         if self.noise.regime
             && let Some(s) = event.sensitivity
         {
@@ -176,14 +188,14 @@ impl BounceWatch<'_> {
             g.fixed_columns_mut::<PARAMS>(9).copy_from(&g_params);
             let variance = (g * self.start * g.transpose())[(0, 0)];
             if variance > 0.0 {
-                let p_other = normal_cdf(-margin.abs() / variance.sqrt());
+                p_other = normal_cdf(-margin.abs() / variance.sqrt());
                 if p_other > 1e-4 {
                     let d = bounce.apply_other_regime(&event.before).state - event.after;
                     q += d * d.transpose() * (p_other * (1.0 - p_other));
                 }
             }
         }
-        q
+        (q, p_other)
     }
 }
 
@@ -274,9 +286,10 @@ impl Ekf {
             noise: bounce_noise,
             start: &self.P,
             scatter: StateMatrix::zeros(),
+            other_regime: 0.0,
         };
         propagator.advance(&mut cursor, dt, Watch::BOUNCES, &mut watch);
-        let (report, scatter) = (watch.report, watch.scatter);
+        let (report, scatter, other_regime) = (watch.report, watch.scatter, watch.other_regime);
         let P_xx = self.state_covariance();
         let mut next = AugmentedMatrix::zeros();
         let mut P_xx_next = noise.discretise(dt);
@@ -311,6 +324,16 @@ impl Ekf {
             }
         }
         next.fixed_view_mut::<PARAMS, PARAMS>(9, 9).copy_from(&P_tt);
+        if other_regime > AMBIGUOUS_REGIME {
+            // A bounce that may have rolled out or slid: its outcome depends on the friction
+            // only if it slid, so what follows says nothing sure of the friction. Its
+            // uncertainty stays in the state's covariance; the state forgets its correlation
+            // with it (a rolling bounce read as sliding would bias it low).
+            for i in 0..9 {
+                next[(i, 9 + FRICTION)] = 0.0;
+                next[(9 + FRICTION, i)] = 0.0;
+            }
+        }
         self.x = cursor.state;
         self.P = symmetrise(&next);
         report

@@ -109,6 +109,10 @@ pub struct ReplaySummary {
     pub intercepts: crate::intercept::TrackerCounts,
     /// The physical parameters the estimator learned, as it ended.
     pub learned: crate::estimator::LearnedParams,
+    /// The noise it learned of each source (unknown, 150 fps, 900 fps), as it ended.
+    pub learned_noise: [crate::estimator::SourceNoiseEstimate; 3],
+    /// The configured position sigma of each source, in the same order [m].
+    pub configured_sigma: [f64; 3],
     /// Messages written to the output bag.
     pub written: u64,
     /// Processing time per detection [ns], mean and 99th percentile.
@@ -391,6 +395,12 @@ pub fn replay(
         counters,
         intercepts: pipeline.estimator().intercept_counts(),
         learned: pipeline.estimator().learned_params(),
+        learned_noise: pipeline.estimator().learned_noise(),
+        configured_sigma: [
+            config.sources.unknown.position_sigma,
+            config.sources.wide_150fps.position_sigma,
+            config.sources.highspeed_900fps.position_sigma,
+        ],
         written,
         processing_mean_ns: timing.mean,
         processing_p99_ns: timing.p99,

@@ -8,7 +8,7 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 
 use anyhow::{Context, bail};
 use clap::Args;
-use ttball::estimator::{LearnedParams, Rejection};
+use ttball::estimator::{LearnedParams, Rejection, SourceNoiseEstimate};
 use ttball::physics::PhysicsParams;
 use ttball::replay::{ReplaySummary, replay};
 
@@ -158,13 +158,18 @@ pub fn summary_text(s: &ReplaySummary) -> String {
     }
     let _ = writeln!(
         out,
-        "  detections read {}, fused {}, initialising {}, rejected {}, undecodable {}; tracks {}",
+        "  detections read {}, fused {}, initialising {}, rejected {}, undecodable {}; tracks {}{}",
         s.detections,
         c.fused,
         c.initializing,
         c.total_rejected(),
         s.undecodable,
-        c.tracks
+        c.tracks,
+        if c.reanchored > 0 {
+            format!(" (re-anchored on their own detections {})", c.reanchored)
+        } else {
+            String::new()
+        }
     );
     let reasons: Vec<String> = c.rejections();
     if !reasons.is_empty() {
@@ -183,6 +188,9 @@ pub fn summary_text(s: &ReplaySummary) -> String {
         c.rollbacks, s.intercepts.full, s.intercepts.moved
     );
     let _ = writeln!(out, "  {}", learned_text(&s.learned));
+    if let Some(line) = noise_text(&s.learned_noise, &s.configured_sigma) {
+        let _ = writeln!(out, "  {line}");
+    }
     let _ = writeln!(
         out,
         "  processing per detection: mean {:.1} us, p99 {:.1} us; {:.1} s recorded in {:.2} s ({:.0}x real time); {} messages written",
@@ -222,6 +230,52 @@ pub fn learned_text(l: &LearnedParams) -> String {
     )
 }
 
+/// The names of the sources in the order of [`ttball::estimator::Estimator::learned_noise`].
+pub const SOURCE_NAMES: [&str; 3] = ["unknown", "wide_150fps", "highspeed_900fps"];
+
+/// The noise learned of the sources that sent detections, in one line: "learned noise:
+/// wide_150fps position sigma 3.0 mm (1.50x configured), stamps 0.3 ms; ...", or `None` when no
+/// source has learned anything.
+pub fn noise_text(noise: &[SourceNoiseEstimate; 3], configured: &[f64; 3]) -> Option<String> {
+    let parts: Vec<String> = noise
+        .iter()
+        .zip(configured)
+        .zip(SOURCE_NAMES)
+        .filter(|((n, _), _)| n.weight > ttball::estimator::NOISE_PRIOR_WEIGHT)
+        .map(|((n, sigma), name)| {
+            let factor = n.position_scale.sqrt();
+            format!(
+                "{name} position sigma {:.2} mm ({factor:.2}x configured), stamps {:.2} ms",
+                sigma * factor * 1e3,
+                n.timing_variance.sqrt() * 1e3
+            )
+        })
+        .collect();
+    (!parts.is_empty()).then(|| format!("learned noise: {}", parts.join("; ")))
+}
+
+/// The learned noise of each source as JSON.
+pub fn noise_json(noise: &[SourceNoiseEstimate; 3], configured: &[f64; 3]) -> serde_json::Value {
+    let sources: serde_json::Map<String, serde_json::Value> = noise
+        .iter()
+        .zip(configured)
+        .zip(SOURCE_NAMES)
+        .map(|((n, sigma), name)| {
+            (
+                name.to_string(),
+                serde_json::json!({
+                    "position_sigma": sigma * n.position_scale.sqrt(),
+                    "position_scale": n.position_scale,
+                    "stamp_sigma": n.timing_variance.sqrt(),
+                    "spin_scale": n.spin_scale,
+                    "detections": n.weight,
+                }),
+            )
+        })
+        .collect();
+    serde_json::Value::Object(sources)
+}
+
 /// The learned physical parameters as JSON: each by name with its value and sigma.
 pub fn learned_json(l: &LearnedParams) -> serde_json::Value {
     let values = l.params.to_vector();
@@ -255,10 +309,12 @@ fn summary_json(s: &ReplaySummary) -> serde_json::Value {
         "initializing": c.initializing,
         "rejected": rejected,
         "tracks": c.tracks,
+        "reanchored": c.reanchored,
         "rollbacks": c.rollbacks,
         "intercepts_full": s.intercepts.full,
         "intercepts_moved": s.intercepts.moved,
         "learned_physics": learned_json(&s.learned),
+        "learned_noise": noise_json(&s.learned_noise, &s.configured_sigma),
         "zero_spin_ignored": c.zero_spin_ignored,
         "processing_mean_ns": s.processing_mean_ns,
         "processing_p99_ns": s.processing_p99_ns,

@@ -75,7 +75,21 @@ pub struct AeroParams {
 }
 
 impl Default for AeroParams {
+    /// The 40 mm plastic ball: C_D(Sp) = 0.42 + 0.15 Sp, C_M(Sp) = 0.42 - 0.30 Sp + 0.07 Sp^2
+    /// (see `config/ttball.yaml` for where the numbers come from).
     fn default() -> Self {
+        Self {
+            drag_coefficients: vec![0.42, 0.15],
+            magnus_coefficients: vec![0.42, -0.30, 0.07],
+            ..Self::seed_2014()
+        }
+    }
+}
+
+impl AeroParams {
+    /// The seed's polynomials (Isomura et al. 2014, seed 004 Table 3), a CFD fit for an older
+    /// ball: `config/presets/seed_2014.yaml`.
+    pub fn seed_2014() -> Self {
         Self {
             drag_coefficients: vec![0.3682, 0.3591, -0.0747],
             magnus_coefficients: vec![0.8254, -1.9501, 2.2813, -1.2055, 0.2313],
@@ -337,6 +351,11 @@ pub struct SourceParams {
     /// Nominal latency from exposure to the detection's arrival [s]; the simulator delays the
     /// detections of this source by it.
     pub latency: f64,
+    /// Standard deviation of a detection's stamp about its true exposure time [s]: it moves the
+    /// measured position along the flight by the velocity times as much (millisecond stamps:
+    /// 0.29 ms; a jittered exposure clock: more). 0: exact stamps. The estimator learns the
+    /// timing and position noise each source really has (`ekf.learn_noise`), starting here.
+    pub stamp_sigma: f64,
 }
 
 /// Measurement noise per camera source (physics.md "Cameras in the seed setup").
@@ -360,18 +379,21 @@ impl Default for SourcesParams {
                 position_sigma: 0.002,
                 spin_sigma: 0.0,
                 latency: 0.008,
+                stamp_sigma: 0.0,
             },
             // Narrow view, so finer pixels; spin from the marks on the ball.
             highspeed_900fps: SourceParams {
                 position_sigma: 0.001,
                 spin_sigma: 12.0,
                 latency: 0.004,
+                stamp_sigma: 0.0,
             },
             // Conservative: worse than either known camera.
             unknown: SourceParams {
                 position_sigma: 0.005,
                 spin_sigma: 30.0,
                 latency: 0.008,
+                stamp_sigma: 0.0,
             },
         }
     }
@@ -410,6 +432,11 @@ pub struct EkfParams {
     /// Whether the filter adds the spread between the sliding and the rolling bounce when the
     /// state is uncertain enough that either could happen.
     pub bounce_regime_spread: bool,
+    /// Learn each source's real noise from its innovations: a scale on its position (and spin)
+    /// variance and the variance of its stamps' timing, starting from `sources.*`.
+    pub learn_noise: bool,
+    /// How many detections of a source the learned noise averages over [-] (older ones fade).
+    pub noise_memory: u32,
 }
 
 impl Default for EkfParams {
@@ -424,6 +451,8 @@ impl Default for EkfParams {
             bounce_impulse_sigma: 0.05,
             bounce_restitution_sigma: 0.01,
             bounce_regime_spread: true,
+            learn_noise: true,
+            noise_memory: 2000,
         }
     }
 }
@@ -483,7 +512,8 @@ impl Default for AdaptationParams {
 pub struct GatingParams {
     /// Probability that a correct detection passes the gate [-]; the threshold on the squared
     /// Mahalanobis distance is the chi-square quantile of this probability for the measurement's
-    /// dimension. 0.9973 is the "3 sigma" probability.
+    /// dimension. 0.9999: a good detection is lost once in 10,000 (at 0.9973, "3 sigma", one
+    /// in eight of the 50 ms windows after a bounce seen at 900 fps would lose one).
     pub probability: f64,
     /// After this many detections in a row fail the gate the track is restarted from new
     /// detections [-]; the ball has left the model (e.g. an unseen racket hit).
@@ -493,7 +523,7 @@ pub struct GatingParams {
 impl Default for GatingParams {
     fn default() -> Self {
         Self {
-            probability: 0.9973,
+            probability: 0.9999,
             max_consecutive_rejections: 5,
         }
     }

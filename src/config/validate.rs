@@ -239,6 +239,12 @@ impl Checker {
 
     fn source(&mut self, key: &str, source: &SourceParams) {
         self.real(
+            &format!("{key}.stamp_sigma"),
+            source.stamp_sigma,
+            |v| (0.0..=0.1).contains(&v),
+            "between 0 and 0.1 (seconds)",
+        );
+        self.real(
             &format!("{key}.position_sigma"),
             source.position_sigma,
             |v| v > 0.0 && v <= 1.0,
@@ -608,6 +614,13 @@ impl Config {
             e.bounce_restitution_sigma,
             |v| (0.0..=0.5).contains(&v),
             "between 0 and 0.5",
+        );
+
+        c.count(
+            "ekf.noise_memory",
+            e.noise_memory,
+            10,
+            "at least 10 (detections)",
         );
 
         let ad = &self.adaptation;

@@ -107,14 +107,22 @@ impl Learned {
     }
 
     /// theta_g and P_g updated with what a track that started from `prior` (its
-    /// [`Self::track_prior`]) and ended at `posterior` at `stamp` learned (see the module doc).
+    /// [`Self::track_prior`]) at `started` and ended at `posterior` at `stamp` learned (see the
+    /// module doc). The prior is compared at the end, grown by the drift the track's filter
+    /// added on the way: what the track learned is the difference.
     pub(crate) fn absorbed(
         &self,
         prior: &(ParamVector, ParamCovariance),
         posterior: &(ParamVector, ParamCovariance),
+        started: i64,
         stamp: i64,
     ) -> Self {
-        let updated = self.fuse(prior, posterior, stamp).unwrap_or((
+        let elapsed = ((stamp - started) as f64 * 1e-9).max(0.0);
+        let prior = (
+            prior.0,
+            prior.1 + ParamCovariance::from_diagonal(&(self.drift_density * elapsed)),
+        );
+        let updated = self.fuse(&prior, posterior, stamp).unwrap_or((
             // The equations failed (a singular matrix): the track's posterior, less its
             // flight's own dispersion.
             posterior.0,
@@ -213,7 +221,7 @@ mod tests {
         p_track[(0, 1)] = 0.0005;
         p_track[(1, 0)] = 0.0005;
         let posterior = (ParamVector::new(1.1, 0.7, 0.9, 0.3), p_track);
-        let next = l.absorbed(&prior, &posterior, 1_000_000_000);
+        let next = l.absorbed(&prior, &posterior, 0, 1_000_000_000);
         assert!((next.theta - posterior.0).norm() < 1e-9, "{}", next.theta);
         assert!((next.covariance - posterior.1).norm() < 1e-9);
         assert_eq!(next.theta[2], 0.9);
@@ -233,7 +241,7 @@ mod tests {
         let mut posterior = prior;
         posterior.0[1] = 1.0 + gain_track * (0.6 - 1.0);
         posterior.1[(1, 1)] = (1.0 - gain_track) * p_pr;
-        let next = l.absorbed(&prior, &posterior, 0);
+        let next = l.absorbed(&prior, &posterior, 0, 0);
         let (p_g, d) = (0.04, 0.02);
         let gain = p_g / (p_g + d + r);
         assert!((next.theta[1] - (1.0 + gain * (0.6 - 1.0))).abs() < 1e-9);
@@ -241,6 +249,26 @@ mod tests {
         // The other parameters learned nothing and stay.
         assert!((next.theta[0] - 1.0).abs() < 1e-12);
         assert!((next.covariance[(0, 0)] - 0.01).abs() < 1e-12);
+    }
+
+    /// A track that learned nothing (its filter only added the drift on the way) leaves the
+    /// global estimate where it was, however long it ran.
+    #[test]
+    fn a_track_that_learned_nothing_moves_nothing() {
+        let mut l = learned(0.01);
+        l.drift_density = ParamVector::new(1e-6, 1e-6, 0.0, 1e-6);
+        let prior = l.track_prior(0);
+        let seconds = 2.0;
+        let posterior = (
+            prior.0,
+            prior.1 + ParamCovariance::from_diagonal(&(l.drift_density * seconds)),
+        );
+        let next = l.absorbed(&prior, &posterior, 0, 2_000_000_000);
+        assert!(
+            (next.theta - l.theta).norm() < 1e-12,
+            "{}",
+            next.theta - l.theta
+        );
     }
 
     #[test]

@@ -21,6 +21,7 @@
 
 mod init;
 mod learning;
+mod noise;
 
 use std::collections::VecDeque;
 
@@ -38,6 +39,8 @@ use crate::physics::{
 };
 use crate::stats::chi_square_quantile;
 use learning::Learned;
+use noise::NoiseLearner;
+pub use noise::{PRIOR_WEIGHT as NOISE_PRIOR_WEIGHT, SourceNoiseEstimate};
 
 /// Track status, with the codes of `BallState.msg`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -142,6 +145,9 @@ pub struct Counters {
     pub rejected: [u64; Rejection::ALL.len()],
     /// Tracks started.
     pub tracks: u64,
+    /// Tracks refuted by their detections (a run of gated ones) and re-anchored on them: the
+    /// same ball, the same id, not counted in `tracks`.
+    pub reanchored: u64,
     /// Late detections fused by rolling back.
     pub rollbacks: u64,
     /// Spin measurements that disagreed with the filter's spin and replaced it.
@@ -344,8 +350,54 @@ impl Settings {
     reason = "kept inline: no heap allocation per detection"
 )]
 pub(crate) enum Measurement {
-    Position { z: Vector3<f64>, r: Matrix3<f64> },
-    PositionSpin { z: SVector<f64, 6>, r: Matrix6<f64> },
+    /// A position of covariance r; its stamp's timing variance [s^2] moves it along the flight.
+    Position {
+        z: Vector3<f64>,
+        r: Matrix3<f64>,
+        timing: f64,
+    },
+    /// A position and a spin.
+    PositionSpin {
+        z: SVector<f64, 6>,
+        r: Matrix6<f64>,
+        timing: f64,
+    },
+}
+
+impl Measurement {
+    /// The measurement with its noise as the estimator has learned its source's
+    /// ([`noise::SourceNoiseEstimate`]): its position and spin covariances scaled, its timing
+    /// noise set.
+    fn with_learned_noise(mut self, noise: &SourceNoiseEstimate) -> Self {
+        match &mut self {
+            Self::Position { r, timing, .. } => {
+                *r *= noise.position_scale;
+                *timing = noise.timing_variance;
+            }
+            Self::PositionSpin { r, timing, .. } => {
+                let mut position = r.fixed_view_mut::<3, 3>(0, 0);
+                position *= noise.position_scale;
+                let mut spin = r.fixed_view_mut::<3, 3>(3, 3);
+                spin *= noise.spin_scale;
+                *timing = noise.timing_variance;
+            }
+        }
+        self
+    }
+
+    /// The measurement at a predicted velocity `v` [m/s]: the timing noise added to the
+    /// position covariance along it (timing v v').
+    fn at_velocity(mut self, v: &Vector3<f64>) -> Self {
+        match &mut self {
+            Self::Position { r, timing, .. } if *timing > 0.0 => *r += v * v.transpose() * *timing,
+            Self::PositionSpin { r, timing, .. } if *timing > 0.0 => {
+                let mut position = r.fixed_view_mut::<3, 3>(0, 0);
+                position += v * v.transpose() * *timing;
+            }
+            _ => {}
+        }
+        self
+    }
 }
 
 /// A detection as a measurement with its noise (its own covariance, else its source's), or why
@@ -393,11 +445,12 @@ pub(crate) fn measurement(settings: &Settings, d: &Detection) -> Result<Measurem
             let mut r = Matrix6::zeros();
             r.fixed_view_mut::<3, 3>(0, 0).copy_from(&r_position);
             r.fixed_view_mut::<3, 3>(3, 3).copy_from(&rs);
-            Measurement::PositionSpin { z, r }
+            Measurement::PositionSpin { z, r, timing: 0.0 }
         }
         _ => Measurement::Position {
             z: d.position,
             r: r_position,
+            timing: 0.0,
         },
     })
 }
@@ -452,6 +505,8 @@ struct Track {
     consecutive_rejections: u32,
     /// The physical parameters (and their covariance) the track started from.
     param_prior: (ParamVector, ParamCovariance),
+    /// When it started [ns].
+    started: i64,
 }
 
 /// The estimator (see the module doc).
@@ -481,6 +536,13 @@ pub struct Estimator {
     held: Option<(Detection, Measurement)>,
     /// The interception kept up to date from detection to detection.
     intercepts: InterceptTracker,
+    /// A track just refuted by a run of rejected detections, whose id the next track keeps
+    /// when it is the same ball.
+    continuation: Option<Continuation>,
+    /// What the estimator has learned of each source's noise.
+    noise: NoiseLearner,
+    /// The prior innovation of the detection `fuse` just fused (or gated), for the noise.
+    innovation: std::cell::Cell<Option<noise::Innovation>>,
     /// What the estimator knows of the physical parameters between tracks.
     learned: Learned,
 }
@@ -500,6 +562,23 @@ pub struct LearnedParams {
     /// Tracks that have contributed, the live one included.
     pub tracks: u64,
 }
+
+/// A track refuted by a run of rejected detections: its id and its last estimate.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct Continuation {
+    id: u32,
+    last: Snapshot,
+}
+
+/// How far [m] a track's first estimate may be from where a refuted track's estimate had flown
+/// to for it to be the same ball re-anchored (a bounce mispredicted by 1 m/s is 5 cm off after
+/// 50 ms).
+pub const REANCHOR_DISTANCE: f64 = 0.2;
+
+/// How close to its contact height [m] a ball is "at the table": a spin measured there that
+/// contradicts the estimate's may be of the other side of the bounce and is not used (1.5 cm is
+/// 5 ms of a ball falling at 3 m/s).
+const BOUNCE_SPIN_MARGIN: f64 = 0.015;
 
 /// How far from the table's edge [m] a detection is also fused with the table grown and shrunk
 /// by as much, and the better fit kept (the estimate's position is uncertain by millimetres; the
@@ -533,6 +612,9 @@ impl Estimator {
             edge_retries: std::cell::Cell::new(0),
             held: None,
             intercepts: InterceptTracker::new(config.intercept.refresh.clone()),
+            continuation: None,
+            noise: NoiseLearner::new(config),
+            innovation: std::cell::Cell::new(None),
             learned: Learned::new(
                 settings.param_prior,
                 settings.param_prior_var,
@@ -562,6 +644,7 @@ impl Estimator {
             Some(track) => self.learned.absorbed(
                 &track.param_prior,
                 &(track.now.ekf.theta, track.now.ekf.param_covariance()),
+                track.started,
                 track.now.stamp,
             ),
             None => self.learned,
@@ -828,9 +911,40 @@ impl Estimator {
         })
     }
 
-    /// Checks a detection and turns it into a measurement with its noise.
+    /// Checks a detection and turns it into a measurement with its noise, as learned of its
+    /// source.
     fn measurement(&self, d: &Detection) -> Result<Measurement, Rejection> {
-        measurement(&self.settings, d)
+        Ok(measurement(&self.settings, d)?.with_learned_noise(&self.noise.of(d.source)))
+    }
+
+    /// Learns the noise of a detection's source from the innovation of its first fusion (the
+    /// one `fuse` left), if any.
+    fn learn_noise(&mut self, d: &Detection) {
+        if let (Some(innovation), Ok(base)) =
+            (self.innovation.take(), measurement(&self.settings, d))
+        {
+            let (r0, spin_r0) = match base {
+                Measurement::Position { r, .. } => (r, None),
+                Measurement::PositionSpin { r, .. } => (
+                    r.fixed_view::<3, 3>(0, 0).into_owned(),
+                    Some(r.fixed_view::<3, 3>(3, 3).into_owned()),
+                ),
+            };
+            let innovation = noise::Innovation {
+                r0,
+                spin: innovation
+                    .spin
+                    .zip(spin_r0)
+                    .map(|((y, hph, _), r0)| (y, hph, r0)),
+                ..innovation
+            };
+            self.noise.learn(d.source, &innovation);
+        }
+    }
+
+    /// What the estimator has learned of each source's noise: unknown, 150 fps, 900 fps.
+    pub fn learned_noise(&self) -> [SourceNoiseEstimate; 3] {
+        self.noise.all()
     }
 
     fn process(&mut self, d: &Detection, m: Measurement) -> Verdict {
@@ -870,8 +984,15 @@ impl Estimator {
         };
         track.consecutive_rejections += 1;
         if track.consecutive_rejections >= self.settings.max_rejections {
+            let refuted = Continuation {
+                id: track.id,
+                last: track.now,
+            };
             self.end_track();
-            // The rejected run is probably the new ball (a racket hit, a new serve).
+            // The rejected run is the ball after a racket hit or a new serve, or the same ball
+            // where its prediction was refuted (most often at a bounce): the track it starts
+            // keeps the refuted one's id if it is the same ball ([`Self::continues`]).
+            self.continuation = Some(refuted);
             while let Some(seed) = self.rejected_run.pop_front() {
                 self.insert_pending(&seed);
             }
@@ -883,11 +1004,13 @@ impl Estimator {
     }
 
     fn end_track(&mut self) {
+        self.continuation = None;
         if let Some(track) = self.track.take() {
             // What the track learned of the physics carries over to the next.
             self.learned = self.learned.absorbed(
                 &track.param_prior,
                 &(track.now.ekf.theta, track.now.ekf.param_covariance()),
+                track.started,
                 track.now.stamp,
             );
             // Keep the history's buffer for the next track: no allocation per track.
@@ -923,13 +1046,14 @@ impl Estimator {
         m: &Measurement,
     ) -> Result<f64, Rejection> {
         let prior = *snapshot;
-        let mut result = self.predict_and_update(&self.propagator, snapshot, d, m);
+        let (mut result, innovation) = self.predict_and_update(&self.propagator, snapshot, d, m);
+        self.innovation.set(Some(innovation));
         if self.near_table_edge(snapshot) {
             // An edge ball: estimate and ball may land on either side of the table's edge. The
             // hypothesis that explains the detection best wins.
             for alternative in &self.edge_alternatives {
                 let mut other = prior;
-                let Ok(nis) = self.predict_and_update(alternative, &mut other, d, m) else {
+                let Ok(nis) = self.predict_and_update(alternative, &mut other, d, m).0 else {
                     continue;
                 };
                 let better = match result {
@@ -961,16 +1085,48 @@ impl Estimator {
         snapshot: &mut Snapshot,
         d: &Detection,
         m: &Measurement,
-    ) -> Result<f64, UpdateError> {
+    ) -> (Result<f64, UpdateError>, noise::Innovation) {
         self.advance_with(propagator, snapshot, d.stamp);
-        match m {
-            Measurement::Position { z, r } => {
+        let x = &snapshot.ekf.x;
+        let velocity = x.fixed_rows::<3>(3).into_owned();
+        let p = snapshot.ekf.state_covariance();
+        let hph = p.fixed_view::<3, 3>(0, 0).into_owned();
+        let m = m.at_velocity(&velocity);
+        let (y, spin) = match &m {
+            Measurement::Position { z, .. } => (z - x.fixed_rows::<3>(0), None),
+            Measurement::PositionSpin { z, .. } => (
+                z.fixed_rows::<3>(0) - x.fixed_rows::<3>(0),
+                Some((
+                    z.fixed_rows::<3>(3) - x.fixed_rows::<3>(6),
+                    p.fixed_view::<3, 3>(6, 6).into_owned(),
+                    Matrix3::zeros(),
+                )),
+            ),
+        };
+        let innovation = noise::Innovation {
+            y,
+            hph,
+            r0: Matrix3::zeros(),
+            velocity,
+            spin,
+        };
+        let result = match &m {
+            Measurement::Position { z, r, .. } => {
                 snapshot
                     .ekf
                     .update(z, &position_H(), r, self.settings.gate_position)
             }
-            Measurement::PositionSpin { z, r } => self.fuse_position_spin(snapshot, z, r),
-        }
+            Measurement::PositionSpin { z, r, .. } => self.fuse_position_spin(snapshot, z, r),
+        };
+        (result, innovation)
+    }
+
+    /// True when the estimate is within [`BOUNCE_SPIN_MARGIN`] of its contact height over the
+    /// table: a few milliseconds from a bounce.
+    fn at_the_table(&self, snapshot: &Snapshot) -> bool {
+        let x = &snapshot.ekf.x;
+        (x[2] - self.flight.radius()).abs() < BOUNCE_SPIN_MARGIN
+            && self.propagator.distance_outside_table(x[0], x[1]) < EDGE_MARGIN
     }
 
     /// True when the estimate is low over the table's edge, where a bounce is a close call.
@@ -1002,6 +1158,14 @@ impl Estimator {
             .ekf
             .update(z, &h, r, self.settings.gate_position_spin)
         {
+            // At the table the measured spin may be of the other side of the bounce (the
+            // bounce's time is uncertain by a millisecond or two, and it changes the spin by
+            // hundreds of rad/s): the position alone.
+            Err(UpdateError::Gated { .. }) if self.at_the_table(snapshot) => {
+                snapshot
+                    .ekf
+                    .update(&z_position, &position_H(), &r_position, gate)
+            }
             Err(UpdateError::Gated { .. }) => {
                 snapshot.ekf.reset_spin(self.settings.spin_prior_var);
                 self.spin_resets.set(self.spin_resets.get() + 1);
@@ -1030,7 +1194,9 @@ impl Estimator {
             return Err(Rejection::Duplicate);
         }
         let mut snapshot = track.now;
-        let nis = self.fuse(&mut snapshot, d, &m)?;
+        let result = self.fuse(&mut snapshot, d, &m);
+        self.learn_noise(d);
+        let nis = result?;
         self.push_history(Entry {
             detection: *d,
             measurement: m,
@@ -1057,7 +1223,9 @@ impl Estimator {
             0 => track.base,
             i => track.history[i - 1].after,
         };
-        let nis = self.fuse(&mut snapshot, d, &m)?;
+        let result = self.fuse(&mut snapshot, d, &m);
+        self.learn_noise(d);
+        let nis = result?;
         let late = Entry {
             detection: *d,
             measurement: m,
@@ -1147,15 +1315,26 @@ impl Estimator {
     }
 
     fn fit_pending(&self) -> Option<init::InitialFit> {
+        // A rough speed from the first and last pending detections, for the timing noise.
+        let (first, last) = (self.pending.first()?, self.pending.last()?);
+        let span = (last.stamp - first.stamp) as f64 * 1e-9;
+        let speed_sq = if span > 0.0 {
+            ((last.position - first.position) / span).norm_squared()
+        } else {
+            0.0
+        };
         let weights = |d: &Detection| {
             let m = self.measurement(d).ok()?;
             Some(match m {
-                Measurement::Position { r, .. } => init::Weights {
-                    position_var: r.diagonal(),
+                Measurement::Position { r, timing, .. } => init::Weights {
+                    position_var: r.diagonal().add_scalar(timing * speed_sq),
                     spin: None,
                 },
-                Measurement::PositionSpin { z, r } => init::Weights {
-                    position_var: r.fixed_view::<3, 3>(0, 0).diagonal(),
+                Measurement::PositionSpin { z, r, timing } => init::Weights {
+                    position_var: r
+                        .fixed_view::<3, 3>(0, 0)
+                        .diagonal()
+                        .add_scalar(timing * speed_sq),
                     spin: Some((
                         z.fixed_rows::<3>(3).into_owned(),
                         r.fixed_view::<3, 3>(3, 3).diagonal(),
@@ -1192,7 +1371,7 @@ impl Estimator {
         }
         let param_prior = self.learned.track_prior(fit.stamp);
         let (theta, p_theta) = param_prior;
-        let snapshot = Snapshot {
+        let mut snapshot = Snapshot {
             ekf: Ekf::new(fit.x, fit.P, theta, p_theta),
             stamp: fit.stamp,
             bounces: 0,
@@ -1200,18 +1379,59 @@ impl Estimator {
             last_fused: fit.stamp,
             nis: 0.0,
         };
+        let first_seen = self.pending.first().map_or(fit.stamp, |d| d.stamp);
+        let continued = self
+            .continuation
+            .take()
+            .and_then(|c| self.continues(&c, &fit.x, fit.stamp, first_seen));
+        let id = match continued {
+            Some((id, before)) => {
+                // The same ball: its id, and the bounces it has made.
+                snapshot.bounces = before.bounces;
+                snapshot.robot_half_bounces =
+                    snapshot.robot_half_bounces.max(before.robot_half_bounces);
+                self.counters.reanchored += 1;
+                id
+            }
+            None => {
+                let id = self.next_track_id;
+                self.next_track_id = self.next_track_id.wrapping_add(1).max(1);
+                self.counters.tracks += 1;
+                id
+            }
+        };
         let history = std::mem::take(&mut self.spare_history);
         self.track = Some(Track {
-            id: self.next_track_id,
+            id,
             now: snapshot,
             base: snapshot,
             history,
             consecutive_rejections: 0,
             param_prior,
+            started: fit.stamp,
         });
-        self.next_track_id = self.next_track_id.wrapping_add(1).max(1);
-        self.counters.tracks += 1;
         self.pending.clear();
         true
+    }
+
+    /// Whether a track starting at `stamp` in state `x`, fitted to detections from
+    /// `first_seen` on, is the ball of the refuted track `c`: seen again within
+    /// [`tracking.timeout`] of its last fused detection, within [`REANCHOR_DISTANCE`] of where
+    /// its estimate had flown to, and moving the same way along the table (a racket hit turns
+    /// the ball around). Then its id and the estimate it had flown to.
+    fn continues(
+        &self,
+        c: &Continuation,
+        x: &crate::physics::StateVector,
+        stamp: i64,
+        first_seen: i64,
+    ) -> Option<(u32, Snapshot)> {
+        if first_seen - c.last.last_fused > self.settings.timeout || stamp < c.last.stamp {
+            return None;
+        }
+        let mut flown = c.last;
+        self.advance(&mut flown, stamp);
+        let apart = (flown.ekf.x.fixed_rows::<3>(0) - x.fixed_rows::<3>(0)).norm();
+        (apart <= REANCHOR_DISTANCE && flown.ekf.x[3] * x[3] > 0.0).then_some((c.id, flown))
     }
 }

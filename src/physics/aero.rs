@@ -520,8 +520,11 @@ mod tests {
     use super::*;
     use approx::assert_relative_eq;
 
+    /// The seed's model (physics.md's numbers are the seed's).
     fn model() -> FlightModel {
-        FlightModel::new(&Config::default())
+        let mut config = Config::default();
+        config.aero = crate::config::AeroParams::seed_2014();
+        FlightModel::new(&config)
     }
 
     #[test]

@@ -151,6 +151,7 @@ impl CameraParams {
                 0.0
             },
             latency: self.latency_mean,
+            stamp_sigma: self.stamp_resolution / 12f64.sqrt(),
         }
     }
 
