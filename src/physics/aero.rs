@@ -522,9 +522,10 @@ mod tests {
 
     /// The seed's model (physics.md's numbers are the seed's).
     fn model() -> FlightModel {
-        let mut config = Config::default();
-        config.aero = crate::config::AeroParams::seed_2014();
-        FlightModel::new(&config)
+        FlightModel::new(&Config {
+            aero: crate::config::AeroParams::seed_2014(),
+            ..Config::default()
+        })
     }
 
     #[test]
