@@ -46,6 +46,7 @@ pub const MAX_DRAG_ORDER: usize = 3;
 pub const MAX_MAGNUS_ORDER: usize = 4;
 /// Most parameters fitted at once (besides the flights' states).
 const MAX_PARAMETERS: usize = MAX_DRAG_ORDER + MAX_MAGNUS_ORDER + 2 + 2;
+// The scales (2) replace the coefficients, so they fit in the same room.
 /// Largest number of Levenberg-Marquardt iterations of one fit.
 const MAX_ITERATIONS: usize = 100;
 /// Relative cost change at which a fit has converged.
@@ -94,6 +95,10 @@ pub enum Parameter {
     Drag(usize),
     /// Coefficient of Sp^k of C_M.
     Magnus(usize),
+    /// The scale factor k_D on the drag of the configured C_D(Sp).
+    DragScale,
+    /// The scale factor k_M on the Magnus force of the configured C_M(Sp).
+    MagnusScale,
     /// Table restitution e_t.
     Restitution,
     /// Table friction mu_t.
@@ -108,6 +113,8 @@ impl Parameter {
         match self {
             Self::Drag(k) => format!("aero.drag_coefficients[{k}]"),
             Self::Magnus(k) => format!("aero.magnus_coefficients[{k}]"),
+            Self::DragScale => "aero.drag_scale".to_owned(),
+            Self::MagnusScale => "aero.magnus_scale".to_owned(),
             Self::Restitution => "table.restitution".to_owned(),
             Self::Friction => "table.friction".to_owned(),
             Self::AirDensity => "air.density".to_owned(),
@@ -129,6 +136,8 @@ impl Parameter {
                 .get(*k)
                 .copied()
                 .unwrap_or(0.0),
+            Self::DragScale => config.aero.drag_scale,
+            Self::MagnusScale => config.aero.magnus_scale,
             Self::Restitution => config.table.restitution,
             Self::Friction => config.table.friction,
             Self::AirDensity => config.air.density,
@@ -145,6 +154,8 @@ impl Parameter {
         match self {
             Self::Drag(k) => coefficient(&mut config.aero.drag_coefficients, *k),
             Self::Magnus(k) => coefficient(&mut config.aero.magnus_coefficients, *k),
+            Self::DragScale => config.aero.drag_scale = value,
+            Self::MagnusScale => config.aero.magnus_scale = value,
             Self::Restitution => config.table.restitution = value,
             Self::Friction => config.table.friction = value,
             Self::AirDensity => config.air.density = value,
@@ -161,6 +172,7 @@ impl Parameter {
         value.is_finite()
             && match self {
                 Self::Drag(_) | Self::Magnus(_) => true,
+                Self::DragScale | Self::MagnusScale => value > 0.0 && value <= 5.0,
                 Self::Restitution => value > 0.0 && value < 1.0,
                 Self::Friction => (0.0..2.0).contains(&value),
                 Self::AirDensity => value > 0.0,
@@ -173,6 +185,9 @@ impl Parameter {
 pub struct Options {
     /// The C_D and C_M coefficients.
     pub aero: bool,
+    /// The scale factors k_D and k_M on the configured C_D(Sp) and C_M(Sp): the parameters the
+    /// estimator learns online (not with `aero`).
+    pub scales: bool,
     /// Table restitution and friction.
     pub bounce: bool,
     /// Air density (not with `aero`).
@@ -292,13 +307,18 @@ pub struct Calibration {
 #[derive(Debug, Clone, PartialEq, Error)]
 pub enum CalibrationError {
     /// Nothing selected.
-    #[error("nothing to fit: choose aero, bounce and/or density")]
+    #[error("nothing to fit: choose aero or scales, bounce and/or density")]
     NothingToFit,
-    /// Density and aero together.
+    /// Density and aero (or the scales) together.
     #[error(
-        "air density and the aero coefficients scale the same forces (rho C_D, rho C_M) and cannot be fitted together; fit aero (the coefficients absorb the density) or density alone"
+        "air density and the aero coefficients scale the same forces (rho C_D, rho C_M) and cannot be fitted together; fit aero or scales (they absorb the density) or density alone"
     )]
     DensityWithAero,
+    /// The scales and the coefficients together.
+    #[error(
+        "the scale factors and the polynomial coefficients move the same forces and cannot be fitted together; fit aero (the curves) or scales (the curves kept, scaled)"
+    )]
+    ScalesWithAero,
     /// An order beyond the supported ones.
     #[error("polynomial order {order} of {which} is above the highest supported, {max}")]
     OrderTooHigh {
@@ -415,11 +435,14 @@ pub fn calibrate(
     options: &Options,
     progress: &mut dyn FnMut(&str),
 ) -> Result<Calibration, CalibrationError> {
-    if !(options.aero || options.bounce || options.density) {
+    if !(options.aero || options.scales || options.bounce || options.density) {
         return Err(CalibrationError::NothingToFit);
     }
-    if options.aero && options.density {
+    if (options.aero || options.scales) && options.density {
         return Err(CalibrationError::DensityWithAero);
+    }
+    if options.aero && options.scales {
+        return Err(CalibrationError::ScalesWithAero);
     }
     for (which, order, max) in [
         ("C_D", options.drag_order, MAX_DRAG_ORDER),
@@ -691,6 +714,9 @@ fn parameters(options: &Options, orders: (usize, usize)) -> Vec<Parameter> {
     if options.aero {
         out.extend((0..=orders.0).map(Parameter::Drag));
         out.extend((0..=orders.1).map(Parameter::Magnus));
+    }
+    if options.scales {
+        out.extend([Parameter::DragScale, Parameter::MagnusScale]);
     }
     if options.bounce {
         out.extend([Parameter::Restitution, Parameter::Friction]);

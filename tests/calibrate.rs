@@ -202,3 +202,65 @@ fn a_restart_where_every_bounce_rolls_does_not_sink_the_calibration() {
     let loaded = ttball::config::yaml::load(Some(&yaml), &[] as &[String]).expect("loads");
     assert!(loaded.table.restitution > 0.92, "{report}");
 }
+
+/// The offline route and the online one agree: on simulated play flown with drag +15 %,
+/// Magnus -40 %, e_t 0.85, mu_t 0.15, `calibrate` fitting the scale factors and the table
+/// (`--fit scales,bounce`) recovers them, and the estimator, learning them online over the same
+/// flights from the defaults, ends within a few percent of the same numbers.
+#[test]
+fn calibrated_scales_and_table_agree_with_what_the_estimator_learns_online() {
+    use ttball::eval::sets::MISMATCH_A;
+    use ttball::physics::PhysicsParams;
+    let start = Config::default();
+    let truth_params = MISMATCH_A.truth(&start);
+    let mut truth = start.clone();
+    truth_params.apply_to(&mut truth);
+    let session = simulate(
+        &truth,
+        &SimOptions {
+            shots: 30,
+            seed: 5,
+            cameras: Cameras::WideAndHighSpeed,
+            ..SimOptions::default()
+        },
+    )
+    .expect("simulated");
+    let mut estimator = ttball::estimator::Estimator::new(&start);
+    for sim in &session.stream {
+        estimator.handle(&sim.detection);
+    }
+    let online = estimator.learned_params().params;
+    let flights = flights(&truth, &start, 30, 5);
+    let options = Options {
+        scales: true,
+        bounce: true,
+        ..Options::default()
+    };
+    let c = calibrate(&start, &flights, &options, &mut |_| {}).expect("calibrated");
+    let offline = PhysicsParams::from_config(&c.config);
+    eprintln!("truth {truth_params:?}\noffline {offline:?}\nonline {online:?}");
+    let relative = |a: f64, b: f64| (a - b).abs() / b;
+    for (what, tolerance) in [("truth", 0.02), ("online", 0.04)] {
+        let other = if what == "truth" {
+            truth_params
+        } else {
+            online
+        };
+        assert!(
+            relative(offline.drag_scale, other.drag_scale) < tolerance,
+            "{what}"
+        );
+        assert!(
+            relative(offline.magnus_scale, other.magnus_scale) < 2.0 * tolerance,
+            "{what}"
+        );
+        assert!(
+            relative(offline.restitution, other.restitution) < tolerance,
+            "{what}"
+        );
+        assert!(
+            relative(offline.friction, other.friction) < 3.0 * tolerance,
+            "{what}"
+        );
+    }
+}

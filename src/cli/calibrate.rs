@@ -22,6 +22,9 @@ use super::{BadUsage, ConfigArgs, write_stdout};
 pub enum Group {
     /// The C_D(Sp) and C_M(Sp) polynomial coefficients (aero.drag/magnus_coefficients).
     Aero,
+    /// The scale factors on the configured C_D(Sp) and C_M(Sp) (aero.drag_scale,
+    /// aero.magnus_scale): the parameters the estimator learns online; not with aero.
+    Scales,
     /// Table restitution and friction (table.restitution, table.friction).
     Bounce,
     /// Air density (air.density); not with aero, which absorbs it.
@@ -91,6 +94,7 @@ impl CalibrateArgs {
         }
         let options = Options {
             aero: self.fit.contains(&Group::Aero),
+            scales: self.fit.contains(&Group::Scales),
             bounce: self.fit.contains(&Group::Bounce),
             density: self.fit.contains(&Group::Density),
             drag_order: self.drag_order,
@@ -235,6 +239,13 @@ fn snippet(c: &Calibration, inputs: &[String]) -> String {
             "    aero:\n      drag_coefficients: [{}]\n      magnus_coefficients: [{}]",
             list(&cfg.aero.drag_coefficients),
             list(&cfg.aero.magnus_coefficients)
+        );
+    }
+    if fitted(|p| matches!(p, Parameter::DragScale | Parameter::MagnusScale)) {
+        let _ = writeln!(
+            out,
+            "    aero:\n      drag_scale: {:.6}\n      magnus_scale: {:.6}",
+            cfg.aero.drag_scale, cfg.aero.magnus_scale
         );
     }
     if fitted(|p| matches!(p, Parameter::Restitution | Parameter::Friction)) {

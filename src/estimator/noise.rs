@@ -11,7 +11,9 @@
 //! sample is limited to [`SAMPLE_LIMIT`] times the current estimate (an outlier moves it little)
 //! and averaged with a fading memory of `ekf.noise_memory` detections, starting from the
 //! configured values with the weight of [`PRIOR_WEIGHT`] detections. Gated detections count
-//! too: leaving them out would bias the estimate low and keep it there.
+//! too: leaving them out would bias the estimate low and keep it there. A detection whose
+//! prediction is less certain than its noise (a new track, just after a bounce, a spin just
+//! reset) teaches nothing: its sample would be mostly the prediction's error.
 
 use nalgebra::{Matrix3, Vector3};
 
@@ -116,12 +118,16 @@ impl NoiseLearner {
             (Matrix3::identity(), None)
         };
         let r0_across = (across * i.r0 * across).trace();
-        if r0_across <= 0.0 {
+        let hph_across = (across * i.hph * across).trace();
+        // Only where the prediction is sharper than the noise: a sample is the difference of
+        // the innovation and the prediction's variance, and where the prediction dominates
+        // (a new track, after a bounce) that difference is mostly the prediction's error.
+        if r0_across <= 0.0 || hph_across > e.position_scale * r0_across {
             return;
         }
         e.weight = (e.weight + 1.0).min(memory);
         let y_c = across * i.y;
-        let sample = (y_c.norm_squared() - (across * i.hph * across).trace()) / r0_across;
+        let sample = ((y_c.norm_squared() - hph_across) / r0_across).max(0.0);
         let scale = e.position_scale;
         e.position_scale += (sample.min(SAMPLE_LIMIT * scale) - scale) / e.weight;
         e.position_scale = e.position_scale.max(1e-3);
@@ -137,9 +143,9 @@ impl NoiseLearner {
         }
         if let Some((y_w, hph_w, r0_w)) = i.spin {
             let r0 = r0_w.trace();
-            if r0 > 0.0 {
+            if r0 > 0.0 && hph_w.trace() <= e.spin_scale * r0 {
                 e.spin_weight = (e.spin_weight + 1.0).min(memory);
-                let sample = (y_w.norm_squared() - hph_w.trace()) / r0;
+                let sample = ((y_w.norm_squared() - hph_w.trace()) / r0).max(0.0);
                 let scale = e.spin_scale;
                 e.spin_scale += (sample.min(SAMPLE_LIMIT * scale) - scale) / e.spin_weight;
                 e.spin_scale = e.spin_scale.max(1e-3);
