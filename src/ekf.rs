@@ -13,13 +13,15 @@
 //! - At a table bounce ([`BounceNoise`]): the bounce's own scatter, an uncertain tangential
 //!   impulse (sigma_i per axis, per unit mass, which moves the velocity and, through the shell's
 //!   inertia, the spin: 3/(2r) per m/s) and an uncertain restitution of that one bounce
-//!   (sigma_e |v_z|); and the sliding/rolling regime: with the margin m that decides it
-//!   (`TableBounce::regime_margin`, Gaussian with the variance g P g' of its gradient g over state
-//!   and parameters), the probability p of the other regime and its output's offset d from the
-//!   linearised one add the mixture's spread p (1 - p) d d'. Both are carried to the end of the
-//!   step by the flight after the bounce. When the other regime is at all probable
-//!   ([`AMBIGUOUS_REGIME`]) the state forgets its correlation with the friction: a rolling
-//!   bounce says nothing of it, and one read as sliding would teach it a value too low.
+//!   (sigma_e |v_z|); and the outcome's spread over the uncertainty of the state and the
+//!   parameters beyond its linearisation: the bounce map on sigma points of (v, w, e_t, mu_t)
+//!   (the unscented transform, which sees both the sliding and the rolling regime and the spin
+//!   along every direction), its covariance less the linearised J C J' (and the mean's offset),
+//!   the positive part. Both are carried to the end of the step by the flight after the bounce.
+//!   When the other regime is at all probable ([`AMBIGUOUS_REGIME`], from the margin that
+//!   decides it, Gaussian with its propagated variance) the state forgets its correlation with
+//!   the friction: a rolling bounce says nothing of it, and one read as sliding would teach it
+//!   a value too low.
 //! - Update: S = H P H' + R factored by Cholesky (a typed error when S is not positive definite),
 //!   NIS = y' S^-1 y, the gain from the factor, and the Joseph form
 //!   P = (I - K H) P (I - K H)' + K R K' (multiplied out), symmetrised; the parameters are kept
@@ -34,6 +36,9 @@ use crate::physics::{
     StateMatrix, StateVector, Watch,
 };
 use crate::stats::normal_cdf;
+
+/// Dimensions of the bounce's unscented transform: velocity, spin, e_t and mu_t before it.
+pub const BOUNCE_SIGMA_DIMENSIONS: usize = 8;
 
 /// A bounce whose other regime is at least this probable leaves the friction unlearned
 /// ([`Ekf::predict`]).
@@ -97,8 +102,9 @@ pub struct BounceNoise {
     pub impulse_sigma: f64,
     /// sigma_e: the restitution of one bounce about the table's [-].
     pub restitution_sigma: f64,
-    /// Whether the spread between the sliding and the rolling regime is added.
-    pub regime: bool,
+    /// Whether the bounce's outcome over the state's uncertainty is found by sigma points
+    /// (its spread beyond the linearised one added).
+    pub unscented: bool,
 }
 
 /// What a prediction went through.
@@ -169,33 +175,109 @@ impl BounceWatch<'_> {
         }
         let se = self.noise.restitution_sigma * event.before[5];
         q[(5, 5)] += se * se;
-        let mut p_other = 0.0;
-        if self.noise.regime
-            && let Some(s) = event.sensitivity
-        {
-            let (margin, gradient) = bounce.regime_margin(&event.before);
-            // The margin's gradient over the starting state and the parameters.
-            let mut g = SMatrix::<f64, 1, AUGMENTED>::zeros();
-            g.fixed_columns_mut::<9>(0)
-                .copy_from(&(gradient * s.before));
-            let (e, mu) = bounce.table();
-            let vz = event.before[5].abs();
-            let mut g_params = s
-                .params
-                .map_or(SMatrix::<f64, 1, PARAMS>::zeros(), |p| gradient * p.before);
-            g_params[RESTITUTION] += mu * vz;
-            g_params[FRICTION] += (1.0 + e) * vz;
-            g.fixed_columns_mut::<PARAMS>(9).copy_from(&g_params);
-            let variance = (g * self.start * g.transpose())[(0, 0)];
-            if variance > 0.0 {
-                p_other = normal_cdf(-margin.abs() / variance.sqrt());
-                if p_other > 1e-4 {
-                    let d = bounce.apply_other_regime(&event.before).state - event.after;
-                    q += d * d.transpose() * (p_other * (1.0 - p_other));
-                }
-            }
+        let Some(s) = event.sensitivity else {
+            return (q, 0.0);
+        };
+        // The covariance of (state, parameters) at the bounce: [[T, S], [0, I]] P [.]'.
+        let mut a = SMatrix::<f64, AUGMENTED, AUGMENTED>::identity();
+        a.fixed_view_mut::<9, 9>(0, 0).copy_from(&s.before);
+        if let Some(p) = &s.params {
+            a.fixed_view_mut::<9, PARAMS>(0, 9).copy_from(&p.before);
+        }
+        let at_bounce = a * self.start * a.transpose();
+        // The probability of the other regime, from the margin that decides it (Gaussian, its
+        // variance g C g' over state and parameters).
+        let (margin, gradient) = bounce.regime_margin(&event.before);
+        let (e, mu) = bounce.table();
+        let vz = event.before[5].abs();
+        let mut g = SMatrix::<f64, 1, AUGMENTED>::zeros();
+        g.fixed_columns_mut::<9>(0).copy_from(&gradient);
+        g[9 + RESTITUTION] = mu * vz;
+        g[9 + FRICTION] = (1.0 + e) * vz;
+        let variance = (g * at_bounce * g.transpose())[(0, 0)];
+        let p_other = if variance > 0.0 {
+            normal_cdf(-margin.abs() / variance.sqrt())
+        } else {
+            0.0
+        };
+        if self.noise.unscented {
+            q += self.unscented_excess(&event.before, &event.after, &at_bounce);
         }
         (q, p_other)
+    }
+
+    /// How much the bounce's outcome really spreads beyond its linearisation: the covariance
+    /// of (v, w) after the bounce over sigma points of (v, w, e_t, mu_t) before it (the
+    /// unscented transform, [`BOUNCE_SIGMA_DIMENSIONS`] dimensions, kappa = 1), less the
+    /// linearised J C J', its positive part. Both regimes, and the spin's uncertainty along the
+    /// directions the linearisation misses, are in it.
+    fn unscented_excess(
+        &self,
+        before: &StateVector,
+        after: &StateVector,
+        at_bounce: &AugmentedMatrix,
+    ) -> StateMatrix {
+        const N: usize = BOUNCE_SIGMA_DIMENSIONS;
+        // (v, w, e, mu): state indices 3..9 and the table's two parameters.
+        let index = |k: usize| {
+            if k < 6 {
+                3 + k
+            } else {
+                9 + RESTITUTION + (k - 6)
+            }
+        };
+        let c = SMatrix::<f64, N, N>::from_fn(|i, j| at_bounce[(index(i), index(j))]);
+        let jitter = SMatrix::<f64, N, N>::identity() * (1e-12 * c.diagonal().amax() + 1e-18);
+        let Some(chol) = (c + jitter).cholesky() else {
+            return StateMatrix::zeros();
+        };
+        let kappa = 1.0;
+        let spread = (N as f64 + kappa).sqrt();
+        let (w0, wi) = (kappa / (N as f64 + kappa), 0.5 / (N as f64 + kappa));
+        let l = chol.l();
+        let bounce = self.propagator.bounce();
+        let (e, mu) = bounce.table();
+        let outcome = |offset: &SVector<f64, N>| -> SVector<f64, 6> {
+            let mut x = *before;
+            for k in 0..6 {
+                x[3 + k] += offset[k];
+            }
+            let table =
+                bounce.with_table((e + offset[6]).clamp(0.05, 1.0), (mu + offset[7]).max(0.0));
+            table.apply(&x).state.fixed_rows::<6>(3).into_owned()
+        };
+        let mut outcomes = [SVector::<f64, 6>::zeros(); 2 * N + 1];
+        outcomes[0] = outcome(&SVector::zeros());
+        for k in 0..N {
+            let column = l.column(k) * spread;
+            outcomes[1 + k] = outcome(&column.into_owned());
+            outcomes[1 + N + k] = outcome(&(-column).into_owned());
+        }
+        let mean = outcomes[0] * w0 + outcomes[1..].iter().sum::<SVector<f64, 6>>() * wi;
+        let mut spread_cov = SMatrix::<f64, 6, 6>::zeros();
+        for (k, y) in outcomes.iter().enumerate() {
+            let d = y - mean;
+            spread_cov += d * d.transpose() * if k == 0 { w0 } else { wi };
+        }
+        // The linearised covariance of the same outcome: G C G' with G = d(v', w')/d(v, w, e,
+        // mu) at the mean.
+        let b = bounce.apply(before);
+        let mut gm = SMatrix::<f64, 6, N>::zeros();
+        gm.fixed_view_mut::<6, 6>(0, 0)
+            .copy_from(&b.jacobian.fixed_view::<6, 6>(3, 3));
+        gm.fixed_view_mut::<6, 2>(0, 6)
+            .copy_from(&b.table_jacobian.fixed_view::<6, 2>(3, 0));
+        let linear = gm * c * gm.transpose();
+        // The mean's own offset from the linearised outcome counts too.
+        let offset = mean - after.fixed_rows::<6>(3);
+        let excess = spread_cov - linear + offset * offset.transpose();
+        let eigen = nalgebra::SymmetricEigen::new((excess + excess.transpose()) * 0.5);
+        let positive = eigen.eigenvectors
+            * SMatrix::<f64, 6, 6>::from_diagonal(&eigen.eigenvalues.map(|v| v.max(0.0)))
+            * eigen.eigenvectors.transpose();
+        let mut q = StateMatrix::zeros();
+        q.fixed_view_mut::<6, 6>(3, 3).copy_from(&positive);
+        q
     }
 }
 

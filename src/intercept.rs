@@ -409,7 +409,7 @@ pub struct TrackerCounts {
 /// prediction's before the interception is predicted in full again (the moved interception
 /// follows them to first order; the crossing moves by about 0.1 m per unit of the Magnus scale
 /// at 0.3 s ahead).
-const PARAM_REFRESH: [f64; PARAMS] = [0.01, 0.02, 0.005, 0.01];
+const PARAM_REFRESH: [f64; PARAMS] = [0.005, 0.01, 0.003, 0.005];
 
 /// The last full prediction, its start state flown to the latest stamp.
 #[derive(Debug, Clone, Copy, PartialEq)]

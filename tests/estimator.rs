@@ -649,7 +649,7 @@ fn the_kept_interception_agrees_with_the_full_prediction() {
         differing <= compared / 2000,
         "{differing} of {compared} differ"
     );
-    assert!(worst_position < 1e-3, "{worst_position}");
+    assert!(worst_position < 1e-3, "{worst_position} {counts:?}");
     assert!(worst_time < 3e-4, "{worst_time}");
     assert!(counts.moved > 4 * counts.full, "{counts:?}");
     assert_eq!(full.intercept_counts().moved, 0);

@@ -429,9 +429,10 @@ pub struct EkfParams {
     pub bounce_impulse_sigma: f64,
     /// The scatter of one bounce's restitution about the table's [-].
     pub bounce_restitution_sigma: f64,
-    /// Whether the filter adds the spread between the sliding and the rolling bounce when the
-    /// state is uncertain enough that either could happen.
-    pub bounce_regime_spread: bool,
+    /// Whether the filter carries the state's uncertainty through a bounce by sigma points
+    /// (the unscented transform of the bounce map: both regimes, the spin along every
+    /// direction), adding its spread beyond the linearised one.
+    pub bounce_unscented: bool,
     /// Learn each source's real noise from its innovations: a scale on its position (and spin)
     /// variance and the variance of its stamps' timing, starting from `sources.*`.
     pub learn_noise: bool,
@@ -450,7 +451,7 @@ impl Default for EkfParams {
             min_confidence: 0.0,
             bounce_impulse_sigma: 0.05,
             bounce_restitution_sigma: 0.01,
-            bounce_regime_spread: true,
+            bounce_unscented: true,
             learn_noise: true,
             noise_memory: 2000,
         }

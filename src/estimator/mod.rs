@@ -303,7 +303,7 @@ impl Settings {
             bounce: BounceNoise {
                 impulse_sigma: config.ekf.bounce_impulse_sigma,
                 restitution_sigma: config.ekf.bounce_restitution_sigma,
-                regime: config.ekf.bounce_regime_spread,
+                unscented: config.ekf.bounce_unscented,
             },
             param_prior: PhysicsParams::from_config(config).to_vector(),
             param_prior_var,
