@@ -88,7 +88,10 @@ fn the_adaptation_learns_what_the_configuration_has_wrong() {
             assert!(l.median_ratio <= 1.3 && l.rms_ratio <= 1.3, "{name}: {l:?}");
         }
         let [k_d, k_m, e, mu] = r.learned_errors();
-        assert!(k_d.abs() < 0.05 && e.abs() < 0.05 && mu.abs() < 0.05, "{name}");
+        assert!(
+            k_d.abs() < 0.05 && e.abs() < 0.05 && mu.abs() < 0.05,
+            "{name}"
+        );
         assert!(k_m.abs() < 0.08, "{name}: {k_m}");
         let without = report(&fixed, name, 60);
         let lead100 = &without.settled[1];

@@ -55,12 +55,8 @@ fn the_simulated_bags_are_reproduced_by_their_commands() {
 }
 
 #[test]
-fn the_real_bag_is_reproduced_from_the_shared_data() {
-    let data = root().join("../shared/data/mpi_launcher");
-    if !data.exists() {
-        eprintln!("skipped: {} is not here", data.display());
-        return;
-    }
+fn the_real_bag_is_reproduced_from_its_flights() {
+    let data = root().join("tests/data/mpi_launcher");
     let out = scratch("real_launcher.mcap");
     let files: Vec<String> = [
         "mn5008_backspin.csv",

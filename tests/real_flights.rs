@@ -1,8 +1,9 @@
-//! The estimator on real flights: the MPI launcher trajectories (`../shared/data/mpi_launcher`,
+//! The estimator on real flights: the MPI launcher trajectories (`tests/data/mpi_launcher`,
 //! BSD 3-Clause License, Copyright (c) 2023, Intelligent Soft Robots; the licence text is next to
-//! the files), read where they are, moved into the `table` frame, and predicted.
+//! the files; a copy of the workplace's shared data, in the repository), moved into the `table`
+//! frame, and predicted.
 //!
-//! Skipped, with a notice, when the data are not there. `cargo test --release --test
+//! `cargo test --release --test
 //! real_flights -- --nocapture` prints the transform's evidence, the noise and the accuracy
 //! tables of the full model and of a drag-only model without spin.
 #![allow(
@@ -29,7 +30,7 @@ struct Data {
 }
 
 fn data_dir() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared/data/mpi_launcher")
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/data/mpi_launcher")
 }
 
 fn data() -> Option<&'static Data> {
@@ -39,9 +40,8 @@ fn data() -> Option<&'static Data> {
         let mut raw = Vec::new();
         for kind in SpinKind::ALL {
             let path = dir.join(kind.file_name());
-            let Ok(text) = std::fs::read_to_string(&path) else {
-                return None;
-            };
+            let text = std::fs::read_to_string(&path)
+                .unwrap_or_else(|e| panic!("{} (in the repository): {e}", path.display()));
             raw.extend(parse_mpi_csv(&text, kind).unwrap());
         }
         let config = Config::default();
@@ -64,12 +64,6 @@ fn data() -> Option<&'static Data> {
             noise,
         })
     });
-    if data.is_none() {
-        eprintln!(
-            "skipping: the MPI launcher data are not at {}",
-            data_dir().display()
-        );
-    }
     data.as_ref()
 }
 
@@ -306,10 +300,14 @@ fn the_estimator_predicts_real_flights_through_their_bounce() {
     let scored = SpinKind::ALL.map(|k| full.group(k).unwrap().scored);
     assert_eq!(scored, [5, 10, 9]);
     let [lead200, lead100] = [&all.leads[0], &all.leads[1]];
+    // One track per flight, all 40 of them.
+    assert!(full.flights.iter().all(|f| f.counters.tracks == 1));
+    // The issue's targets: at most 15 mm RMS at 200 ms lead, 10 mm at 100 ms.
+    assert!(lead200.position_error.rms <= 0.015, "{lead200:?}");
+    assert!(lead100.position_error.rms <= 0.010, "{lead100:?}");
     // Within a racket's sweet spot at 100 ms, for every kind.
     assert!(lead100.valid_fraction >= 0.9, "{lead100:?}");
-    assert!(lead100.position_error.rms < 0.025, "{lead100:?}");
-    assert!(lead100.time_error.rms < 0.010, "{lead100:?}");
+    assert!(lead100.time_error.rms < 0.005, "{lead100:?}");
     for kind in SpinKind::ALL {
         let l = &full.group(kind).unwrap().leads[1];
         assert!(l.valid_fraction >= 0.9, "{kind:?}: {l:?}");
@@ -325,6 +323,87 @@ fn the_estimator_predicts_real_flights_through_their_bounce() {
     let top_drag = &drag.group(SpinKind::Topspin).unwrap().leads[1];
     assert!(top.bounce_position_error.rms < 0.015, "{top:?}");
     assert!(top.bounce_position_error.rms < 0.5 * top_drag.bounce_position_error.rms);
+}
+
+/// The 40 mm ball's aero coefficients (the defaults) against the seed's (the preset
+/// `config/presets/seed_2014.yaml`) on the real flights: better at both leads.
+#[test]
+fn the_real_balls_coefficients_beat_the_seeds_on_real_flights() {
+    let Some(data) = data() else { return };
+    let options = RealEvalOptions::default();
+    let config = real_config(data);
+    let seed = ttball::config::yaml::load(
+        Some(&PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("config/presets/seed_2014.yaml")),
+        &[format!(
+            "sources.wide_150fps.position_sigma:={}",
+            config.sources.wide_150fps.position_sigma
+        )],
+    )
+    .unwrap();
+    assert_eq!(seed.aero, ttball::config::AeroParams::seed_2014());
+    let ours = evaluate_flights(&config, &data.flights, &options);
+    let theirs = evaluate_flights(&seed, &data.flights, &options);
+    print_report("the 40 mm ball's coefficients (defaults):", &ours);
+    print_report(
+        "the seed's polynomials (config/presets/seed_2014.yaml):",
+        &theirs,
+    );
+    let (a, b) = (ours.overall().unwrap(), theirs.overall().unwrap());
+    for (l, m) in a.leads.iter().zip(&b.leads) {
+        assert!(
+            l.position_error.rms < m.position_error.rms,
+            "{:.3} s: {l:?} vs {m:?}",
+            l.lead
+        );
+    }
+}
+
+/// The kind of spin just before the bounce (or at the end of a recording that ends before it),
+/// from the flight's curvature alone: backspin below zero and topspin above it on all 30
+/// flights with spin, and the 10 no-spin flights between the two.
+#[test]
+fn the_kind_of_spin_before_the_bounce() {
+    let Some(data) = data() else { return };
+    let report = evaluate_flights(
+        &real_config(data),
+        &data.flights,
+        &RealEvalOptions::default(),
+    );
+    let spins = |kind: SpinKind| -> Vec<f64> {
+        report
+            .flights
+            .iter()
+            .filter(|f| f.spin_kind == kind)
+            .map(|f| {
+                f.topspin_before_bounce()
+                    .expect("an estimate before the bounce")
+            })
+            .collect()
+    };
+    let (back, none, top) = (
+        spins(SpinKind::Backspin),
+        spins(SpinKind::NoSpin),
+        spins(SpinKind::Topspin),
+    );
+    let range = |v: &[f64]| {
+        (
+            v.iter().copied().fold(f64::INFINITY, f64::min),
+            v.iter().copied().fold(f64::NEG_INFINITY, f64::max),
+        )
+    };
+    let (b, n, t) = (range(&back), range(&none), range(&top));
+    println!(
+        "topspin component before the bounce [rad/s]: backspin {:.0} to {:.0}, no spin {:.0} to \
+         {:.0}, topspin {:.0} to {:.0}",
+        b.0, b.1, n.0, n.1, t.0, t.1
+    );
+    assert_eq!((back.len(), none.len(), top.len()), (15, 10, 15));
+    assert!(
+        b.1 < 0.0,
+        "every backspin flight reads as backspin: {back:?}"
+    );
+    assert!(t.0 > 0.0, "every topspin flight reads as topspin: {top:?}");
+    assert!(b.1 < n.0 && n.1 < t.0, "no spin between: {none:?}");
 }
 
 #[test]

@@ -25,7 +25,7 @@ pub enum ImportCommand {
     /// the far end line): x_t = 1.37 - x, y_t = c_y - y, z_t = z - z_surface. The spin kind of each
     /// file comes from its name (backspin, no_spin, topspin). Flights follow each other 1 s apart.
     #[command(after_help = "Example:\n  \
-        ttball import mpi ../shared/data/mpi_launcher/*.csv --output bags/real_launcher.mcap")]
+        ttball import mpi tests/data/mpi_launcher/*.csv --output bags/real_launcher.mcap")]
     Mpi(MpiArgs),
 }
 

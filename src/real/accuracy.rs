@@ -255,6 +255,20 @@ pub struct FlightResult {
     pub lead_states: Vec<Option<BallState>>,
     /// What the estimator did with all the flight's detections.
     pub counters: Counters,
+    /// The estimated state just before the measured bounce (the last estimate of a track before
+    /// it), or at the end of a recording that ends before the bounce.
+    pub before_bounce: Option<BallState>,
+}
+
+impl FlightResult {
+    /// The topspin component of the spin just before the bounce [rad/s]: the spin about the
+    /// horizontal axis across the flight, z x v^ (positive topspin, negative backspin).
+    pub fn topspin_before_bounce(&self) -> Option<f64> {
+        let s = self.before_bounce?;
+        let horizontal = Vector3::new(s.velocity.x, s.velocity.y, 0.0);
+        let norm = horizontal.norm();
+        (norm > 0.0).then(|| s.spin.dot(&Vector3::z().cross(&(horizontal / norm))))
+    }
 }
 
 /// Accuracy at one lead over a group of flights.
@@ -454,7 +468,9 @@ fn evaluate_flight(
         leads: Vec::new(),
         lead_states: Vec::new(),
         counters: Counters::default(),
+        before_bounce: None,
     };
+    let bounce_time = detect_bounce(&flight.samples, config.gravity).map(|b| b.time);
     let mut flight_config = config.clone();
     if let Ok(measured) = crossing {
         flight_config.intercept.plane_x = measured.position.x;
@@ -465,10 +481,24 @@ fn evaluate_flight(
     }
     let epoch = options.epoch_ns;
     let detections = flight_detections(flight, epoch, options.source);
+    let before_bounce_ns = bounce_time.map(|t| epoch + seconds_to_ns(t));
+    let mut before_bounce = None;
+    let mut note = |out: &crate::estimator::Output, stamp: i64| {
+        if before_bounce_ns.is_none_or(|b| stamp < b)
+            && let Some(e) = out
+                .estimate
+                .filter(|e| e.status != crate::estimator::TrackStatus::Initializing)
+        {
+            before_bounce = Some(e.state);
+        }
+    };
     let Ok(measured) = crossing else {
         for d in &detections {
-            estimator.handle(d);
+            let out = estimator.handle(d);
+            note(&out, d.stamp);
         }
+        result.counters = estimator.counters();
+        result.before_bounce = before_bounce;
         return (result, estimator.learned_physics());
     };
     let deadlines: Vec<i64> = options
@@ -481,6 +511,7 @@ fn evaluate_flight(
         vec![None; deadlines.len()];
     for detection in &detections {
         let out = estimator.handle(detection);
+        note(&out, detection.stamp);
         if detection.stamp > last_deadline {
             // After the last lead: only learning.
             continue;
@@ -496,6 +527,7 @@ fn evaluate_flight(
         }
     }
     result.counters = estimator.counters();
+    result.before_bounce = before_bounce;
     let learned_after = estimator.learned_physics();
     result.leads = latest
         .iter()

@@ -18,8 +18,9 @@
 //! for Intelligent Systems), repository `intelligent-soft-robots/ball_prediction`, files
 //! `data/mn5008_{backspin,no_spin,topspin}.hdf5`, converted to CSV without changing any value.
 //! BSD 3-Clause License, Copyright (c) 2023, Intelligent Soft Robots; the licence's full text
-//! (`LICENSE` next to the CSV files) goes with every copy of the data. ttball reads the files
-//! where they are and does not copy them.
+//! (`LICENSE` next to the CSV files) goes with every copy of the data. The repository holds a
+//! copy (`tests/data/mpi_launcher/`, with the licence), which the tests and
+//! `bags/real_launcher.mcap` are made from.
 
 pub mod accuracy;
 pub mod fit;
