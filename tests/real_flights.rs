@@ -40,8 +40,7 @@ fn data() -> Option<&'static Data> {
         let mut raw = Vec::new();
         for kind in SpinKind::ALL {
             let path = dir.join(kind.file_name());
-            let text = std::fs::read_to_string(&path)
-                .unwrap_or_else(|e| panic!("{} (in the repository): {e}", path.display()));
+            let text = std::fs::read_to_string(&path).expect("the flights are in the repository");
             raw.extend(parse_mpi_csv(&text, kind).unwrap());
         }
         let config = Config::default();
