@@ -396,11 +396,7 @@ pub fn replay(
         intercepts: pipeline.estimator().intercept_counts(),
         learned: pipeline.estimator().learned_params(),
         learned_noise: pipeline.estimator().learned_noise(),
-        configured_sigma: [
-            config.sources.unknown.position_sigma,
-            config.sources.wide_150fps.position_sigma,
-            config.sources.highspeed_900fps.position_sigma,
-        ],
+        configured_sigma: pipeline.estimator().configured_position_sigmas(),
         written,
         processing_mean_ns: timing.mean,
         processing_p99_ns: timing.p99,

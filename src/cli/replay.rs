@@ -8,7 +8,7 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 
 use anyhow::{Context, bail};
 use clap::Args;
-use ttball::estimator::{LearnedParams, Rejection, SourceNoiseEstimate};
+use ttball::estimator::{LearnedParams, Rejection, SOURCE_NAMES, SourceNoiseEstimate};
 use ttball::physics::PhysicsParams;
 use ttball::replay::{ReplaySummary, replay};
 
@@ -229,9 +229,6 @@ pub fn learned_text(l: &LearnedParams) -> String {
         parts.join(", ")
     )
 }
-
-/// The names of the sources in the order of [`ttball::estimator::Estimator::learned_noise`].
-pub const SOURCE_NAMES: [&str; 3] = ["unknown", "wide_150fps", "highspeed_900fps"];
 
 /// The noise learned of the sources that sent detections, in one line: "learned noise:
 /// wide_150fps position sigma 3.0 mm (1.50x configured), stamps 0.3 ms; ...", or `None` when no

@@ -547,6 +547,10 @@ pub struct Estimator {
     learned: Learned,
 }
 
+/// The camera sources by name (as their configuration keys, `sources.*`), in the order of
+/// [`Estimator::learned_noise`]: `Source::code` 0, 1, 2.
+pub const SOURCE_NAMES: [&str; 3] = ["unknown", "wide_150fps", "highspeed_900fps"];
+
 /// What an estimator has learned of the physical parameters, carried to another
 /// ([`Estimator::learned_physics`], [`Estimator::adopt_learned_physics`]).
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -942,9 +946,15 @@ impl Estimator {
         }
     }
 
-    /// What the estimator has learned of each source's noise: unknown, 150 fps, 900 fps.
+    /// What the estimator has learned of each source's noise, in the order of
+    /// [`SOURCE_NAMES`].
     pub fn learned_noise(&self) -> [SourceNoiseEstimate; 3] {
         self.noise.all()
+    }
+
+    /// The configured position sigma of each source [m], in the order of [`SOURCE_NAMES`].
+    pub fn configured_position_sigmas(&self) -> [f64; 3] {
+        self.settings.sources.map(|s| s.position_var.sqrt())
     }
 
     fn process(&mut self, d: &Detection, m: Measurement) -> Verdict {

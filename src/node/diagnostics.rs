@@ -2,10 +2,12 @@
 //! `<node>: estimator`): rates, what happened to every detection (by reason), queue drops and
 //! processing time over the last period. Pure: the caller passes the clock readings.
 
+use crate::estimator::LearnedParams;
 use crate::estimator::{Counters, Rejection};
 use crate::msgs::builtin_interfaces::Time;
 use crate::msgs::diagnostic_msgs::{DiagnosticArray, DiagnosticStatus, KeyValue};
 use crate::msgs::std_msgs::Header;
+use crate::physics::PhysicsParams;
 use crate::stats::DurationSummary;
 
 /// What happened to detections before they reached the estimator, and to the node's outputs.
@@ -74,6 +76,11 @@ pub struct Snapshot<'a> {
     pub queue_len: usize,
     /// The live track, if any.
     pub track: Option<u32>,
+    /// What the estimator has learned of the physics.
+    pub learned: &'a LearnedParams,
+    /// What it has learned of each source's noise that sent detections: the source's name,
+    /// its position sigma [m] and its stamps' sigma [s].
+    pub learned_noise: &'a [(&'a str, f64, f64)],
 }
 
 /// Builds the diagnostics message of one period and empties `window`.
@@ -159,6 +166,10 @@ pub fn diagnostics_msg(snapshot: &Snapshot<'_>, window: &mut Window) -> Diagnost
             s.track
                 .map_or_else(|| "none".to_owned(), |id| id.to_string()),
         ),
+        kv(
+            "tracks re-anchored on their own detections",
+            c.reanchored.to_string(),
+        ),
         kv("late detections fused by rollback", c.rollbacks.to_string()),
         kv("all-zero spins ignored", c.zero_spin_ignored.to_string()),
         kv("publish errors", t.publish_errors.to_string()),
@@ -168,6 +179,25 @@ pub fn diagnostics_msg(snapshot: &Snapshot<'_>, window: &mut Window) -> Diagnost
             t.service_busy.to_string(),
         ),
     ]);
+    let learned = s.learned.params.to_vector();
+    for (i, name) in PhysicsParams::NAMES.iter().enumerate() {
+        values.push(kv(&format!("learned {name}"), format!("{:.4}", learned[i])));
+        values.push(kv(
+            &format!("learned {name} sigma"),
+            format!("{:.4}", s.learned.sigma[i]),
+        ));
+    }
+    values.push(kv("learned physics: tracks", s.learned.tracks.to_string()));
+    for (source, sigma, stamp_sigma) in s.learned_noise {
+        values.push(kv(
+            &format!("learned noise {source}: position sigma [mm]"),
+            format!("{:.2}", sigma * 1e3),
+        ));
+        values.push(kv(
+            &format!("learned noise {source}: stamp sigma [ms]"),
+            format!("{:.2}", stamp_sigma * 1e3),
+        ));
+    }
     DiagnosticArray {
         header: Header {
             stamp: Time::from_nanos(s.stamp),
@@ -233,6 +263,8 @@ mod tests {
                 transport_before: &transport,
                 queue_len: 0,
                 track: Some(4),
+                learned: &learned(),
+                learned_noise: &[("wide_150fps", 0.0031, 0.0004)],
             },
             &mut window,
         );
@@ -252,6 +284,29 @@ mod tests {
             value(&msg, &format!("rejected: {}", r.name()));
         }
         assert_eq!(msg.header.stamp, Time::from_nanos(1_500_000_000));
+        assert_eq!(value(&msg, "learned magnus_scale"), "0.6000");
+        assert_eq!(value(&msg, "learned friction sigma"), "0.0100");
+        assert_eq!(
+            value(&msg, "learned noise wide_150fps: position sigma [mm]"),
+            "3.10"
+        );
+        assert_eq!(
+            value(&msg, "learned noise wide_150fps: stamp sigma [ms]"),
+            "0.40"
+        );
+    }
+
+    fn learned() -> LearnedParams {
+        LearnedParams {
+            params: PhysicsParams {
+                drag_scale: 1.1,
+                magnus_scale: 0.6,
+                restitution: 0.93,
+                friction: 0.2,
+            },
+            sigma: [0.02, 0.05, 0.003, 0.01],
+            tracks: 12,
+        }
     }
 
     /// The message of a 1 s period with no detection processed and no track.
@@ -272,6 +327,8 @@ mod tests {
                 transport_before: before,
                 queue_len,
                 track: None,
+                learned: &learned(),
+                learned_noise: &[],
             },
             &mut Window::default(),
         )
