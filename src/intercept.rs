@@ -469,9 +469,6 @@ impl Anchor {
         // start flown to x = phi(start, theta) moves with theta at a fixed x by
         // dg/dtheta - (dg/dx) S, dg/dx being the sensitivity carried back.
         let flight_params = tangent.params();
-        let carry = |on_x: &SMatrix<f64, 1, 9>, on_theta: &ParamRow| -> ParamRow {
-            flight_params.map_or(*on_theta, |s| on_theta - on_x * s)
-        };
         let crossing = self.sensitivity.crossing.map(|s| {
             let state = back.premultiplied_by(&s.state);
             let time = back.premultiplied_by(&s.time);
@@ -479,11 +476,10 @@ impl Anchor {
                 state,
                 time,
                 params: s.params.map(|(p, t)| {
-                    let p = match flight_params {
-                        Some(flight) => p - state * flight,
-                        None => p,
-                    };
-                    (p, carry(&time, &t))
+                    (
+                        at_fixed_state(&state, &p, &flight_params),
+                        at_fixed_state(&time, &t, &flight_params),
+                    )
                 }),
             }
         });
@@ -494,11 +490,10 @@ impl Anchor {
                 position,
                 time,
                 params: s.params.map(|(p, t)| {
-                    let p = match flight_params {
-                        Some(flight) => p - position * flight,
-                        None => p,
-                    };
-                    (p, carry(&time, &t))
+                    (
+                        at_fixed_state(&position, &p, &flight_params),
+                        at_fixed_state(&time, &t, &flight_params),
+                    )
                 }),
             }
         });
@@ -569,6 +564,20 @@ impl Anchor {
             (Some(_), None) => return None,
         };
         Some(Intercept { crossing, bounce })
+    }
+}
+
+/// d(g)/d(theta) at a fixed flown state x = phi(start, theta), for a quantity g(start, theta)
+/// whose sensitivities are `on_x` (carried back to x) and `on_theta` (at a fixed start), the
+/// flight from the start to x having sensitivity `flight` to theta: dg/dtheta - (dg/dx) S.
+fn at_fixed_state<const R: usize>(
+    on_x: &SMatrix<f64, R, 9>,
+    on_theta: &SMatrix<f64, R, PARAMS>,
+    flight: &Option<ParamMatrix>,
+) -> SMatrix<f64, R, PARAMS> {
+    match flight {
+        Some(s) => on_theta - on_x * s,
+        None => *on_theta,
     }
 }
 
