@@ -193,6 +193,13 @@ impl Pipeline {
         Ok(trajectory_msg(stamp, live, &trajectory))
     }
 
+    /// The stroke model flying the physics the estimator learned so far (the configured physics
+    /// before any flight).
+    fn learned_stroke(&self) -> Stroke {
+        self.stroke
+            .with_params(&self.estimator.learned_params().params)
+    }
+
     /// `track_id` when it is the live track's id; otherwise why not, pointing at track 0 and
     /// `alternative` (what the request gives instead of a track).
     fn live_track(&self, track_id: u32, alternative: &str) -> Result<u32, String> {
@@ -215,7 +222,7 @@ impl Pipeline {
     /// approaching the face, non-finite value) gets `success = false` and the reason.
     pub fn predict_rebound(&self, request: &PredictReboundRequest) -> PredictReboundResponse {
         let (ball, racket) = rebound_request(request);
-        match self.stroke.rebound(&ball, &racket) {
+        match self.learned_stroke().rebound(&ball, &racket) {
             Ok(rebound) => rebound_response(&rebound),
             Err(e) => PredictReboundResponse {
                 success: false,
@@ -259,21 +266,19 @@ impl Pipeline {
         };
         // 0 = not given, as PlanReturn.srv says.
         let given = |v: f64| (v != 0.0).then_some(v);
-        let condition = self
-            .stroke
-            .condition(given(request.flight_time), given(request.net_clearance));
+        let stroke = self.learned_stroke();
+        let condition = stroke.condition(given(request.flight_time), given(request.net_clearance));
         let aim = Aim {
             target: Vector2::new(request.target.x, request.target.y),
             condition,
             impact_offset: request.impact_offset,
             brush_speed: request.brush_speed,
         };
-        let plan = self.stroke.plan(&ball, &aim).map_err(|e| e.to_string())?;
+        let plan = stroke.plan(&ball, &aim).map_err(|e| e.to_string())?;
         let landing_covariance = if covariance.iter().all(|v| *v == 0.0) {
             None
         } else {
-            self.stroke
-                .landing_covariance(&ball, &covariance, &plan.racket)
+            stroke.landing_covariance(&ball, &covariance, &plan.racket)
         };
         Ok(plan_response(impact_stamp, &plan, &landing_covariance))
     }
@@ -314,6 +319,7 @@ mod tests {
     use crate::detection::seconds_to_ns;
     use crate::msgs::convert::detection_to_msg;
     use crate::msgs::geometry_msgs::{Point, Vector3};
+    use crate::physics::PhysicsParams;
     use crate::sim::{SimOptions, simulate};
 
     fn request(track_id: u32, horizon: f64, dt: f64) -> PredictTrajectoryRequest {
@@ -546,6 +552,47 @@ mod tests {
             pipeline.plan_return(&requests[0]),
             pipeline.plan_return(&configured)
         );
+    }
+
+    #[test]
+    fn racket_services_fly_the_physics_learned_from_the_rally() {
+        let config = Config::default();
+        let mut pipeline = Pipeline::new(&config);
+        let options = SimOptions {
+            shots: 3,
+            ..SimOptions::default()
+        };
+        for d in &simulate(&config, &options).expect("simulated").stream {
+            pipeline.on_detection(&detection_to_msg(&d.detection));
+        }
+        let learned = pipeline.estimator().learned_params().params;
+        assert_ne!(
+            learned,
+            PhysicsParams::from_config(&config),
+            "nothing learned"
+        );
+        // The same answers as a pipeline configured with the learned values.
+        let mut taught = config.clone();
+        taught.aero.drag_scale = learned.drag_scale;
+        taught.aero.magnus_scale = learned.magnus_scale;
+        taught.table.restitution = learned.restitution;
+        taught.table.friction = learned.friction;
+        let configured = Pipeline::new(&taught);
+        let request = plan_request(0.9, 0.3);
+        let plan = pipeline.plan_return(&request);
+        assert!(plan.success, "{}", plan.message);
+        assert_eq!(plan, configured.plan_return(&request));
+        let rebound = rebound_request(&request.ball, &plan, request.impact_offset);
+        assert_eq!(
+            pipeline.predict_rebound(&rebound),
+            configured.predict_rebound(&rebound)
+        );
+        assert_eq!(
+            pipeline.predict_trajectory(&self::request(0, 0.5, 0.01)),
+            configured.predict_trajectory(&self::request(0, 0.5, 0.01))
+        );
+        // And not the configured physics' answer.
+        assert_ne!(Pipeline::new(&config).plan_return(&request), plan);
     }
 
     #[test]

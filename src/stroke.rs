@@ -18,6 +18,7 @@ use nalgebra::{Matrix3, SMatrix, Vector2, Vector3};
 use thiserror::Error;
 
 use crate::config::Config;
+use crate::physics::PhysicsParams;
 use crate::physics::propagate::{
     Cursor, Event, EventKind, Flow, Observer, Outcome, Propagator, Watch,
 };
@@ -212,6 +213,17 @@ impl Stroke {
             half_width: 0.5 * config.table.width,
             max_racket_speed: config.stroke.max_racket_speed,
             net_clearance: config.stroke.net_clearance,
+        }
+    }
+
+    /// The same model with the ball's flight and the table's bounce at `params` (e.g. what the
+    /// estimator learned from the rally).
+    #[must_use]
+    pub fn with_params(&self, params: &PhysicsParams) -> Self {
+        Self {
+            propagator: self.propagator.with_params(params),
+            solver_propagator: self.solver_propagator.with_params(params),
+            ..self.clone()
         }
     }
 

@@ -11,8 +11,8 @@
 //! - The peer calls `~/predict_trajectory`, `~/predict_rebound` and `~/plan_return`
 //!   (rmw_cyclonedds' service framing) for given states, and `~/predict_trajectory` and
 //!   `~/plan_return` for a track that does not exist: every reply equals, bit for bit, what the
-//!   pipeline answers in process after the same detections (`~/predict_trajectory` flies the
-//!   physics learned from them); the planned racket command, sent back to `~/predict_rebound`,
+//!   pipeline answers in process after the same detections (the services fly the physics
+//!   learned from them); the planned racket command, sent back to `~/predict_rebound`,
 //!   lands on the target.
 //! - `ttball play` publishes the bag and the peer receives every detection, byte for byte; with
 //!   `--latency`, beside a `ttball node`, it times the node's outputs.
@@ -233,7 +233,22 @@ fn node_and_play_interoperate_with_cyclone_dds() {
     // A ball at the hitting plane, the racket command that returns it to a target (planned in
     // process, then asked of the node), and that command for `~/predict_rebound`.
     let incoming = [-1.6, 0.1, 0.25, -5.0, 0.4, -1.0, 20.0, -150.0, 30.0];
-    let pipeline = Pipeline::new(&Config::default());
+    let detections: Vec<(u64, Vec<u8>)> = {
+        let contents = read_bag_file(&bag).unwrap();
+        let channel = contents.channel("/ball/detections").unwrap();
+        contents
+            .messages
+            .iter()
+            .filter(|m| m.channel == channel)
+            .map(|m| (m.log_time, m.data.clone()))
+            .collect()
+    };
+    // The node answers its services with the physics it learned from the bag: so does the
+    // pipeline that took the same detections.
+    let mut pipeline = Pipeline::new(&Config::default());
+    for (_, data) in &detections {
+        pipeline.on_detection(&decode(data).unwrap());
+    }
     let mut plan_request = PlanReturnRequest {
         track_id: 0,
         target: Point {
@@ -250,16 +265,6 @@ fn node_and_play_interoperate_with_cyclone_dds() {
     assert!(plan.success, "{}", plan.message);
     let (v, n) = (plan.racket_velocity, plan.racket_normal);
     let racket = [v.x, v.y, v.z, n.x, n.y, n.z];
-    let detections: Vec<(u64, Vec<u8>)> = {
-        let contents = read_bag_file(&bag).unwrap();
-        let channel = contents.channel("/ball/detections").unwrap();
-        contents
-            .messages
-            .iter()
-            .filter(|m| m.channel == channel)
-            .map(|m| (m.log_time, m.data.clone()))
-            .collect()
-    };
     let script = format!(
         r#"
 export ROS_DOMAIN_ID=42 ROS_LOCALHOST_ONLY=1
@@ -384,13 +389,7 @@ wait $listener
     };
     request.initial.header.stamp = response.trajectory.header.stamp;
     set_state(&mut request.initial, initial);
-    // The node answers with the physics it learned from the bag: so does the pipeline that
-    // took the same detections.
-    let mut after_bag = Pipeline::new(&Config::default());
-    for (_, data) in &detections {
-        after_bag.on_detection(&decode(data).unwrap());
-    }
-    let expected = after_bag.predict_trajectory(&request);
+    let expected = pipeline.predict_trajectory(&request);
     if lost == 0 {
         assert_same("predict_trajectory", &response, &expected);
     } else {
