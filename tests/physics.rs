@@ -634,6 +634,30 @@ fn net_hit_floor_and_table_edge() {
         })
         .expect("net crossing");
     assert!(!crossing.1 && crossing.0 > 0.1, "{crossing:?}");
+    // A table without a net (`table.net_height: 0`, as the launcher data's): the ball that hit
+    // the net passes over the table's middle, its clearance its height over the table.
+    let mut netless = Config::default();
+    netless.table.net_height = 0.0;
+    netless.validate().expect("a table without a net is valid");
+    let passes = predict(
+        &Propagator::new(&netless),
+        &state([1.0, 0.0, 0.10], [-6.0, 0.0, 0.0], [0.0; 3]),
+        &options,
+    );
+    assert_ne!(passes.end, TrajectoryEnd::Net);
+    let crossing = passes
+        .events
+        .iter()
+        .find_map(|e| match e.kind {
+            EventKind::Net { clearance, hit } => Some((clearance, hit, e.before[2])),
+            _ => None,
+        })
+        .expect("net-plane crossing");
+    assert!(!crossing.1, "{crossing:?}");
+    assert!(
+        (crossing.0 - (crossing.2 - 0.02)).abs() < 1e-12,
+        "{crossing:?}"
+    );
 }
 
 #[test]
