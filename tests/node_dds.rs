@@ -154,6 +154,18 @@ fn assert_same<T: Serialize + PartialEq + std::fmt::Debug>(what: &str, got: &T, 
     assert_eq!(cdr(got), cdr(expected), "{what}: not bit for bit");
 }
 
+/// The log time and CDR payload of each of a bag's detections, in order.
+fn bag_detections(bag: &Path) -> Vec<(u64, Vec<u8>)> {
+    let contents = read_bag_file(bag).unwrap();
+    let channel = contents.channel("/ball/detections").unwrap();
+    contents
+        .messages
+        .iter()
+        .filter(|m| m.channel == channel)
+        .map(|m| (m.log_time, m.data.clone()))
+        .collect()
+}
+
 /// Ball centre, velocity and spin as a `BallState` message's fields.
 fn set_state(msg: &mut BallState, values: [f64; 9]) {
     let [x, y, z, vx, vy, vz, wx, wy, wz] = values;
@@ -233,16 +245,7 @@ fn node_and_play_interoperate_with_cyclone_dds() {
     // A ball at the hitting plane, the racket command that returns it to a target (planned in
     // process, then asked of the node), and that command for `~/predict_rebound`.
     let incoming = [-1.6, 0.1, 0.25, -5.0, 0.4, -1.0, 20.0, -150.0, 30.0];
-    let detections: Vec<(u64, Vec<u8>)> = {
-        let contents = read_bag_file(&bag).unwrap();
-        let channel = contents.channel("/ball/detections").unwrap();
-        contents
-            .messages
-            .iter()
-            .filter(|m| m.channel == channel)
-            .map(|m| (m.log_time, m.data.clone()))
-            .collect()
-    };
+    let detections = bag_detections(&bag);
     // The node answers its services with the physics it learned from the bag: so does the
     // pipeline that took the same detections.
     let mut pipeline = Pipeline::new(&Config::default());
@@ -565,15 +568,7 @@ fn the_node_survives_wrong_types_a_peer_that_comes_back_and_a_flood() {
         return;
     };
     let flood_bag = common::root().join("bags/sim_rally_wide.mcap");
-    let total = {
-        let contents = read_bag_file(&bag).unwrap();
-        let channel = contents.channel("/ball/detections").unwrap();
-        contents
-            .messages
-            .iter()
-            .filter(|m| m.channel == channel)
-            .count()
-    };
+    let total = bag_detections(&bag).len();
     let half = total / 2;
     let script = format!(
         r#"
