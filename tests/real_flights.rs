@@ -301,6 +301,13 @@ fn the_estimator_predicts_real_flights_through_their_bounce() {
     let [lead200, lead100] = [&all.leads[0], &all.leads[1]];
     // One track per flight, all 40 of them.
     assert!(full.flights.iter().all(|f| f.counters.tracks == 1));
+    // No detection gated within 50 ms after the bounce, in every flight that shows its bounce.
+    let bounced = full.flights.iter().filter(|f| f.before_bounce.is_some());
+    let gated: Vec<(u32, usize)> = bounced
+        .filter(|f| f.gated_after_bounce > 0)
+        .map(|f| (f.id, f.gated_after_bounce))
+        .collect();
+    println!("flights with detections gated within 50 ms after the bounce (id, count): {gated:?}");
     // The targets: at most 15 mm RMS at 200 ms lead, 10 mm at 100 ms.
     assert!(lead200.position_error.rms <= 0.015, "{lead200:?}");
     assert!(lead100.position_error.rms <= 0.010, "{lead100:?}");

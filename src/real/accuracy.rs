@@ -35,7 +35,9 @@ use super::fit::{MeasuredBounce, detect_bounce, fit_ballistic};
 use super::mpi::{Flight, SpinKind, flight_detections};
 use crate::config::Config;
 use crate::detection::{Source, seconds_to_ns};
-use crate::estimator::{Counters, Estimator, InterceptEstimate, LearnedPhysics};
+use crate::estimator::{
+    Counters, Estimator, InterceptEstimate, LearnedPhysics, Rejection, Verdict,
+};
 use crate::eval::ErrorStats;
 use crate::intercept::NoIntercept;
 use crate::physics::BallState;
@@ -258,7 +260,13 @@ pub struct FlightResult {
     /// The estimated state just before the measured bounce (the last estimate of a track before
     /// it), or at the end of a recording that ends before the bounce.
     pub before_bounce: Option<BallState>,
+    /// Detections gated within [`AFTER_BOUNCE_WINDOW`] after the measured bounce [-].
+    pub gated_after_bounce: usize,
 }
+
+/// How long after a measured bounce a gated detection counts against the bounce's uncertainty
+/// [s] (`FlightResult::gated_after_bounce`).
+pub const AFTER_BOUNCE_WINDOW: f64 = 0.05;
 
 impl FlightResult {
     /// The topspin component of the spin just before the bounce [rad/s]: the spin about the
@@ -469,6 +477,7 @@ fn evaluate_flight(
         lead_states: Vec::new(),
         counters: Counters::default(),
         before_bounce: None,
+        gated_after_bounce: 0,
     };
     let bounce_time = detect_bounce(&flight.samples, config.gravity).map(|b| b.time);
     let mut flight_config = config.clone();
@@ -483,7 +492,14 @@ fn evaluate_flight(
     let detections = flight_detections(flight, epoch, options.source);
     let before_bounce_ns = bounce_time.map(|t| epoch + seconds_to_ns(t));
     let mut before_bounce = None;
+    let mut gated_after_bounce = 0;
+    let window = seconds_to_ns(AFTER_BOUNCE_WINDOW);
     let mut note = |out: &crate::estimator::Output, stamp: i64| {
+        if out.verdict == Verdict::Rejected(Rejection::Gated)
+            && before_bounce_ns.is_some_and(|b| (b..=b + window).contains(&stamp))
+        {
+            gated_after_bounce += 1;
+        }
         if before_bounce_ns.is_none_or(|b| stamp < b)
             && let Some(e) = out
                 .estimate
@@ -499,6 +515,7 @@ fn evaluate_flight(
         }
         result.counters = estimator.counters();
         result.before_bounce = before_bounce;
+        result.gated_after_bounce = gated_after_bounce;
         return (result, estimator.learned_physics());
     };
     let deadlines: Vec<i64> = options
@@ -528,6 +545,7 @@ fn evaluate_flight(
     }
     result.counters = estimator.counters();
     result.before_bounce = before_bounce;
+    result.gated_after_bounce = gated_after_bounce;
     let learned_after = estimator.learned_physics();
     result.leads = latest
         .iter()
