@@ -399,8 +399,8 @@ fn the_kind_of_spin_before_the_bounce() {
     };
     let (b, n, t) = (range(&back), range(&none), range(&top));
     println!(
-        "topspin component before the bounce [rad/s]: backspin {:.0} to {:.0}, no spin {:.0} to \
-         {:.0}, topspin {:.0} to {:.0}",
+        "topspin component before the bounce [rad/s]: backspin {:.1} to {:.1}, no spin {:.1} to \
+         {:.1}, topspin {:.1} to {:.1}",
         b.0, b.1, n.0, n.1, t.0, t.1
     );
     assert_eq!((back.len(), none.len(), top.len()), (15, 10, 15));

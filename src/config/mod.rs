@@ -500,7 +500,7 @@ impl Default for AdaptationParams {
             friction_sigma: 0.1,
             drag_scale_flight_sigma: 0.03,
             magnus_scale_flight_sigma: 0.10,
-            restitution_flight_sigma: 0.0,
+            restitution_flight_sigma: 0.02,
             friction_flight_sigma: 0.0,
             drift_per_hour: 0.5,
         }
