@@ -54,6 +54,10 @@ impl Default for AirParams {
     }
 }
 
+/// Most coefficients an aerodynamic polynomial may have (degree 7): the flight model holds them
+/// inline ([`crate::physics::aero::Polynomial`]), so validation refuses longer lists.
+pub const MAX_POLYNOMIAL_COEFFICIENTS: usize = 8;
+
 /// Spin-parameter aerodynamic model (Isomura et al., seed 004, Table 3; physics.md "Flight").
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]

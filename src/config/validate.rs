@@ -6,8 +6,7 @@
 
 use thiserror::Error;
 
-use super::{Config, SourceParams};
-use crate::physics::aero::MAX_POLYNOMIAL_COEFFICIENTS;
+use super::{Config, MAX_POLYNOMIAL_COEFFICIENTS, SourceParams};
 
 /// One configuration value outside its allowed range. `key` is the dotted parameter name, as in
 /// the ROS 2 parameters file (`table.restitution`, `aero.drag_coefficients[2]`).

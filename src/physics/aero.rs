@@ -17,10 +17,7 @@ use nalgebra::{Matrix3, SMatrix, Vector3};
 use super::params::{DRAG_SCALE, ParamMatrix};
 use super::state::{SPIN, StateVector, VELOCITY};
 use crate::config::Config;
-
-/// Most coefficients a [`Polynomial`] holds (degree 7); the configuration's polynomials are
-/// validated against it.
-pub const MAX_POLYNOMIAL_COEFFICIENTS: usize = 8;
+pub use crate::config::MAX_POLYNOMIAL_COEFFICIENTS;
 
 /// A polynomial sum_i c_i x^i with its coefficients lowest order first, held inline (no heap:
 /// a model that holds polynomials can be copied in the per-detection path).
