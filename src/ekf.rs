@@ -30,7 +30,7 @@
 use nalgebra::{SMatrix, SVector};
 
 pub use crate::physics::params::{AUGMENTED, AugmentedMatrix, ParamCovariance};
-use crate::physics::params::{FRICTION, RESTITUTION};
+use crate::physics::params::{FRICTION, RESTITUTION, with_known_params};
 use crate::physics::{
     Cursor, Event, EventKind, Flow, Observer, PARAMS, ParamVector, PhysicsParams, Propagator,
     StateMatrix, StateVector, Watch,
@@ -303,8 +303,7 @@ impl Ekf {
         theta: ParamVector,
         p_theta: ParamCovariance,
     ) -> Self {
-        let mut augmented = AugmentedMatrix::zeros();
-        augmented.fixed_view_mut::<9, 9>(0, 0).copy_from(&P);
+        let mut augmented = with_known_params(&P);
         augmented
             .fixed_view_mut::<PARAMS, PARAMS>(9, 9)
             .copy_from(&p_theta);
@@ -437,7 +436,7 @@ impl Ekf {
         let y = z - H * self.x;
         let PHt: SMatrix<f64, AUGMENTED, M> = self.P.fixed_columns::<9>(0) * H.transpose();
         let S = H * PHt.fixed_rows::<9>(0) + R;
-        let chol = symmetrise_small(&S)
+        let chol = symmetrise(&S)
             .cholesky()
             .ok_or(UpdateError::NotPositiveDefinite)?;
         let nis = y.dot(&chol.solve(&y));
@@ -485,7 +484,7 @@ impl Ekf {
     ) -> Option<f64> {
         let y = z - H * self.x;
         let S = H * self.state_covariance() * H.transpose() + R;
-        let chol = symmetrise_small(&S).cholesky()?;
+        let chol = symmetrise(&S).cholesky()?;
         Some(y.dot(&chol.solve(&y)))
     }
 }
@@ -493,10 +492,6 @@ impl Ekf {
 /// (A + A') / 2.
 pub fn symmetrise<const N: usize>(a: &SMatrix<f64, N, N>) -> SMatrix<f64, N, N> {
     (a + a.transpose()) * 0.5
-}
-
-fn symmetrise_small<const M: usize>(a: &SMatrix<f64, M, M>) -> SMatrix<f64, M, M> {
-    symmetrise(a)
 }
 
 /// H of a position measurement: [I 0 0].

@@ -21,7 +21,7 @@
 //! crossing or the bounce coming due), when the drift exceeds its limits, and when the last full
 //! prediction is older than its age limit (`intercept.refresh`, [`RefreshParams`]).
 
-use nalgebra::{SMatrix, Vector3};
+use nalgebra::{SMatrix, SVector, Vector3};
 
 use crate::config::RefreshParams;
 use crate::physics::params::{FRICTION, RESTITUTION, with_known_params};
@@ -527,11 +527,6 @@ impl Anchor {
     ) -> Option<Intercept> {
         let drift = x - self.flown;
         let param_drift = theta - self.params;
-        let by_params = |params: &Option<(SMatrix<f64, 3, PARAMS>, ParamRow)>| {
-            params.map_or((nalgebra::Vector3::zeros(), 0.0), |(p, t)| {
-                (p * param_drift, t.dot(&param_drift.transpose()))
-            })
-        };
         let ahead = |time: f64, gradient: &StateRow, by_params: f64| {
             let ahead = time - self.elapsed;
             let moved = gradient.dot(&drift.transpose()) + by_params;
@@ -540,10 +535,7 @@ impl Anchor {
         let crossing = match self.base.crossing {
             Ok(c) => {
                 let s = self.sensitivity.crossing?;
-                let (state_by_params, time_by_params) = match &s.params {
-                    Some((p, t)) => (p * param_drift, t.dot(&param_drift.transpose())),
-                    None => (StateVector::zeros(), 0.0),
-                };
+                let (state_by_params, time_by_params) = moved_by(&s.params, &param_drift);
                 let state = BallState::from_vector(
                     &(c.state.to_vector() + s.state * drift + state_by_params),
                 );
@@ -554,7 +546,7 @@ impl Anchor {
         };
         let bounce = match (self.base.bounce, self.sensitivity.bounce) {
             (Some(b), Some(s)) => {
-                let (position_by_params, time_by_params) = by_params(&s.params);
+                let (position_by_params, time_by_params) = moved_by(&s.params, &param_drift);
                 Some(PredictedBounce {
                     time: ahead(b.time, &s.time, time_by_params)?,
                     position: b.position + s.position * drift + position_by_params,
@@ -565,6 +557,17 @@ impl Anchor {
         };
         Some(Intercept { crossing, bounce })
     }
+}
+
+/// How far a drift of the parameters moves an event's quantity and its time, to first order,
+/// given their sensitivities to the parameters (nothing when those are not carried).
+fn moved_by<const R: usize>(
+    params: &Option<(SMatrix<f64, R, PARAMS>, ParamRow)>,
+    drift: &ParamVector,
+) -> (SVector<f64, R>, f64) {
+    params.map_or((SVector::zeros(), 0.0), |(p, t)| {
+        (p * drift, t.dot(&drift.transpose()))
+    })
 }
 
 /// d(g)/d(theta) at a fixed flown state x = phi(start, theta), for a quantity g(start, theta)

@@ -110,9 +110,7 @@ pub struct ReplaySummary {
     /// The physical parameters the estimator learned, as it ended.
     pub learned: crate::estimator::LearnedParams,
     /// The noise it learned of each source (unknown, 150 fps, 900 fps), as it ended.
-    pub learned_noise: [crate::estimator::SourceNoiseEstimate; 3],
-    /// The configured position sigma of each source, in the same order [m].
-    pub configured_sigma: [f64; 3],
+    pub learned_noise: [crate::estimator::LearnedSourceNoise; 3],
     /// Messages written to the output bag.
     pub written: u64,
     /// Processing time per detection [ns], mean and 99th percentile.
@@ -396,7 +394,6 @@ pub fn replay(
         intercepts: pipeline.estimator().intercept_counts(),
         learned: pipeline.estimator().learned_params(),
         learned_noise: pipeline.estimator().learned_noise(),
-        configured_sigma: pipeline.estimator().configured_position_sigmas(),
         written,
         processing_mean_ns: timing.mean,
         processing_p99_ns: timing.p99,

@@ -8,7 +8,7 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 
 use anyhow::{Context, bail};
 use clap::Args;
-use ttball::estimator::{LearnedParams, Rejection, SOURCE_NAMES, SourceNoiseEstimate};
+use ttball::estimator::{LearnedParams, LearnedSourceNoise, Rejection};
 use ttball::physics::PhysicsParams;
 use ttball::replay::{ReplaySummary, replay};
 
@@ -188,7 +188,7 @@ pub fn summary_text(s: &ReplaySummary) -> String {
         c.rollbacks, s.intercepts.full, s.intercepts.moved
     );
     let _ = writeln!(out, "  {}", learned_text(&s.learned));
-    if let Some(line) = noise_text(&s.learned_noise, &s.configured_sigma) {
+    if let Some(line) = noise_text(&s.learned_noise) {
         let _ = writeln!(out, "  {line}");
     }
     let _ = writeln!(
@@ -233,18 +233,17 @@ pub fn learned_text(l: &LearnedParams) -> String {
 /// The noise learned of the sources that sent detections, in one line: "learned noise:
 /// wide_150fps position sigma 3.0 mm (1.50x configured), stamps 0.3 ms; ...", or `None` when no
 /// source has learned anything.
-pub fn noise_text(noise: &[SourceNoiseEstimate; 3], configured: &[f64; 3]) -> Option<String> {
+pub fn noise_text(noise: &[LearnedSourceNoise; 3]) -> Option<String> {
     let parts: Vec<String> = noise
         .iter()
-        .zip(configured)
-        .zip(SOURCE_NAMES)
-        .filter(|((n, _), _)| n.weight > ttball::estimator::NOISE_PRIOR_WEIGHT)
-        .map(|((n, sigma), name)| {
-            let factor = n.position_scale.sqrt();
+        .filter(|n| n.has_learned())
+        .map(|n| {
             format!(
-                "{name} position sigma {:.2} mm ({factor:.2}x configured), stamps {:.2} ms",
-                sigma * factor * 1e3,
-                n.timing_variance.sqrt() * 1e3
+                "{} position sigma {:.2} mm ({:.2}x configured), stamps {:.2} ms",
+                n.source,
+                n.position_sigma * 1e3,
+                n.estimate.position_scale.sqrt(),
+                n.stamp_sigma * 1e3
             )
         })
         .collect();
@@ -252,20 +251,18 @@ pub fn noise_text(noise: &[SourceNoiseEstimate; 3], configured: &[f64; 3]) -> Op
 }
 
 /// The learned noise of each source as JSON.
-pub fn noise_json(noise: &[SourceNoiseEstimate; 3], configured: &[f64; 3]) -> serde_json::Value {
+pub fn noise_json(noise: &[LearnedSourceNoise; 3]) -> serde_json::Value {
     let sources: serde_json::Map<String, serde_json::Value> = noise
         .iter()
-        .zip(configured)
-        .zip(SOURCE_NAMES)
-        .map(|((n, sigma), name)| {
+        .map(|n| {
             (
-                name.to_string(),
+                n.source.to_string(),
                 serde_json::json!({
-                    "position_sigma": sigma * n.position_scale.sqrt(),
-                    "position_scale": n.position_scale,
-                    "stamp_sigma": n.timing_variance.sqrt(),
-                    "spin_scale": n.spin_scale,
-                    "detections": n.weight,
+                    "position_sigma": n.position_sigma,
+                    "position_scale": n.estimate.position_scale,
+                    "stamp_sigma": n.stamp_sigma,
+                    "spin_scale": n.estimate.spin_scale,
+                    "detections": n.estimate.weight,
                 }),
             )
         })
@@ -311,7 +308,7 @@ fn summary_json(s: &ReplaySummary) -> serde_json::Value {
         "intercepts_full": s.intercepts.full,
         "intercepts_moved": s.intercepts.moved,
         "learned_physics": learned_json(&s.learned),
-        "learned_noise": noise_json(&s.learned_noise, &s.configured_sigma),
+        "learned_noise": noise_json(&s.learned_noise),
         "zero_spin_ignored": c.zero_spin_ignored,
         "processing_mean_ns": s.processing_mean_ns,
         "processing_p99_ns": s.processing_p99_ns,

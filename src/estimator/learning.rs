@@ -122,12 +122,8 @@ impl Learned {
             prior.0,
             prior.1 + ParamCovariance::from_diagonal(&(self.drift_density * elapsed)),
         );
-        let updated = self.fuse(&prior, posterior, stamp).unwrap_or((
-            // The equations failed (a singular matrix): the track's posterior, less its
-            // flight's own dispersion.
-            posterior.0,
-            posterior.1,
-        ));
+        // The equations failed (a singular matrix): the track's posterior.
+        let updated = self.fuse(&prior, posterior, stamp).unwrap_or(*posterior);
         let active = |i: usize| self.prior_var[i] > 0.0;
         let mut theta = updated.0;
         let mut covariance = updated.1;

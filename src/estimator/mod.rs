@@ -40,7 +40,7 @@ use crate::physics::{
 use crate::stats::chi_square_quantile;
 use learning::Learned;
 use noise::NoiseLearner;
-pub use noise::{PRIOR_WEIGHT as NOISE_PRIOR_WEIGHT, SourceNoiseEstimate};
+pub use noise::SourceNoiseEstimate;
 
 /// Track status, with the codes of `BallState.msg`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -551,6 +551,26 @@ pub struct Estimator {
 /// [`Estimator::learned_noise`]: `Source::code` 0, 1, 2.
 pub const SOURCE_NAMES: [&str; 3] = ["unknown", "wide_150fps", "highspeed_900fps"];
 
+/// What the estimator has learned of one source's noise ([`Estimator::learned_noise`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct LearnedSourceNoise {
+    /// The source's configuration key (`sources.*`).
+    pub source: &'static str,
+    /// Its position sigma [m]: the configured one times the learned scale's square root.
+    pub position_sigma: f64,
+    /// The sigma of its stamps' timing [s].
+    pub stamp_sigma: f64,
+    /// The estimate behind them.
+    pub estimate: SourceNoiseEstimate,
+}
+
+impl LearnedSourceNoise {
+    /// Whether its detections have taught anything yet (beyond the configured prior's weight).
+    pub fn has_learned(&self) -> bool {
+        self.estimate.weight > noise::PRIOR_WEIGHT
+    }
+}
+
 /// What an estimator has learned of the physical parameters, carried to another
 /// ([`Estimator::learned_physics`], [`Estimator::adopt_learned_physics`]).
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -565,6 +585,29 @@ pub struct LearnedParams {
     pub sigma: [f64; PARAMS],
     /// Tracks that have contributed, the live one included.
     pub tracks: u64,
+}
+
+impl LearnedParams {
+    /// Parameters `theta` of covariance `covariance`, learned over `tracks` tracks.
+    fn new(theta: &ParamVector, covariance: &ParamCovariance, tracks: u64) -> Self {
+        Self {
+            params: PhysicsParams::from_vector(theta),
+            sigma: std::array::from_fn(|i| covariance[(i, i)].max(0.0).sqrt()),
+            tracks,
+        }
+    }
+}
+
+impl Track {
+    /// `learned` updated with what this track has learned of the physics so far.
+    fn taught(&self, learned: &Learned) -> Learned {
+        learned.absorbed(
+            &self.param_prior,
+            &(self.now.ekf.theta, self.now.ekf.param_covariance()),
+            self.started,
+            self.now.stamp,
+        )
+    }
 }
 
 /// A track refuted by a run of rejected detections: its id and its last estimate.
@@ -644,27 +687,20 @@ impl Estimator {
     }
 
     fn learned_with_live_track(&self) -> Learned {
-        match &self.track {
-            Some(track) => self.learned.absorbed(
-                &track.param_prior,
-                &(track.now.ekf.theta, track.now.ekf.param_covariance()),
-                track.started,
-                track.now.stamp,
-            ),
-            None => self.learned,
-        }
+        self.track
+            .as_ref()
+            .map_or(self.learned, |track| track.taught(&self.learned))
     }
 
     /// The live track's own physical parameters (its flight's, see [`Self::learned_params`] for
     /// the ball's and table's), if a track is live.
     pub fn track_params(&self) -> Option<LearnedParams> {
-        let track = self.track.as_ref()?;
-        let covariance = track.now.ekf.param_covariance();
-        Some(LearnedParams {
-            params: track.now.ekf.params(),
-            sigma: std::array::from_fn(|i| covariance[(i, i)].max(0.0).sqrt()),
-            tracks: self.learned.tracks() + 1,
-        })
+        let ekf = &self.track.as_ref()?.now.ekf;
+        Some(LearnedParams::new(
+            &ekf.theta,
+            &ekf.param_covariance(),
+            self.learned.tracks() + 1,
+        ))
     }
 
     /// The physical parameters learned so far, over all tracks (the live one included as far as
@@ -672,11 +708,7 @@ impl Estimator {
     pub fn learned_params(&self) -> LearnedParams {
         let learned = self.learned_with_live_track();
         let (theta, covariance) = learned.global();
-        LearnedParams {
-            params: PhysicsParams::from_vector(&theta),
-            sigma: std::array::from_fn(|i| covariance[(i, i)].max(0.0).sqrt()),
-            tracks: learned.tracks(),
-        }
+        LearnedParams::new(&theta, &covariance, learned.tracks())
     }
 
     /// The propagator at a snapshot's parameters.
@@ -948,13 +980,15 @@ impl Estimator {
 
     /// What the estimator has learned of each source's noise, in the order of
     /// [`SOURCE_NAMES`].
-    pub fn learned_noise(&self) -> [SourceNoiseEstimate; 3] {
-        self.noise.all()
-    }
-
-    /// The configured position sigma of each source [m], in the order of [`SOURCE_NAMES`].
-    pub fn configured_position_sigmas(&self) -> [f64; 3] {
-        self.settings.sources.map(|s| s.position_var.sqrt())
+    pub fn learned_noise(&self) -> [LearnedSourceNoise; 3] {
+        let estimates = self.noise.all();
+        std::array::from_fn(|i| LearnedSourceNoise {
+            source: SOURCE_NAMES[i],
+            position_sigma: self.settings.sources[i].position_var.sqrt()
+                * estimates[i].position_scale.sqrt(),
+            stamp_sigma: estimates[i].timing_variance.sqrt(),
+            estimate: estimates[i],
+        })
     }
 
     fn process(&mut self, d: &Detection, m: Measurement) -> Verdict {
@@ -1017,12 +1051,7 @@ impl Estimator {
         self.continuation = None;
         if let Some(track) = self.track.take() {
             // What the track learned of the physics carries over to the next.
-            self.learned = self.learned.absorbed(
-                &track.param_prior,
-                &(track.now.ekf.theta, track.now.ekf.param_covariance()),
-                track.started,
-                track.now.stamp,
-            );
+            self.learned = track.taught(&self.learned);
             // Keep the history's buffer for the next track: no allocation per track.
             self.spare_history = track.history;
             self.spare_history.clear();
@@ -1327,6 +1356,9 @@ impl Estimator {
     fn fit_pending(&self) -> Option<init::InitialFit> {
         // A rough speed from the first and last pending detections, for the timing noise.
         let (first, last) = (self.pending.first()?, self.pending.last()?);
+        if first.stamp == last.stamp {
+            return None;
+        }
         let span = (last.stamp - first.stamp) as f64 * 1e-9;
         let speed_sq = if span > 0.0 {
             ((last.position - first.position) / span).norm_squared()
@@ -1352,9 +1384,6 @@ impl Estimator {
                 },
             })
         };
-        if self.pending.first()?.stamp == self.pending.last()?.stamp {
-            return None;
-        }
         let theta = self.learned.global().0;
         let (k_d, k_m) = (
             theta[crate::physics::params::DRAG_SCALE],

@@ -70,6 +70,11 @@ pub(crate) struct Innovation {
     pub spin: Option<(Vector3<f64>, Matrix3<f64>, Matrix3<f64>)>,
 }
 
+/// A source's place in [`NoiseLearner`]'s estimates: its [`Source::code`].
+fn index(source: Source) -> usize {
+    usize::from(source.code()).min(2)
+}
+
 /// The learned noise of every source, indexed by [`Source::code`].
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub(crate) struct NoiseLearner {
@@ -94,7 +99,7 @@ impl NoiseLearner {
 
     /// The current estimate for a source.
     pub(crate) fn of(&self, source: Source) -> SourceNoiseEstimate {
-        self.sources[usize::from(source.code()).min(2)]
+        self.sources[index(source)]
     }
 
     /// Every source's estimate, in the order unknown, 150 fps, 900 fps.
@@ -108,7 +113,7 @@ impl NoiseLearner {
             return;
         }
         let memory = self.memory;
-        let e = &mut self.sources[usize::from(source.code()).min(2)];
+        let e = &mut self.sources[index(source)];
         let i = innovation;
         let speed = i.velocity.norm();
         let (across, along) = if speed >= MIN_SPEED {

@@ -2,8 +2,8 @@
 //! `<node>: estimator`): rates, what happened to every detection (by reason), queue drops and
 //! processing time over the last period. Pure: the caller passes the clock readings.
 
-use crate::estimator::LearnedParams;
 use crate::estimator::{Counters, Rejection};
+use crate::estimator::{LearnedParams, LearnedSourceNoise};
 use crate::msgs::builtin_interfaces::Time;
 use crate::msgs::diagnostic_msgs::{DiagnosticArray, DiagnosticStatus, KeyValue};
 use crate::msgs::std_msgs::Header;
@@ -78,9 +78,9 @@ pub struct Snapshot<'a> {
     pub track: Option<u32>,
     /// What the estimator has learned of the physics.
     pub learned: &'a LearnedParams,
-    /// What it has learned of each source's noise that sent detections: the source's name,
-    /// its position sigma [m] and its stamps' sigma [s].
-    pub learned_noise: &'a [(&'a str, f64, f64)],
+    /// What it has learned of each source's noise (reported for the sources that taught it
+    /// something).
+    pub learned_noise: &'a [LearnedSourceNoise],
 }
 
 /// Builds the diagnostics message of one period and empties `window`.
@@ -188,14 +188,15 @@ pub fn diagnostics_msg(snapshot: &Snapshot<'_>, window: &mut Window) -> Diagnost
         ));
     }
     values.push(kv("learned physics: tracks", s.learned.tracks.to_string()));
-    for (source, sigma, stamp_sigma) in s.learned_noise {
+    for n in s.learned_noise.iter().filter(|n| n.has_learned()) {
+        let source = n.source;
         values.push(kv(
             &format!("learned noise {source}: position sigma [mm]"),
-            format!("{:.2}", sigma * 1e3),
+            format!("{:.2}", n.position_sigma * 1e3),
         ));
         values.push(kv(
             &format!("learned noise {source}: stamp sigma [ms]"),
-            format!("{:.2}", stamp_sigma * 1e3),
+            format!("{:.2}", n.stamp_sigma * 1e3),
         ));
     }
     DiagnosticArray {
@@ -264,7 +265,7 @@ mod tests {
                 queue_len: 0,
                 track: Some(4),
                 learned: &learned(),
-                learned_noise: &[("wide_150fps", 0.0031, 0.0004)],
+                learned_noise: &learned_noise(),
             },
             &mut window,
         );
@@ -294,6 +295,35 @@ mod tests {
             value(&msg, "learned noise wide_150fps: stamp sigma [ms]"),
             "0.40"
         );
+        // A source that has taught nothing yet is not reported.
+        assert!(
+            !status
+                .values
+                .iter()
+                .any(|kv| kv.key.contains("highspeed_900fps")),
+            "{:?}",
+            status.values
+        );
+    }
+
+    /// The 150 fps camera has taught its noise, the 900 fps one nothing yet.
+    fn learned_noise() -> [LearnedSourceNoise; 2] {
+        let source = |source, position_sigma, stamp_sigma, weight| LearnedSourceNoise {
+            source,
+            position_sigma,
+            stamp_sigma,
+            estimate: crate::estimator::SourceNoiseEstimate {
+                position_scale: 1.0,
+                timing_variance: stamp_sigma * stamp_sigma,
+                spin_scale: 1.0,
+                weight,
+                spin_weight: weight,
+            },
+        };
+        [
+            source("wide_150fps", 0.0031, 0.0004, 300.0),
+            source("highspeed_900fps", 0.001, 0.0, 20.0),
+        ]
     }
 
     fn learned() -> LearnedParams {

@@ -661,21 +661,7 @@ impl EstimatorThread {
         let counters = self.pipeline.counters();
         let estimator = self.pipeline.estimator();
         let learned = estimator.learned_params();
-        let noise = estimator.learned_noise();
-        let sigmas = estimator.configured_position_sigmas();
-        let learned_noise: Vec<(&str, f64, f64)> = noise
-            .iter()
-            .zip(sigmas)
-            .zip(crate::estimator::SOURCE_NAMES)
-            .filter(|((n, _), _)| n.weight > crate::estimator::NOISE_PRIOR_WEIGHT)
-            .map(|((n, sigma), name)| {
-                (
-                    name,
-                    sigma * n.position_scale.sqrt(),
-                    n.timing_variance.sqrt(),
-                )
-            })
-            .collect();
+        let learned_noise = estimator.learned_noise();
         let msg = diagnostics_msg(
             &Snapshot {
                 node: &self.node_name,
