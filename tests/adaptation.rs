@@ -55,6 +55,7 @@ fn the_bounce_carries_its_uncertainty() {
     certain.ekf.bounce_impulse_sigma = 0.0;
     certain.ekf.bounce_restitution_sigma = 0.0;
     certain.ekf.bounce_unscented = false;
+    certain.ekf.contact_position_sigma = 0.0;
     certain.adaptation.restitution_sigma = 0.0;
     certain.adaptation.friction_sigma = 0.0;
     for name in ["a-2cams", "b-2cams"] {

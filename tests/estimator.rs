@@ -654,3 +654,57 @@ fn the_kept_interception_agrees_with_the_full_prediction() {
     assert!(counts.moved > 4 * counts.full, "{counts:?}");
     assert_eq!(full.intercept_counts().moved, 0);
 }
+
+/// A frame of a ball touching the table, 12 mm off its flight (its image merged with its
+/// reflection, as on the real launcher flights), is fused with the contact's extra noise
+/// (`ekf.contact_position_sigma`) and gated without it; frames away from the table are not
+/// affected.
+#[test]
+fn a_frame_at_the_contact_gets_the_contacts_noise() {
+    let start = shot([1.3, 0.0, 0.30], [-4.5, 0.0, 1.6], [0.0, -100.0, 0.0]);
+    let mut detections = camera(
+        &start,
+        150.0,
+        0.0,
+        0.80,
+        0.001,
+        Source::Wide150Fps,
+        &mut Rng::new(5),
+    );
+    let radius = Config::default().ball.radius;
+    // The frame closest to the contact, and one high above the table: both 12 mm off.
+    let contact = (0..detections.len())
+        .min_by(|&a, &b| {
+            let h = |i: usize| (detections[i].1.position.z - radius).abs();
+            h(a).total_cmp(&h(b))
+        })
+        .unwrap();
+    assert!((detections[contact].1.position.z - radius).abs() < 0.01);
+    let high = 40;
+    assert!(detections[high].1.position.z > 0.15);
+    for i in [contact, high] {
+        detections[i].0.position += Vector3::new(0.0, 0.009, -0.008);
+    }
+    let verdicts = |config: &Config| {
+        let mut estimator = Estimator::new(config);
+        let verdicts: Vec<Verdict> = detections
+            .iter()
+            .map(|(d, _)| estimator.handle(d).verdict)
+            .collect();
+        (verdicts[contact], verdicts[high])
+    };
+    let mut plain = wide_config();
+    plain.ekf.contact_position_sigma = 0.0;
+    plain.ekf.learn_noise = false;
+    let mut with_contact = plain.clone();
+    with_contact.ekf.contact_position_sigma = Config::default().ekf.contact_position_sigma;
+    let gated = Verdict::Rejected(Rejection::Gated);
+    let (at_contact, above) = verdicts(&plain);
+    assert_eq!((at_contact, above), (gated, gated));
+    let (at_contact, above) = verdicts(&with_contact);
+    assert!(
+        matches!(at_contact, Verdict::Fused { .. }),
+        "{at_contact:?}"
+    );
+    assert_eq!(above, gated);
+}

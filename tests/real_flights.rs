@@ -12,29 +12,24 @@
     reason = "test code: fail loudly"
 )]
 
+#[cfg(feature = "cli")]
+mod common;
+
 use std::path::PathBuf;
 use std::sync::OnceLock;
 
 use ttball::config::Config;
 use ttball::real::{
-    Flight, LeadOutcome, NoiseEstimate, Plane, RawFlight, RealEvalOptions, RealReport, SpinKind,
-    TransformEstimate, detect_bounce, drag_only, estimate_noise, estimate_transform,
-    evaluate_flights, parse_mpi_csv,
+    LauncherFlights, LeadOutcome, Plane, RealEvalOptions, RealReport, SpinKind, detect_bounce,
+    drag_only, evaluate_flights, parse_mpi_csv,
 };
-
-struct Data {
-    raw: Vec<RawFlight>,
-    estimate: TransformEstimate,
-    flights: Vec<Flight>,
-    noise: NoiseEstimate,
-}
 
 fn data_dir() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/data/mpi_launcher")
 }
 
-fn data() -> Option<&'static Data> {
-    static DATA: OnceLock<Option<Data>> = OnceLock::new();
+fn data() -> Option<&'static LauncherFlights> {
+    static DATA: OnceLock<Option<LauncherFlights>> = OnceLock::new();
     let data = DATA.get_or_init(|| {
         let dir = data_dir();
         let mut raw = Vec::new();
@@ -44,39 +39,20 @@ fn data() -> Option<&'static Data> {
             raw.extend(parse_mpi_csv(&text, kind).unwrap());
         }
         let config = Config::default();
-        let estimate = estimate_transform(
-            &raw,
-            config.ball.radius,
-            config.table.length,
-            config.gravity,
+        Some(
+            LauncherFlights::new(raw, config.ball.radius, config.table.length, config.gravity)
+                .unwrap(),
         )
-        .unwrap();
-        let flights: Vec<Flight> = raw
-            .iter()
-            .map(|f| f.to_table(&estimate.transform))
-            .collect();
-        let noise = estimate_noise(&flights, config.gravity);
-        Some(Data {
-            raw,
-            estimate,
-            flights,
-            noise,
-        })
     });
     data.as_ref()
 }
 
 /// The configuration for these flights: the full model with the measured noise.
-fn real_config(data: &Data) -> Config {
+fn real_config(data: &LauncherFlights) -> Config {
     let mut config = Config::default();
-    config.sources.wide_150fps.position_sigma = recommended_sigma(data);
+    config.sources.wide_150fps.position_sigma = data.position_sigma();
     config.validate().unwrap();
     config
-}
-
-/// The recommended `position_sigma`, rounded up to 0.1 mm.
-fn recommended_sigma(data: &Data) -> f64 {
-    (data.noise.recommended_sigma() * 1e4).ceil() / 1e4
 }
 
 #[test]
@@ -200,7 +176,7 @@ fn the_noise_is_about_a_millimetre_and_largest_along_the_flight() {
          position_sigma = {:.4} m",
         n.isotropic_sigma() * 1e3,
         n.recommended_sigma() * 1e3,
-        recommended_sigma(data)
+        data.position_sigma()
     );
     for a in n.axes {
         assert!(a.count > 3000, "{a:?}");
@@ -212,7 +188,7 @@ fn the_noise_is_about_a_millimetre_and_largest_along_the_flight() {
 }
 
 /// The full model and the drag-only model on every real flight, the setup printed.
-fn full_and_drag(data: &Data, options: &RealEvalOptions) -> (RealReport, RealReport) {
+fn full_and_drag(data: &LauncherFlights, options: &RealEvalOptions) -> (RealReport, RealReport) {
     let config = real_config(data);
     let full = evaluate_flights(&config, &data.flights, options);
     let drag = evaluate_flights(&drag_only(&config), &data.flights, options);
@@ -308,10 +284,12 @@ fn the_estimator_predicts_real_flights_through_their_bounce() {
         .map(|f| (f.id, f.gated_after_bounce))
         .collect();
     println!("flights with detections gated within 50 ms after the bounce (id, count): {gated:?}");
-    // The issue asks for none in 99 % of flights (all 40 here); today 4 flights, one detection
-    // each, all within a few ms of the contact (README, "Real launcher flights"): no worse.
+    // The issue asks for none in 99 % of flights (all 40 here). The frames next to a contact
+    // get its extra noise (`ekf.contact_position_sigma`; without it 4 flights). One flight is
+    // left: backspin 14, whose frames around the bounce (three gaps of 11-16 ms) fit no bounce
+    // together (README, "Real launcher flights"). No worse than that.
     assert!(
-        gated.len() <= 4 && gated.iter().all(|(_, n)| *n == 1),
+        gated.len() <= 1 && gated.iter().all(|(_, n)| *n == 1),
         "{gated:?}"
     );
     // The issue's targets: at most 15 mm RMS at 200 ms lead, 10 mm at 100 ms.
@@ -372,7 +350,7 @@ fn the_real_balls_coefficients_beat_the_seeds_on_real_flights() {
 
 /// The kind of spin just before the bounce (or at the end of a recording that ends before it),
 /// from the flight's curvature alone: backspin below zero and topspin above it on all 30
-/// flights with spin, and the 10 no-spin flights between the two.
+/// flights with spin, and the 10 no-spin flights between the two, well apart from both.
 #[test]
 fn the_kind_of_spin_before_the_bounce() {
     let Some(data) = data() else { return };
@@ -415,7 +393,13 @@ fn the_kind_of_spin_before_the_bounce() {
         "every backspin flight reads as backspin: {back:?}"
     );
     assert!(t.0 > 0.0, "every topspin flight reads as topspin: {top:?}");
-    assert!(b.1 < n.0 && n.1 < t.0, "no spin between: {none:?}");
+    // The no-spin flights between the two, apart from either by more than 50 rad/s: the three
+    // kinds are told apart by a boundary anywhere in those gaps. (By its sign the launcher's
+    // "no spin" reads as mild topspin, 27-42 rad/s: README, "Real launcher flights".)
+    assert!(
+        b.1 + 50.0 < n.0 && n.1 + 50.0 < t.0,
+        "no spin between, well apart: {none:?}"
+    );
 }
 
 #[test]
@@ -432,4 +416,41 @@ fn a_fixed_hitting_plane_near_the_robots_end_line() {
     let all = full.overall().unwrap();
     assert!(all.scored >= 20, "{all:?}");
     assert!(all.leads[0].valid_fraction >= 0.8, "{all:?}");
+}
+
+/// `ttball evaluate --real` runs the same evaluation from the CSV files and prints the table,
+/// the tracks, the gated detections after the bounce and the spin by kind; a file whose name
+/// does not say its spin kind is refused with the names it expects.
+#[test]
+#[cfg(feature = "cli")]
+fn the_command_line_evaluates_the_real_flights() {
+    let files: Vec<String> = SpinKind::ALL
+        .iter()
+        .map(|k| format!("tests/data/mpi_launcher/{}", k.file_name()))
+        .collect();
+    let mut args = vec!["evaluate", "--real"];
+    args.extend(files.iter().map(String::as_str));
+    let out = common::ok(&args);
+    let data = data().unwrap();
+    let report = evaluate_flights(
+        &real_config(data),
+        &data.flights,
+        &RealEvalOptions::default(),
+    );
+    assert!(
+        out.contains(&report.to_markdown()),
+        "the table of the evaluation:\n{out}"
+    );
+    assert!(out.contains("tracks 40 (re-anchored 0)"), "{out}");
+    assert!(out.contains("position_sigma 0.0019 m (measured)"), "{out}");
+    for kind in SpinKind::ALL {
+        assert!(out.contains(&format!("  {:<9} ", kind.name())), "{out}");
+    }
+    let bad = common::run(&["evaluate", "--real", "Cargo.toml"]);
+    assert_eq!(bad.status.code(), Some(1));
+    let stderr = String::from_utf8_lossy(&bad.stderr);
+    assert!(
+        stderr.contains("cannot tell the spin kind") && stderr.contains("mn5008_topspin.csv"),
+        "{stderr}"
+    );
 }

@@ -433,6 +433,11 @@ pub struct EkfParams {
     pub bounce_impulse_sigma: f64,
     /// The scatter of one bounce's restitution about the table's [-].
     pub bounce_restitution_sigma: f64,
+    /// The extra position noise of a detection of a ball at the table (its centre within
+    /// [`CONTACT_BAND`](crate::estimator::CONTACT_BAND) of its contact height over the table)
+    /// [m], added in quadrature to its source's: a ball touching or nearly touching the surface
+    /// merges with its reflection and shadow in the image, and is squashed for a millisecond.
+    pub contact_position_sigma: f64,
     /// Whether the filter carries the state's uncertainty through a bounce by sigma points
     /// (the unscented transform of the bounce map: both regimes, the spin along every
     /// direction), adding its spread beyond the linearised one.
@@ -455,6 +460,7 @@ impl Default for EkfParams {
             min_confidence: 0.0,
             bounce_impulse_sigma: 0.05,
             bounce_restitution_sigma: 0.01,
+            contact_position_sigma: 0.003,
             bounce_unscented: true,
             learn_noise: true,
             noise_memory: 2000,

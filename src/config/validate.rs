@@ -614,6 +614,12 @@ impl Config {
             |v| (0.0..=0.5).contains(&v),
             "between 0 and 0.5",
         );
+        c.real(
+            "ekf.contact_position_sigma",
+            e.contact_position_sigma,
+            |v| (0.0..=0.05).contains(&v),
+            "between 0 and 0.05 (m)",
+        );
 
         c.count(
             "ekf.noise_memory",

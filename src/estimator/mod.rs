@@ -259,6 +259,8 @@ impl SourceNoise {
 pub(crate) struct Settings {
     noise: ProcessNoise,
     bounce: BounceNoise,
+    /// The extra position variance of a detection of a ball at the table [m^2].
+    contact_var: f64,
     /// The adaptation's prior: the configured parameters, and their variances (zero for those
     /// not adapted).
     param_prior: ParamVector,
@@ -305,6 +307,7 @@ impl Settings {
                 restitution_sigma: config.ekf.bounce_restitution_sigma,
                 unscented: config.ekf.bounce_unscented,
             },
+            contact_var: config.ekf.contact_position_sigma * config.ekf.contact_position_sigma,
             param_prior: PhysicsParams::from_config(config).to_vector(),
             param_prior_var,
             param_dispersion: {
@@ -380,6 +383,18 @@ impl Measurement {
                 let mut spin = r.fixed_view_mut::<3, 3>(3, 3);
                 spin *= noise.spin_scale;
                 *timing = noise.timing_variance;
+            }
+        }
+        self
+    }
+
+    /// The measurement with `variance` [m^2] added to its position's, on every axis.
+    fn with_extra_position_variance(mut self, variance: f64) -> Self {
+        match &mut self {
+            Self::Position { r, .. } => *r += Matrix3::identity() * variance,
+            Self::PositionSpin { r, .. } => {
+                let mut position = r.fixed_view_mut::<3, 3>(0, 0);
+                position += Matrix3::identity() * variance;
             }
         }
         self
@@ -576,6 +591,14 @@ impl LearnedSourceNoise {
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct LearnedPhysics(Learned);
 
+impl LearnedPhysics {
+    /// The ball's and table's parameters it holds, with their uncertainty.
+    pub fn params(&self) -> LearnedParams {
+        let (theta, covariance) = self.0.global();
+        LearnedParams::new(&theta, &covariance, self.0.tracks())
+    }
+}
+
 /// The physical parameters the estimator has learned ([`Estimator::learned_params`]).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct LearnedParams {
@@ -626,6 +649,11 @@ pub const REANCHOR_DISTANCE: f64 = 0.2;
 /// contradicts the estimate's may be of the other side of the bounce and is not used (1.5 cm is
 /// 5 ms of a ball falling at 3 m/s).
 const BOUNCE_SPIN_MARGIN: f64 = 0.015;
+
+/// How close to its contact height [m] a ball is in contact with the table in the camera's
+/// eyes: its detections there get the extra noise `ekf.contact_position_sigma` (half a ball
+/// diameter: the ball's image meets its reflection and shadow on the surface).
+pub const CONTACT_BAND: f64 = 0.02;
 
 /// How far from the table's edge [m] a detection is also fused with the table grown and shrunk
 /// by as much, and the better fit kept (the estimate's position is uncertain by millimetres; the
@@ -706,9 +734,7 @@ impl Estimator {
     /// The physical parameters learned so far, over all tracks (the live one included as far as
     /// it has come); the configured values, with their prior uncertainty, before any track.
     pub fn learned_params(&self) -> LearnedParams {
-        let learned = self.learned_with_live_track();
-        let (theta, covariance) = learned.global();
-        LearnedParams::new(&theta, &covariance, learned.tracks())
+        self.learned_physics().params()
     }
 
     /// The propagator at a snapshot's parameters.
@@ -1086,7 +1112,7 @@ impl Estimator {
     ) -> Result<f64, Rejection> {
         let prior = *snapshot;
         let (mut result, innovation) = self.predict_and_update(&self.propagator, snapshot, d, m);
-        self.innovation.set(Some(innovation));
+        self.innovation.set(innovation);
         if self.near_table_edge(snapshot) {
             // An edge ball: estimate and ball may land on either side of the table's edge. The
             // hypothesis that explains the detection best wins.
@@ -1124,12 +1150,21 @@ impl Estimator {
         snapshot: &mut Snapshot,
         d: &Detection,
         m: &Measurement,
-    ) -> (Result<f64, UpdateError>, noise::Innovation) {
+    ) -> (Result<f64, UpdateError>, Option<noise::Innovation>) {
         self.advance_with(propagator, snapshot, d.stamp);
         let x = &snapshot.ekf.x;
         let velocity = x.fixed_rows::<3>(3).into_owned();
         let p = snapshot.ekf.state_covariance();
         let hph = p.fixed_view::<3, 3>(0, 0).into_owned();
+        // A ball at the table: its detection's own extra noise, which teaches nothing of its
+        // camera's.
+        let at_contact =
+            self.settings.contact_var > 0.0 && self.at_the_table(snapshot, CONTACT_BAND);
+        let m = if at_contact {
+            m.with_extra_position_variance(self.settings.contact_var)
+        } else {
+            *m
+        };
         let m = m.at_velocity(&velocity);
         let (y, spin) = match &m {
             Measurement::Position { z, .. } => (z - x.fixed_rows::<3>(0), None),
@@ -1142,13 +1177,13 @@ impl Estimator {
                 )),
             ),
         };
-        let innovation = noise::Innovation {
+        let innovation = (!at_contact).then_some(noise::Innovation {
             y,
             hph,
             r0: Matrix3::zeros(),
             velocity,
             spin,
-        };
+        });
         let result = match &m {
             Measurement::Position { z, r, .. } => {
                 snapshot
@@ -1160,11 +1195,11 @@ impl Estimator {
         (result, innovation)
     }
 
-    /// True when the estimate is within [`BOUNCE_SPIN_MARGIN`] of its contact height over the
-    /// table: a few milliseconds from a bounce.
-    fn at_the_table(&self, snapshot: &Snapshot) -> bool {
+    /// True when the estimate is within `band` [m] of its contact height over the table: a few
+    /// milliseconds from a bounce.
+    fn at_the_table(&self, snapshot: &Snapshot, band: f64) -> bool {
         let x = &snapshot.ekf.x;
-        (x[2] - self.flight.radius()).abs() < BOUNCE_SPIN_MARGIN
+        (x[2] - self.flight.radius()).abs() < band
             && self.propagator.distance_outside_table(x[0], x[1]) < EDGE_MARGIN
     }
 
@@ -1200,7 +1235,7 @@ impl Estimator {
             // At the table the measured spin may be of the other side of the bounce (the
             // bounce's time is uncertain by a millisecond or two, and it changes the spin by
             // hundreds of rad/s): the position alone.
-            Err(UpdateError::Gated { .. }) if self.at_the_table(snapshot) => {
+            Err(UpdateError::Gated { .. }) if self.at_the_table(snapshot, BOUNCE_SPIN_MARGIN) => {
                 snapshot
                     .ekf
                     .update(&z_position, &position_H(), &r_position, gate)

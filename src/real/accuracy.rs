@@ -36,7 +36,7 @@ use super::mpi::{Flight, SpinKind, flight_detections};
 use crate::config::Config;
 use crate::detection::{Source, seconds_to_ns};
 use crate::estimator::{
-    Counters, Estimator, InterceptEstimate, LearnedPhysics, Rejection, Verdict,
+    Counters, Estimator, InterceptEstimate, LearnedParams, LearnedPhysics, Rejection, Verdict,
 };
 use crate::eval::ErrorStats;
 use crate::intercept::NoIntercept;
@@ -333,6 +333,9 @@ pub struct RealReport {
     pub flights: Vec<FlightResult>,
     /// Per spin kind present, in [`SpinKind::ALL`] order, then all flights.
     pub groups: Vec<GroupSummary>,
+    /// What the last flight's estimator had learned of the physics at its end (with
+    /// [`RealEvalOptions::carry_over`], over all the flights).
+    pub learned: Option<LearnedParams>,
 }
 
 impl RealReport {
@@ -438,10 +441,12 @@ pub fn evaluate_flights(
     options: &RealEvalOptions,
 ) -> RealReport {
     let mut learned: Option<LearnedPhysics> = None;
+    let mut last = None;
     let results: Vec<FlightResult> = flights
         .iter()
         .map(|f| {
             let (result, after) = evaluate_flight(config, f, options, learned.as_ref());
+            last = Some(after.params());
             if options.carry_over {
                 learned = Some(after);
             }
@@ -458,6 +463,7 @@ pub fn evaluate_flights(
         options: options.clone(),
         flights: results,
         groups,
+        learned: last,
     }
 }
 
@@ -500,10 +506,12 @@ fn evaluate_flight(
         {
             gated_after_bounce += 1;
         }
+        // Before the measured bounce and before the estimator's own (a millisecond early, its
+        // estimate would be of the ball after it).
         if before_bounce_ns.is_none_or(|b| stamp < b)
-            && let Some(e) = out
-                .estimate
-                .filter(|e| e.status != crate::estimator::TrackStatus::Initializing)
+            && let Some(e) = out.estimate.filter(|e| {
+                e.status != crate::estimator::TrackStatus::Initializing && e.bounces == 0
+            })
         {
             before_bounce = Some(e.state);
         }

@@ -33,7 +33,7 @@ pub use accuracy::{
 };
 pub use fit::{BallisticFit, MeasuredBounce, Sample, detect_bounce, fit_ballistic};
 pub use mpi::{
-    Flight, FrameTransform, MpiError, RawFlight, SpinKind, TransformEstimate, estimate_transform,
-    flight_detections, parse_mpi_csv,
+    Flight, FrameTransform, LauncherFlights, MpiError, RawFlight, SpinKind, TransformEstimate,
+    estimate_transform, flight_detections, parse_mpi_csv,
 };
 pub use noise::{AxisNoise, NoiseEstimate, estimate_noise};

@@ -57,6 +57,7 @@
 use nalgebra::Vector3;
 
 use super::fit::{Sample, detect_bounce};
+use super::noise::{NoiseEstimate, estimate_noise};
 use crate::detection::{Detection, Source, seconds_to_ns};
 
 /// The kind of spin the launcher was set to.
@@ -90,6 +91,14 @@ impl SpinKind {
             Self::NoSpin => "mn5008_no_spin.csv",
             Self::Topspin => "mn5008_topspin.csv",
         }
+    }
+
+    /// The kind of a file of the data set from its name (`.../mn5008_topspin.csv`), if it is
+    /// one of them.
+    pub fn of_file_name(name: &str) -> Option<Self> {
+        Self::ALL
+            .into_iter()
+            .find(|k| name.ends_with(k.file_name()))
     }
 }
 
@@ -244,6 +253,51 @@ impl RawFlight {
                 .map(|(t, p)| (*t, transform.apply(p)))
                 .collect(),
         }
+    }
+}
+
+/// Launcher flights ready for the estimator: in the `table` frame by the transform worked out
+/// from them, with their measured noise.
+#[derive(Debug, Clone, PartialEq)]
+pub struct LauncherFlights {
+    /// The flights as recorded.
+    pub raw: Vec<RawFlight>,
+    /// The transform into the `table` frame and its evidence.
+    pub estimate: TransformEstimate,
+    /// The flights in the `table` frame.
+    pub flights: Vec<Flight>,
+    /// Their position noise.
+    pub noise: NoiseEstimate,
+}
+
+impl LauncherFlights {
+    /// Works out the transform (see [`estimate_transform`]) and the noise
+    /// ([`estimate_noise`]) of recorded flights, for a ball of `ball_radius` [m] on a table of
+    /// `table_length` [m] under `gravity` [m/s^2].
+    pub fn new(
+        raw: Vec<RawFlight>,
+        ball_radius: f64,
+        table_length: f64,
+        gravity: f64,
+    ) -> Result<Self, MpiError> {
+        let estimate = estimate_transform(&raw, ball_radius, table_length, gravity)?;
+        let flights: Vec<Flight> = raw
+            .iter()
+            .map(|f| f.to_table(&estimate.transform))
+            .collect();
+        let noise = estimate_noise(&flights, gravity);
+        Ok(Self {
+            raw,
+            estimate,
+            flights,
+            noise,
+        })
+    }
+
+    /// The `sources.*.position_sigma` these detections need [m]: the noise's recommended
+    /// sigma ([`NoiseEstimate::recommended_sigma`]) rounded up to 0.1 mm.
+    pub fn position_sigma(&self) -> f64 {
+        (self.noise.recommended_sigma() * 1e4).ceil() / 1e4
     }
 }
 
