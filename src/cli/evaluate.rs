@@ -11,7 +11,7 @@ use ttball::eval::sets::{
 };
 use ttball::eval::{EvalReport, LeadEfficiency, efficiency, evaluate};
 use ttball::physics::PhysicsParams;
-use ttball::real::{LauncherFlights, RealEvalOptions, SpinKind, evaluate_flights, parse_mpi_csv};
+use ttball::real::{LauncherFlights, RealEvalOptions, SpinKind, evaluate_flights};
 use ttball::sim::{Cameras, SimOptions, simulate};
 
 use super::report::accuracy_table;
@@ -143,23 +143,7 @@ impl EvaluateArgs {
     /// spin learned before it by kind, and the physics learned at the end.
     fn run_real(&self) -> anyhow::Result<ExitCode> {
         let mut config = self.config.load()?;
-        let mut raw = Vec::new();
-        for file in &self.real {
-            let kind = file
-                .file_name()
-                .and_then(|n| n.to_str())
-                .and_then(SpinKind::of_file_name)
-                .with_context(|| {
-                    format!(
-                        "{}: cannot tell the spin kind from the file name (expected one of {})",
-                        file.display(),
-                        SpinKind::ALL.map(|k| k.file_name()).join(", ")
-                    )
-                })?;
-            let text = std::fs::read_to_string(file)
-                .with_context(|| format!("cannot read {}", file.display()))?;
-            raw.extend(parse_mpi_csv(&text, kind).with_context(|| format!("{}", file.display()))?);
-        }
+        let raw = super::import::read_mpi_files(&self.real)?;
         let launcher =
             LauncherFlights::new(raw, config.ball.radius, config.table.length, config.gravity)
                 .context("cannot work out the frame transform from these flights")?;

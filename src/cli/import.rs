@@ -45,21 +45,26 @@ pub struct MpiArgs {
     pub config: ConfigArgs,
 }
 
-fn kind_of(path: &std::path::Path) -> anyhow::Result<SpinKind> {
-    let name = path
-        .file_name()
-        .and_then(|n| n.to_str())
-        .unwrap_or_default();
-    SpinKind::ALL
-        .into_iter()
-        .find(|k| name.contains(k.file_name()))
-        .with_context(|| {
-            format!(
-                "{}: cannot tell the spin kind from the file name (expected one of {})",
-                path.display(),
-                SpinKind::ALL.map(|k| k.file_name()).join(", ")
-            )
-        })
+/// The flights of the MPI launcher's CSV files, the spin kind of each from its name.
+pub(super) fn read_mpi_files(files: &[PathBuf]) -> anyhow::Result<Vec<RawFlight>> {
+    let mut raw = Vec::new();
+    for file in files {
+        let kind = file
+            .file_name()
+            .and_then(|n| n.to_str())
+            .and_then(SpinKind::of_file_name)
+            .with_context(|| {
+                format!(
+                    "{}: cannot tell the spin kind from the file name (expected one of {})",
+                    file.display(),
+                    SpinKind::ALL.map(|k| k.file_name()).join(", ")
+                )
+            })?;
+        let text = std::fs::read_to_string(file)
+            .with_context(|| format!("cannot read {}", file.display()))?;
+        raw.extend(parse_mpi_csv(&text, kind).with_context(|| format!("{}", file.display()))?);
+    }
+    Ok(raw)
 }
 
 impl ImportCommand {
@@ -67,13 +72,7 @@ impl ImportCommand {
     pub fn run(self) -> anyhow::Result<ExitCode> {
         let Self::Mpi(args) = self;
         let config = args.config.load()?;
-        let mut raw: Vec<RawFlight> = Vec::new();
-        for file in &args.files {
-            let kind = kind_of(file)?;
-            let text = std::fs::read_to_string(file)
-                .with_context(|| format!("cannot read {}", file.display()))?;
-            raw.extend(parse_mpi_csv(&text, kind).with_context(|| format!("{}", file.display()))?);
-        }
+        let raw = read_mpi_files(&args.files)?;
         if raw.is_empty() {
             bail!("no flights in {:?}", args.files);
         }
