@@ -79,19 +79,26 @@ pub struct ProcessNoise {
 
 impl ProcessNoise {
     /// Q of the ball's state over a step of `dt` seconds (see the module doc).
-    #[expect(non_snake_case, reason = "matrix notation")]
     pub fn discretise(&self, dt: f64) -> StateMatrix {
+        let (acceleration, spin) = self.discretise_parts(dt);
+        acceleration + spin
+    }
+
+    /// Q over a step of `dt` seconds in its two parts: the white acceleration's (position and
+    /// velocity) and the spin random walk's.
+    #[expect(non_snake_case, reason = "matrix notation")]
+    pub fn discretise_parts(&self, dt: f64) -> (StateMatrix, StateMatrix) {
         let dt = dt.abs();
         let qa = self.acceleration_density;
-        let mut Q = StateMatrix::zeros();
+        let (mut Q_a, mut Q_w) = (StateMatrix::zeros(), StateMatrix::zeros());
         for i in 0..3 {
-            Q[(i, i)] = qa * dt * dt * dt / 3.0;
-            Q[(i, i + 3)] = qa * dt * dt / 2.0;
-            Q[(i + 3, i)] = qa * dt * dt / 2.0;
-            Q[(i + 3, i + 3)] = qa * dt;
-            Q[(i + 6, i + 6)] = self.spin_density * dt;
+            Q_a[(i, i)] = qa * dt * dt * dt / 3.0;
+            Q_a[(i, i + 3)] = qa * dt * dt / 2.0;
+            Q_a[(i + 3, i)] = qa * dt * dt / 2.0;
+            Q_a[(i + 3, i + 3)] = qa * dt;
+            Q_w[(i + 6, i + 6)] = self.spin_density * dt;
         }
-        Q
+        (Q_a, Q_w)
     }
 }
 
@@ -106,6 +113,77 @@ pub struct BounceNoise {
     /// (its spread beyond the linearised one added).
     pub unscented: bool,
 }
+
+/// How many noise scales the estimator learns ([`NoiseScales`]).
+pub const NOISE_SCALES: usize = 3;
+
+/// Scale factors on the filter's noise, learned by the estimator from its innovations: the
+/// configured white acceleration's density times `acceleration`, the spin random walk's times
+/// `spin`, the bounce's scatter (its impulse and restitution variances) times `bounce`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct NoiseScales {
+    /// The scale on the white acceleration's density [-].
+    pub acceleration: f64,
+    /// The scale on the spin random walk's density [-].
+    pub spin: f64,
+    /// The scale on the bounce's scatter [-].
+    pub bounce: f64,
+}
+
+impl NoiseScales {
+    /// The names of the scales, in the order of [`Self::to_array`].
+    pub const NAMES: [&'static str; NOISE_SCALES] = ["acceleration", "spin", "bounce"];
+
+    /// The scales in the order of [`Self::NAMES`].
+    pub fn to_array(&self) -> [f64; NOISE_SCALES] {
+        [self.acceleration, self.spin, self.bounce]
+    }
+
+    /// The scales from an array in the order of [`Self::NAMES`].
+    pub fn from_array(a: [f64; NOISE_SCALES]) -> Self {
+        Self {
+            acceleration: a[0],
+            spin: a[1],
+            bounce: a[2],
+        }
+    }
+}
+
+impl Default for NoiseScales {
+    fn default() -> Self {
+        Self::from_array([1.0; NOISE_SCALES])
+    }
+}
+
+/// How the covariance of the ball's state depends on each noise scale (in the order of
+/// [`NoiseScales::NAMES`]): dP/ds, carried through every prediction (F D F' plus the scaled
+/// noise's own part) and update ((I - K H) D (I - K H)', the derivative of the update at the
+/// optimal gain).
+pub type NoiseSensitivity = [StateMatrix; NOISE_SCALES];
+
+/// What one update tells of the noise scales: the derivative of the innovation's
+/// log-likelihood, log N(y; 0, S), with respect to each scale (in the order of
+/// [`NoiseScales::NAMES`]), and its Fisher information (see [`Ekf::update`]).
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct NoiseScore {
+    /// d log L / ds.
+    pub gradient: [f64; NOISE_SCALES],
+    /// The Fisher information of each, 1/2 tr(S^-1 dS S^-1 dS).
+    pub information: [f64; NOISE_SCALES],
+}
+
+/// A fused measurement: its normalised innovation squared and what it tells of the noise.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Fused {
+    /// y' S^-1 y.
+    pub nis: f64,
+    /// The score of the noise scales.
+    pub score: NoiseScore,
+}
+
+/// Largest NIS per measured dimension a score counts at: an outlier just inside the gate moves
+/// the noise scales no more than this.
+const SCORE_NIS_LIMIT: f64 = 4.0;
 
 /// What a prediction went through.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
@@ -136,8 +214,10 @@ struct BounceWatch<'a> {
     noise: &'a BounceNoise,
     /// The covariance the prediction starts from.
     start: &'a AugmentedMatrix,
-    /// The scatter of the bounces so far.
+    /// The scatter of the bounces so far at the configured sigmas (scaled in P).
     scatter: StateMatrix,
+    /// The spread of the bounces' outcome beyond its linearisation so far.
+    excess: StateMatrix,
     /// The largest probability of the other regime over the bounces so far.
     other_regime: f64,
 }
@@ -146,8 +226,9 @@ impl Observer for BounceWatch<'_> {
     fn on_event(&mut self, event: &Event) -> Flow {
         self.report.on_event(event);
         if matches!(event.kind, EventKind::TableBounce { .. }) {
-            let (scatter, other) = self.bounce_scatter(event);
+            let (scatter, excess, other) = self.bounce_scatter(event);
             self.scatter += scatter;
+            self.excess += excess;
             self.other_regime = self.other_regime.max(other);
         }
         Flow::Continue
@@ -155,9 +236,9 @@ impl Observer for BounceWatch<'_> {
 }
 
 impl BounceWatch<'_> {
-    /// The scatter of one bounce in the state just after it, and the probability of the
-    /// other regime.
-    fn bounce_scatter(&self, event: &Event) -> (StateMatrix, f64) {
+    /// The scatter of one bounce in the state just after it (at the configured sigmas), the
+    /// spread of its outcome beyond the linearisation, and the probability of the other regime.
+    fn bounce_scatter(&self, event: &Event) -> (StateMatrix, StateMatrix, f64) {
         let bounce = self.propagator.bounce();
         let r = self.propagator.flight().radius();
         let spin_gain = 1.5 / r;
@@ -176,7 +257,7 @@ impl BounceWatch<'_> {
         let se = self.noise.restitution_sigma * event.before[5];
         q[(5, 5)] += se * se;
         let Some(s) = event.sensitivity else {
-            return (q, 0.0);
+            return (q, StateMatrix::zeros(), 0.0);
         };
         // The covariance of (state, parameters) at the bounce: [[T, S], [0, I]] P [.]'.
         let mut a = SMatrix::<f64, AUGMENTED, AUGMENTED>::identity();
@@ -200,10 +281,12 @@ impl BounceWatch<'_> {
         } else {
             0.0
         };
-        if self.noise.unscented {
-            q += self.unscented_excess(&event.before, &event.after, &at_bounce);
-        }
-        (q, p_other)
+        let excess = if self.noise.unscented {
+            self.unscented_excess(&event.before, &event.after, &at_bounce)
+        } else {
+            StateMatrix::zeros()
+        };
+        (q, excess, p_other)
     }
 
     /// How much the bounce's outcome really spreads beyond its linearisation: the covariance
@@ -291,6 +374,8 @@ pub struct Ekf {
     pub theta: ParamVector,
     /// Covariance of (state, parameters).
     pub P: AugmentedMatrix,
+    /// How the state's covariance depends on the noise scales.
+    pub noise_sensitivity: NoiseSensitivity,
 }
 
 impl Ekf {
@@ -311,6 +396,7 @@ impl Ekf {
             x,
             theta,
             P: augmented,
+            noise_sensitivity: [StateMatrix::zeros(); NOISE_SCALES],
         }
     }
 
@@ -342,13 +428,14 @@ impl Ekf {
     }
 
     /// Propagates the estimate by `dt` seconds (dt >= 0) through flight and bounces, with the
-    /// filter's parameters in `propagator`'s model.
+    /// filter's parameters in `propagator`'s model and the configured noise times `scales`.
     #[expect(non_snake_case, reason = "matrix notation")]
     pub fn predict(
         &mut self,
         propagator: &Propagator,
         noise: &ProcessNoise,
         bounce_noise: &BounceNoise,
+        scales: &NoiseScales,
         dt: f64,
     ) -> PredictReport {
         if dt <= 0.0 {
@@ -367,20 +454,36 @@ impl Ekf {
             noise: bounce_noise,
             start: &self.P,
             scatter: StateMatrix::zeros(),
+            excess: StateMatrix::zeros(),
             other_regime: 0.0,
         };
         propagator.advance(&mut cursor, dt, Watch::BOUNCES, &mut watch);
-        let (report, scatter, other_regime) = (watch.report, watch.scatter, watch.other_regime);
+        let (report, scatter, excess, other_regime) = (
+            watch.report,
+            watch.scatter,
+            watch.excess,
+            watch.other_regime,
+        );
         let P_xx = self.state_covariance();
         let mut next = AugmentedMatrix::zeros();
-        let mut P_xx_next = noise.discretise(dt);
+        // Q: the white acceleration's and the spin random walk's at the configured densities
+        // times their scales (each part at the configured density is dQ/ds).
+        let (q_acceleration, q_spin) = noise.discretise_parts(dt);
+        let mut P_xx_next = q_acceleration * scales.acceleration + q_spin * scales.spin;
+        let mut d = self.noise_sensitivity;
+        let [d_acceleration, d_spin, d_bounce] = &mut d;
         match cursor.tangent {
             Some(tangent) => {
                 // Phi P_xx Phi' (in the flight's block structure before any event).
                 P_xx_next += tangent.carry_covariance(&P_xx);
+                *d_acceleration = tangent.carry_covariance(d_acceleration) + q_acceleration;
+                *d_spin = tangent.carry_covariance(d_spin) + q_spin;
+                *d_bounce = tangent.carry_covariance(d_bounce);
                 if report.bounces > 0 {
                     // The bounces' scatter, carried by the flight since the last one.
-                    P_xx_next += tangent.carry_flight(&scatter);
+                    let carried = tangent.carry_flight(&scatter);
+                    P_xx_next += carried * scales.bounce + tangent.carry_flight(&excess);
+                    *d_bounce += carried;
                 }
                 if let Some(S) = tangent.params() {
                     let P_xt = self.P.fixed_view::<9, PARAMS>(0, 9).into_owned();
@@ -395,7 +498,12 @@ impl Ekf {
                         .copy_from(&cross.transpose());
                 }
             }
-            None => P_xx_next += P_xx + scatter,
+            None => {
+                P_xx_next += P_xx + scatter * scales.bounce + excess;
+                *d_acceleration += q_acceleration;
+                *d_spin += q_spin;
+                *d_bounce += scatter;
+            }
         }
         next.fixed_view_mut::<9, 9>(0, 0).copy_from(&P_xx_next);
         let mut P_tt = self.param_covariance();
@@ -417,11 +525,18 @@ impl Ekf {
         }
         self.x = cursor.state;
         self.P = symmetrise(&next);
+        self.noise_sensitivity = d.map(|m| symmetrise(&m));
         report
     }
 
     /// Fuses a measurement of the ball's state z = H x + noise(R) when its NIS is within `gate`;
-    /// returns the NIS. The parameters move with their correlation to the state.
+    /// returns the NIS and the score of the noise scales. The parameters move with their
+    /// correlation to the state.
+    ///
+    /// The score: with A = H D H' for D = dP^-/ds of each noise scale ([`NoiseSensitivity`]),
+    /// d log N(y; 0, S) = -1/2 (tr(S^-1 A) - y' S^-1 A S^-1 y), information 1/2 tr(S^-1 A S^-1 A)
+    /// (the innovation's likelihood as a function of the noise, Mehra 1970); y is cut to a NIS
+    /// of [`SCORE_NIS_LIMIT`] per dimension.
     #[expect(non_snake_case, reason = "matrix notation")]
     pub fn update<const M: usize>(
         &mut self,
@@ -429,7 +544,7 @@ impl Ekf {
         H: &SMatrix<f64, M, 9>,
         R: &SMatrix<f64, M, M>,
         gate: f64,
-    ) -> Result<f64, UpdateError> {
+    ) -> Result<Fused, UpdateError> {
         if !z.iter().chain(R.iter()).all(|v| v.is_finite()) {
             return Err(UpdateError::NotFinite);
         }
@@ -446,6 +561,21 @@ impl Ekf {
         if nis > gate {
             return Err(UpdateError::Gated { nis, gate });
         }
+        // The score of the noise scales, before the update moves D.
+        let limit = SCORE_NIS_LIMIT * M as f64;
+        let w = chol.solve(&y)
+            * if nis > limit {
+                (limit / nis).sqrt()
+            } else {
+                1.0
+            };
+        let mut score = NoiseScore::default();
+        for (j, dp) in self.noise_sensitivity.iter().enumerate() {
+            let A = H * dp * H.transpose();
+            let SiA = chol.solve(&A);
+            score.gradient[j] = -0.5 * (SiA.trace() - w.dot(&(A * w)));
+            score.information[j] = 0.5 * (SiA * SiA).trace();
+        }
         // K = P H' S^-1 = (S^-1 H P)'.
         let K = chol.solve(&PHt.transpose()).transpose();
         let dx = K * y;
@@ -459,7 +589,11 @@ impl Ekf {
         // still changes P to second order only.
         let K_PHt = K * PHt.transpose();
         self.P = symmetrise(&(self.P - K_PHt - K_PHt.transpose() + K * S * K.transpose()));
-        Ok(nis)
+        let I_KH = StateMatrix::identity() - K.fixed_rows::<9>(0) * H;
+        for d in &mut self.noise_sensitivity {
+            *d = symmetrise(&(I_KH * *d * I_KH.transpose()));
+        }
+        Ok(Fused { nis, score })
     }
 
     /// Forgets what the filter learned about the spin: its covariance goes back to `variance`
@@ -471,6 +605,12 @@ impl Ekf {
                 self.P[(j, i)] = 0.0;
             }
             self.P[(i, i)] = variance;
+            for d in &mut self.noise_sensitivity {
+                for j in 0..9 {
+                    d[(i, j)] = 0.0;
+                    d[(j, i)] = 0.0;
+                }
+            }
         }
     }
 
@@ -547,7 +687,7 @@ mod tests {
         );
         let z = Vector3::new(1.0, -2.0, 0.5);
         let R = Matrix3::identity();
-        let nis = ekf.update(&z, &position_H(), &R, 100.0).expect("fused");
+        let nis = ekf.update(&z, &position_H(), &R, 100.0).expect("fused").nis;
         assert!((nis - z.norm_squared() / 2.0).abs() < 1e-12);
         assert!((ekf.x[0] - 0.5).abs() < 1e-12 && (ekf.x[1] + 1.0).abs() < 1e-12);
         assert!((ekf.P[(0, 0)] - 0.5).abs() < 1e-12);
@@ -603,7 +743,13 @@ mod tests {
             spin_density: 1.0,
             param_density: ParamVector::zeros(),
         };
-        let report = ekf.predict(&propagator, &noise, &BounceNoise::default(), 0.05);
+        let report = ekf.predict(
+            &propagator,
+            &noise,
+            &BounceNoise::default(),
+            &NoiseScales::default(),
+            0.05,
+        );
         assert_eq!(report.bounces, 1);
         assert_eq!(report.robot_half_bounces, 1);
         assert!(ekf.x[5] > 0.0);

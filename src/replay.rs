@@ -111,6 +111,8 @@ pub struct ReplaySummary {
     pub learned: crate::estimator::LearnedParams,
     /// The noise it learned of each source (unknown, 150 fps, 900 fps), as it ended.
     pub learned_noise: [crate::estimator::LearnedSourceNoise; 3],
+    /// How far it learned the flights stray from its model, as it ended.
+    pub learned_model_noise: crate::estimator::LearnedModelNoise,
     /// Messages written to the output bag.
     pub written: u64,
     /// Processing time per detection [ns], mean and 99th percentile.
@@ -176,16 +178,8 @@ fn read_truth<M: Borrow<BagMessage>>(
         if m.channel == event_channel
             && let Ok(msg) = decode::<InterceptPrediction>(&m.data)
         {
-            let (shot, intercept_stamp, intercept_position, bounce_stamp) =
-                truth_intercept_from_msg(&msg);
-            shots.insert(
-                shot,
-                ShotTruth {
-                    bounce_stamp,
-                    intercept_stamp,
-                    intercept_position,
-                },
-            );
+            let (shot, truth) = truth_intercept_from_msg(&msg);
+            shots.insert(shot, truth);
         } else if m.channel == state_channel
             && let Ok(msg) = decode::<BallState>(&m.data)
         {
@@ -394,6 +388,7 @@ pub fn replay(
         intercepts: pipeline.estimator().intercept_counts(),
         learned: pipeline.estimator().learned_params(),
         learned_noise: pipeline.estimator().learned_noise(),
+        learned_model_noise: pipeline.estimator().learned_model_noise(),
         written,
         processing_mean_ns: timing.mean,
         processing_p99_ns: timing.p99,

@@ -9,7 +9,9 @@ use clap::{Args, ValueEnum};
 use ttball::eval::sets::{
     LeadComparison, SETTLE_FLIGHTS, SetReport, TrialSet, run_set, standard_sets,
 };
-use ttball::eval::{EvalReport, LeadEfficiency, efficiency, evaluate};
+use ttball::eval::{
+    BatchPhysics, Comparison, Efficiency, EvalReport, efficiency, evaluate_learning,
+};
 use ttball::physics::PhysicsParams;
 use ttball::real::{LauncherFlights, RealEvalOptions, SpinKind, evaluate_flights};
 use ttball::sim::{Cameras, SimOptions, simulate};
@@ -114,9 +116,14 @@ impl EvaluateArgs {
             );
             let session = simulate(&config, &options).context("cannot simulate the session")?;
             let started = std::time::Instant::now();
-            let report = evaluate(&config, &session);
+            let (report, learning) = evaluate_learning(&config, &session);
             let elapsed = started.elapsed().as_secs_f64();
             write_stdout(&table(name, &report, elapsed))?;
+            write_stdout(&format!(
+                "{}\n{}\n",
+                super::replay::learned_text(&learning.params),
+                super::replay::model_noise_text(&learning.model_noise)
+            ))?;
             let efficiency = if self.efficiency {
                 eprintln!("fitting every shot as a whole at each lead...");
                 let lines = efficiency(&config, &session);
@@ -203,15 +210,9 @@ impl EvaluateArgs {
             text.push_str(&format!("  {:<9} {}\n", kind.name(), spins.join(" ")));
         }
         if let Some(learned) = &report.learned {
-            let values = learned.params.to_vector();
-            let parts: Vec<String> = PhysicsParams::NAMES
-                .iter()
-                .enumerate()
-                .map(|(i, name)| format!("{name} {:.3} +- {:.3}", values[i], learned.sigma[i]))
-                .collect();
             text.push_str(&format!(
-                "learned physics at the end: {}\n",
-                parts.join(", ")
+                "at the end: {}\n",
+                super::replay::learned_text(learned)
             ));
         }
         write_stdout(&text)?;
@@ -334,24 +335,51 @@ fn table(name: &str, r: &EvalReport, elapsed: f64) -> String {
     out
 }
 
-/// The efficiency table: online and batch interception errors per lead.
-fn efficiency_table(lines: &[LeadEfficiency]) -> String {
-    let mut out = String::from(
-        "efficiency: interception error in the plane [mm], over the shots both predict\n\
-         lead      shots   online RMS/median   batch fit RMS/median   online / batch RMS, median\n",
-    );
-    for l in lines {
+/// The efficiency tables: the filter's errors and the batch fit's, with each physics.
+fn efficiency_table(efficiencies: &[Efficiency]) -> String {
+    let mut out = String::new();
+    for e in efficiencies {
         out.push_str(&format!(
-            "  {:>3.0} ms  {:>5}   {:>7.1} {:>7.1}     {:>7.1} {:>7.1}          {:>5.2} {:>5.2}\n",
-            l.lead * 1e3,
-            l.shots,
-            l.online.rms * 1e3,
-            l.online.median * 1e3,
-            l.batch.rms * 1e3,
-            l.batch.median * 1e3,
-            l.ratio,
-            l.median_ratio
+            "efficiency against the batch fit with {}:\n\
+             quantity                              shots   online RMS/median   batch fit RMS/median   online / batch RMS, median\n",
+            match e.physics {
+                BatchPhysics::Configured => "the configured physics",
+                BatchPhysics::Learned => "the physics the estimator had learned",
+            }
         ));
+        let mut line = |name: &str, c: &Comparison, unit: f64| {
+            out.push_str(&format!(
+                "  {:<36} {:>5}   {:>7.2} {:>7.2}     {:>7.2} {:>7.2}          {:>5.2} {:>5.2}\n",
+                name,
+                c.shots,
+                c.online.rms * unit,
+                c.online.median * unit,
+                c.batch.rms * unit,
+                c.batch.median * unit,
+                c.ratio,
+                c.median_ratio
+            ));
+        };
+        for l in &e.leads {
+            line(
+                &format!("interception at {:.0} ms lead [mm]", l.lead * 1e3),
+                &l.position,
+                1e3,
+            );
+        }
+        for l in &e.leads {
+            line(
+                &format!("spin at the crossing, {:.0} ms [rad/s]", l.lead * 1e3),
+                &l.spin,
+                1.0,
+            );
+        }
+        line("velocity after 100 ms [m/s]", &e.velocity_at_age, 1.0);
+        line(
+            "spin across v before 900 fps [rad/s]",
+            &e.spin_before_high_speed,
+            1.0,
+        );
     }
     out
 }

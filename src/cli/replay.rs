@@ -8,7 +8,8 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 
 use anyhow::{Context, bail};
 use clap::Args;
-use ttball::estimator::{LearnedParams, LearnedSourceNoise, Rejection};
+use ttball::ekf::NoiseScales;
+use ttball::estimator::{LearnedModelNoise, LearnedParams, LearnedSourceNoise, Rejection};
 use ttball::physics::PhysicsParams;
 use ttball::replay::{ReplaySummary, replay};
 
@@ -191,6 +192,7 @@ pub fn summary_text(s: &ReplaySummary) -> String {
     if let Some(line) = noise_text(&s.learned_noise) {
         let _ = writeln!(out, "  {line}");
     }
+    let _ = writeln!(out, "  {}", model_noise_text(&s.learned_model_noise));
     let _ = writeln!(
         out,
         "  processing per detection: mean {:.1} us, p99 {:.1} us; {:.1} s recorded in {:.2} s ({:.0}x real time); {} messages written",
@@ -221,13 +223,47 @@ pub fn learned_text(l: &LearnedParams) -> String {
     let parts: Vec<String> = PhysicsParams::NAMES
         .iter()
         .enumerate()
-        .map(|(i, name)| format!("{name} {:.3} +- {:.3}", values[i], l.sigma[i]))
+        .map(|(i, name)| {
+            let flights = if l.flight_sigma[i] > 0.0 {
+                format!(" (each flight +- {:.3})", l.flight_sigma[i])
+            } else {
+                String::new()
+            };
+            format!("{name} {:.3} +- {:.3}{flights}", values[i], l.sigma[i])
+        })
         .collect();
     format!(
         "learned physics over {} tracks: {}",
         l.tracks,
         parts.join(", ")
     )
+}
+
+/// How far the flights stray from the model, in one line: "learned model noise: acceleration
+/// 0.030x, spin 0.100x, bounce 0.090x the configured".
+pub fn model_noise_text(m: &LearnedModelNoise) -> String {
+    let parts: Vec<String> = NoiseScales::NAMES
+        .iter()
+        .zip(m.scales.to_array())
+        .map(|(name, scale)| format!("{name} {scale:.3}x"))
+        .collect();
+    format!("learned model noise: {} the configured", parts.join(", "))
+}
+
+/// The learned model noise as JSON: each scale by name with the sigma of its log.
+pub fn model_noise_json(m: &LearnedModelNoise) -> serde_json::Value {
+    let scales: serde_json::Map<String, serde_json::Value> = NoiseScales::NAMES
+        .iter()
+        .zip(m.scales.to_array())
+        .zip(m.log_sigma)
+        .map(|((name, scale), sigma)| {
+            (
+                (*name).to_string(),
+                serde_json::json!({"scale": scale, "log_sigma": sigma}),
+            )
+        })
+        .collect();
+    serde_json::Value::Object(scales)
 }
 
 /// The noise learned of the sources that sent detections, in one line: "learned noise:
@@ -279,7 +315,11 @@ pub fn learned_json(l: &LearnedParams) -> serde_json::Value {
         .map(|(i, name)| {
             (
                 (*name).to_string(),
-                serde_json::json!({"value": values[i], "sigma": l.sigma[i]}),
+                serde_json::json!({
+                    "value": values[i],
+                    "sigma": l.sigma[i],
+                    "flight_sigma": l.flight_sigma[i],
+                }),
             )
         })
         .collect();
@@ -309,6 +349,7 @@ fn summary_json(s: &ReplaySummary) -> serde_json::Value {
         "intercepts_moved": s.intercepts.moved,
         "learned_physics": learned_json(&s.learned),
         "learned_noise": noise_json(&s.learned_noise),
+        "learned_model_noise": model_noise_json(&s.learned_model_noise),
         "zero_spin_ignored": c.zero_spin_ignored,
         "processing_mean_ns": s.processing_mean_ns,
         "processing_p99_ns": s.processing_p99_ns,

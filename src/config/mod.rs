@@ -447,6 +447,14 @@ pub struct EkfParams {
     pub learn_noise: bool,
     /// How many detections of a source the learned noise averages over [-] (older ones fade).
     pub noise_memory: u32,
+    /// Learn how far the flights really stray from the model, from the innovations: a scale on
+    /// the process noise (`acceleration_noise_density`, `spin_noise_density`) and one on the
+    /// bounce's scatter (`bounce_impulse_sigma`, `bounce_restitution_sigma`, as variances),
+    /// starting from 1, by recursive maximum likelihood.
+    pub learn_model_noise: bool,
+    /// How many detections the information behind the learned model noise remembers [-] (older
+    /// ones fade).
+    pub model_noise_memory: u32,
 }
 
 impl Default for EkfParams {
@@ -464,6 +472,8 @@ impl Default for EkfParams {
             bounce_unscented: true,
             learn_noise: true,
             noise_memory: 2000,
+            learn_model_noise: true,
+            model_noise_memory: 20000,
         }
     }
 }
@@ -494,6 +504,9 @@ pub struct AdaptationParams {
     pub restitution_flight_sigma: f64,
     /// How much the friction a flight sees scatters about the table's [-].
     pub friction_flight_sigma: f64,
+    /// Learn the flight-to-flight dispersion from the tracks, starting from the `*_flight_sigma`
+    /// values (a parameter configured with none keeps none).
+    pub learn_dispersion: bool,
     /// How far each parameter may drift in an hour, as a fraction of its prior standard
     /// deviation [-]: a random walk of variance (drift sigma)^2 t / 3600 s, capped at the prior
     /// variance (after a long pause the estimator is back at its prior uncertainty).
@@ -512,6 +525,7 @@ impl Default for AdaptationParams {
             magnus_scale_flight_sigma: 0.10,
             restitution_flight_sigma: 0.02,
             friction_flight_sigma: 0.0,
+            learn_dispersion: true,
             drift_per_hour: 0.5,
         }
     }

@@ -627,6 +627,12 @@ impl Config {
             10,
             "at least 10 (detections)",
         );
+        c.count(
+            "ekf.model_noise_memory",
+            e.model_noise_memory,
+            100,
+            "at least 100 (detections)",
+        );
 
         let ad = &self.adaptation;
         for (key, value, allowed) in [

@@ -20,6 +20,18 @@
 
 use nalgebra::SymmetricEigen;
 
+/// The configured dispersion counts as this many flights that each measure their own parameters
+/// exactly, when D is learned.
+pub const DISPERSION_PRIOR_FLIGHTS: f64 = 20.0;
+
+/// A track teaches D only when its information on a parameter is at least this fraction of its
+/// prior's (1/p_pr).
+const MIN_DISPERSION_EVIDENCE: f64 = 0.1;
+
+/// A squared deviation counts at most this many times its expected variance (one wild track
+/// moves D little).
+const SAMPLE_LIMIT: f64 = 9.0;
+
 use crate::ekf::ParamCovariance;
 use crate::physics::{PARAMS, ParamVector};
 
@@ -40,6 +52,10 @@ pub(crate) struct Learned {
     drift_density: ParamVector,
     /// D, the flight-to-flight dispersion (diagonal).
     dispersion: ParamVector,
+    /// The weight of the evidence behind each of D's variances (see [`Self::dispersion_after`]).
+    dispersion_weight: ParamVector,
+    /// Whether D is learned from the tracks.
+    learn_dispersion: bool,
 }
 
 impl Learned {
@@ -49,6 +65,7 @@ impl Learned {
         prior_var: ParamVector,
         drift_density: ParamVector,
         dispersion: ParamVector,
+        learn_dispersion: bool,
     ) -> Self {
         let active = |v: &ParamVector| {
             ParamVector::from_fn(|i, _| if prior_var[i] > 0.0 { v[i] } else { 0.0 })
@@ -61,7 +78,17 @@ impl Learned {
             prior_var,
             drift_density: active(&drift_density),
             dispersion: active(&dispersion),
+            dispersion_weight: ParamVector::from_fn(|i, _| {
+                DISPERSION_PRIOR_FLIGHTS
+                    / (2.0 * dispersion[i] * dispersion[i]).max(f64::MIN_POSITIVE)
+            }),
+            learn_dispersion,
         }
+    }
+
+    /// D, the flight-to-flight dispersion (variances).
+    pub(crate) fn dispersion(&self) -> ParamVector {
+        self.dispersion
     }
 
     /// theta_g and P_g.
@@ -124,6 +151,7 @@ impl Learned {
         );
         // The equations failed (a singular matrix): the track's posterior.
         let updated = self.fuse(&prior, posterior, stamp).unwrap_or(*posterior);
+        let (dispersion, dispersion_weight) = self.dispersion_after(&prior, posterior, stamp);
         let active = |i: usize| self.prior_var[i] > 0.0;
         let mut theta = updated.0;
         let mut covariance = updated.1;
@@ -141,8 +169,53 @@ impl Learned {
             covariance: (covariance + covariance.transpose()) * 0.5,
             stamp: Some(stamp),
             tracks: self.tracks + 1,
+            dispersion,
+            dispersion_weight,
             ..*self
         }
+    }
+
+    /// D and the weight behind it after a track that started from `prior` (compared at its end)
+    /// and ended at `posterior`: per parameter, what the track alone measured, m (its prior and
+    /// posterior marginal variances p_pr and p_t give it the information j = 1/p_t - 1/p_pr and
+    /// the mean m = (theta_t/p_t - theta_g/p_pr)/j), lies from theta_g by d ~ N(0, D + P_g +
+    /// 1/j); d^2 - P_g - 1/j is a sample of D, weighted by its Fisher information 1/(2 V^2)
+    /// with V = D + P_g + 1/j, and averaged from the configured D with the weight of
+    /// [`DISPERSION_PRIOR_FLIGHTS`] flights that measure their parameters exactly. A parameter
+    /// configured without dispersion keeps none.
+    fn dispersion_after(
+        &self,
+        (theta_prior, p_prior): &(ParamVector, ParamCovariance),
+        (theta_track, p_track): &(ParamVector, ParamCovariance),
+        stamp: i64,
+    ) -> (ParamVector, ParamVector) {
+        let (mut dispersion, mut weight) = (self.dispersion, self.dispersion_weight);
+        if !self.learn_dispersion {
+            return (dispersion, weight);
+        }
+        let p_global = self.drifted(stamp);
+        for i in (0..PARAMS).filter(|&i| self.prior_var[i] > 0.0 && self.dispersion[i] > 0.0) {
+            let (p_pr, p_t) = (p_prior[(i, i)], p_track[(i, i)]);
+            if !(p_pr > 0.0 && p_t > 0.0) {
+                continue;
+            }
+            let j = 1.0 / p_t - 1.0 / p_pr;
+            // A track that learned next to nothing of it says nothing of D.
+            if j * p_pr < MIN_DISPERSION_EVIDENCE {
+                continue;
+            }
+            let m = (theta_track[i] / p_t - theta_prior[i] / p_pr) / j;
+            let variance = dispersion[i] + p_global[(i, i)] + 1.0 / j;
+            let d = m - self.theta[i];
+            let sample = (d * d).min(SAMPLE_LIMIT * variance) - p_global[(i, i)] - 1.0 / j;
+            let w = 1.0 / (2.0 * variance * variance);
+            if !(sample.is_finite() && w.is_finite()) {
+                continue;
+            }
+            weight[i] += w;
+            dispersion[i] = (dispersion[i] + w * (sample - dispersion[i]) / weight[i]).max(0.0);
+        }
+        (dispersion, weight)
     }
 
     /// The two-level update in information form; `None` when a matrix is singular.
@@ -203,6 +276,7 @@ mod tests {
             ParamVector::new(0.01, 0.04, 0.0, 0.01),
             ParamVector::zeros(),
             ParamVector::new(dispersion, dispersion, 0.0, 0.0),
+            false,
         )
     }
 

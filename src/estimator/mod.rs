@@ -21,6 +21,7 @@
 
 mod init;
 mod learning;
+mod model_noise;
 mod noise;
 
 use std::collections::VecDeque;
@@ -30,7 +31,8 @@ use nalgebra::{Matrix3, Matrix6, SVector, Vector3};
 use crate::config::{Config, SourceParams};
 use crate::detection::{Detection, Source, seconds_to_ns};
 use crate::ekf::{
-    BounceNoise, Ekf, ParamCovariance, ProcessNoise, UpdateError, position_H, position_spin_H,
+    BounceNoise, Ekf, Fused, NoiseScore, ParamCovariance, ProcessNoise, UpdateError, position_H,
+    position_spin_H,
 };
 use crate::intercept::{Intercept, InterceptQuery, InterceptTracker};
 use crate::physics::{
@@ -39,6 +41,7 @@ use crate::physics::{
 };
 use crate::stats::chi_square_quantile;
 use learning::Learned;
+use model_noise::ModelNoiseLearner;
 use noise::NoiseLearner;
 pub use noise::SourceNoiseEstimate;
 
@@ -558,6 +561,10 @@ pub struct Estimator {
     noise: NoiseLearner,
     /// The prior innovation of the detection `fuse` just fused (or gated), for the noise.
     innovation: std::cell::Cell<Option<noise::Innovation>>,
+    /// What the estimator has learned of how far the flights stray from the model.
+    model_noise: ModelNoiseLearner,
+    /// The score of the noise scales of the detection `fuse` just fused.
+    score: std::cell::Cell<Option<NoiseScore>>,
     /// What the estimator knows of the physical parameters between tracks.
     learned: Learned,
 }
@@ -586,16 +593,35 @@ impl LearnedSourceNoise {
     }
 }
 
+/// What the estimator has learned of how far the flights stray from its model
+/// ([`Estimator::learned_model_noise`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct LearnedModelNoise {
+    /// The scales on the configured noise [-].
+    pub scales: crate::ekf::NoiseScales,
+    /// The standard deviation of the log of each scale (from the information behind it), in
+    /// the order of [`crate::ekf::NoiseScales::NAMES`].
+    pub log_sigma: [f64; crate::ekf::NOISE_SCALES],
+}
+
 /// What an estimator has learned of the physical parameters, carried to another
 /// ([`Estimator::learned_physics`], [`Estimator::adopt_learned_physics`]).
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct LearnedPhysics(Learned);
+pub struct LearnedPhysics {
+    params: Learned,
+    model_noise: ModelNoiseLearner,
+}
 
 impl LearnedPhysics {
     /// The ball's and table's parameters it holds, with their uncertainty.
     pub fn params(&self) -> LearnedParams {
-        let (theta, covariance) = self.0.global();
-        LearnedParams::new(&theta, &covariance, self.0.tracks())
+        let (theta, covariance) = self.params.global();
+        LearnedParams::new(
+            &theta,
+            &covariance,
+            self.params.tracks(),
+            &self.params.dispersion(),
+        )
     }
 }
 
@@ -608,15 +634,25 @@ pub struct LearnedParams {
     pub sigma: [f64; PARAMS],
     /// Tracks that have contributed, the live one included.
     pub tracks: u64,
+    /// How much each parameter scatters from flight to flight about these [-] (the dispersion's
+    /// standard deviation, as learned; zero for a single flight's own parameters).
+    pub flight_sigma: [f64; PARAMS],
 }
 
 impl LearnedParams {
-    /// Parameters `theta` of covariance `covariance`, learned over `tracks` tracks.
-    fn new(theta: &ParamVector, covariance: &ParamCovariance, tracks: u64) -> Self {
+    /// Parameters `theta` of covariance `covariance`, learned over `tracks` tracks, with a
+    /// flight-to-flight dispersion of variances `dispersion`.
+    fn new(
+        theta: &ParamVector,
+        covariance: &ParamCovariance,
+        tracks: u64,
+        dispersion: &ParamVector,
+    ) -> Self {
         Self {
             params: PhysicsParams::from_vector(theta),
             sigma: std::array::from_fn(|i| covariance[(i, i)].max(0.0).sqrt()),
             tracks,
+            flight_sigma: std::array::from_fn(|i| dispersion[i].max(0.0).sqrt()),
         }
     }
 }
@@ -690,11 +726,17 @@ impl Estimator {
             continuation: None,
             noise: NoiseLearner::new(config),
             innovation: std::cell::Cell::new(None),
+            model_noise: ModelNoiseLearner::new(
+                config.ekf.learn_model_noise,
+                config.ekf.model_noise_memory,
+            ),
+            score: std::cell::Cell::new(None),
             learned: Learned::new(
                 settings.param_prior,
                 settings.param_prior_var,
                 settings.noise.param_density,
                 settings.param_dispersion,
+                config.adaptation.learn_dispersion,
             ),
             propagator,
             settings,
@@ -705,13 +747,18 @@ impl Estimator {
     /// from ([`Self::adopt_learned_physics`]): the ball's and table's, the live track's lesson
     /// included.
     pub fn learned_physics(&self) -> LearnedPhysics {
-        LearnedPhysics(self.learned_with_live_track())
+        LearnedPhysics {
+            params: self.learned_with_live_track(),
+            model_noise: self.model_noise,
+        }
     }
 
     /// Starts from what another estimator (of the same configuration) learned of the physical
-    /// parameters, as if its tracks had been this one's.
+    /// parameters and of how far the flights stray from the model, as if its tracks had been
+    /// this one's.
     pub fn adopt_learned_physics(&mut self, learned: &LearnedPhysics) {
-        self.learned = learned.0;
+        self.learned = learned.params;
+        self.model_noise = learned.model_noise;
     }
 
     fn learned_with_live_track(&self) -> Learned {
@@ -728,6 +775,7 @@ impl Estimator {
             &ekf.theta,
             &ekf.param_covariance(),
             self.learned.tracks() + 1,
+            &ParamVector::zeros(),
         ))
     }
 
@@ -1002,6 +1050,21 @@ impl Estimator {
             };
             self.noise.learn(d.source, &innovation);
         }
+        if let Some(score) = self.score.take() {
+            self.model_noise.learn(&score);
+        }
+    }
+
+    /// What the estimator has learned of how far the flights stray from its model: the scales on
+    /// its configured process noise and bounce scatter.
+    pub fn learned_model_noise(&self) -> LearnedModelNoise {
+        LearnedModelNoise {
+            scales: self.model_noise.scales(),
+            log_sigma: self
+                .model_noise
+                .information()
+                .map(|i| 1.0 / i.max(f64::MIN_POSITIVE).sqrt()),
+        }
     }
 
     /// What the estimator has learned of each source's noise, in the order of
@@ -1093,10 +1156,13 @@ impl Estimator {
     fn advance_with(&self, propagator: &Propagator, snapshot: &mut Snapshot, stamp: i64) {
         let dt = (stamp - snapshot.stamp) as f64 * 1e-9;
         if dt > 0.0 {
-            let report =
-                snapshot
-                    .ekf
-                    .predict(propagator, &self.settings.noise, &self.settings.bounce, dt);
+            let report = snapshot.ekf.predict(
+                propagator,
+                &self.settings.noise,
+                &self.settings.bounce,
+                &self.model_noise.scales(),
+                dt,
+            );
             snapshot.bounces += report.bounces;
             snapshot.robot_half_bounces += report.robot_half_bounces;
         }
@@ -1118,25 +1184,26 @@ impl Estimator {
             // hypothesis that explains the detection best wins.
             for alternative in &self.edge_alternatives {
                 let mut other = prior;
-                let Ok(nis) = self.predict_and_update(alternative, &mut other, d, m).0 else {
+                let Ok(fused) = self.predict_and_update(alternative, &mut other, d, m).0 else {
                     continue;
                 };
                 let better = match result {
-                    Ok(current) => nis < current && other.bounces != snapshot.bounces,
+                    Ok(current) => fused.nis < current.nis && other.bounces != snapshot.bounces,
                     Err(_) => true,
                 };
                 if better {
                     *snapshot = other;
                     self.edge_retries.set(self.edge_retries.get() + 1);
-                    result = Ok(nis);
+                    result = Ok(fused);
                 }
             }
         }
         match result {
-            Ok(nis) => {
+            Ok(fused) => {
                 snapshot.last_fused = d.stamp;
-                snapshot.nis = nis;
-                Ok(nis)
+                snapshot.nis = fused.nis;
+                self.score.set(Some(fused.score));
+                Ok(fused.nis)
             }
             Err(UpdateError::Gated { .. }) => Err(Rejection::Gated),
             Err(UpdateError::NotFinite) => Err(Rejection::NonFinite),
@@ -1150,7 +1217,7 @@ impl Estimator {
         snapshot: &mut Snapshot,
         d: &Detection,
         m: &Measurement,
-    ) -> (Result<f64, UpdateError>, Option<noise::Innovation>) {
+    ) -> (Result<Fused, UpdateError>, Option<noise::Innovation>) {
         self.advance_with(propagator, snapshot, d.stamp);
         let x = &snapshot.ekf.x;
         let velocity = x.fixed_rows::<3>(3).into_owned();
@@ -1218,7 +1285,7 @@ impl Estimator {
         snapshot: &mut Snapshot,
         z: &SVector<f64, 6>,
         r: &Matrix6<f64>,
-    ) -> Result<f64, UpdateError> {
+    ) -> Result<Fused, UpdateError> {
         let z_position = z.fixed_rows::<3>(0).into_owned();
         let r_position = r.fixed_view::<3, 3>(0, 0).into_owned();
         let gate = self.settings.gate_position;

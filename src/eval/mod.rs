@@ -18,7 +18,7 @@ use nalgebra::{Matrix2, Vector2, Vector3};
 use crate::batch::fit_whole_flight;
 use crate::config::Config;
 use crate::detection::{Detection, Source, seconds_to_ns};
-use crate::estimator::{Counters, Estimator, Output, Rejection, TrackStatus, Verdict};
+use crate::estimator::{Counters, Estimate, Estimator, Output, Rejection, TrackStatus, Verdict};
 use crate::intercept::{InterceptQuery, predict_intercept};
 use crate::physics::{BallState, Propagator};
 use crate::sim::Session;
@@ -138,6 +138,8 @@ pub struct ShotTruth {
     pub intercept_stamp: i64,
     /// Where it crosses the hitting plane [m].
     pub intercept_position: Vector3<f64>,
+    /// Its spin there [rad/s].
+    pub intercept_spin: Vector3<f64>,
 }
 
 impl From<&crate::sim::ShotTruth> for ShotTruth {
@@ -146,6 +148,7 @@ impl From<&crate::sim::ShotTruth> for ShotTruth {
             bounce_stamp: shot.bounce.stamp,
             intercept_stamp: shot.intercept.stamp,
             intercept_position: shot.intercept.before.position,
+            intercept_spin: shot.intercept.before.spin,
         }
     }
 }
@@ -163,6 +166,12 @@ struct ShotRecord {
     /// The output of the latest estimate before each lead's time, with the number of
     /// detections scored when it came out.
     at_lead: [Option<(usize, Output)>; 3],
+    /// The estimate scored after [`TRACK_AGE`] of track, with the number of detections scored
+    /// when it came out.
+    at_age: Option<(usize, Estimate)>,
+    /// The last estimate at a detection's stamp before the 900 fps camera's first detection of
+    /// the shot, likewise.
+    before_high_speed: Option<(usize, Estimate)>,
 }
 
 /// Scores the estimator's outputs one detection at a time against the truth.
@@ -268,8 +277,12 @@ impl Scorer {
             }
         }
         let spin_error: Vector3<f64> = estimate.state.spin - truth.spin;
+        if record.high_speed_start.is_none() && detection.source != Source::HighSpeed900Fps {
+            record.before_high_speed = Some((self.detections, estimate));
+        }
         if !record.scored_at_age && estimate.stamp - start >= seconds_to_ns(TRACK_AGE) {
             record.scored_at_age = true;
+            record.at_age = Some((self.detections, estimate));
             self.velocity
                 .push((estimate.state.velocity - truth.velocity).norm());
             let along = truth.velocity.normalize();
@@ -404,12 +417,38 @@ pub fn evaluate(config: &Config, session: &Session) -> EvalReport {
     run(config, session).report()
 }
 
+/// What the estimator had learned at the end of a session: the physics and how far the flights
+/// stray from its model.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Learning {
+    /// The physical parameters and their flight-to-flight dispersion.
+    pub params: crate::estimator::LearnedParams,
+    /// The process noise and bounce scatter scales.
+    pub model_noise: crate::estimator::LearnedModelNoise,
+}
+
+/// [`evaluate`], with what the estimator had learned at the end.
+pub fn evaluate_learning(config: &Config, session: &Session) -> (EvalReport, Learning) {
+    let run = run(config, session);
+    (
+        run.report(),
+        Learning {
+            params: run.learned,
+            model_noise: run.model_noise,
+        },
+    )
+}
+
 /// The estimator run over a session, scored.
 pub(crate) struct Run {
     pub(crate) scorer: Scorer,
     pub(crate) counters: Counters,
     /// The physical parameters it had learned at the end.
     pub(crate) learned: crate::estimator::LearnedParams,
+    /// How far it had learned the flights stray from its model, at the end.
+    pub(crate) model_noise: crate::estimator::LearnedModelNoise,
+    /// The physical parameters it had learned when each shot's first detection came.
+    pub(crate) physics_at_start: Vec<Option<crate::physics::PhysicsParams>>,
 }
 
 impl Run {
@@ -421,7 +460,11 @@ impl Run {
 pub(crate) fn run(config: &Config, session: &Session) -> Run {
     let mut estimator = Estimator::new(config);
     let mut scorer = Scorer::new(session.shots.iter().map(ShotTruth::from).collect());
+    let mut physics_at_start = vec![None; session.shots.len()];
     for sim in &session.stream {
+        if let Some(slot @ None) = physics_at_start.get_mut(sim.shot) {
+            *slot = Some(estimator.learned_params().params);
+        }
         let out = estimator.handle(&sim.detection);
         scorer.score(sim.shot, &sim.detection, &sim.truth, sim.outlier, &out);
     }
@@ -429,98 +472,202 @@ pub(crate) fn run(config: &Config, session: &Session) -> Run {
         scorer,
         counters: estimator.counters(),
         learned: estimator.learned_params(),
+        model_noise: estimator.learned_model_noise(),
+        physics_at_start,
     }
 }
 
-/// The online filter's interception error at one lead against the batch fit's over the same
-/// detections.
+/// One quantity's error, the online filter's against the batch fit's over the same detections
+/// at the same stamps, over the shots where both have an estimate.
 #[derive(Debug, Clone, Copy, PartialEq, Default, serde::Serialize)]
-pub struct LeadEfficiency {
-    /// Time before the true crossing [s].
-    pub lead: f64,
-    /// Shots where both predicted a crossing.
+pub struct Comparison {
+    /// Shots where both have an estimate.
     pub shots: usize,
-    /// Distance in the plane of the filter's predicted crossing from the true one [m].
+    /// The filter's error.
     pub online: ErrorStats,
-    /// The same for the batch fit [m].
+    /// The batch fit's error.
     pub batch: ErrorStats,
-    /// Ratio of the RMS errors, online / batch: 1 is the best any estimator with this model can
-    /// do.
+    /// Ratio of the RMS errors, online / batch.
     pub ratio: f64,
     /// Ratio of the median errors.
     pub median_ratio: f64,
 }
 
-/// The filter's efficiency: at each of [`LEADS`], for every shot, the interception the filter
-/// published last before that lead against the one predicted from the batch fit
-/// ([`crate::batch`]) of the same detections (all of the shot's that had arrived when the filter
-/// published, outliers included), from the fitted state at the same stamp, with the same
-/// physics. The fit is the maximum a posteriori estimate given everything the filter had seen,
-/// so `ratio` measures what the filter's recursion (linearisation, process noise, gating,
-/// initialisation) costs.
-pub fn efficiency(config: &Config, session: &Session) -> Vec<LeadEfficiency> {
-    let run = run(config, session);
-    let propagator = Propagator::new(config);
-    let query = |bounced| InterceptQuery {
-        plane_x: config.intercept.plane_x,
-        horizon: config.prediction.horizon,
-        bounced_on_robot_half: bounced,
-    };
-    let mut out = Vec::with_capacity(LEADS.len());
-    for (slot, &lead) in LEADS.iter().enumerate() {
-        let (mut online, mut batch) = (Vec::new(), Vec::new());
-        for (index, (truth, record)) in run.scorer.shots.iter().zip(&run.scorer.records).enumerate()
-        {
-            let Some((arrived, published)) = record.at_lead[slot] else {
-                continue;
-            };
-            let Some(estimate) = published.intercept else {
-                continue;
-            };
-            let Ok(online_crossing) = estimate.intercept.crossing else {
-                continue;
-            };
-            let seen: Vec<Detection> = session.stream[..arrived]
-                .iter()
-                .filter(|d| d.shot == index)
-                .map(|d| d.detection)
-                .collect();
-            let fitted = fit_whole_flight(config, &seen).ok().and_then(|fit| {
-                fit.states_at(&propagator, &[estimate.stamp])
-                    .pop()
-                    .flatten()
-            });
-            let Some(fitted) = fitted else {
-                continue;
-            };
-            let predicted = predict_intercept(
-                &propagator,
-                &fitted.state.to_vector(),
-                &fitted.covariance,
-                &query(fitted.robot_half_bounces > 0),
-            );
-            let Ok(batch_crossing) = predicted.crossing else {
-                continue;
-            };
-            let miss = |p: &Vector3<f64>| {
-                Vector2::new(
-                    p.y - truth.intercept_position.y,
-                    p.z - truth.intercept_position.z,
-                )
-                .norm()
-            };
-            online.push(miss(&online_crossing.state.position));
-            batch.push(miss(&batch_crossing.state.position));
-        }
-        let (online, batch) = (ErrorStats::of(&online), ErrorStats::of(&batch));
-        out.push(LeadEfficiency {
-            lead,
+impl Comparison {
+    fn of(online: &[f64], batch: &[f64]) -> Self {
+        let (online, batch) = (ErrorStats::of(online), ErrorStats::of(batch));
+        Self {
             shots: online.count,
             online,
             batch,
             ratio: online.rms / batch.rms,
             median_ratio: online.median / batch.median,
-        });
+        }
     }
-    out
+}
+
+/// The online filter against the batch fit at one lead before the crossing.
+#[derive(Debug, Clone, Copy, PartialEq, Default, serde::Serialize)]
+pub struct LeadEfficiency {
+    /// Time before the true crossing [s].
+    pub lead: f64,
+    /// Distance in the plane of the predicted crossing from the true one [m].
+    pub position: Comparison,
+    /// The predicted spin at the crossing against the true one [rad/s].
+    pub spin: Comparison,
+}
+
+/// Which physics the batch fit flies.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+pub enum BatchPhysics {
+    /// The configuration's (in a simulation of the configured physics, the truth: more than
+    /// the filter knows).
+    Configured,
+    /// What the estimator had learned of the physics when the shot's first detection came (the
+    /// same knowledge the filter starts the shot with).
+    Learned,
+}
+
+/// The filter's efficiency: its errors divided by the batch fit's on the same detections.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct Efficiency {
+    /// The batch fit's physics.
+    pub physics: BatchPhysics,
+    /// The interception at each of [`LEADS`].
+    pub leads: Vec<LeadEfficiency>,
+    /// The velocity after [`TRACK_AGE`] of track [m/s].
+    pub velocity_at_age: Comparison,
+    /// The spin perpendicular to the velocity just before the 900 fps camera first sees the
+    /// ball [rad/s] (with the 150 fps camera alone, at its last detection of the shot).
+    pub spin_before_high_speed: Comparison,
+}
+
+/// The filter's efficiency ([`Efficiency`]), against the batch fit ([`crate::batch`]) of the
+/// same detections (all of the shot's that had arrived when the filter published, outliers
+/// included) at the same stamps, with the configured physics and with the physics the estimator
+/// had learned when the shot began. At each of [`LEADS`] the interception the filter published
+/// last before that lead is compared with the one predicted from the fitted state at the same
+/// stamp. The fit is the maximum a posteriori estimate of a flight that follows the model
+/// exactly given everything the filter had seen, so a ratio measures what the filter's
+/// recursion and its noise model (linearisation, process noise, the bounce's scatter, the
+/// flight-to-flight dispersion of the parameters, gating, initialisation) cost.
+pub fn efficiency(config: &Config, session: &Session) -> [Efficiency; 2] {
+    let run = run(config, session);
+    let query = |bounced| InterceptQuery {
+        plane_x: config.intercept.plane_x,
+        horizon: config.prediction.horizon,
+        bounced_on_robot_half: bounced,
+    };
+    [BatchPhysics::Configured, BatchPhysics::Learned].map(|physics| {
+        let physics_of = |index: usize| -> Config {
+            let mut c = config.clone();
+            if physics == BatchPhysics::Learned
+                && let Some(Some(p)) = run.physics_at_start.get(index)
+            {
+                p.apply_to(&mut c);
+            }
+            c
+        };
+        // The batch fit of the shot's detections among the first `arrived`, at `stamp`.
+        let fitted = |index: usize, arrived: usize, stamp: i64| {
+            let c = physics_of(index);
+            let seen: Vec<Detection> = session.stream[..arrived]
+                .iter()
+                .filter(|d| d.shot == index)
+                .map(|d| d.detection)
+                .collect();
+            let propagator = Propagator::new(&c);
+            let state = fit_whole_flight(&c, &seen)
+                .ok()?
+                .states_at(&propagator, &[stamp])
+                .pop()
+                .flatten()?;
+            Some((state, propagator))
+        };
+        let leads = LEADS
+            .iter()
+            .enumerate()
+            .map(|(slot, &lead)| {
+                let (mut online, mut batch) = (Vec::new(), Vec::new());
+                let (mut online_spin, mut batch_spin) = (Vec::new(), Vec::new());
+                for (index, (truth, record)) in
+                    run.scorer.shots.iter().zip(&run.scorer.records).enumerate()
+                {
+                    let Some((arrived, published)) = record.at_lead[slot] else {
+                        continue;
+                    };
+                    let Some(estimate) = published.intercept else {
+                        continue;
+                    };
+                    let Ok(online_crossing) = estimate.intercept.crossing else {
+                        continue;
+                    };
+                    let Some((fitted, propagator)) = fitted(index, arrived, estimate.stamp) else {
+                        continue;
+                    };
+                    let predicted = predict_intercept(
+                        &propagator,
+                        &fitted.state.to_vector(),
+                        &fitted.covariance,
+                        &query(fitted.robot_half_bounces > 0),
+                    );
+                    let Ok(batch_crossing) = predicted.crossing else {
+                        continue;
+                    };
+                    let miss = |p: &Vector3<f64>| {
+                        Vector2::new(
+                            p.y - truth.intercept_position.y,
+                            p.z - truth.intercept_position.z,
+                        )
+                        .norm()
+                    };
+                    online.push(miss(&online_crossing.state.position));
+                    batch.push(miss(&batch_crossing.state.position));
+                    online_spin.push((online_crossing.state.spin - truth.intercept_spin).norm());
+                    batch_spin.push((batch_crossing.state.spin - truth.intercept_spin).norm());
+                }
+                LeadEfficiency {
+                    lead,
+                    position: Comparison::of(&online, &batch),
+                    spin: Comparison::of(&online_spin, &batch_spin),
+                }
+            })
+            .collect();
+        // A state error of the filter's estimate and of the fit at the estimate's stamp.
+        let state_errors =
+            |pick: &dyn Fn(&ShotRecord) -> Option<(usize, Estimate)>,
+             error: &dyn Fn(&BallState, &BallState) -> f64| {
+                let (mut online, mut batch) = (Vec::new(), Vec::new());
+                for (index, record) in run.scorer.records.iter().enumerate() {
+                    let Some((arrived, estimate)) = pick(record) else {
+                        continue;
+                    };
+                    let Some(truth) = session
+                        .shots
+                        .get(index)
+                        .and_then(|s| s.state_at(estimate.stamp))
+                    else {
+                        continue;
+                    };
+                    let Some((fitted, _)) = fitted(index, arrived, estimate.stamp) else {
+                        continue;
+                    };
+                    online.push(error(&estimate.state, &truth));
+                    batch.push(error(&fitted.state, &truth));
+                }
+                Comparison::of(&online, &batch)
+            };
+        let velocity = |e: &BallState, t: &BallState| (e.velocity - t.velocity).norm();
+        let spin_across = |e: &BallState, t: &BallState| {
+            let along = t.velocity.normalize();
+            let error = e.spin - t.spin;
+            (error - along * error.dot(&along)).norm()
+        };
+        Efficiency {
+            physics,
+            leads,
+            velocity_at_age: state_errors(&|r| r.at_age, &velocity),
+            spin_before_high_speed: state_errors(&|r| r.before_high_speed, &spin_across),
+        }
+    })
 }

@@ -184,14 +184,17 @@ pub fn truth_intercept_msg(
     }
 }
 
-/// The shot number, crossing stamp [ns] and point, and bounce stamp [ns] of a
-/// `/ball/truth/intercept` message.
-pub fn truth_intercept_from_msg(msg: &InterceptPrediction) -> (u32, i64, Vector3<f64>, i64) {
+/// The shot number and the truth the scores need (crossing stamp [ns], point and spin, bounce
+/// stamp [ns]) of a `/ball/truth/intercept` message.
+pub fn truth_intercept_from_msg(msg: &InterceptPrediction) -> (u32, crate::eval::ShotTruth) {
     (
         msg.track_id,
-        msg.intercept_stamp.to_nanos(),
-        from_point(&msg.position),
-        msg.bounce_stamp.to_nanos(),
+        crate::eval::ShotTruth {
+            bounce_stamp: msg.bounce_stamp.to_nanos(),
+            intercept_stamp: msg.intercept_stamp.to_nanos(),
+            intercept_position: from_point(&msg.position),
+            intercept_spin: from_vector(&msg.spin),
+        },
     )
 }
 

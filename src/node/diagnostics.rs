@@ -2,8 +2,9 @@
 //! `<node>: estimator`): rates, what happened to every detection (by reason), queue drops and
 //! processing time over the last period. Pure: the caller passes the clock readings.
 
+use crate::ekf::NoiseScales;
 use crate::estimator::{Counters, Rejection};
-use crate::estimator::{LearnedParams, LearnedSourceNoise};
+use crate::estimator::{LearnedModelNoise, LearnedParams, LearnedSourceNoise};
 use crate::msgs::builtin_interfaces::Time;
 use crate::msgs::diagnostic_msgs::{DiagnosticArray, DiagnosticStatus, KeyValue};
 use crate::msgs::std_msgs::Header;
@@ -81,6 +82,8 @@ pub struct Snapshot<'a> {
     /// What it has learned of each source's noise (reported for the sources that taught it
     /// something).
     pub learned_noise: &'a [LearnedSourceNoise],
+    /// What it has learned of how far the flights stray from its model.
+    pub learned_model_noise: &'a LearnedModelNoise,
 }
 
 /// Builds the diagnostics message of one period and empties `window`.
@@ -186,6 +189,19 @@ pub fn diagnostics_msg(snapshot: &Snapshot<'_>, window: &mut Window) -> Diagnost
             &format!("learned {name} sigma"),
             format!("{:.4}", s.learned.sigma[i]),
         ));
+        values.push(kv(
+            &format!("learned {name} flight-to-flight sigma"),
+            format!("{:.4}", s.learned.flight_sigma[i]),
+        ));
+    }
+    for (name, scale) in NoiseScales::NAMES
+        .iter()
+        .zip(s.learned_model_noise.scales.to_array())
+    {
+        values.push(kv(
+            &format!("learned {name} noise scale"),
+            format!("{scale:.4}"),
+        ));
     }
     values.push(kv("learned physics: tracks", s.learned.tracks.to_string()));
     for n in s.learned_noise.iter().filter(|n| n.has_learned()) {
@@ -266,6 +282,7 @@ mod tests {
                 track: Some(4),
                 learned: &learned(),
                 learned_noise: &learned_noise(),
+                learned_model_noise: &model_noise(),
             },
             &mut window,
         );
@@ -326,6 +343,17 @@ mod tests {
         ]
     }
 
+    fn model_noise() -> LearnedModelNoise {
+        LearnedModelNoise {
+            scales: NoiseScales {
+                acceleration: 0.2,
+                spin: 0.5,
+                bounce: 1.5,
+            },
+            log_sigma: [0.3, 0.4, 0.5],
+        }
+    }
+
     fn learned() -> LearnedParams {
         LearnedParams {
             params: PhysicsParams {
@@ -336,6 +364,7 @@ mod tests {
             },
             sigma: [0.02, 0.05, 0.003, 0.01],
             tracks: 12,
+            flight_sigma: [0.03, 0.1, 0.02, 0.0],
         }
     }
 
@@ -359,6 +388,7 @@ mod tests {
                 track: None,
                 learned: &learned(),
                 learned_noise: &[],
+                learned_model_noise: &model_noise(),
             },
             &mut Window::default(),
         )

@@ -662,6 +662,7 @@ impl EstimatorThread {
         let estimator = self.pipeline.estimator();
         let learned = estimator.learned_params();
         let learned_noise = estimator.learned_noise();
+        let learned_model_noise = estimator.learned_model_noise();
         let msg = diagnostics_msg(
             &Snapshot {
                 node: &self.node_name,
@@ -675,6 +676,7 @@ impl EstimatorThread {
                 track: estimator.estimate().map(|e| e.track_id),
                 learned: &learned,
                 learned_noise: &learned_noise,
+                learned_model_noise: &learned_model_noise,
             },
             window,
         );
