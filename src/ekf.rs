@@ -756,4 +756,93 @@ mod tests {
         assert!(ekf.P[(3, 3)] > 1e-6);
         assert_eq!(ekf.P, ekf.P.transpose());
     }
+
+    /// The filter's dP/ds of each noise scale, carried through flight, a bounce and updates,
+    /// against central differences of the innovation covariance S = H P^- H' + R between two
+    /// filters run with the scale moved up and down; and the score's gradient against the
+    /// difference of the innovation's log-likelihood with the innovation held.
+    #[test]
+    #[expect(non_snake_case, reason = "matrix notation")]
+    fn the_noise_sensitivity_matches_finite_differences() {
+        let config = Config::default();
+        let propagator = Propagator::new(&config);
+        let start = crate::physics::BallState::new(
+            Vector3::new(-0.3, 0.02, 0.045),
+            Vector3::new(-4.0, 0.2, -1.5),
+            Vector3::new(20.0, -150.0, 30.0),
+        )
+        .to_vector();
+        let noise = ProcessNoise {
+            acceleration_density: 0.05,
+            spin_density: 200.0,
+            param_density: ParamVector::zeros(),
+        };
+        let bounce_noise = BounceNoise {
+            impulse_sigma: 0.1,
+            restitution_sigma: 0.02,
+            unscented: true,
+        };
+        let R = Matrix3::identity() * 1e-6;
+        let H = position_H();
+        // Six steps of 10 ms, the bounce in the second; the same measurements for every run.
+        let truth = crate::physics::predict(
+            &propagator,
+            &crate::physics::BallState::from_vector(&start),
+            &crate::physics::PredictOptions {
+                horizon: 0.06,
+                sample_interval: 0.01,
+                plane_x: None,
+                stop_at_plane: false,
+            },
+        );
+        let run = |scales: &NoiseScales| {
+            let mut ekf =
+                Ekf::with_known_params(start, StateMatrix::identity() * 1e-4, &propagator);
+            let mut last = None;
+            for (k, sample) in truth.samples.iter().skip(1).enumerate() {
+                let report = ekf.predict(&propagator, &noise, &bounce_noise, scales, 0.01);
+                if k == 1 {
+                    assert_eq!(report.bounces, 1, "the bounce is in the second step");
+                }
+                let z = sample.state.position + Vector3::new(0.001, -0.0005, 0.0008);
+                let S = H * ekf.state_covariance() * H.transpose() + R;
+                let sensitivity = ekf.noise_sensitivity;
+                let y = z - H * ekf.x;
+                let fused = ekf.update(&z, &H, &R, 1e9).expect("fused");
+                last = Some((S, sensitivity, y, fused.score));
+            }
+            last.expect("steps")
+        };
+        let base = NoiseScales::from_array([0.7, 1.3, 0.9]);
+        let (_, sensitivity, y, score) = run(&base);
+        for j in 0..NOISE_SCALES {
+            let h = 1e-4;
+            let moved = |sign: f64| {
+                let mut a = base.to_array();
+                a[j] += sign * h;
+                run(&NoiseScales::from_array(a)).0
+            };
+            let (up, down) = (moved(1.0), moved(-1.0));
+            let numeric = (up - down) / (2.0 * h);
+            let analytic = H * sensitivity[j] * H.transpose();
+            assert!(analytic.amax() > 1e-9, "scale {j} matters: {analytic}");
+            assert!(
+                (numeric - analytic).amax() < 2e-3 * analytic.amax(),
+                "scale {j}: {numeric} vs {analytic}"
+            );
+            // d/ds of log N(y; 0, S(s)) with y held.
+            let log_likelihood = |S: &Matrix3<f64>| {
+                let chol = S.cholesky().expect("S");
+                -0.5 * (y.dot(&chol.solve(&y)) + chol.ln_determinant())
+            };
+            let numeric_gradient = (log_likelihood(&up) - log_likelihood(&down)) / (2.0 * h);
+            assert!(
+                (score.gradient[j] - numeric_gradient).abs()
+                    < 2e-3 * numeric_gradient.abs().max(1e-3),
+                "scale {j}: gradient {} vs {numeric_gradient}",
+                score.gradient[j]
+            );
+            assert!(score.information[j] > 0.0);
+        }
+    }
 }

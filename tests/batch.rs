@@ -79,10 +79,12 @@ fn the_batch_fit_beats_the_online_filter_on_simulated_flights() {
     assert!(rms(batch_w) < 0.5 * rms(online_w));
 }
 
-/// The filter's efficiency (its interception error over the batch fit's on the same
-/// detections): the fit, which sees everything the filter saw at once, predicts better at every
-/// lead, and both predict most shots (300 ms before the crossing some balls are not yet
-/// tracked).
+/// The filter's efficiency (its errors over the batch fit's on the same detections at the same
+/// stamps): the fit, which sees everything the filter saw at once and knows the physics the
+/// simulation flies, predicts the crossing better at every lead; both predict most shots (300 ms
+/// before the crossing some balls are not yet tracked); every quantity is compared over the
+/// shots. With the physics not learned (`adaptation.enabled: false`), the fit with the learned
+/// physics is the fit with the configured one.
 #[test]
 fn the_filter_is_measured_against_the_batch_fit_of_the_same_detections() {
     let config = Config::default();
@@ -95,12 +97,32 @@ fn the_filter_is_measured_against_the_batch_fit_of_the_same_detections() {
         },
     )
     .expect("simulated");
-    let lines = ttball::eval::efficiency(&config, &session);
-    assert_eq!(lines.len(), ttball::eval::LEADS.len());
-    for l in &lines {
+    let [configured, learned] = ttball::eval::efficiency(&config, &session);
+    assert_eq!(configured.physics, ttball::eval::BatchPhysics::Configured);
+    assert_eq!(learned.physics, ttball::eval::BatchPhysics::Learned);
+    assert_eq!(configured.leads.len(), ttball::eval::LEADS.len());
+    for l in &configured.leads {
         eprintln!("{l:?}");
-        assert!(l.shots >= 12, "{l:?}");
-        assert!(l.median_ratio > 1.0, "{l:?}");
-        assert!(l.batch.median < 0.01, "{l:?}");
+        assert!(l.position.shots >= 12, "{l:?}");
+        assert_eq!(l.spin.shots, l.position.shots);
+        assert!(l.position.median_ratio > 1.0, "{l:?}");
+        assert!(l.position.batch.median < 0.01, "{l:?}");
+        assert!(l.spin.batch.median < 20.0, "{l:?}");
     }
+    for c in [
+        &configured.velocity_at_age,
+        &configured.spin_before_high_speed,
+    ] {
+        eprintln!("{c:?}");
+        assert_eq!(c.shots, 16, "{c:?}");
+        assert!(c.ratio.is_finite() && c.batch.rms > 0.0, "{c:?}");
+    }
+    // The velocity after 100 ms of track: both within 0.2 m/s RMS.
+    assert!(configured.velocity_at_age.online.rms < 0.2);
+    assert!(configured.velocity_at_age.batch.rms < 0.2);
+    let mut fixed = config.clone();
+    fixed.adaptation.enabled = false;
+    let [a, b] = ttball::eval::efficiency(&fixed, &session);
+    assert_eq!(a.leads, b.leads);
+    assert_eq!(a.velocity_at_age, b.velocity_at_age);
 }

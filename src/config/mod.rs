@@ -472,7 +472,7 @@ impl Default for EkfParams {
             bounce_unscented: true,
             learn_noise: true,
             noise_memory: 2000,
-            learn_model_noise: true,
+            learn_model_noise: false,
             model_noise_memory: 20000,
         }
     }
@@ -525,7 +525,7 @@ impl Default for AdaptationParams {
             magnus_scale_flight_sigma: 0.10,
             restitution_flight_sigma: 0.02,
             friction_flight_sigma: 0.0,
-            learn_dispersion: true,
+            learn_dispersion: false,
             drift_per_hour: 0.5,
         }
     }
