@@ -67,7 +67,10 @@ fn main() {
     let runs = if quick { 1 } else { RUNS };
 
     let (mut all, mut without_trajectory, mut with_trajectory) = (vec![], vec![], vec![]);
-    let (mut filter_only, mut handle) = (vec![], vec![]);
+    let (mut filter_only, mut handle, mut handle_learning) = (vec![], vec![], vec![]);
+    let mut learning = config.clone();
+    learning.ekf.learn_model_noise = true;
+    learning.adaptation.learn_dispersion = true;
     for _ in 0..runs {
         let mut pipeline = Pipeline::new(&config);
         for msg in &messages {
@@ -94,6 +97,12 @@ fn main() {
             black_box(estimator.update(black_box(&d.detection)));
             filter_only.push(started.elapsed().as_nanos() as u64);
         }
+        let mut estimator = Estimator::new(&learning);
+        for d in &session.stream {
+            let started = Instant::now();
+            black_box(estimator.handle(black_box(&d.detection)));
+            handle_learning.push(started.elapsed().as_nanos() as u64);
+        }
     }
     println!(
         "{} detections ({} shots, 150 + 900 fps) x {runs} runs; times in us",
@@ -112,4 +121,8 @@ fn main() {
     report("  with the 50 Hz trajectory + markers", with_trajectory);
     report("Estimator::handle (update + interception)", handle);
     report("Estimator::update (filter, rollbacks)", filter_only);
+    report(
+        "Estimator::handle, model noise + dispersion learned",
+        handle_learning,
+    );
 }

@@ -374,8 +374,6 @@ pub struct Ekf {
     pub theta: ParamVector,
     /// Covariance of (state, parameters).
     pub P: AugmentedMatrix,
-    /// How the state's covariance depends on the noise scales.
-    pub noise_sensitivity: NoiseSensitivity,
 }
 
 impl Ekf {
@@ -396,7 +394,6 @@ impl Ekf {
             x,
             theta,
             P: augmented,
-            noise_sensitivity: [StateMatrix::zeros(); NOISE_SCALES],
         }
     }
 
@@ -428,7 +425,8 @@ impl Ekf {
     }
 
     /// Propagates the estimate by `dt` seconds (dt >= 0) through flight and bounces, with the
-    /// filter's parameters in `propagator`'s model and the configured noise times `scales`.
+    /// filter's parameters in `propagator`'s model and the configured noise times `scales`;
+    /// `sensitivity`, the covariance's dependence on the scales, is carried along when given.
     #[expect(non_snake_case, reason = "matrix notation")]
     pub fn predict(
         &mut self,
@@ -436,6 +434,7 @@ impl Ekf {
         noise: &ProcessNoise,
         bounce_noise: &BounceNoise,
         scales: &NoiseScales,
+        sensitivity: Option<&mut NoiseSensitivity>,
         dt: f64,
     ) -> PredictReport {
         if dt <= 0.0 {
@@ -470,20 +469,29 @@ impl Ekf {
         // times their scales (each part at the configured density is dQ/ds).
         let (q_acceleration, q_spin) = noise.discretise_parts(dt);
         let mut P_xx_next = q_acceleration * scales.acceleration + q_spin * scales.spin;
-        let mut d = self.noise_sensitivity;
-        let [d_acceleration, d_spin, d_bounce] = &mut d;
+        if let Some(d) = sensitivity {
+            // dP/ds: carried like P, plus each scaled noise at its configured size.
+            let [d_acceleration, d_spin, d_bounce] = d;
+            let carry = |m: &StateMatrix| match &cursor.tangent {
+                Some(tangent) => tangent.carry_covariance(m),
+                None => *m,
+            };
+            let carried_scatter = match &cursor.tangent {
+                Some(tangent) if report.bounces > 0 => tangent.carry_flight(&scatter),
+                _ => scatter,
+            };
+            *d_acceleration = symmetrise(&(carry(d_acceleration) + q_acceleration));
+            *d_spin = symmetrise(&(carry(d_spin) + q_spin));
+            *d_bounce = symmetrise(&(carry(d_bounce) + carried_scatter));
+        }
         match cursor.tangent {
             Some(tangent) => {
                 // Phi P_xx Phi' (in the flight's block structure before any event).
                 P_xx_next += tangent.carry_covariance(&P_xx);
-                *d_acceleration = tangent.carry_covariance(d_acceleration) + q_acceleration;
-                *d_spin = tangent.carry_covariance(d_spin) + q_spin;
-                *d_bounce = tangent.carry_covariance(d_bounce);
                 if report.bounces > 0 {
                     // The bounces' scatter, carried by the flight since the last one.
                     let carried = tangent.carry_flight(&scatter);
                     P_xx_next += carried * scales.bounce + tangent.carry_flight(&excess);
-                    *d_bounce += carried;
                 }
                 if let Some(S) = tangent.params() {
                     let P_xt = self.P.fixed_view::<9, PARAMS>(0, 9).into_owned();
@@ -498,12 +506,7 @@ impl Ekf {
                         .copy_from(&cross.transpose());
                 }
             }
-            None => {
-                P_xx_next += P_xx + scatter * scales.bounce + excess;
-                *d_acceleration += q_acceleration;
-                *d_spin += q_spin;
-                *d_bounce += scatter;
-            }
+            None => P_xx_next += P_xx + scatter * scales.bounce + excess,
         }
         next.fixed_view_mut::<9, 9>(0, 0).copy_from(&P_xx_next);
         let mut P_tt = self.param_covariance();
@@ -525,13 +528,13 @@ impl Ekf {
         }
         self.x = cursor.state;
         self.P = symmetrise(&next);
-        self.noise_sensitivity = d.map(|m| symmetrise(&m));
         report
     }
 
     /// Fuses a measurement of the ball's state z = H x + noise(R) when its NIS is within `gate`;
-    /// returns the NIS and the score of the noise scales. The parameters move with their
-    /// correlation to the state.
+    /// returns the NIS and, given the covariance's `sensitivity` to the noise scales (which the
+    /// update carries along), their score. The parameters move with their correlation to the
+    /// state.
     ///
     /// The score: with A = H D H' for D = dP^-/ds of each noise scale ([`NoiseSensitivity`]),
     /// d log N(y; 0, S) = -1/2 (tr(S^-1 A) - y' S^-1 A S^-1 y), information 1/2 tr(S^-1 A S^-1 A)
@@ -544,6 +547,7 @@ impl Ekf {
         H: &SMatrix<f64, M, 9>,
         R: &SMatrix<f64, M, M>,
         gate: f64,
+        mut sensitivity: Option<&mut NoiseSensitivity>,
     ) -> Result<Fused, UpdateError> {
         if !z.iter().chain(R.iter()).all(|v| v.is_finite()) {
             return Err(UpdateError::NotFinite);
@@ -570,7 +574,7 @@ impl Ekf {
                 1.0
             };
         let mut score = NoiseScore::default();
-        for (j, dp) in self.noise_sensitivity.iter().enumerate() {
+        for (j, dp) in sensitivity.iter().flat_map(|d| d.iter()).enumerate() {
             let A = H * dp * H.transpose();
             let SiA = chol.solve(&A);
             score.gradient[j] = -0.5 * (SiA.trace() - w.dot(&(A * w)));
@@ -590,22 +594,23 @@ impl Ekf {
         let K_PHt = K * PHt.transpose();
         self.P = symmetrise(&(self.P - K_PHt - K_PHt.transpose() + K * S * K.transpose()));
         let I_KH = StateMatrix::identity() - K.fixed_rows::<9>(0) * H;
-        for d in &mut self.noise_sensitivity {
+        for d in sensitivity.iter_mut().flat_map(|d| d.iter_mut()) {
             *d = symmetrise(&(I_KH * *d * I_KH.transpose()));
         }
         Ok(Fused { nis, score })
     }
 
     /// Forgets what the filter learned about the spin: its covariance goes back to `variance`
-    /// [(rad/s)^2] per axis, uncorrelated with the rest (the estimate itself is kept).
-    pub fn reset_spin(&mut self, variance: f64) {
+    /// [(rad/s)^2] per axis, uncorrelated with the rest (the estimate itself is kept), and no
+    /// longer depends on the noise scales (`sensitivity`, when given).
+    pub fn reset_spin(&mut self, variance: f64, mut sensitivity: Option<&mut NoiseSensitivity>) {
         for i in 6..9 {
             for j in 0..AUGMENTED {
                 self.P[(i, j)] = 0.0;
                 self.P[(j, i)] = 0.0;
             }
             self.P[(i, i)] = variance;
-            for d in &mut self.noise_sensitivity {
+            for d in sensitivity.iter_mut().flat_map(|d| d.iter_mut()) {
                 for j in 0..9 {
                     d[(i, j)] = 0.0;
                     d[(j, i)] = 0.0;
@@ -687,7 +692,10 @@ mod tests {
         );
         let z = Vector3::new(1.0, -2.0, 0.5);
         let R = Matrix3::identity();
-        let nis = ekf.update(&z, &position_H(), &R, 100.0).expect("fused").nis;
+        let nis = ekf
+            .update(&z, &position_H(), &R, 100.0, None)
+            .expect("fused")
+            .nis;
         assert!((nis - z.norm_squared() / 2.0).abs() < 1e-12);
         assert!((ekf.x[0] - 0.5).abs() < 1e-12 && (ekf.x[1] + 1.0).abs() < 1e-12);
         assert!((ekf.P[(0, 0)] - 0.5).abs() < 1e-12);
@@ -695,7 +703,7 @@ mod tests {
         assert_eq!(ekf.theta, ParamVector::repeat(0.5));
         let far = Vector3::new(50.0, 0.0, 0.0);
         assert!(matches!(
-            ekf.update(&far, &position_H(), &R, 10.0),
+            ekf.update(&far, &position_H(), &R, 10.0, None),
             Err(UpdateError::Gated { .. })
         ));
     }
@@ -712,7 +720,7 @@ mod tests {
         let R = SMatrix::<f64, 6, 6>::from_diagonal_element(0.2);
         let z = H * x + SVector::<f64, 6>::from_fn(|i, _| 0.1 * i as f64 - 0.2);
         let mut ekf = Ekf::new(x, P, ParamVector::repeat(0.5), ParamCovariance::zeros());
-        ekf.update(&z, &H, &R, 1e6).expect("fused");
+        ekf.update(&z, &H, &R, 1e6, None).expect("fused");
         let S = H * P * H.transpose() + R;
         let K = P * H.transpose() * S.try_inverse().expect("S invertible");
         let I_KH = StateMatrix::identity() - K * H;
@@ -748,6 +756,7 @@ mod tests {
             &noise,
             &BounceNoise::default(),
             &NoiseScales::default(),
+            None,
             0.05,
         );
         assert_eq!(report.bounces, 1);
@@ -798,17 +807,25 @@ mod tests {
         let run = |scales: &NoiseScales| {
             let mut ekf =
                 Ekf::with_known_params(start, StateMatrix::identity() * 1e-4, &propagator);
+            let mut d = [StateMatrix::zeros(); NOISE_SCALES];
             let mut last = None;
             for (k, sample) in truth.samples.iter().skip(1).enumerate() {
-                let report = ekf.predict(&propagator, &noise, &bounce_noise, scales, 0.01);
+                let report = ekf.predict(
+                    &propagator,
+                    &noise,
+                    &bounce_noise,
+                    scales,
+                    Some(&mut d),
+                    0.01,
+                );
                 if k == 1 {
                     assert_eq!(report.bounces, 1, "the bounce is in the second step");
                 }
                 let z = sample.state.position + Vector3::new(0.001, -0.0005, 0.0008);
                 let S = H * ekf.state_covariance() * H.transpose() + R;
-                let sensitivity = ekf.noise_sensitivity;
+                let sensitivity = d;
                 let y = z - H * ekf.x;
-                let fused = ekf.update(&z, &H, &R, 1e9).expect("fused");
+                let fused = ekf.update(&z, &H, &R, 1e9, Some(&mut d)).expect("fused");
                 last = Some((S, sensitivity, y, fused.score));
             }
             last.expect("steps")

@@ -31,8 +31,8 @@ use nalgebra::{Matrix3, Matrix6, SVector, Vector3};
 use crate::config::{Config, SourceParams};
 use crate::detection::{Detection, Source, seconds_to_ns};
 use crate::ekf::{
-    BounceNoise, Ekf, Fused, NoiseScore, ParamCovariance, ProcessNoise, UpdateError, position_H,
-    position_spin_H,
+    BounceNoise, Ekf, Fused, NOISE_SCALES, NoiseScore, NoiseSensitivity, ParamCovariance,
+    ProcessNoise, UpdateError, position_H, position_spin_H,
 };
 use crate::intercept::{Intercept, InterceptQuery, InterceptTracker};
 use crate::physics::{
@@ -565,6 +565,10 @@ pub struct Estimator {
     model_noise: ModelNoiseLearner,
     /// The score of the noise scales of the detection `fuse` just fused.
     score: std::cell::Cell<Option<NoiseScore>>,
+    /// How the live track's covariance depends on the noise scales, when they are learned:
+    /// carried along the track's newest detections (a late one, fused by rolling back, neither
+    /// moves it nor teaches the scales), allocated once.
+    sensitivity: Option<Box<NoiseSensitivity>>,
     /// What the estimator knows of the physical parameters between tracks.
     learned: Learned,
 }
@@ -731,6 +735,10 @@ impl Estimator {
                 config.ekf.model_noise_memory,
             ),
             score: std::cell::Cell::new(None),
+            sensitivity: config
+                .ekf
+                .learn_model_noise
+                .then(|| Box::new([StateMatrix::zeros(); NOISE_SCALES])),
             learned: Learned::new(
                 settings.param_prior,
                 settings.param_prior_var,
@@ -1150,10 +1158,16 @@ impl Estimator {
 
     /// Moves a snapshot forward to `stamp`, counting bounces.
     fn advance(&self, snapshot: &mut Snapshot, stamp: i64) {
-        self.advance_with(&self.propagator, snapshot, stamp);
+        self.advance_with(&self.propagator, snapshot, stamp, None);
     }
 
-    fn advance_with(&self, propagator: &Propagator, snapshot: &mut Snapshot, stamp: i64) {
+    fn advance_with(
+        &self,
+        propagator: &Propagator,
+        snapshot: &mut Snapshot,
+        stamp: i64,
+        sensitivity: Option<&mut NoiseSensitivity>,
+    ) {
         let dt = (stamp - snapshot.stamp) as f64 * 1e-9;
         if dt > 0.0 {
             let report = snapshot.ekf.predict(
@@ -1161,6 +1175,7 @@ impl Estimator {
                 &self.settings.noise,
                 &self.settings.bounce,
                 &self.model_noise.scales(),
+                sensitivity,
                 dt,
             );
             snapshot.bounces += report.bounces;
@@ -1169,22 +1184,29 @@ impl Estimator {
         snapshot.stamp = stamp.max(snapshot.stamp);
     }
 
-    /// Fuses a measurement into a snapshot at the detection's stamp.
+    /// Fuses a measurement into a snapshot at the detection's stamp, carrying the covariance's
+    /// `sensitivity` to the noise scales along when given.
     fn fuse(
         &self,
         snapshot: &mut Snapshot,
         d: &Detection,
         m: &Measurement,
+        sensitivity: Option<&mut NoiseSensitivity>,
     ) -> Result<f64, Rejection> {
         let prior = *snapshot;
-        let (mut result, innovation) = self.predict_and_update(&self.propagator, snapshot, d, m);
+        let scoring = sensitivity.is_some();
+        let (mut result, innovation) =
+            self.predict_and_update(&self.propagator, snapshot, d, m, sensitivity);
         self.innovation.set(innovation);
         if self.near_table_edge(snapshot) {
             // An edge ball: estimate and ball may land on either side of the table's edge. The
             // hypothesis that explains the detection best wins.
             for alternative in &self.edge_alternatives {
                 let mut other = prior;
-                let Ok(fused) = self.predict_and_update(alternative, &mut other, d, m).0 else {
+                let Ok(fused) = self
+                    .predict_and_update(alternative, &mut other, d, m, None)
+                    .0
+                else {
                     continue;
                 };
                 let better = match result {
@@ -1202,7 +1224,7 @@ impl Estimator {
             Ok(fused) => {
                 snapshot.last_fused = d.stamp;
                 snapshot.nis = fused.nis;
-                self.score.set(Some(fused.score));
+                self.score.set(scoring.then_some(fused.score));
                 Ok(fused.nis)
             }
             Err(UpdateError::Gated { .. }) => Err(Rejection::Gated),
@@ -1217,8 +1239,9 @@ impl Estimator {
         snapshot: &mut Snapshot,
         d: &Detection,
         m: &Measurement,
+        mut sensitivity: Option<&mut NoiseSensitivity>,
     ) -> (Result<Fused, UpdateError>, Option<noise::Innovation>) {
-        self.advance_with(propagator, snapshot, d.stamp);
+        self.advance_with(propagator, snapshot, d.stamp, sensitivity.as_deref_mut());
         let x = &snapshot.ekf.x;
         let velocity = x.fixed_rows::<3>(3).into_owned();
         let p = snapshot.ekf.state_covariance();
@@ -1252,12 +1275,16 @@ impl Estimator {
             spin,
         });
         let result = match &m {
-            Measurement::Position { z, r, .. } => {
-                snapshot
-                    .ekf
-                    .update(z, &position_H(), r, self.settings.gate_position)
+            Measurement::Position { z, r, .. } => snapshot.ekf.update(
+                z,
+                &position_H(),
+                r,
+                self.settings.gate_position,
+                sensitivity,
+            ),
+            Measurement::PositionSpin { z, r, .. } => {
+                self.fuse_position_spin(snapshot, z, r, sensitivity)
             }
-            Measurement::PositionSpin { z, r, .. } => self.fuse_position_spin(snapshot, z, r),
         };
         (result, innovation)
     }
@@ -1285,6 +1312,7 @@ impl Estimator {
         snapshot: &mut Snapshot,
         z: &SVector<f64, 6>,
         r: &Matrix6<f64>,
+        mut sensitivity: Option<&mut NoiseSensitivity>,
     ) -> Result<Fused, UpdateError> {
         let z_position = z.fixed_rows::<3>(0).into_owned();
         let r_position = r.fixed_view::<3, 3>(0, 0).into_owned();
@@ -1295,29 +1323,42 @@ impl Estimator {
             return Err(UpdateError::Gated { nis, gate });
         }
         let h = position_spin_H();
-        match snapshot
-            .ekf
-            .update(z, &h, r, self.settings.gate_position_spin)
-        {
+        match snapshot.ekf.update(
+            z,
+            &h,
+            r,
+            self.settings.gate_position_spin,
+            sensitivity.as_deref_mut(),
+        ) {
             // At the table the measured spin may be of the other side of the bounce (the
             // bounce's time is uncertain by a millisecond or two, and it changes the spin by
             // hundreds of rad/s): the position alone.
             Err(UpdateError::Gated { .. }) if self.at_the_table(snapshot, BOUNCE_SPIN_MARGIN) => {
                 snapshot
                     .ekf
-                    .update(&z_position, &position_H(), &r_position, gate)
+                    .update(&z_position, &position_H(), &r_position, gate, sensitivity)
             }
             Err(UpdateError::Gated { .. }) => {
-                snapshot.ekf.reset_spin(self.settings.spin_prior_var);
-                self.spin_resets.set(self.spin_resets.get() + 1);
                 snapshot
                     .ekf
-                    .update(z, &h, r, self.settings.gate_position_spin)
-                    .or_else(|_| {
-                        snapshot
-                            .ekf
-                            .update(&z_position, &position_H(), &r_position, gate)
-                    })
+                    .reset_spin(self.settings.spin_prior_var, sensitivity.as_deref_mut());
+                self.spin_resets.set(self.spin_resets.get() + 1);
+                match snapshot.ekf.update(
+                    z,
+                    &h,
+                    r,
+                    self.settings.gate_position_spin,
+                    sensitivity.as_deref_mut(),
+                ) {
+                    Ok(fused) => Ok(fused),
+                    Err(_) => snapshot.ekf.update(
+                        &z_position,
+                        &position_H(),
+                        &r_position,
+                        gate,
+                        sensitivity,
+                    ),
+                }
             }
             other => other,
         }
@@ -1335,9 +1376,14 @@ impl Estimator {
             return Err(Rejection::Duplicate);
         }
         let mut snapshot = track.now;
-        let result = self.fuse(&mut snapshot, d, &m);
+        // The sensitivity to the noise scales moves on only with a detection fused.
+        let mut sensitivity = self.sensitivity.as_deref().copied();
+        let result = self.fuse(&mut snapshot, d, &m, sensitivity.as_mut());
         self.learn_noise(d);
         let nis = result?;
+        if let (Some(kept), Some(moved)) = (self.sensitivity.as_deref_mut(), sensitivity) {
+            *kept = moved;
+        }
         self.push_history(Entry {
             detection: *d,
             measurement: m,
@@ -1364,7 +1410,7 @@ impl Estimator {
             0 => track.base,
             i => track.history[i - 1].after,
         };
-        let result = self.fuse(&mut snapshot, d, &m);
+        let result = self.fuse(&mut snapshot, d, &m, None);
         self.learn_noise(d);
         let nis = result?;
         let late = Entry {
@@ -1379,7 +1425,7 @@ impl Estimator {
             // A re-applied detection that no longer passes the gate is skipped.
             let mut next = snapshot;
             if self
-                .fuse(&mut next, &entry.detection, &entry.measurement)
+                .fuse(&mut next, &entry.detection, &entry.measurement, None)
                 .is_ok()
             {
                 snapshot = next;
@@ -1541,6 +1587,10 @@ impl Estimator {
                 id
             }
         };
+        // Nothing of the new track depends on the noise scales yet.
+        if let Some(d) = self.sensitivity.as_deref_mut() {
+            *d = [StateMatrix::zeros(); NOISE_SCALES];
+        }
         let history = std::mem::take(&mut self.spare_history);
         self.track = Some(Track {
             id,
