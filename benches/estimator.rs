@@ -42,7 +42,7 @@ fn benches(c: &mut Criterion) {
     group.bench_function("position", |b| {
         b.iter_batched(
             || ekf,
-            |mut e| e.update(black_box(&z3), &position_H(), &r3, 100.0),
+            |mut e| e.update(black_box(&z3), &position_H(), &r3, 100.0, None),
             BatchSize::SmallInput,
         )
     });
@@ -53,7 +53,7 @@ fn benches(c: &mut Criterion) {
     group.bench_function("position_spin", |b| {
         b.iter_batched(
             || ekf,
-            |mut e| e.update(black_box(&z6), &position_spin_H(), &r6, 100.0),
+            |mut e| e.update(black_box(&z6), &position_spin_H(), &r6, 100.0, None),
             BatchSize::SmallInput,
         )
     });
