@@ -46,9 +46,12 @@ pub struct EvaluateArgs {
     #[arg(long, value_enum, default_value = "all")]
     pub cameras: Setup,
 
-    /// Also measure the filter's efficiency: its interception error at each lead divided by
-    /// that of a batch fit of the same detections (1.0 is the best any estimator with this
-    /// model can do). Fits every shot three times: about 0.1 s per shot.
+    /// Also measure the filter's efficiency: its errors (interception and spin at the crossing
+    /// at each lead, velocity after 100 ms of track, spin across the flight before the 900 fps
+    /// camera sees the ball) divided by those of a batch fit of the same detections at the
+    /// same stamps (1.0 is the best any estimator of a flight that follows the model can do),
+    /// the fit flying the configured physics and, again, the physics the estimator had learned
+    /// when the shot began. Fits every shot ten times: about 0.2 s per shot.
     #[arg(long)]
     pub efficiency: bool,
 
@@ -268,10 +271,11 @@ learned physics at the end (relative error against the truth):
                 .map(|(i, name)| format!("{name} {:.3} ({:+.1} %)", values[i], errors[i] * 100.0))
                 .collect();
             write_stdout(&format!(
-                "  {:<13} {}
+                "  {:<13} {}; {}
 ",
                 r.set.name,
-                parts.join(", ")
+                parts.join(", "),
+                super::replay::model_noise_text(&r.model_noise)
             ))?;
         }
         if let Some(path) = &self.json {
@@ -284,6 +288,7 @@ learned physics at the end (relative error against the truth):
                         "clean_bounce_fraction": r.clean_bounce_fraction(),
                         "settled": r.settled,
                         "learned": super::replay::learned_json(&r.learned),
+                        "learned_model_noise": super::replay::model_noise_json(&r.model_noise),
                         "learned_relative_errors": r.learned_errors(),
                         "report": r.report,
                         "reference": r.reference,
