@@ -185,6 +185,21 @@ pub struct Fused {
 /// the noise scales no more than this.
 const SCORE_NIS_LIMIT: f64 = 4.0;
 
+/// What the filter's prediction adds to the physics: the process noise, the bounce's scatter,
+/// and how the flight's coefficients see the spin's uncertainty.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FilterNoise {
+    /// The process noise.
+    pub process: ProcessNoise,
+    /// The bounce's scatter.
+    pub bounce: BounceNoise,
+    /// kappa: the flight's coefficients are evaluated at the spin parameter of
+    /// sqrt(|w_perp|^2 + kappa^2 tr P_w_perp), the spin's magnitude across the flight with
+    /// kappa times its spread ([`crate::physics::FlightModel::with_spin_variance`]); 0 at the
+    /// estimate's own [-].
+    pub spin_spread: f64,
+}
+
 /// What a prediction went through.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct PredictReport {
@@ -414,6 +429,19 @@ impl Ekf {
         self.P.fixed_view::<9, 9>(0, 0).into_owned()
     }
 
+    /// The variance of the spin across the flight [(rad/s)^2]: the trace of its covariance
+    /// projected on the plane perpendicular to the velocity (all of it for a ball at rest).
+    pub fn spin_variance_across_flight(&self) -> f64 {
+        let p = self.P.fixed_view::<3, 3>(6, 6).into_owned();
+        let v = self.x.fixed_rows::<3>(3).into_owned();
+        let speed = v.norm();
+        if speed < 1e-9 {
+            return p.trace();
+        }
+        let u = v / speed;
+        (p.trace() - u.dot(&(p * u))).max(0.0)
+    }
+
     /// The covariance of the parameters.
     pub fn param_covariance(&self) -> ParamCovariance {
         self.P.fixed_view::<PARAMS, PARAMS>(9, 9).into_owned()
@@ -425,14 +453,14 @@ impl Ekf {
     }
 
     /// Propagates the estimate by `dt` seconds (dt >= 0) through flight and bounces, with the
-    /// filter's parameters in `propagator`'s model and the configured noise times `scales`;
-    /// `sensitivity`, the covariance's dependence on the scales, is carried along when given.
+    /// filter's parameters in `propagator`'s model and its `model` of what the physics leaves
+    /// out, the noise times `scales`; `sensitivity`, the covariance's dependence on the scales,
+    /// is carried along when given.
     #[expect(non_snake_case, reason = "matrix notation")]
     pub fn predict(
         &mut self,
         propagator: &Propagator,
-        noise: &ProcessNoise,
-        bounce_noise: &BounceNoise,
+        model: &FilterNoise,
         scales: &NoiseScales,
         sensitivity: Option<&mut NoiseSensitivity>,
         dt: f64,
@@ -440,7 +468,15 @@ impl Ekf {
         if dt <= 0.0 {
             return PredictReport::default();
         }
+        let (noise, bounce_noise) = (&model.process, &model.bounce);
         let propagator = propagator.with_params(&self.params());
+        let propagator = if model.spin_spread > 0.0 {
+            propagator.with_spin_variance(
+                model.spin_spread * model.spin_spread * self.spin_variance_across_flight(),
+            )
+        } else {
+            propagator
+        };
         let tracks_params = self.param_covariance() != ParamCovariance::zeros();
         let mut cursor = if tracks_params {
             Cursor::tracking_params(0.0, self.x)
@@ -751,14 +787,12 @@ mod tests {
             spin_density: 1.0,
             param_density: ParamVector::zeros(),
         };
-        let report = ekf.predict(
-            &propagator,
-            &noise,
-            &BounceNoise::default(),
-            &NoiseScales::default(),
-            None,
-            0.05,
-        );
+        let model = FilterNoise {
+            process: noise,
+            bounce: BounceNoise::default(),
+            spin_spread: 0.0,
+        };
+        let report = ekf.predict(&propagator, &model, &NoiseScales::default(), None, 0.05);
         assert_eq!(report.bounces, 1);
         assert_eq!(report.robot_half_bounces, 1);
         assert!(ekf.x[5] > 0.0);
@@ -810,14 +844,12 @@ mod tests {
             let mut d = [StateMatrix::zeros(); NOISE_SCALES];
             let mut last = None;
             for (k, sample) in truth.samples.iter().skip(1).enumerate() {
-                let report = ekf.predict(
-                    &propagator,
-                    &noise,
-                    &bounce_noise,
-                    scales,
-                    Some(&mut d),
-                    0.01,
-                );
+                let model = FilterNoise {
+                    process: noise,
+                    bounce: bounce_noise,
+                    spin_spread: 0.0,
+                };
+                let report = ekf.predict(&propagator, &model, scales, Some(&mut d), 0.01);
                 if k == 1 {
                     assert_eq!(report.bounces, 1, "the bounce is in the second step");
                 }

@@ -87,6 +87,47 @@ fn flight_jacobian_matches_finite_differences_including_high_spin_parameter() {
     );
 }
 
+/// With the spin known only to a variance across the flight (the filter's prediction), the
+/// coefficients are evaluated at the spin parameter of sqrt(|w_perp|^2 + variance): the Jacobian
+/// still matches the field, spins near zero included, and a spin of zero sees the drag of its
+/// spread (more than the plain model's), while a large one barely notices it.
+#[test]
+fn flight_jacobian_with_a_spin_variance_matches_finite_differences() {
+    let plain = FlightModel::new(&Config::default());
+    let model = plain.with_spin_variance(80.0 * 80.0);
+    let mut rng = Rng::new(11);
+    let mut checked = 0;
+    while checked < 300 {
+        let v = random_vector(&mut rng, 0.5, 15.0);
+        let w = random_vector(&mut rng, 0.0, if checked % 3 == 0 { 20.0 } else { 500.0 });
+        let sp = model.spin_parameter(&v, &w);
+        if (sp - 2.0).abs() < 1e-2 || v.cross(&w).norm() < 1e-3 {
+            continue;
+        }
+        let x = state(random_vector(&mut rng, 0.0, 2.0).into(), v.into(), w.into()).to_vector();
+        let err = relative_error(
+            &model.jacobian(&x).to_matrix(),
+            &finite_difference(&x, |x| model.derivative(x)),
+        );
+        assert!(err < 1e-6, "relative error {err:e} at Sp = {sp}, x = {x}");
+        checked += 1;
+    }
+    let at_rest = state([0.0, 0.0, 0.3], [-5.0, 0.0, 0.0], [0.0, 0.0, 0.0]).to_vector();
+    let (d_plain, d_spread) = (plain.derivative(&at_rest), model.derivative(&at_rest));
+    // Moving toward -x, the drag pushes toward +x.
+    assert!(
+        d_spread[3] > d_plain[3],
+        "more drag: {} vs {}",
+        d_spread[3],
+        d_plain[3]
+    );
+    assert_eq!(d_spread[4], 0.0, "no Magnus force without a spin");
+    let fast = state([0.0, 0.0, 0.3], [-5.0, 0.0, 0.0], [0.0, 2000.0, 0.0]).to_vector();
+    let relative =
+        (model.derivative(&fast) - plain.derivative(&fast)).norm() / plain.derivative(&fast).norm();
+    assert!(relative < 0.01, "{relative}");
+}
+
 #[test]
 fn flight_jacobian_with_spin_decay_matches_finite_differences() {
     let mut config = Config::default();

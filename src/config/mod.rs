@@ -438,6 +438,12 @@ pub struct EkfParams {
     /// [m], added in quadrature to its source's: a ball touching or nearly touching the surface
     /// merges with its reflection and shadow in the image, and is squashed for a millisecond.
     pub contact_position_sigma: f64,
+    /// kappa: the filter's prediction evaluates C_D and C_M at the spin parameter of
+    /// sqrt(|w_perp|^2 + kappa^2 tr P_w_perp), the spin's magnitude across the flight widened by
+    /// kappa times its spread, instead of its estimate's [-]. A spin learned from curvature
+    /// starts at zero, the smallest magnitude a spin can have; the drag and the Magnus force of
+    /// the spins it may be are those of a larger one.
+    pub spin_parameter_spread: f64,
     /// Whether the filter carries the state's uncertainty through a bounce by sigma points
     /// (the unscented transform of the bounce map: both regimes, the spin along every
     /// direction), adding its spread beyond the linearised one.
@@ -469,6 +475,7 @@ impl Default for EkfParams {
             bounce_impulse_sigma: 0.05,
             bounce_restitution_sigma: 0.01,
             contact_position_sigma: 0.003,
+            spin_parameter_spread: 0.5,
             bounce_unscented: true,
             learn_noise: true,
             noise_memory: 2000,

@@ -615,6 +615,12 @@ impl Config {
             "between 0 and 0.5",
         );
         c.real(
+            "ekf.spin_parameter_spread",
+            e.spin_parameter_spread,
+            |v| (0.0..=2.0).contains(&v),
+            "between 0 and 2",
+        );
+        c.real(
             "ekf.contact_position_sigma",
             e.contact_position_sigma,
             |v| (0.0..=0.05).contains(&v),

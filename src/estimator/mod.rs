@@ -31,8 +31,8 @@ use nalgebra::{Matrix3, Matrix6, SVector, Vector3};
 use crate::config::{Config, SourceParams};
 use crate::detection::{Detection, Source, seconds_to_ns};
 use crate::ekf::{
-    BounceNoise, Ekf, Fused, NOISE_SCALES, NoiseScore, NoiseSensitivity, ParamCovariance,
-    ProcessNoise, UpdateError, position_H, position_spin_H,
+    BounceNoise, Ekf, FilterNoise, Fused, NOISE_SCALES, NoiseScore, NoiseSensitivity,
+    ParamCovariance, ProcessNoise, UpdateError, position_H, position_spin_H,
 };
 use crate::intercept::{Intercept, InterceptQuery, InterceptTracker};
 use crate::physics::{
@@ -260,8 +260,8 @@ impl SourceNoise {
 /// The configuration as the estimator uses it.
 #[derive(Debug, Clone, PartialEq)]
 pub(crate) struct Settings {
-    noise: ProcessNoise,
-    bounce: BounceNoise,
+    /// What the filter's prediction adds to the physics.
+    filter: FilterNoise,
     /// The extra position variance of a detection of a ball at the table [m^2].
     contact_var: f64,
     /// The adaptation's prior: the configured parameters, and their variances (zero for those
@@ -299,16 +299,19 @@ impl Settings {
         ) * if adaptation.enabled { 1.0 } else { 0.0 };
         let param_prior_var = sigmas.component_mul(&sigmas);
         Self {
-            noise: ProcessNoise {
-                acceleration_density: config.ekf.acceleration_noise_density,
-                spin_density: config.ekf.spin_noise_density,
-                param_density: param_prior_var
-                    * (adaptation.drift_per_hour * adaptation.drift_per_hour / 3600.0),
-            },
-            bounce: BounceNoise {
-                impulse_sigma: config.ekf.bounce_impulse_sigma,
-                restitution_sigma: config.ekf.bounce_restitution_sigma,
-                unscented: config.ekf.bounce_unscented,
+            filter: FilterNoise {
+                process: ProcessNoise {
+                    acceleration_density: config.ekf.acceleration_noise_density,
+                    spin_density: config.ekf.spin_noise_density,
+                    param_density: param_prior_var
+                        * (adaptation.drift_per_hour * adaptation.drift_per_hour / 3600.0),
+                },
+                bounce: BounceNoise {
+                    impulse_sigma: config.ekf.bounce_impulse_sigma,
+                    restitution_sigma: config.ekf.bounce_restitution_sigma,
+                    unscented: config.ekf.bounce_unscented,
+                },
+                spin_spread: config.ekf.spin_parameter_spread,
             },
             contact_var: config.ekf.contact_position_sigma * config.ekf.contact_position_sigma,
             param_prior: PhysicsParams::from_config(config).to_vector(),
@@ -742,7 +745,7 @@ impl Estimator {
             learned: Learned::new(
                 settings.param_prior,
                 settings.param_prior_var,
-                settings.noise.param_density,
+                settings.filter.process.param_density,
                 settings.param_dispersion,
                 config.adaptation.learn_dispersion,
             ),
@@ -1172,8 +1175,7 @@ impl Estimator {
         if dt > 0.0 {
             let report = snapshot.ekf.predict(
                 propagator,
-                &self.settings.noise,
-                &self.settings.bounce,
+                &self.settings.filter,
                 &self.model_noise.scales(),
                 sensitivity,
                 dt,

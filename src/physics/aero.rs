@@ -301,9 +301,25 @@ pub struct FlightModel {
     magnus: Polynomial,
     spin_parameter_max: f64,
     spin_decay: f64,
+    /// The variance [(rad/s)^2] of the spin across the flight that the coefficients are
+    /// evaluated over ([`Self::with_spin_variance`]); 0 for a known spin.
+    spin_variance: f64,
 }
 
 impl FlightModel {
+    /// The same model for a spin known only to a variance `variance` [(rad/s)^2] across the
+    /// flight: C_D and C_M are evaluated at the spin parameter of sqrt(|w_perp|^2 + variance),
+    /// the spin's magnitude across the flight with its spread, instead of |w_perp| (the drag
+    /// and the Magnus force grow or fall with the magnitude of a spin whose direction is still
+    /// uncertain: at |w_perp| = 0 the plain spin parameter is the smallest the spin can give).
+    /// The force's direction is still w x v.
+    pub fn with_spin_variance(&self, variance: f64) -> Self {
+        Self {
+            spin_variance: variance.max(0.0),
+            ..*self
+        }
+    }
+
     /// The model with the configured ball, air and aerodynamic coefficients.
     pub fn new(config: &Config) -> Self {
         let r = config.ball.radius;
@@ -322,6 +338,7 @@ impl FlightModel {
             magnus: Polynomial::new(&config.aero.magnus_coefficients),
             spin_parameter_max: config.aero.spin_parameter_max,
             spin_decay: config.aero.spin_decay_rate,
+            spin_variance: 0.0,
         }
     }
 
@@ -411,6 +428,9 @@ impl FlightModel {
         let c_norm = c.norm();
         let sp = if speed_sq < TINY {
             0.0
+        } else if self.spin_variance > 0.0 {
+            // |w_perp| = |w x v| / |v|, with the spread.
+            self.radius * (c_norm * c_norm / speed_sq + self.spin_variance).sqrt() / speed_sq.sqrt()
         } else {
             self.radius * c_norm / speed_sq
         };
@@ -470,10 +490,18 @@ impl FlightModel {
         let (dsp_dv, dsp_dw) = if speed_sq < TINY || c_norm < TINY || sp > self.spin_parameter_max {
             (Vector3::zeros(), Vector3::zeros())
         } else {
-            // d Sp = r (c_hat . d c) / |v|^2 - 2 Sp (v . d v) / |v|^2, c = w x v.
+            // d Sp = r (c_hat . d c) / |v|^2 - 2 Sp (v . d v) / |v|^2, c = w x v; with a spin
+            // variance q the first term is times |w_perp| / sqrt(|w_perp|^2 + q) (and the second
+            // Sp's).
             let r_over_speed_sq = self.radius / speed_sq;
-            let c_hat_scaled = c * (r_over_speed_sq / c_norm);
-            let dsp_dv = c_hat_scaled.cross(&w) - v * (2.0 * sp / speed_sq);
+            let spread = if self.spin_variance > 0.0 {
+                let w_perp_sq = c_norm * c_norm / speed_sq;
+                (w_perp_sq / (w_perp_sq + self.spin_variance)).sqrt()
+            } else {
+                1.0
+            };
+            let c_hat_scaled = c * (r_over_speed_sq / c_norm * spread);
+            let dsp_dv = c_hat_scaled.cross(&w) - v * (sp / speed_sq * (1.0 + spread * spread));
             let dsp_dw = v.cross(&c_hat_scaled);
             (dsp_dv, dsp_dw)
         };

@@ -455,6 +455,15 @@ impl Propagator {
         }
     }
 
+    /// The same propagator for a spin known to a variance across the flight
+    /// ([`FlightModel::with_spin_variance`]).
+    pub fn with_spin_variance(&self, variance: f64) -> Self {
+        Self {
+            flight: self.flight.with_spin_variance(variance),
+            ..*self
+        }
+    }
+
     /// The same propagator with other physical parameters (drag and Magnus scales, the
     /// table's restitution and friction).
     pub fn with_params(&self, params: &PhysicsParams) -> Self {
