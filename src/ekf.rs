@@ -18,10 +18,10 @@
 //!   (the unscented transform, which sees both the sliding and the rolling regime and the spin
 //!   along every direction), its covariance less the linearised J C J' (and the mean's offset),
 //!   the positive part. Both are carried to the end of the step by the flight after the bounce.
-//!   When the other regime is at all probable ([`AMBIGUOUS_REGIME`], from the margin that
-//!   decides it, Gaussian with its propagated variance) the state forgets its correlation with
-//!   the friction: a rolling bounce says nothing of it, and one read as sliding would teach it
-//!   a value too low.
+//!   The state keeps its correlation with the friction only in proportion to the probability
+//!   that the bounce slid (from the margin that decides the regime, Gaussian with its
+//!   propagated variance): a rolling bounce says nothing of it, and one read as sliding would
+//!   teach it a value too low.
 //! - Update: S = H P H' + R factored by Cholesky (a typed error when S is not positive definite),
 //!   NIS = y' S^-1 y, the gain from the factor, and the Joseph form
 //!   P = (I - K H) P (I - K H)' + K R K' (multiplied out), symmetrised; the parameters are kept
@@ -39,10 +39,6 @@ use crate::stats::normal_cdf;
 
 /// Dimensions of the bounce's unscented transform: velocity, spin, e_t and mu_t before it.
 pub const BOUNCE_SIGMA_DIMENSIONS: usize = 8;
-
-/// A bounce whose other regime is at least this probable leaves the friction unlearned
-/// ([`Ekf::predict`]).
-pub const AMBIGUOUS_REGIME: f64 = 0.01;
 
 /// The box the parameters are kept in (k_D, k_M, e_t, mu_t): (lowest, highest).
 pub const PARAM_BOUNDS: [(f64, f64); PARAMS] = [(0.3, 3.0), (0.05, 3.0), (0.5, 1.0), (0.02, 1.0)];
@@ -233,18 +229,19 @@ struct BounceWatch<'a> {
     scatter: StateMatrix,
     /// The spread of the bounces' outcome beyond its linearisation so far.
     excess: StateMatrix,
-    /// The largest probability of the other regime over the bounces so far.
-    other_regime: f64,
+    /// The probability that every bounce so far slid (the regime in which its outcome
+    /// depends on the friction).
+    sliding: f64,
 }
 
 impl Observer for BounceWatch<'_> {
     fn on_event(&mut self, event: &Event) -> Flow {
         self.report.on_event(event);
         if matches!(event.kind, EventKind::TableBounce { .. }) {
-            let (scatter, excess, other) = self.bounce_scatter(event);
+            let (scatter, excess, sliding) = self.bounce_scatter(event);
             self.scatter += scatter;
             self.excess += excess;
-            self.other_regime = self.other_regime.max(other);
+            self.sliding *= sliding;
         }
         Flow::Continue
     }
@@ -252,7 +249,7 @@ impl Observer for BounceWatch<'_> {
 
 impl BounceWatch<'_> {
     /// The scatter of one bounce in the state just after it (at the configured sigmas), the
-    /// spread of its outcome beyond the linearisation, and the probability of the other regime.
+    /// spread of its outcome beyond the linearisation, and the probability that it slid.
     fn bounce_scatter(&self, event: &Event) -> (StateMatrix, StateMatrix, f64) {
         let bounce = self.propagator.bounce();
         let r = self.propagator.flight().radius();
@@ -272,7 +269,7 @@ impl BounceWatch<'_> {
         let se = self.noise.restitution_sigma * event.before[5];
         q[(5, 5)] += se * se;
         let Some(s) = event.sensitivity else {
-            return (q, StateMatrix::zeros(), 0.0);
+            return (q, StateMatrix::zeros(), 1.0);
         };
         // The covariance of (state, parameters) at the bounce: [[T, S], [0, I]] P [.]'.
         let mut a = SMatrix::<f64, AUGMENTED, AUGMENTED>::identity();
@@ -281,8 +278,8 @@ impl BounceWatch<'_> {
             a.fixed_view_mut::<9, PARAMS>(0, 9).copy_from(&p.before);
         }
         let at_bounce = a * self.start * a.transpose();
-        // The probability of the other regime, from the margin that decides it (Gaussian, its
-        // variance g C g' over state and parameters).
+        // The probability that it slid, from the margin that decides the regime (rolling when
+        // positive; Gaussian, its variance g C g' over state and parameters).
         let (margin, gradient) = bounce.regime_margin(&event.before);
         let (e, mu) = bounce.table();
         let vz = event.before[5].abs();
@@ -291,8 +288,10 @@ impl BounceWatch<'_> {
         g[9 + RESTITUTION] = mu * vz;
         g[9 + FRICTION] = (1.0 + e) * vz;
         let variance = (g * at_bounce * g.transpose())[(0, 0)];
-        let p_other = if variance > 0.0 {
-            normal_cdf(-margin.abs() / variance.sqrt())
+        let p_sliding = if variance > 0.0 {
+            normal_cdf(-margin / variance.sqrt())
+        } else if margin < 0.0 {
+            1.0
         } else {
             0.0
         };
@@ -301,7 +300,7 @@ impl BounceWatch<'_> {
         } else {
             StateMatrix::zeros()
         };
-        (q, excess, p_other)
+        (q, excess, p_sliding)
     }
 
     /// How much the bounce's outcome really spreads beyond its linearisation: the covariance
@@ -490,15 +489,11 @@ impl Ekf {
             start: &self.P,
             scatter: StateMatrix::zeros(),
             excess: StateMatrix::zeros(),
-            other_regime: 0.0,
+            sliding: 1.0,
         };
         propagator.advance(&mut cursor, dt, Watch::BOUNCES, &mut watch);
-        let (report, scatter, excess, other_regime) = (
-            watch.report,
-            watch.scatter,
-            watch.excess,
-            watch.other_regime,
-        );
+        let (report, scatter, excess, sliding) =
+            (watch.report, watch.scatter, watch.excess, watch.sliding);
         let P_xx = self.state_covariance();
         let mut next = AugmentedMatrix::zeros();
         // Q: the white acceleration's and the spin random walk's at the configured densities
@@ -552,14 +547,15 @@ impl Ekf {
             }
         }
         next.fixed_view_mut::<PARAMS, PARAMS>(9, 9).copy_from(&P_tt);
-        if other_regime > AMBIGUOUS_REGIME {
+        if sliding < 1.0 {
             // A bounce that may have rolled out or slid: its outcome depends on the friction
-            // only if it slid, so what follows says nothing sure of the friction. Its
-            // uncertainty stays in the state's covariance; the state forgets its correlation
-            // with it (a rolling bounce read as sliding would bias it low).
+            // only if it slid. The state keeps its correlation with the friction in that
+            // proportion (the outcome's covariance with mu_t over the two regimes, the
+            // linearised one's times the probability of sliding); its uncertainty stays in the
+            // state's covariance. A rolling bounce read as sliding would teach it a value too low.
             for i in 0..9 {
-                next[(i, 9 + FRICTION)] = 0.0;
-                next[(9 + FRICTION, i)] = 0.0;
+                next[(i, 9 + FRICTION)] *= sliding;
+                next[(9 + FRICTION, i)] *= sliding;
             }
         }
         self.x = cursor.state;

@@ -292,6 +292,14 @@ fn the_estimator_predicts_real_flights_through_their_bounce() {
         gated.len() <= 1 && gated.iter().all(|(_, n)| *n == 1),
         "{gated:?}"
     );
+    // The table's friction is learned from these bounces, though most of them may have rolled
+    // out or slid (each teaches in proportion to the probability that it slid).
+    let learned = full.learned.expect("learned physics");
+    let [_, _, _, friction_sigma] = learned.sigma;
+    assert!(
+        friction_sigma < 0.02 && (0.2..0.35).contains(&learned.params.friction),
+        "{learned:?}"
+    );
     // The targets: at most 15 mm RMS at 200 ms lead, 10 mm at 100 ms.
     assert!(lead200.position_error.rms <= 0.015, "{lead200:?}");
     assert!(lead100.position_error.rms <= 0.010, "{lead100:?}");
