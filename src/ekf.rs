@@ -500,16 +500,18 @@ impl Ekf {
         // times their scales (each part at the configured density is dQ/ds).
         let (q_acceleration, q_spin) = noise.discretise_parts(dt);
         let mut P_xx_next = q_acceleration * scales.acceleration + q_spin * scales.spin;
+        // The bounces' scatter (at the configured sigmas), carried by the flight since the last
+        // one: in P times its scale, and dP/ds of that scale.
+        let carried_scatter = match &cursor.tangent {
+            Some(tangent) if report.bounces > 0 => tangent.carry_flight(&scatter),
+            _ => scatter,
+        };
         if let Some(d) = sensitivity {
             // dP/ds: carried like P, plus each scaled noise at its configured size.
             let [d_acceleration, d_spin, d_bounce] = d;
             let carry = |m: &StateMatrix| match &cursor.tangent {
                 Some(tangent) => tangent.carry_covariance(m),
                 None => *m,
-            };
-            let carried_scatter = match &cursor.tangent {
-                Some(tangent) if report.bounces > 0 => tangent.carry_flight(&scatter),
-                _ => scatter,
             };
             *d_acceleration = symmetrise(&(carry(d_acceleration) + q_acceleration));
             *d_spin = symmetrise(&(carry(d_spin) + q_spin));
@@ -520,9 +522,7 @@ impl Ekf {
                 // Phi P_xx Phi' (in the flight's block structure before any event).
                 P_xx_next += tangent.carry_covariance(&P_xx);
                 if report.bounces > 0 {
-                    // The bounces' scatter, carried by the flight since the last one.
-                    let carried = tangent.carry_flight(&scatter);
-                    P_xx_next += carried * scales.bounce + tangent.carry_flight(&excess);
+                    P_xx_next += carried_scatter * scales.bounce + tangent.carry_flight(&excess);
                 }
                 if let Some(S) = tangent.params() {
                     let P_xt = self.P.fixed_view::<9, PARAMS>(0, 9).into_owned();
@@ -537,7 +537,7 @@ impl Ekf {
                         .copy_from(&cross.transpose());
                 }
             }
-            None => P_xx_next += P_xx + scatter * scales.bounce + excess,
+            None => P_xx_next += P_xx + carried_scatter * scales.bounce + excess,
         }
         next.fixed_view_mut::<9, 9>(0, 0).copy_from(&P_xx_next);
         let mut P_tt = self.param_covariance();

@@ -20,6 +20,9 @@
 
 use nalgebra::SymmetricEigen;
 
+use crate::ekf::ParamCovariance;
+use crate::physics::{PARAMS, ParamVector};
+
 /// The configured dispersion counts as this many flights that each measure their own parameters
 /// exactly, when D is learned.
 pub const DISPERSION_PRIOR_FLIGHTS: f64 = 20.0;
@@ -31,9 +34,6 @@ const MIN_DISPERSION_EVIDENCE: f64 = 0.1;
 /// A squared deviation counts at most this many times its expected variance (one wild track
 /// moves D little).
 const SAMPLE_LIMIT: f64 = 9.0;
-
-use crate::ekf::ParamCovariance;
-use crate::physics::{PARAMS, ParamVector};
 
 /// What the estimator knows of the physical parameters between tracks.
 #[derive(Debug, Clone, Copy, PartialEq)]
