@@ -603,6 +603,13 @@ impl InterceptTracker {
         }
     }
 
+    /// Predicts as `refresh` says from now on, in full the next time (the plane or horizon may
+    /// have changed too).
+    pub fn reconfigure(&mut self, refresh: RefreshParams) {
+        self.refresh = refresh;
+        self.anchor = None;
+    }
+
     /// How many interceptions were predicted in full and how many moved.
     pub fn counts(&self) -> TrackerCounts {
         self.counts

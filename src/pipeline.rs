@@ -81,6 +81,25 @@ impl Pipeline {
         &self.estimator
     }
 
+    /// Takes `config`'s live values from the next detection on (see
+    /// [`Estimator::reconfigure`]; also the racket, arm and stroke of the services and the
+    /// trajectory's rate, spacing and horizon); `previous` is the configuration it ran with.
+    pub fn reconfigure(&mut self, previous: &Config, config: &Config) {
+        self.estimator.reconfigure(previous, config);
+        self.stroke = Stroke::new(config);
+        self.trajectory_period = (1e9 / config.prediction.trajectory_rate).round() as i64;
+        self.trajectory_dt = config.prediction.trajectory_dt;
+        self.horizon = config.prediction.horizon;
+    }
+
+    /// Drops the tracks and everything learned, keeping the counters (see [`Estimator::reset`]).
+    pub fn reset(&mut self, config: &Config) {
+        self.estimator.reset(config);
+        self.stroke = Stroke::new(config);
+        self.last_trajectory = None;
+        self.last_intercept = None;
+    }
+
     /// What happened to the detections so far.
     pub fn counters(&self) -> Counters {
         self.estimator.counters()

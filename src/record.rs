@@ -22,12 +22,12 @@ pub fn write_session(
     with_truth: bool,
 ) -> Result<u64, BagError> {
     let mut writer = BagWriter::create(path)?;
-    let detections = writer.channel(&config.topics.detections, DETECTION_TYPE)?;
+    let detections = writer.channel(&config.resolved_topics().detections, DETECTION_TYPE)?;
     // Without truth, no truth channels either: the bag is what a camera system records.
     let truth_channels = if with_truth {
         Some((
-            writer.channel(&config.topics.truth, STATE_TYPE)?,
-            writer.channel(&truth_intercept_topic(&config.topics.truth), INTERCEPT_TYPE)?,
+            writer.channel(&config.resolved_topics().truth, STATE_TYPE)?,
+            writer.channel(&truth_intercept_topic(&config.resolved_topics().truth), INTERCEPT_TYPE)?,
         ))
     } else {
         None
@@ -80,7 +80,7 @@ pub fn write_detections(
     path: &Path,
 ) -> Result<u64, BagError> {
     let mut writer = BagWriter::create(path)?;
-    let channel = writer.channel(&config.topics.detections, DETECTION_TYPE)?;
+    let channel = writer.channel(&config.resolved_topics().detections, DETECTION_TYPE)?;
     let mut sorted: Vec<&Detection> = detections.iter().collect();
     sorted.sort_by_key(|d| d.stamp);
     for d in &sorted {

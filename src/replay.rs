@@ -160,8 +160,8 @@ struct BagTruth {
 /// The channels of the truth topics (states, shot events) among a bag's, when it has both.
 fn truth_channels(channels: &[ChannelInfo], config: &Config) -> Option<(usize, usize)> {
     Some((
-        channel_of(channels, &config.topics.truth)?,
-        channel_of(channels, &truth_intercept_topic(&config.topics.truth))?,
+        channel_of(channels, &config.resolved_topics().truth)?,
+        channel_of(channels, &truth_intercept_topic(&config.resolved_topics().truth))?,
     ))
 }
 
@@ -261,7 +261,7 @@ pub fn replay(
     cancel: &AtomicBool,
 ) -> Result<ReplaySummary, ReplayError> {
     let mut reader = BagReader::open(input)?;
-    let topic = &config.topics.detections;
+    let topic = &config.resolved_topics().detections;
     // A finished bag names its channels in its summary: the detection topic is checked before
     // anything is written. A bag without a summary (cut off) is checked as its channels appear.
     let mut detections_on = if !reader.has_summary() {
@@ -287,10 +287,10 @@ pub fn replay(
 
     let mut writer = BagWriter::create(output)?;
     let outputs = Outputs {
-        state: writer.channel(&config.topics.state, STATE_TYPE)?,
-        intercept: writer.channel(&config.topics.intercept, INTERCEPT_TYPE)?,
-        trajectory: writer.channel(&config.topics.trajectory, TRAJECTORY_TYPE)?,
-        markers: writer.channel(&config.topics.markers, MARKERS_TYPE)?,
+        state: writer.channel(&config.resolved_topics().state, STATE_TYPE)?,
+        intercept: writer.channel(&config.resolved_topics().intercept, INTERCEPT_TYPE)?,
+        trajectory: writer.channel(&config.resolved_topics().trajectory, TRAJECTORY_TYPE)?,
+        markers: writer.channel(&config.resolved_topics().markers, MARKERS_TYPE)?,
     };
     let mut copied: Vec<u16> = Vec::new();
 
@@ -418,7 +418,7 @@ pub struct BagDetections {
 /// Reads `path` and decodes its detections (`topics.detections`).
 pub fn read_detections(path: &Path, config: &Config) -> Result<BagDetections, ReplayError> {
     let contents = read_bag_file(path)?;
-    let channel = detection_channel(&contents.channels, &config.topics.detections, path)?;
+    let channel = detection_channel(&contents.channels, &config.resolved_topics().detections, path)?;
     let mut detections = Vec::new();
     let mut message_detection = Vec::with_capacity(contents.messages.len());
     let (mut undecodable, mut unknown_frame) = (0u64, 0u64);
@@ -515,7 +515,7 @@ pub fn smooth_bag(
         for channel in &contents.channels {
             copied.push(writer.add_channel(channel)?);
         }
-        let smoothed = writer.channel(&config.topics.smoothed, STATE_TYPE)?;
+        let smoothed = writer.channel(&config.resolved_topics().smoothed, STATE_TYPE)?;
         for (m, index) in contents.messages.iter().zip(&message_detection) {
             writer.write_raw(copied[m.channel], m.log_time, m.publish_time, &m.data)?;
             written += 1;

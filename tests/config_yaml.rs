@@ -13,7 +13,7 @@ use std::path::{Path, PathBuf};
 
 use serde_norway::Value;
 use ttball::config::Config;
-use ttball::config::yaml::{self, LoadError, Origin, Problem};
+use ttball::config::yaml::{self, Layer, LoadError, Origin, Problem};
 
 const NO_OVERRIDES: &[&str] = &[];
 
@@ -158,12 +158,90 @@ fn partial_file_keeps_other_defaults() {
 
 #[test]
 fn node_keys_and_dotted_keys() {
-    for node in ["ttball", "/ttball", "\"/**\""] {
+    for node in ["ttball", "/ttball", "\"/**\"", "\"/**/ttball\"", "\"/*\""] {
         let text = format!("{node}:\n  ros__parameters:\n    table.friction: 0.2\n");
         let config = load_text(&text, NO_OVERRIDES).unwrap();
         assert_eq!(config.table.friction, 0.2, "{node}");
     }
     assert_eq!(load_text("", NO_OVERRIDES).unwrap(), Config::default());
+}
+
+/// rcl's rules: sections of other nodes are ignored, every section that applies is applied in
+/// the file's order, namespaces may be nested keys, and the node is the one the layers name.
+#[test]
+fn params_file_sections_apply_as_rcl_applies_them() {
+    let text = "\
+/camera_driver:
+  ros__parameters:
+    exposure: 3
+\"/**\":
+  ros__parameters:
+    table.friction: 0.1
+    intercept.plane_x: -1.3
+/robot1/ttball:
+  ros__parameters:
+    table.friction: 0.2
+robot1:
+  ttball:
+    ros__parameters:
+      table:
+        restitution: 0.85
+  other:
+    ros__parameters:
+      gravity: 1.0
+/robot2/ttball:
+  ros__parameters:
+    gravity: 2.0
+";
+    // In the root namespace only the wildcard applies.
+    let root = load_text(text, NO_OVERRIDES).unwrap();
+    assert_eq!((root.table.friction, root.intercept.plane_x), (0.1, -1.3));
+    assert_eq!((root.table.restitution, root.gravity), (0.9, 9.80665));
+    // Renamed into /robot1 by a later layer: the file is read again for that node.
+    let robot1 = load_text(text, &["node.namespace:=/robot1"]).unwrap();
+    assert_eq!((robot1.table.friction, robot1.intercept.plane_x), (0.2, -1.3));
+    assert_eq!((robot1.table.restitution, robot1.gravity), (0.85, 9.80665));
+    // As the remaps name the node.
+    let path = std::env::temp_dir().join(format!("ttball-sections-{}.yaml", std::process::id()));
+    std::fs::write(&path, text).unwrap();
+    let layers = [
+        Layer::File(path.clone()),
+        Layer::Param("other:gravity:=5.0".to_owned()),
+        Layer::Param("ttball:ekf.init_detections:=7".to_owned()),
+        Layer::Param("/robot2/ttball:tracking.timeout:=0.3".to_owned()),
+    ];
+    let robot2 = yaml::load_layers(&layers, Some("/robot2/ttball")).unwrap();
+    assert_eq!((robot2.gravity, robot2.table.friction), (2.0, 0.1));
+    assert_eq!((robot2.ekf.init_detections, robot2.tracking.timeout), (7, 0.3));
+    // Files and overrides apply in the order given.
+    let layers = [
+        Layer::Param("table.friction:=0.3".to_owned()),
+        Layer::File(path.clone()),
+        Layer::Param("intercept.plane_x:=-1.2".to_owned()),
+    ];
+    let ordered = yaml::load_layers(&layers, None).unwrap();
+    assert_eq!((ordered.table.friction, ordered.intercept.plane_x), (0.1, -1.2));
+    std::fs::remove_file(&path).unwrap();
+}
+
+/// What `ros2 param dump /robot1/ttball` writes loads back.
+#[test]
+fn ros2_param_dump_output_loads_back() {
+    let text = "\
+/robot1/ttball:
+  ros__parameters:
+    ekf:
+      acceleration_noise_density: 2.5
+    intercept:
+      plane_x: -1.4
+    topics:
+      state: ball/state
+    use_sim_time: true
+";
+    let config = load_text(text, &["node.namespace:=/robot1"]).unwrap();
+    assert_eq!(config.ekf.acceleration_noise_density, 2.5);
+    assert_eq!(config.intercept.plane_x, -1.4);
+    assert!(config.use_sim_time);
 }
 
 #[test]
@@ -259,7 +337,7 @@ fn wrong_type_names_the_key_and_the_expected_type() {
     );
     let message = error(&params("topics:\n  state: 5"), NO_OVERRIDES);
     assert!(
-        message.contains("`topics.state` must be a string (default \"/ball/state\")"),
+        message.contains("`topics.state` must be a string (default \"ball/state\")"),
         "{message}"
     );
     let message = error(
@@ -365,12 +443,12 @@ fn file_layout_errors_say_what_is_expected() {
     assert!(
         message.contains(
             "my.yaml:1: unexpected top-level key `table` (the parameters must be nested under \
-             `ttball:` and `ros__parameters:`)"
+             the node name, e.g. `ttball:`, and `ros__parameters:`)"
         ),
         "{message}"
     );
-    let message = error("other_node:\n  ros__parameters:\n    a: 1\n", NO_OVERRIDES);
-    assert!(message.contains("unexpected top-level key `other_node`"));
+    let message = error("ros__parameters:\n  a: 1\n", NO_OVERRIDES);
+    assert!(message.contains("unexpected top-level key `ros__parameters`"));
     assert!(message.contains("starts with the node name `ttball:`"));
     let message = error("ttball:\n  parameters:\n    a: 1\n", NO_OVERRIDES);
     assert!(
@@ -422,9 +500,11 @@ fn printed_configuration_round_trips() {
     assert!(printed.contains("gravity: 10.0\n"), "{printed}");
     assert_eq!(load_text(&printed, NO_OVERRIDES).unwrap(), changed);
     // Reals re-parse as reals (a ROS 2 double parameter), never as integers.
+    // A file that renames the node names it by the wildcard, so that it finds the node.
+    assert!(printed.starts_with("\"/**\":\n"), "{printed}");
     let document: Value = serde_norway::from_str(&printed).unwrap();
-    assert!(document["ttball"]["ros__parameters"]["gravity"].is_f64());
-    assert!(document["ttball"]["ros__parameters"]["aero"]["drag_coefficients"][1].is_f64());
+    assert!(document["/**"]["ros__parameters"]["gravity"].is_f64());
+    assert!(document["/**"]["ros__parameters"]["aero"]["drag_coefficients"][1].is_f64());
 }
 
 /// Every number of the configuration, set to NaN, infinity or a value far out of any range, is
@@ -488,4 +568,22 @@ fn node_cpus_take_a_number_or_a_cpu_list() {
     let text = error("", &["node.cpus:=\"1,x\""]);
     assert!(text.contains("is not a valid CPU list"), "{text}");
     assert!(text.contains("taskset -c"), "{text}");
+}
+
+/// Every parameter has a description for its ROS 2 descriptor, and the rule it is checked
+/// against where it has one.
+#[test]
+fn every_parameter_is_described() {
+    let descriptions = yaml::descriptions();
+    let config = Config::default();
+    for name in yaml::parameter_names(&config) {
+        let text = descriptions.get(&name).map_or("", String::as_str);
+        assert!(text.len() > 10, "{name}: {text:?}");
+    }
+    assert!(descriptions["table.restitution"].contains("[-]"), "{}", descriptions["table.restitution"]);
+    let rules = config.rules();
+    let rule = |key: &str| rules.iter().find(|(k, _)| k == key).map(|(_, r)| *r);
+    assert_eq!(rule("gravity"), Some("greater than 0 and at most 30 (m/s^2; Earth: 9.81)"));
+    assert_eq!(rule("aero.drag_coefficients"), Some("1 to 8 finite coefficients, lowest order first"));
+    assert_eq!(rule("topics.state"), Some("topic name"));
 }

@@ -5,7 +5,8 @@ use std::process::ExitCode;
 
 use anyhow::Context;
 use clap::Args;
-use ttball::config::Config;
+use ttball::config::yaml::{self, Layer};
+use ttball::config::{Config, names};
 use ttball::node::{NodeError, NodeSummary, Placement, start};
 
 use super::{BadUsage, ConfigArgs, write_stdout};
@@ -33,12 +34,11 @@ pub struct NodeArgs {
 /// The parts of `--ros-args` ttball understands.
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct RosArgs {
-    /// `-p NAME:=VALUE` / `--param`.
-    pub params: Vec<String>,
+    /// `-p NAME:=VALUE` / `--param` and `--params-file FILE`, in the order given (later ones
+    /// override earlier ones, as in rcl).
+    pub layers: Vec<Layer>,
     /// `-r FROM:=TO` / `--remap`.
     pub remaps: Vec<(String, String)>,
-    /// `--params-file FILE`.
-    pub params_file: Option<std::path::PathBuf>,
     /// `--log-level LEVEL` (or `--log-level NAME:=LEVEL`, whose name is ignored).
     pub log_level: Option<String>,
 }
@@ -56,7 +56,7 @@ pub fn parse_ros_args(words: &[String]) -> Result<RosArgs, BadUsage> {
         };
         match word.as_str() {
             "--ros-args" | "--" => {}
-            "-p" | "--param" => out.params.push(value("NAME:=VALUE")?),
+            "-p" | "--param" => out.layers.push(Layer::Param(value("NAME:=VALUE")?)),
             "-r" | "--remap" => {
                 let remap = value("FROM:=TO")?;
                 let (from, to) = remap.split_once(":=").ok_or_else(|| {
@@ -67,14 +67,7 @@ pub fn parse_ros_args(words: &[String]) -> Result<RosArgs, BadUsage> {
                 out.remaps
                     .push((from.trim().to_owned(), to.trim().to_owned()));
             }
-            "--params-file" => {
-                if out.params_file.is_some() {
-                    return Err(BadUsage(
-                        "give one --params-file (ttball reads one parameters file)".to_owned(),
-                    ));
-                }
-                out.params_file = Some(value("a file")?.into());
-            }
+            "--params-file" => out.layers.push(Layer::File(value("a file")?.into())),
             "--log-level" => {
                 let level = value("a level")?;
                 let level = level.rsplit_once(":=").map_or(level.as_str(), |(_, l)| l);
@@ -90,51 +83,65 @@ pub fn parse_ros_args(words: &[String]) -> Result<RosArgs, BadUsage> {
     Ok(out)
 }
 
-/// Applies ROS 2 remaps to the configuration: `__node`/`__name`, `__ns`, and topic names (the
-/// node's topics whose name is FROM, absolute or relative to the root namespace). Remaps of
-/// names the node does not use are listed in the result (ROS 2 ignores them too).
+/// The node's fully qualified name as the remaps make it (`__node`, `__ns`), if they rename it:
+/// the parameters files' sections are matched against it.
+pub fn remapped_node_fqn(remaps: &[(String, String)]) -> Option<String> {
+    let mut config = Config::default();
+    let renames = remaps.iter().any(|(from, _)| {
+        let base = from.rsplit(':').next().unwrap_or(from);
+        matches!(base, "__node" | "__name" | "__ns")
+    });
+    renames.then(|| {
+        apply_remaps(&mut config, remaps);
+        config.node_fqn()
+    })
+}
+
+/// Applies ROS 2 remaps to the configuration as rcl does: first `__node`/`__name` and `__ns`,
+/// then topic names, a remap `FROM:=TO` replacing the node's topics whose name resolved in the
+/// node's namespace equals FROM resolved there, by TO resolved there. `node:FROM:=TO` applies to
+/// that node only. Remaps of names the node does not use are listed in the result (ROS 2
+/// ignores them too).
 pub fn apply_remaps(config: &mut Config, remaps: &[(String, String)]) -> Vec<String> {
-    let mut unused = Vec::new();
-    for (from, to) in remaps {
-        // `node_name:FROM:=TO` applies to that node only.
-        let (target, from) = match from.split_once(':') {
-            Some((node, rest)) => (Some(node), rest),
-            None => (None, from.as_str()),
-        };
-        if target.is_some_and(|node| node != config.node.name) {
-            continue;
+    let for_this_node = |from: &str, name: &str| -> Option<String> {
+        match from.split_once(':') {
+            Some((node, rest)) => (node == name).then(|| rest.to_owned()),
+            None => Some(from.to_owned()),
         }
-        match from {
+    };
+    let mut topic_remaps = Vec::new();
+    for (from, to) in remaps {
+        let Some(from) = for_this_node(from, &config.node.name) else {
+            continue;
+        };
+        match from.as_str() {
             "__node" | "__name" => config.node.name = to.clone(),
             "__ns" => config.node.namespace = if to == "/" { String::new() } else { to.clone() },
-            topic => {
-                let absolute = |name: &str| {
-                    if name.starts_with('/') {
-                        name.to_owned()
-                    } else {
-                        format!("/{name}")
-                    }
-                };
-                let (from, to) = (absolute(topic), absolute(to));
-                let t = &mut config.topics;
-                let mut hit = false;
-                for name in [
-                    &mut t.detections,
-                    &mut t.state,
-                    &mut t.intercept,
-                    &mut t.trajectory,
-                    &mut t.markers,
-                    &mut t.diagnostics,
-                ] {
-                    if *name == from {
-                        name.clone_from(&to);
-                        hit = true;
-                    }
-                }
-                if !hit {
-                    unused.push(from);
-                }
+            _ => topic_remaps.push((from, to)),
+        }
+    }
+    let (namespace, node) = (config.node.namespace.clone(), config.node.name.clone());
+    let resolve = |name: &str| names::resolve(name, &namespace, &node);
+    let mut unused = Vec::new();
+    for (from, to) in topic_remaps {
+        let (from, to) = (resolve(&from), resolve(to));
+        let t = &mut config.topics;
+        let mut hit = false;
+        for name in [
+            &mut t.detections,
+            &mut t.state,
+            &mut t.intercept,
+            &mut t.trajectory,
+            &mut t.markers,
+            &mut t.diagnostics,
+        ] {
+            if resolve(name) == from {
+                name.clone_from(&to);
+                hit = true;
             }
+        }
+        if !hit {
+            unused.push(from);
         }
     }
     unused
@@ -144,22 +151,13 @@ impl NodeArgs {
     /// Runs the node until SIGINT or SIGTERM.
     pub fn run(self) -> anyhow::Result<ExitCode> {
         let ros = parse_ros_args(self.ros_args.as_deref().unwrap_or_default())?;
-        let mut config_args = self.config.clone();
-        if let Some(file) = ros.params_file.clone() {
-            if config_args.config.is_some() {
-                return Err(BadUsage(
-                    "give either --config or --ros-args --params-file, not both".to_owned(),
-                )
-                .into());
-            }
-            config_args.config = Some(file);
-        }
-        config_args
-            .overrides
-            .params
-            .extend(ros.params.iter().cloned());
         super::init_logging(ros.log_level.as_deref());
-        let mut config = config_args.load()?;
+        // ttball's own --config and -p first, then --ros-args' files and -p in their order.
+        let layers: Vec<Layer> = (self.config.config.clone().map(Layer::File).into_iter())
+            .chain(self.config.overrides.params.iter().cloned().map(Layer::Param))
+            .chain(ros.layers.iter().cloned())
+            .collect();
+        let mut config = yaml::load_layers(&layers, remapped_node_fqn(&ros.remaps).as_deref())?;
         let unused = apply_remaps(&mut config, &ros.remaps);
         config
             .validate()
@@ -247,10 +245,18 @@ mod tests {
     fn ros_args_forms() {
         let ros = parse_ros_args(&words(
             "-p intercept.plane_x:=-1.45 --param ekf.q_a:=0.01 -r /ball/detections:=/vision/ball \
-             --remap __ns:=/robot1 --params-file my.yaml --log-level debug --",
+             --remap __ns:=/robot1 --params-file my.yaml --log-level debug --params-file b.yaml --",
         ))
         .unwrap();
-        assert_eq!(ros.params, ["intercept.plane_x:=-1.45", "ekf.q_a:=0.01"]);
+        assert_eq!(
+            ros.layers,
+            [
+                Layer::Param("intercept.plane_x:=-1.45".to_owned()),
+                Layer::Param("ekf.q_a:=0.01".to_owned()),
+                Layer::File("my.yaml".into()),
+                Layer::File("b.yaml".into()),
+            ]
+        );
         assert_eq!(
             ros.remaps,
             [
@@ -258,13 +264,12 @@ mod tests {
                 ("__ns".to_owned(), "/robot1".to_owned())
             ]
         );
-        assert_eq!(ros.params_file, Some("my.yaml".into()));
         assert_eq!(ros.log_level.as_deref(), Some("debug"));
         for bad in [
             "-p",
             "-r nocolon",
             "--enclave /x",
-            "--params-file a --params-file b",
+            "--params-file",
         ] {
             assert!(parse_ros_args(&words(bad)).is_err(), "{bad}");
         }
@@ -277,18 +282,31 @@ mod tests {
             &mut config,
             &[
                 ("ball/detections".to_owned(), "/vision/ball".to_owned()),
-                ("/ball/state".to_owned(), "state".to_owned()),
+                ("/robot1/ball/state".to_owned(), "state".to_owned()),
                 ("__node".to_owned(), "ttball_left".to_owned()),
                 ("ttball_left:__ns".to_owned(), "/robot1".to_owned()),
                 ("other_node:__ns".to_owned(), "/elsewhere".to_owned()),
                 ("/camera/image".to_owned(), "/x".to_owned()),
+                ("ball/markers".to_owned(), "~/markers".to_owned()),
+                ("/ball/intercept".to_owned(), "/y".to_owned()),
             ],
         );
+        // Topic remaps match names resolved in the namespace the remaps give the node.
         assert_eq!(config.topics.detections, "/vision/ball");
-        assert_eq!(config.topics.state, "/state");
+        assert_eq!(config.topics.state, "/robot1/state");
+        assert_eq!(config.topics.markers, "/robot1/ttball_left/markers");
+        assert_eq!(config.topics.intercept, "ball/intercept");
+        assert_eq!(config.resolved_topics().intercept, "/robot1/ball/intercept");
+        assert_eq!(config.resolved_topics().trajectory, "/robot1/ball/trajectory");
+        assert_eq!(config.resolved_topics().diagnostics, "/diagnostics");
         assert_eq!(config.node.name, "ttball_left");
         assert_eq!(config.node.namespace, "/robot1");
-        assert_eq!(unused, ["/camera/image"]);
+        assert_eq!(unused, ["/camera/image", "/ball/intercept"]);
         config.validate().unwrap();
+        assert_eq!(
+            remapped_node_fqn(&[("__ns".to_owned(), "/r2".to_owned())]).as_deref(),
+            Some("/r2/ttball")
+        );
+        assert_eq!(remapped_node_fqn(&[("a".to_owned(), "b".to_owned())]), None);
     }
 }

@@ -88,7 +88,7 @@ impl PlayArgs {
             "{}: {} detections published on {} in {:.1} s ({} pass{}, {} subscriber{} at the start){}{}\n",
             self.bag.display(),
             summary.published,
-            config.topics.detections,
+            config.resolved_topics().detections,
             summary.seconds,
             summary.passes,
             if summary.passes == 1 { "" } else { "es" },
@@ -118,8 +118,8 @@ impl PlayArgs {
             };
             write_stdout(&format!(
                 "{}{}",
-                line(&config.topics.state, &latency.state),
-                line(&config.topics.intercept, &latency.intercept)
+                line(&config.resolved_topics().state, &latency.state),
+                line(&config.resolved_topics().intercept, &latency.intercept)
             ))?;
         }
         Ok(ExitCode::SUCCESS)

@@ -68,14 +68,14 @@ impl PlotArgs {
     pub fn run(self) -> anyhow::Result<ExitCode> {
         let config = self.config.load()?;
         let contents = read_bag_file(&self.bag)?;
-        let topic = &config.topics.detections;
+        let topic = &config.resolved_topics().detections;
         let channel = contents.channel(topic).with_context(|| {
             format!(
                 "{}: no topic {topic}; set it with -p topics.detections:=/your/topic",
                 self.bag.display()
             )
         })?;
-        let truth_channel = contents.channel(&config.topics.truth);
+        let truth_channel = contents.channel(&config.resolved_topics().truth);
         let mut data = PlotData::new(&config);
         let mut estimator = Estimator::new(&config);
         let mut estimates = 0usize;

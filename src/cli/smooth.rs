@@ -49,7 +49,7 @@ impl SmoothArgs {
         let summary = smooth_bag(&self.input, &self.output, &config, &mut progress, &cancel)
             .with_context(|| format!("cannot smooth {}", self.input.display()))?;
         bar.finish_and_clear();
-        write_stdout(&summary_text(&summary, &config.topics.smoothed))?;
+        write_stdout(&summary_text(&summary, &config.resolved_topics().smoothed))?;
         Ok(if summary.smoothing.skipped > 0 {
             ExitCode::FAILURE
         } else {

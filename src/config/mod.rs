@@ -10,6 +10,7 @@
 
 use serde::{Deserialize, Serialize};
 
+pub mod names;
 mod validate;
 #[cfg(feature = "interface")]
 pub mod yaml;
@@ -693,7 +694,8 @@ impl Default for NodeParams {
     }
 }
 
-/// ROS 2 topic names (absolute).
+/// ROS 2 topic names: relative ones (`ball/state`) are in the node's namespace
+/// (`node.namespace`), private ones (`~/x`) in the node's own; [`Config::topics`] resolves them.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct TopicsParams {
@@ -718,14 +720,14 @@ pub struct TopicsParams {
 impl Default for TopicsParams {
     fn default() -> Self {
         Self {
-            detections: "/ball/detections".to_owned(),
-            state: "/ball/state".to_owned(),
-            intercept: "/ball/intercept".to_owned(),
-            trajectory: "/ball/trajectory".to_owned(),
-            markers: "/ball/markers".to_owned(),
+            detections: "ball/detections".to_owned(),
+            state: "ball/state".to_owned(),
+            intercept: "ball/intercept".to_owned(),
+            trajectory: "ball/trajectory".to_owned(),
+            markers: "ball/markers".to_owned(),
             diagnostics: "/diagnostics".to_owned(),
-            truth: "/ball/truth".to_owned(),
-            smoothed: "/ball/smoothed".to_owned(),
+            truth: "ball/truth".to_owned(),
+            smoothed: "ball/smoothed".to_owned(),
         }
     }
 }
@@ -789,6 +791,33 @@ pub struct Config {
     pub topics: TopicsParams,
     /// ROS 2 quality of service.
     pub qos: QosParams,
+    /// ROS 2's `use_sim_time`: the node's clock (the stamps of `/diagnostics`) follows `/clock`
+    /// instead of the system clock. The estimator itself runs on the detections' stamps either way.
+    pub use_sim_time: bool,
+}
+
+impl Config {
+    /// The topic names resolved in the node's namespace (`node.namespace`, `node.name`):
+    /// absolute, as ROS 2 names them on the wire.
+    pub fn resolved_topics(&self) -> TopicsParams {
+        let resolve = |name: &str| names::resolve(name, &self.node.namespace, &self.node.name);
+        let t = &self.topics;
+        TopicsParams {
+            detections: resolve(&t.detections),
+            state: resolve(&t.state),
+            intercept: resolve(&t.intercept),
+            trajectory: resolve(&t.trajectory),
+            markers: resolve(&t.markers),
+            diagnostics: resolve(&t.diagnostics),
+            truth: resolve(&t.truth),
+            smoothed: resolve(&t.smoothed),
+        }
+    }
+
+    /// The node's fully qualified name (`/ttball`, `/robot1/ttball`).
+    pub fn node_fqn(&self) -> String {
+        names::fully_qualified_node_name(&self.node.namespace, &self.node.name)
+    }
 }
 
 impl Default for Config {
@@ -812,6 +841,7 @@ impl Default for Config {
             node: NodeParams::default(),
             topics: TopicsParams::default(),
             qos: QosParams::default(),
+            use_sim_time: false,
         }
     }
 }

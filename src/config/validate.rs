@@ -131,14 +131,26 @@ fn bullet_list(violations: &[Violation]) -> String {
     violations.iter().map(|v| format!("\n  - {v}")).collect()
 }
 
-/// Collects violations.
+/// Collects violations, and the rule each key is checked against.
 #[derive(Default)]
 struct Checker {
     violations: Vec<Violation>,
+    rules: Vec<(String, &'static str)>,
 }
 
 impl Checker {
+    /// Records the rule `key` is checked against (a list's elements under the list's key).
+    fn rule(&mut self, key: &str, allowed: &'static str) {
+        let key = key.split_once('[').map_or(key, |(list, _)| list);
+        match self.rules.iter_mut().find(|(k, _)| k == key) {
+            Some((_, rule)) if *rule != allowed && allowed != "a finite number" => *rule = allowed,
+            Some(_) => {}
+            None => self.rules.push((key.to_owned(), allowed)),
+        }
+    }
+
     fn real(&mut self, key: &str, value: f64, ok: impl Fn(f64) -> bool, allowed: &'static str) {
+        self.rule(key, allowed);
         if !value.is_finite() {
             self.violations.push(Violation::NotFinite {
                 key: key.to_owned(),
@@ -162,6 +174,7 @@ impl Checker {
     }
 
     fn count(&mut self, key: &str, value: u32, min: u32, allowed: &'static str) {
+        self.rule(key, allowed);
         if value < min {
             self.violations.push(Violation::CountOutOfRange {
                 key: key.to_owned(),
@@ -172,6 +185,7 @@ impl Checker {
     }
 
     fn polynomial(&mut self, key: &str, coefficients: &[f64]) {
+        self.rule(key, "1 to 8 finite coefficients, lowest order first");
         if coefficients.is_empty() {
             self.violations.push(Violation::EmptyList {
                 key: key.to_owned(),
@@ -226,6 +240,7 @@ impl Checker {
     }
 
     fn name(&mut self, key: &str, value: &str, kind: &'static str, problem: Option<&'static str>) {
+        self.rule(key, kind);
         if let Some(reason) = problem {
             self.violations.push(Violation::BadName {
                 key: key.to_owned(),
@@ -264,33 +279,7 @@ impl Checker {
     }
 }
 
-/// Checks one token-based ROS 2 name: tokens of letters, digits and underscores, not starting
-/// with a digit, separated by single slashes.
-fn token_problem(tokens: &str) -> Option<&'static str> {
-    for token in tokens.split('/') {
-        if token.is_empty() {
-            return Some("it must not contain \"//\" or end with '/'");
-        }
-        if !token.chars().all(|c| c.is_ascii_alphanumeric() || c == '_') {
-            return Some("use only letters, digits, '_' and '/'");
-        }
-        if token.starts_with(|c: char| c.is_ascii_digit()) {
-            return Some("no part between slashes may start with a digit");
-        }
-    }
-    None
-}
-
-/// Why `name` is not a valid absolute ROS 2 topic name, if it is not.
-fn topic_problem(name: &str) -> Option<&'static str> {
-    if name.is_empty() {
-        return Some("it must not be empty; give an absolute name such as \"/ball/state\"");
-    }
-    match name.strip_prefix('/') {
-        None => Some("it must be absolute (start with '/'), e.g. \"/ball/state\""),
-        Some(rest) => token_problem(rest),
-    }
-}
+use super::names::token_problem;
 
 /// Why `name` is not a valid ROS 2 node name, if it is not.
 fn node_name_problem(name: &str) -> Option<&'static str> {
@@ -318,6 +307,23 @@ impl Config {
     /// Checks every value's range and the consistency between values; returns all violations
     /// at once in [`ConfigError::Invalid`].
     pub fn validate(&self) -> Result<(), ConfigError> {
+        let c = self.check();
+        if c.violations.is_empty() {
+            Ok(())
+        } else {
+            Err(ConfigError::Invalid {
+                violations: c.violations,
+            })
+        }
+    }
+
+    /// The rule each checked key is held to, in words (`"from 0 to 1"`), in the order of the
+    /// checks; what the node's parameter descriptors give as `additional_constraints`.
+    pub fn rules(&self) -> Vec<(String, &'static str)> {
+        self.check().rules
+    }
+
+    fn check(&self) -> Checker {
         let mut c = Checker::default();
 
         c.real(
@@ -765,7 +771,7 @@ impl Config {
             ("topics.truth", &tp.truth),
             ("topics.smoothed", &tp.smoothed),
         ] {
-            c.name(key, value, "topic name", topic_problem(value));
+            c.name(key, value, "topic name", super::names::name_problem(value));
         }
 
         c.count(
@@ -776,13 +782,7 @@ impl Config {
         );
         c.count("qos.outputs_depth", self.qos.outputs_depth, 1, "at least 1");
 
-        if c.violations.is_empty() {
-            Ok(())
-        } else {
-            Err(ConfigError::Invalid {
-                violations: c.violations,
-            })
-        }
+        c
     }
 }
 
@@ -887,7 +887,7 @@ mod tests {
         c.prediction.step = 0.1;
         c.gating.probability = 1.0;
         c.ekf.init_detections = 2;
-        c.topics.state = "ball/state".to_owned();
+        c.topics.state = "ball//state".to_owned();
         c.aero.drag_coefficients.clear();
         c.aero.magnus_coefficients[1] = f64::INFINITY;
         c.intercept.plane_x = 0.0;
@@ -996,11 +996,12 @@ mod tests {
 
     #[test]
     fn ros_names() {
-        for good in ["/a", "/ball/state", "/_x/y_2"] {
-            assert_eq!(topic_problem(good), None, "{good}");
+        use crate::config::names::name_problem;
+        for good in ["/a", "/ball/state", "/_x/y_2", "a", "ball/state", "~/x"] {
+            assert_eq!(name_problem(good), None, "{good}");
         }
-        for bad in ["", "a", "/", "/a/", "//a", "/a//b", "/a b", "/2d", "/a/~b"] {
-            assert!(topic_problem(bad).is_some(), "{bad}");
+        for bad in ["", "/", "/a/", "//a", "/a//b", "/a b", "/2d", "/a/~b"] {
+            assert!(name_problem(bad).is_some(), "{bad}");
         }
         assert_eq!(node_name_problem("ttball_2"), None);
         for bad in ["", "/ttball", "2ttball", "tt-ball"] {

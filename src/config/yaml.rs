@@ -4,14 +4,17 @@
 //! The file format is the one rclcpp reads:
 //!
 //! ```yaml
-//! ttball:              # or /ttball, or the wildcard /**
+//! ttball:              # or /ttball, /robot1/ttball, /**, /**/ttball, or nested namespaces
 //!   ros__parameters:
 //!     table:
 //!       restitution: 0.9   # nested maps join into the dotted name `table.restitution`
 //! ```
 //!
-//! Layers, each overriding the one before: [`Config::default`], then the file (which may set any
-//! subset of the parameters), then the overrides in the order given. The result is checked
+//! A file's sections are matched against the node's fully qualified name as rclcpp matches them
+//! ([`super::names::node_key_matches`]); sections of other nodes are ignored, and every section
+//! that applies is applied in the file's order. Layers, each overriding the one before:
+//! [`Config::default`], then the files and `-p` overrides in the order given ([`load_layers`];
+//! `-p node:NAME:=VALUE` applies to that node only). The result is checked
 //! strictly: an unknown key (with a "did you mean" suggestion), a value of the wrong type and a
 //! value out of range ([`Config::validate`]) are all reported at once, each naming its dotted key
 //! and where it was set.
@@ -25,9 +28,8 @@ use thiserror::Error;
 
 use super::{Config, ConfigError, Violation};
 
-/// Node-name keys accepted at the top of a parameters file: the node's name, its fully qualified
-/// name and the rclcpp wildcard.
-pub const NODE_KEYS: [&str; 3] = ["ttball", "/ttball", "/**"];
+/// The node name `ttball config print` writes at the top of a parameters file.
+pub const NODE_KEY: &str = "ttball";
 
 /// The key under the node name that holds the parameters (rclcpp).
 pub const ROS_PARAMETERS: &str = "ros__parameters";
@@ -47,6 +49,11 @@ pub enum Origin {
         /// The override as given (`NAME:=VALUE`).
         arg: String,
     },
+    /// A parameter set on the running node (rcl_interfaces `set_parameters`).
+    Set {
+        /// The parameter's name.
+        name: String,
+    },
 }
 
 impl fmt::Display for Origin {
@@ -58,6 +65,7 @@ impl fmt::Display for Origin {
             } => write!(f, "{}:{line}", path.display()),
             Self::File { path, line: None } => write!(f, "{}", path.display()),
             Self::Override { arg } => write!(f, "-p {arg}"),
+            Self::Set { name } => write!(f, "set {name}"),
         }
     }
 }
@@ -175,8 +183,19 @@ pub enum LoadError {
     },
 }
 
+/// One layer of the configuration ([`load_layers`]).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum Layer {
+    /// A ROS 2 parameters file (`--config`, `--params-file`).
+    File(PathBuf),
+    /// A `NAME:=VALUE` override (`-p`), the value parsed as YAML; `node:NAME:=VALUE` applies only
+    /// to that node.
+    Param(String),
+}
+
 /// Loads the configuration: defaults, then `file` if given, then `overrides` (`NAME:=VALUE`,
-/// the value parsed as YAML), then [`Config::validate`].
+/// the value parsed as YAML), then [`Config::validate`]; the file's sections that apply to the
+/// node the configuration names (`node.namespace`, `node.name`).
 ///
 /// ```no_run
 /// # use std::path::Path;
@@ -188,24 +207,31 @@ pub enum LoadError {
 /// # Ok::<(), ttball::config::yaml::LoadError>(())
 /// ```
 pub fn load<S: AsRef<str>>(file: Option<&Path>, overrides: &[S]) -> Result<Config, LoadError> {
-    match file {
-        None => load_layers(None, overrides),
-        Some(path) => {
-            let text = std::fs::read_to_string(path).map_err(|source| {
-                if source.kind() == std::io::ErrorKind::NotFound {
-                    LoadError::NotFound {
-                        path: path.to_owned(),
-                    }
-                } else {
-                    LoadError::Read {
-                        path: path.to_owned(),
-                        source,
-                    }
-                }
-            })?;
-            load_layers(Some((&text, path)), overrides)
-        }
+    let layers: Vec<Layer> = file
+        .map(|path| Layer::File(path.to_owned()))
+        .into_iter()
+        .chain(overrides.iter().map(|o| Layer::Param(o.as_ref().to_owned())))
+        .collect();
+    load_layers(&layers, None)
+}
+
+/// Loads the configuration from `layers` in order, each overriding the ones before, then
+/// [`Config::validate`]. Files' sections and `node:NAME:=VALUE` overrides apply when they name
+/// the node `node_fqn` (its fully qualified name, e.g. `/robot1/ttball`, as remaps make it);
+/// `None`: the node the configuration itself names (`node.namespace`, `node.name`; found in a
+/// second pass when the layers rename it).
+pub fn load_layers(layers: &[Layer], node_fqn: Option<&str>) -> Result<Config, LoadError> {
+    let mut sources = Vec::with_capacity(layers.len());
+    for layer in layers {
+        sources.push(match layer {
+            Layer::File(path) => Source::Text {
+                text: read_file(path)?,
+                path: path.clone(),
+            },
+            Layer::Param(arg) => Source::Param(arg.clone()),
+        });
     }
+    load_sources(&sources, node_fqn)
 }
 
 /// Like [`load`], with the file's contents given as `text`; `path` only names it in messages.
@@ -214,17 +240,128 @@ pub fn load_str<S: AsRef<str>>(
     path: &Path,
     overrides: &[S],
 ) -> Result<Config, LoadError> {
-    load_layers(Some((text, path)), overrides)
+    let sources: Vec<Source> = std::iter::once(Source::Text {
+        text: text.to_owned(),
+        path: path.to_owned(),
+    })
+    .chain(overrides.iter().map(|o| Source::Param(o.as_ref().to_owned())))
+    .collect();
+    load_sources(&sources, None)
 }
 
-/// The configuration as a ROS 2 parameters file (`ttball: ros__parameters: ...`), every parameter
-/// listed; real numbers always carry a decimal point or exponent so they load back as doubles.
+/// `config` with the parameters `values` set (dotted names, YAML values), type-checked and
+/// validated as a whole: what the node's `set_parameters` does. Every problem is reported.
+pub fn with_values(config: &Config, values: &[(String, Value)]) -> Result<Config, LoadError> {
+    let mut loader = Loader::new(config)?;
+    for (name, value) in values {
+        let origin = Origin::Set { name: name.clone() };
+        for entry in entries_of(name, value, &origin) {
+            loader.apply(entry);
+        }
+    }
+    loader.finish()
+}
+
+fn read_file(path: &Path) -> Result<String, LoadError> {
+    std::fs::read_to_string(path).map_err(|source| {
+        if source.kind() == std::io::ErrorKind::NotFound {
+            LoadError::NotFound {
+                path: path.to_owned(),
+            }
+        } else {
+            LoadError::Read {
+                path: path.to_owned(),
+                source,
+            }
+        }
+    })
+}
+
+/// A layer's contents.
+enum Source {
+    Text { text: String, path: PathBuf },
+    Param(String),
+}
+
+fn load_sources(sources: &[Source], node_fqn: Option<&str>) -> Result<Config, LoadError> {
+    let default_fqn = Config::default().node_fqn();
+    let fqn = node_fqn.unwrap_or(&default_fqn);
+    let config = load_sources_for(sources, fqn)?;
+    match node_fqn {
+        // The layers named the node otherwise: load again with the sections of that node.
+        None if config.node_fqn() != fqn => load_sources_for(sources, &config.node_fqn()),
+        _ => Ok(config),
+    }
+}
+
+fn load_sources_for(sources: &[Source], node_fqn: &str) -> Result<Config, LoadError> {
+    let mut loader = Loader::new(&Config::default())?;
+    for source in sources {
+        match source {
+            Source::Text { text, path } => {
+                let document: Value =
+                    serde_norway::from_str(text).map_err(|e| LoadError::Syntax {
+                        path: path.to_owned(),
+                        line: e.location().map(|l| l.line()),
+                        message: e.to_string(),
+                    })?;
+                for entry in file_entries(&document, text, path, node_fqn, &mut loader.problems) {
+                    loader.apply(entry);
+                }
+            }
+            Source::Param(arg) => match parse_override(arg, node_fqn) {
+                Ok(Some(entry)) => {
+                    for e in entries_of_entry(&entry) {
+                        loader.apply(e);
+                    }
+                }
+                // For another node.
+                Ok(None) => {}
+                Err(reason) => loader.problems.push(Problem::BadOverride {
+                    arg: arg.clone(),
+                    reason,
+                }),
+            },
+        }
+    }
+    loader.finish()
+}
+
+/// The leaf entries under an override's value (a map value sets every key under it).
+fn entries_of_entry(entry: &Entry) -> Vec<Entry> {
+    let mut entries = Vec::new();
+    flatten(&entry.value, &entry.key, &mut |key, value| {
+        entries.push(Entry {
+            key,
+            value: value.clone(),
+            origin: entry.origin.clone(),
+        });
+    });
+    entries
+}
+
+fn entries_of(name: &str, value: &Value, origin: &Origin) -> Vec<Entry> {
+    entries_of_entry(&Entry {
+        key: name.split('.').map(str::to_owned).collect(),
+        value: value.clone(),
+        origin: origin.clone(),
+    })
+}
+
+/// The configuration as a ROS 2 parameters file (`ttball: ros__parameters: ...`, or `"/**":` when
+/// it renames the node), every parameter listed; real numbers always carry a decimal point or exponent so they load back as doubles.
 /// [`load_str`] of the result gives `config` back.
 pub fn to_ros_params_yaml(config: &Config) -> String {
     match serde_norway::to_value(config) {
         Ok(params) => {
             let mut out = String::new();
-            out.push_str(NODE_KEYS[0]);
+            // A file that renames the node is found by the wildcard only (its sections are
+            // matched against the name before the file renames it).
+            out.push_str(if config.node_fqn() == Config::default().node_fqn() {
+                NODE_KEY
+            } else {
+                "\"/**\""
+            });
             out.push_str(":\n  ");
             out.push_str(ROS_PARAMETERS);
             out.push_str(":\n");
@@ -267,6 +404,45 @@ fn collect_names(value: &Value, prefix: &str, with_sections: bool, out: &mut Vec
     }
 }
 
+/// The shipped `config/ttball.yaml`: every parameter with its default, unit and source.
+pub const SHIPPED: &str = include_str!("../../config/ttball.yaml");
+
+/// Every parameter's (and section's) description: the comment above its key in the shipped
+/// `config/ttball.yaml`, joined into one paragraph, by dotted name. What the node's parameter
+/// descriptors say of each.
+pub fn descriptions() -> HashMap<String, String> {
+    let mut out = HashMap::new();
+    let mut stack: Vec<(usize, String)> = Vec::new();
+    let mut comment: Vec<&str> = Vec::new();
+    for line in SHIPPED.lines() {
+        let trimmed = line.trim_start();
+        if trimmed.is_empty() {
+            comment.clear();
+            continue;
+        }
+        if let Some(text) = trimmed.strip_prefix('#') {
+            comment.push(text.trim());
+            continue;
+        }
+        let Some(key) = leading_key(trimmed) else {
+            comment.clear();
+            continue;
+        };
+        let indent = line.len() - trimmed.len();
+        while stack.last().is_some_and(|(i, _)| *i >= indent) {
+            stack.pop();
+        }
+        stack.push((indent, key));
+        // The node name and `ros__parameters` come first.
+        if stack.len() > 2 && !comment.is_empty() {
+            let name: Vec<&str> = stack[2..].iter().map(|(_, k)| k.as_str()).collect();
+            out.insert(name.join("."), comment.join(" "));
+        }
+        comment.clear();
+    }
+    out
+}
+
 /// One value to apply: its dotted key split into segments, where it was written.
 struct Entry {
     key: Vec<String>,
@@ -282,58 +458,25 @@ struct Loader {
     problems: Vec<Problem>,
 }
 
-fn load_layers<S: AsRef<str>>(
-    file: Option<(&str, &Path)>,
-    overrides: &[S],
-) -> Result<Config, LoadError> {
-    let defaults = serde_norway::to_value(Config::default()).map_err(|e| LoadError::Internal {
-        message: e.to_string(),
-    })?;
-    let mut known = Vec::new();
-    collect_names(&defaults, "", true, &mut known);
-    let mut loader = Loader {
-        merged: defaults.clone(),
-        defaults,
-        known,
-        set_at: HashMap::new(),
-        problems: Vec::new(),
-    };
-
-    if let Some((text, path)) = file {
-        let document: Value = serde_norway::from_str(text).map_err(|e| LoadError::Syntax {
-            path: path.to_owned(),
-            line: e.location().map(|l| l.line()),
-            message: e.to_string(),
-        })?;
-        for entry in file_entries(&document, text, path, &mut loader.problems) {
-            loader.apply(entry);
-        }
-    }
-    for arg in overrides {
-        match parse_override(arg.as_ref()) {
-            Ok(entry) => {
-                let mut entries = Vec::new();
-                flatten(&entry.value, &entry.key, &mut |key, value| {
-                    entries.push(Entry {
-                        key,
-                        value: value.clone(),
-                        origin: entry.origin.clone(),
-                    });
-                });
-                for e in entries {
-                    loader.apply(e);
-                }
-            }
-            Err(reason) => loader.problems.push(Problem::BadOverride {
-                arg: arg.as_ref().to_owned(),
-                reason,
-            }),
-        }
-    }
-    loader.finish()
-}
-
 impl Loader {
+    /// A loader whose values start from `base`.
+    fn new(base: &Config) -> Result<Self, LoadError> {
+        let internal = |e: serde_norway::Error| LoadError::Internal {
+            message: e.to_string(),
+        };
+        let defaults = serde_norway::to_value(Config::default()).map_err(internal)?;
+        let merged = serde_norway::to_value(base).map_err(internal)?;
+        let mut known = Vec::new();
+        collect_names(&defaults, "", true, &mut known);
+        Ok(Self {
+            merged,
+            defaults,
+            known,
+            set_at: HashMap::new(),
+            problems: Vec::new(),
+        })
+    }
+
     /// Applies one value if its key exists and its type fits; records a problem otherwise.
     fn apply(&mut self, entry: Entry) {
         let dotted = entry.key.join(".");
@@ -513,20 +656,23 @@ fn flatten(value: &Value, prefix: &[String], f: &mut dyn FnMut(Vec<String>, &Val
     }
 }
 
-/// The parameter entries of a file, after checking its ROS 2 layout.
+/// The parameter entries of a file's sections that apply to the node `node_fqn`, in the file's
+/// order, after checking its ROS 2 layout. A section is a node key (nested keys join with `/`
+/// into a namespace, as rcl's parser joins them) holding `ros__parameters`.
 fn file_entries(
     document: &Value,
     text: &str,
     path: &Path,
+    node_fqn: &str,
     problems: &mut Vec<Problem>,
 ) -> Vec<Entry> {
     let at = |yaml_path: &[String]| Origin::File {
         path: path.to_owned(),
         line: find_line(text, yaml_path),
     };
-    let expected = "a ROS 2 parameters file starts with the node name `ttball:` (or `/ttball:`, \
-                    or the wildcard `/**:`), then `ros__parameters:` indented under it, then the \
-                    parameters indented under that";
+    let expected = "a ROS 2 parameters file starts with the node name `ttball:` (or its fully \
+                    qualified name such as `/robot1/ttball:`, or a wildcard `/**:`), then \
+                    `ros__parameters:` indented under it, then the parameters indented under that";
     let mut entries = Vec::new();
     let nodes = match document {
         // An empty file sets nothing.
@@ -544,44 +690,81 @@ fn file_entries(
         Ok(Value::Mapping(m)) => m.keys().map(key_text).collect(),
         _ => Vec::new(),
     };
-    for (node_key, node) in nodes {
-        let node_name = key_text(node_key);
-        let node_path = vec![node_name.clone()];
-        if !NODE_KEYS.contains(&node_name.as_str()) {
-            let hint = if sections.contains(&node_name) {
-                " (the parameters must be nested under `ttball:` and `ros__parameters:`)"
-            } else {
-                ""
-            };
+    // A parameter section written at the top, not under a node: the common mistake.
+    for node_key in nodes.keys() {
+        let name = key_text(node_key);
+        if sections.contains(&name) || name == ROS_PARAMETERS {
             problems.push(Problem::Layout {
-                origin: at(&node_path),
-                message: format!("unexpected top-level key `{node_name}`{hint}: {expected}"),
+                origin: at(std::slice::from_ref(&name)),
+                message: format!(
+                    "unexpected top-level key `{name}` (the parameters must be nested under the \
+                     node name, e.g. `ttball:`, and `ros__parameters:`): {expected}"
+                ),
             });
-            continue;
         }
+    }
+    let mut stack: Vec<(Vec<String>, &Value)> = nodes
+        .iter()
+        .map(|(k, v)| (vec![key_text(k)], v))
+        .filter(|(k, _)| !sections.contains(&k[0]) && k[0] != ROS_PARAMETERS)
+        .collect();
+    // Depth first, in the file's order.
+    stack.reverse();
+    while let Some((yaml_path, node)) = stack.pop() {
+        let node_key = yaml_path.join("/");
         let Some(node_map) = node.as_mapping() else {
             problems.push(Problem::Layout {
-                origin: at(&node_path),
+                origin: at(&yaml_path),
                 message: format!(
-                    "`{node_name}` holds {}, but {expected}",
+                    "`{node_key}` holds {}, but {expected}",
                     describe_found(node)
                 ),
             });
             continue;
         };
-        for (inner_key, params) in node_map {
+        let Some(params) = node_map.get(ROS_PARAMETERS) else {
+            // A namespace: its children are nodes or further namespaces. A child holding plain
+            // values is parameters without `ros__parameters` above them.
+            let first = stack.len();
+            for (k, v) in node_map {
+                let mut child = yaml_path.clone();
+                child.push(key_text(k));
+                let plain = v
+                    .as_mapping()
+                    .is_none_or(|m| m.values().all(|value| !value.is_mapping()));
+                if plain {
+                    problems.push(Problem::Layout {
+                        origin: at(&child),
+                        message: format!(
+                            "unexpected key `{}` under `{node_key}`: only `{ROS_PARAMETERS}` \
+                             may follow the node name; {expected}",
+                            key_text(k)
+                        ),
+                    });
+                } else {
+                    stack.push((child, v));
+                }
+            }
+            stack[first..].reverse();
+            continue;
+        };
+        for inner_key in node_map.keys() {
             let inner = key_text(inner_key);
-            let inner_path = vec![node_name.clone(), inner.clone()];
             if inner != ROS_PARAMETERS {
+                let mut inner_path = yaml_path.clone();
+                inner_path.push(inner.clone());
                 problems.push(Problem::Layout {
                     origin: at(&inner_path),
                     message: format!(
-                        "unexpected key `{inner}` under `{node_name}`: only `{ROS_PARAMETERS}` \
+                        "unexpected key `{inner}` under `{node_key}`: only `{ROS_PARAMETERS}` \
                          may follow the node name; {expected}"
                     ),
                 });
-                continue;
             }
+        }
+        if super::names::node_key_matches(&node_key, node_fqn) {
+            let mut inner_path = yaml_path.clone();
+            inner_path.push(ROS_PARAMETERS.to_owned());
             collect_file_entries(params, &inner_path, &[], &at, &mut entries);
         }
     }
@@ -666,16 +849,26 @@ fn leading_key(line: &str) -> Option<String> {
     (!key.is_empty() && !key.contains(" #")).then(|| key.to_owned())
 }
 
-/// Parses `NAME:=VALUE` (ROS 2 `-p` syntax); the value is a YAML scalar or flow sequence. The
-/// error is the reason the argument is malformed.
-fn parse_override(arg: &str) -> Result<Entry, String> {
+/// Parses `NAME:=VALUE` (ROS 2 `-p` syntax; `node:NAME:=VALUE` for one node only: `None` when
+/// that is not the node `node_fqn`); the value is a YAML scalar or flow sequence. The error is
+/// the reason the argument is malformed.
+fn parse_override(arg: &str, node_fqn: &str) -> Result<Option<Entry>, String> {
     let Some((name, value)) = arg.split_once(":=") else {
         return Err(
             "expected NAME:=VALUE with a dotted parameter name, e.g. `-p intercept.plane_x:=-1.45`"
                 .to_owned(),
         );
     };
-    let name = name.trim();
+    let name = match name.trim().rsplit_once(':') {
+        Some((node, name)) => {
+            let own_name = node_fqn.rsplit('/').next().unwrap_or(node_fqn);
+            if node != own_name && !super::names::node_key_matches(node, node_fqn) {
+                return Ok(None);
+            }
+            name
+        }
+        None => name.trim(),
+    };
     if name.is_empty() {
         return Err(
             "the parameter name before `:=` is empty; e.g. `-p intercept.plane_x:=-1.45`"
@@ -688,13 +881,13 @@ fn parse_override(arg: &str) -> Result<Entry, String> {
              YAML syntax"
         )
     })?;
-    Ok(Entry {
+    Ok(Some(Entry {
         key: name.split('.').map(str::to_owned).collect(),
         value,
         origin: Origin::Override {
             arg: arg.to_owned(),
         },
-    })
+    }))
 }
 
 fn emit_mapping(out: &mut String, value: &Value, indent: usize) {

@@ -683,6 +683,12 @@ struct Continuation {
     last: Snapshot,
 }
 
+/// The entries of a track's history: 900 + 150 detections per second over the rollback window,
+/// with a wide margin.
+fn history_capacity(config: &Config) -> usize {
+    ((config.tracking.rollback_window * 2000.0).ceil() as usize).clamp(16, 4096)
+}
+
 /// How far [m] a track's first estimate may be from where a refuted track's estimate had flown
 /// to for it to be the same ball re-anchored (a bounce mispredicted by 1 m/s is 5 cm off after
 /// 50 ms).
@@ -711,9 +717,7 @@ impl Estimator {
     /// An estimator with the given configuration (assumed validated).
     pub fn new(config: &Config) -> Self {
         let settings = Settings::new(config);
-        // 900 + 150 detections per second over the rollback window, with a wide margin.
-        let history_capacity =
-            ((config.tracking.rollback_window * 2000.0).ceil() as usize).clamp(16, 4096);
+        let history_capacity = history_capacity(config);
         let pending_capacity = settings.init_count.max(settings.max_rejections as usize) + 8;
         let propagator = Propagator::new(config);
         Self {
@@ -752,6 +756,71 @@ impl Estimator {
             propagator,
             settings,
         }
+    }
+
+    /// Takes `config`'s estimator, gating, source-noise, tracking and interception values from
+    /// the next detection on, keeping the live track, what was learned of the physics and the
+    /// counters (the node's `set_parameters`). `previous` is the configuration it ran with: what
+    /// was learned of a source's noise starts again from the configured values when they
+    /// changed, as does the learned model noise when its settings did. The physical parameters
+    /// (ball, air, aero, table, gravity, adaptation, prediction step) are the ones it was
+    /// created with: a change of those needs [`Self::reset`] or a new estimator.
+    pub fn reconfigure(&mut self, previous: &Config, config: &Config) {
+        let physics = |c: &Config| {
+            (
+                c.gravity,
+                c.ball.clone(),
+                c.air.clone(),
+                c.aero.clone(),
+                c.table.clone(),
+                c.adaptation.clone(),
+            )
+        };
+        let mut settings = Settings::new(config);
+        if physics(previous) != physics(config) {
+            // Not applied live: the physics the tracks were learning from stays.
+            let old = Settings::new(previous);
+            settings.param_prior = old.param_prior;
+            settings.param_prior_var = old.param_prior_var;
+            settings.param_dispersion = old.param_dispersion;
+            settings.filter.process.param_density = old.filter.process.param_density;
+            settings.gravity = old.gravity;
+        }
+        self.settings = settings;
+        self.intercepts.reconfigure(config.intercept.refresh.clone());
+        if previous.sources != config.sources
+            || previous.ekf.learn_noise != config.ekf.learn_noise
+            || previous.ekf.noise_memory != config.ekf.noise_memory
+        {
+            self.noise = NoiseLearner::new(config);
+        }
+        if previous.ekf.learn_model_noise != config.ekf.learn_model_noise
+            || previous.ekf.model_noise_memory != config.ekf.model_noise_memory
+        {
+            self.model_noise =
+                ModelNoiseLearner::new(config.ekf.learn_model_noise, config.ekf.model_noise_memory);
+            self.sensitivity = config
+                .ekf
+                .learn_model_noise
+                .then(|| Box::new([StateMatrix::zeros(); NOISE_SCALES]));
+        }
+        let history_capacity = history_capacity(config);
+        if history_capacity != self.history_capacity {
+            self.history_capacity = history_capacity;
+            self.spare_history = VecDeque::with_capacity(history_capacity);
+        }
+    }
+
+    /// Drops the tracks and what was learned (physics, noise), as a new estimator of `config`
+    /// would start, keeping the counters and counting track ids on (the node's `~/reset`).
+    pub fn reset(&mut self, config: &Config) {
+        let counters = self.counters();
+        let next_track_id = self.next_track_id;
+        *self = Self::new(config);
+        self.counters = counters;
+        self.spin_resets.set(counters.spin_resets);
+        self.edge_retries.set(counters.edge_retries);
+        self.next_track_id = next_track_id;
     }
 
     /// What the estimator has learned of the physical parameters, to start another estimator

@@ -114,7 +114,7 @@ impl Spinner {
 /// The detections topic (`topics.detections`, sensor-data QoS), for the node and `ttball play`.
 pub fn detections_topic(node: &mut Node, config: &Config) -> Result<Topic, NodeError> {
     node.create_topic(
-        &name(&config.topics.detections)?,
+        &name(&config.resolved_topics().detections)?,
         message_type(DETECTION_TYPE),
         &sensor_data(config.qos.detections_depth),
     )

@@ -25,6 +25,7 @@ mod affinity;
 mod dds;
 mod diagnostics;
 mod intake;
+pub mod parameters;
 mod play;
 mod services;
 
@@ -257,7 +258,7 @@ fn start_here(config: &Config, placement: &Placement) -> Result<NodeHandle, Node
     let mut node = dds::node(&context, node_name.clone(), true)?;
     let fq_name = node_name.fully_qualified_name();
 
-    let topics = &config.topics;
+    let topics = &config.resolved_topics();
     let output_qos = dds::reliable(config.qos.outputs_depth);
     let detections_topic = dds::detections_topic(&mut node, config)?;
     let subscription: Subscription<BallDetection> = node

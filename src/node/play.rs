@@ -179,7 +179,7 @@ pub fn play(
     progress: &mut dyn FnMut(u64, u64),
 ) -> Result<PlaySummary, NodeError> {
     let contents = read_bag_file(bag).map_err(crate::replay::ReplayError::from)?;
-    let channel = detection_channel(&contents.channels, &config.topics.detections, bag)?;
+    let channel = detection_channel(&contents.channels, &config.resolved_topics().detections, bag)?;
     let mut undecodable = 0u64;
     let detections: Vec<(u64, BallDetection)> = contents
         .messages
@@ -216,23 +216,23 @@ pub fn play(
 
     let started = Instant::now();
     let deadline = started + options.wait_for_subscriber;
-    while node.subscription_count(&config.topics.detections) == 0
+    while node.subscription_count(&config.resolved_topics().detections) == 0
         && Instant::now() < deadline
         && !cancel.load(Ordering::Relaxed)
     {
         std::thread::sleep(Duration::from_millis(20));
     }
-    let subscribers = node.subscription_count(&config.topics.detections);
+    let subscribers = node.subscription_count(&config.resolved_topics().detections);
     if subscribers == 0 && !options.wait_for_subscriber.is_zero() {
         warn!(
             "no subscriber of {} after {:.1} s; playing anyway",
-            config.topics.detections,
+            config.resolved_topics().detections,
             options.wait_for_subscriber.as_secs_f64()
         );
     } else {
         info!(
             "{subscribers} subscriber(s) of {}",
-            config.topics.detections
+            config.resolved_topics().detections
         );
     }
 
@@ -319,8 +319,8 @@ impl Listener {
             node.create_topic(&dds::name(topic)?, dds::message_type(ros_type), &qos)
                 .map_err(dds::error)
         };
-        let state_topic = subscribe(&config.topics.state, STATE_TYPE)?;
-        let intercept_topic = subscribe(&config.topics.intercept, INTERCEPT_TYPE)?;
+        let state_topic = subscribe(&config.resolved_topics().state, STATE_TYPE)?;
+        let intercept_topic = subscribe(&config.resolved_topics().intercept, INTERCEPT_TYPE)?;
         let states: Subscription<BallState> = node
             .create_subscription(&state_topic, None)
             .map_err(dds::error)?;

@@ -1,0 +1,535 @@
+//! The node's ROS 2 parameters, as rclcpp serves them (rcl_interfaces: `list_parameters`,
+//! `get_parameters`, `get_parameter_types`, `describe_parameters`, `set_parameters`,
+//! `set_parameters_atomically`, and `/parameter_events`): every configuration key is declared
+//! under its dotted name (`table.restitution`) with its type, its description (the comment above
+//! it in `config/ttball.yaml`, unit included), the rule it is checked against
+//! (`additional_constraints`, and a numeric range where the rule is an interval), and read-only
+//! unless it can change between detections ([`is_live`]).
+//!
+//! A set is checked as the configuration is loaded (type, then [`Config::validate`] of the
+//! whole): a refused value is answered with the reason and changes nothing. No DDS here: the node
+//! serves these answers ([`super::services`]) and applies the changed configuration to its
+//! pipeline ([`crate::pipeline::Pipeline::reconfigure`]).
+
+use std::collections::HashMap;
+
+use ros2_client::parameters::raw::{
+    FloatingPointRange, IntegerRange, Parameter, ParameterDescriptor, ParameterEvent,
+    ParameterType, ParameterValue, SetParametersResult,
+};
+use ros2_client::rcl_interfaces::ListParametersResult;
+use serde_norway::Value;
+
+use crate::config::Config;
+use crate::config::yaml;
+
+/// Sections (and single keys) whose parameters take effect between detections; the others are
+/// read-only, as they shape what the node was built with (its physics and what it learned of
+/// it, its DDS entities, the propagator's step).
+const LIVE: [&str; 11] = [
+    "ekf.",
+    "gating.",
+    "sources.",
+    "intercept.",
+    "tracking.",
+    "racket.",
+    "arm.",
+    "stroke.",
+    "prediction.horizon",
+    "prediction.trajectory_",
+    "use_sim_time",
+];
+
+/// Whether the parameter `name` may be set on the running node.
+pub fn is_live(name: &str) -> bool {
+    LIVE.iter().any(|prefix| name.starts_with(prefix))
+}
+
+/// A configuration accepted by a set, and the event that reports it.
+#[derive(Debug, Clone)]
+pub struct Change {
+    /// The configuration before.
+    pub previous: Config,
+    /// The parameters that changed, with their new values (`changed_parameters` of the event).
+    pub changed: Vec<Parameter>,
+}
+
+/// The node's parameters: the configuration it runs with, and how each key is declared.
+pub struct Parameters {
+    config: Config,
+    /// Declared names in the configuration's order, with their ROS 2 types.
+    declared: Vec<(String, u8)>,
+    descriptions: HashMap<String, String>,
+    rules: HashMap<String, &'static str>,
+}
+
+impl Parameters {
+    /// The parameters of a node running `config` (validated).
+    pub fn new(config: &Config) -> Self {
+        let declared = match serde_norway::to_value(config) {
+            Ok(value) => {
+                let mut out = Vec::new();
+                leaves(&value, "", &mut |name, leaf| out.push((name, type_of(leaf))));
+                out
+            }
+            Err(_) => Vec::new(),
+        };
+        Self {
+            config: config.clone(),
+            declared,
+            descriptions: yaml::descriptions(),
+            rules: config.rules().into_iter().collect(),
+        }
+    }
+
+    /// The configuration as the parameters stand.
+    pub fn config(&self) -> &Config {
+        &self.config
+    }
+
+    /// Every declared name, in the configuration's order.
+    pub fn names(&self) -> impl Iterator<Item = &str> {
+        self.declared.iter().map(|(name, _)| name.as_str())
+    }
+
+    fn declared_type(&self, name: &str) -> Option<u8> {
+        self.declared
+            .iter()
+            .find(|(n, _)| n == name)
+            .map(|(_, t)| *t)
+    }
+
+    /// `list_parameters`: rclcpp's rules. Without prefixes, the names with fewer than `depth`
+    /// dots (`depth` 0: all); with prefixes, the names equal to one or under `prefix.` within
+    /// `depth` further levels. `prefixes` of the result: the listed names' sections.
+    pub fn list(&self, prefixes: &[String], depth: u64) -> ListParametersResult {
+        let within = |rest: &str| depth == 0 || (rest.matches('.').count() as u64) < depth;
+        let mut result = ListParametersResult {
+            names: Vec::new(),
+            prefixes: Vec::new(),
+        };
+        for name in self.names() {
+            let listed = if prefixes.is_empty() {
+                within(name)
+            } else {
+                prefixes.iter().any(|prefix| {
+                    name == prefix
+                        || name
+                            .strip_prefix(prefix.as_str())
+                            .and_then(|rest| rest.strip_prefix('.'))
+                            .is_some_and(|rest| within(rest))
+                })
+            };
+            if listed {
+                result.names.push(name.to_owned());
+                if let Some((section, _)) = name.rsplit_once('.')
+                    && !result.prefixes.iter().any(|p| p == section)
+                {
+                    result.prefixes.push(section.to_owned());
+                }
+            }
+        }
+        result
+    }
+
+    /// `get_parameters`: each value, `NOT_SET` for a name not declared.
+    pub fn get(&self, names: &[String]) -> Vec<ParameterValue> {
+        let tree = serde_norway::to_value(&self.config).unwrap_or(Value::Null);
+        names
+            .iter()
+            .map(|name| match (self.declared_type(name), lookup(&tree, name)) {
+                (Some(ptype), Some(leaf)) => to_parameter_value(leaf, ptype),
+                _ => not_set(),
+            })
+            .collect()
+    }
+
+    /// `get_parameter_types`: each type, `NOT_SET` for a name not declared.
+    pub fn get_types(&self, names: &[String]) -> Vec<u8> {
+        names
+            .iter()
+            .map(|name| self.declared_type(name).unwrap_or(ParameterType::NOT_SET))
+            .collect()
+    }
+
+    /// `describe_parameters`: each descriptor; a name not declared gets an empty one of type
+    /// `NOT_SET`, as rclcpp answers when undeclared parameters are allowed (it refuses the
+    /// request otherwise; an answer per name is more use to a caller).
+    pub fn describe(&self, names: &[String]) -> Vec<ParameterDescriptor> {
+        names
+            .iter()
+            .map(|name| {
+                let rule = self.rules.get(name.as_str()).copied().unwrap_or("");
+                let ptype = self.declared_type(name);
+                let (floating_point_range, integer_range) = match ptype {
+                    Some(ParameterType::DOUBLE) => (float_range(rule).into_iter().collect(), Vec::new()),
+                    Some(ParameterType::INTEGER) => (Vec::new(), integer_range(rule).into_iter().collect()),
+                    _ => (Vec::new(), Vec::new()),
+                };
+                ParameterDescriptor {
+                    name: name.clone(),
+                    r#type: ptype.unwrap_or(ParameterType::NOT_SET),
+                    description: self.descriptions.get(name.as_str()).cloned().unwrap_or_default(),
+                    additional_constraints: match (ptype, is_live(name)) {
+                        (None, _) => String::new(),
+                        (Some(_), true) => rule.to_owned(),
+                        (Some(_), false) => {
+                            let restart = "read-only: takes effect when the node starts (-p NAME:=VALUE or a params file)";
+                            if rule.is_empty() {
+                                restart.to_owned()
+                            } else {
+                                format!("{rule}; {restart}")
+                            }
+                        }
+                    },
+                    read_only: ptype.is_some() && !is_live(name),
+                    dynamic_typing: false,
+                    floating_point_range,
+                    integer_range,
+                }
+            })
+            .collect()
+    }
+
+    /// `set_parameters`: each parameter set on its own, in order (each checked against the
+    /// configuration as the ones before it left it); one result per parameter, and the change
+    /// if any was accepted.
+    pub fn set(&mut self, parameters: &[Parameter]) -> (Vec<SetParametersResult>, Option<Change>) {
+        let previous = self.config.clone();
+        let mut changed = Vec::new();
+        let results = parameters
+            .iter()
+            .map(|p| match self.checked(std::slice::from_ref(p)) {
+                Ok(config) => {
+                    self.config = config;
+                    changed.push(p.clone());
+                    accepted()
+                }
+                Err(reason) => refused(reason),
+            })
+            .collect();
+        let change = (!changed.is_empty()).then_some(Change { previous, changed });
+        (results, change)
+    }
+
+    /// `set_parameters_atomically`: all or none, the configuration checked as a whole.
+    pub fn set_atomically(&mut self, parameters: &[Parameter]) -> (SetParametersResult, Option<Change>) {
+        match self.checked(parameters) {
+            Ok(config) => {
+                let previous = std::mem::replace(&mut self.config, config);
+                let change = (!parameters.is_empty()).then(|| Change {
+                    previous,
+                    changed: parameters.to_vec(),
+                });
+                (accepted(), change)
+            }
+            Err(reason) => (refused(reason), None),
+        }
+    }
+
+    /// The configuration with `parameters` set, or why not.
+    fn checked(&self, parameters: &[Parameter]) -> Result<Config, String> {
+        let mut values = Vec::with_capacity(parameters.len());
+        for p in parameters {
+            let Some(declared) = self.declared_type(&p.name) else {
+                return Err(format!(
+                    "parameter '{}' is not declared: `ros2 param list` shows the node's parameters",
+                    p.name
+                ));
+            };
+            if !is_live(&p.name) {
+                return Err(format!(
+                    "parameter '{}' is read-only: it takes effect when the node starts; restart it with -p {}:=VALUE",
+                    p.name, p.name
+                ));
+            }
+            values.push((p.name.clone(), to_yaml(&p.name, &p.value, declared)?));
+        }
+        yaml::with_values(&self.config, &values).map_err(|e| e.to_string())
+    }
+
+    /// The event that announces every parameter (`new_parameters`), when the node starts.
+    pub fn declared_event(&self, stamp: ros2_client::builtin_interfaces::Time, node: &str) -> ParameterEvent {
+        let names: Vec<String> = self.names().map(str::to_owned).collect();
+        let values = self.get(&names);
+        ParameterEvent {
+            stamp,
+            node: node.to_owned(),
+            new_parameters: names
+                .into_iter()
+                .zip(values)
+                .map(|(name, value)| Parameter { name, value })
+                .collect(),
+            changed_parameters: Vec::new(),
+            deleted_parameters: Vec::new(),
+        }
+    }
+}
+
+/// The event that reports `change`.
+pub fn change_event(change: &Change, stamp: ros2_client::builtin_interfaces::Time, node: &str) -> ParameterEvent {
+    ParameterEvent {
+        stamp,
+        node: node.to_owned(),
+        new_parameters: Vec::new(),
+        changed_parameters: change.changed.clone(),
+        deleted_parameters: Vec::new(),
+    }
+}
+
+fn accepted() -> SetParametersResult {
+    SetParametersResult {
+        successful: true,
+        reason: String::new(),
+    }
+}
+
+fn refused(reason: String) -> SetParametersResult {
+    SetParametersResult {
+        successful: false,
+        reason,
+    }
+}
+
+/// Calls `f(dotted name, leaf)` for every leaf under `value`.
+fn leaves(value: &Value, prefix: &str, f: &mut dyn FnMut(String, &Value)) {
+    match value {
+        Value::Mapping(map) => {
+            for (k, v) in map {
+                let key = k.as_str().unwrap_or_default();
+                let name = if prefix.is_empty() {
+                    key.to_owned()
+                } else {
+                    format!("{prefix}.{key}")
+                };
+                leaves(v, &name, f);
+            }
+        }
+        leaf => f(prefix.to_owned(), leaf),
+    }
+}
+
+fn lookup<'a>(tree: &'a Value, name: &str) -> Option<&'a Value> {
+    name.split('.').try_fold(tree, |node, key| node.get(key))
+}
+
+/// The ROS 2 type of a configuration value (every list of the configuration is of reals).
+fn type_of(leaf: &Value) -> u8 {
+    match leaf {
+        Value::Bool(_) => ParameterType::BOOL,
+        Value::Number(n) if n.is_f64() => ParameterType::DOUBLE,
+        Value::Number(_) => ParameterType::INTEGER,
+        Value::String(_) => ParameterType::STRING,
+        Value::Sequence(_) => ParameterType::DOUBLE_ARRAY,
+        _ => ParameterType::NOT_SET,
+    }
+}
+
+fn not_set() -> ParameterValue {
+    empty_value(ParameterType::NOT_SET)
+}
+
+fn empty_value(ptype: u8) -> ParameterValue {
+    ParameterValue {
+        ptype,
+        boolean_value: false,
+        int_value: 0,
+        double_value: 0.0,
+        string_value: String::new(),
+        byte_array: Vec::new(),
+        bool_array: Vec::new(),
+        int_array: Vec::new(),
+        double_array: Vec::new(),
+        string_array: Vec::new(),
+    }
+}
+
+fn to_parameter_value(leaf: &Value, ptype: u8) -> ParameterValue {
+    let mut value = empty_value(ptype);
+    match ptype {
+        ParameterType::BOOL => value.boolean_value = leaf.as_bool().unwrap_or_default(),
+        ParameterType::INTEGER => value.int_value = leaf.as_i64().unwrap_or_default(),
+        ParameterType::DOUBLE => value.double_value = leaf.as_f64().unwrap_or_default(),
+        ParameterType::STRING => value.string_value = leaf.as_str().unwrap_or_default().to_owned(),
+        ParameterType::DOUBLE_ARRAY => {
+            value.double_array = leaf
+                .as_sequence()
+                .map(|items| items.iter().filter_map(Value::as_f64).collect())
+                .unwrap_or_default();
+        }
+        _ => {}
+    }
+    value
+}
+
+/// A value set on parameter `name` of type `declared` as the configuration's YAML, or why it is
+/// refused. An integer is taken for a real (`ros2 param set /ttball intercept.plane_x -1`).
+fn to_yaml(name: &str, value: &ParameterValue, declared: u8) -> Result<Value, String> {
+    let real = |x: f64| Value::Number(x.into());
+    match (declared, value.ptype) {
+        (ParameterType::BOOL, ParameterType::BOOL) => Ok(Value::Bool(value.boolean_value)),
+        (ParameterType::INTEGER, ParameterType::INTEGER) => Ok(Value::Number(value.int_value.into())),
+        (ParameterType::DOUBLE, ParameterType::DOUBLE) => Ok(real(value.double_value)),
+        (ParameterType::DOUBLE, ParameterType::INTEGER) => Ok(real(value.int_value as f64)),
+        (ParameterType::STRING, ParameterType::STRING) => Ok(Value::String(value.string_value.clone())),
+        (ParameterType::DOUBLE_ARRAY, ParameterType::DOUBLE_ARRAY) => {
+            Ok(Value::Sequence(value.double_array.iter().map(|x| real(*x)).collect()))
+        }
+        (ParameterType::DOUBLE_ARRAY, ParameterType::INTEGER_ARRAY) => {
+            Ok(Value::Sequence(value.int_array.iter().map(|x| real(*x as f64)).collect()))
+        }
+        (_, ParameterType::NOT_SET) => Err(format!(
+            "parameter '{name}' cannot be unset: every parameter of ttball has a value"
+        )),
+        (declared, found) => Err(format!(
+            "parameter '{name}' is {}, not {}",
+            type_name(declared),
+            type_name(found)
+        )),
+    }
+}
+
+fn type_name(ptype: u8) -> &'static str {
+    match ptype {
+        ParameterType::BOOL => "a bool",
+        ParameterType::INTEGER => "an integer",
+        ParameterType::DOUBLE => "a double",
+        ParameterType::STRING => "a string",
+        ParameterType::BYTE_ARRAY => "a byte array",
+        ParameterType::BOOL_ARRAY => "a bool array",
+        ParameterType::INTEGER_ARRAY => "an integer array",
+        ParameterType::DOUBLE_ARRAY => "a double array",
+        ParameterType::STRING_ARRAY => "a string array",
+        _ => "not set",
+    }
+}
+
+/// The closed interval of a rule in words (`"from 0 to 1 ..."`, `"between 0 and 0.1 ..."`).
+fn float_range(rule: &str) -> Option<FloatingPointRange> {
+    let number = |text: &str| text.trim_matches(|c: char| c == ',' || c == '(').parse::<f64>().ok();
+    let words: Vec<&str> = rule.split_whitespace().collect();
+    match words.as_slice() {
+        ["from", a, "to", b, ..] | ["between", a, "and", b, ..] => Some(FloatingPointRange {
+            from_value: number(a)?,
+            to_value: number(b)?,
+            step: 0.0,
+        }),
+        _ => None,
+    }
+}
+
+/// The interval of a count's rule (`"at least 1"`, `"from 3 to 100"`).
+fn integer_range(rule: &str) -> Option<IntegerRange> {
+    let number = |text: &str| text.trim_matches(|c: char| c == ',' || c == '(').parse::<i64>().ok();
+    let words: Vec<&str> = rule.split_whitespace().collect();
+    match words.as_slice() {
+        ["at", "least", a, ..] => Some(IntegerRange {
+            from_value: number(a)?,
+            to_value: i64::from(u32::MAX),
+            step: 1,
+        }),
+        ["from", a, "to", b, ..] | ["between", a, "and", b, ..] => Some(IntegerRange {
+            from_value: number(a)?,
+            to_value: number(b)?,
+            step: 1,
+        }),
+        _ => None,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn double(x: f64) -> ParameterValue {
+        ParameterValue {
+            double_value: x,
+            ..empty_value(ParameterType::DOUBLE)
+        }
+    }
+
+    fn param(name: &str, value: ParameterValue) -> Parameter {
+        Parameter {
+            name: name.to_owned(),
+            value,
+        }
+    }
+
+    #[test]
+    fn every_key_is_declared_with_its_type_and_value() {
+        let p = Parameters::new(&Config::default());
+        let names: Vec<&str> = p.names().collect();
+        assert_eq!(names, yaml::parameter_names(&Config::default()));
+        let asked = ["table.restitution", "ekf.init_detections", "node.name", "aero.drag_coefficients", "use_sim_time", "nope"]
+            .map(str::to_owned);
+        assert_eq!(p.get_types(&asked), [3, 2, 4, 8, 1, 0]);
+        let values = p.get(&asked);
+        assert_eq!(values[0].double_value, 0.9);
+        assert_eq!(values[1].int_value, 4);
+        assert_eq!(values[2].string_value, "ttball");
+        assert_eq!(values[3].double_array, [0.42, 0.15]);
+        assert!(!values[4].boolean_value);
+        assert_eq!(values[5].ptype, ParameterType::NOT_SET);
+        let d = p.describe(&asked);
+        assert!(d[0].read_only && d[0].description.contains("[-]"), "{:?}", d[0]);
+        assert!(!d[1].read_only);
+        assert_eq!(d[1].integer_range.len(), 1);
+        assert!(d[2].read_only);
+        assert_eq!(d[5].r#type, ParameterType::NOT_SET);
+        let sigma = &p.describe(&["sources.wide_150fps.stamp_sigma".to_owned()])[0];
+        assert_eq!(
+            (sigma.floating_point_range[0].from_value, sigma.floating_point_range[0].to_value),
+            (0.0, 0.1)
+        );
+    }
+
+    #[test]
+    fn list_follows_rclcpp() {
+        let p = Parameters::new(&Config::default());
+        let top = p.list(&[], 1);
+        assert_eq!(top.names, ["gravity", "use_sim_time"]);
+        let intercept = p.list(&["intercept".to_owned()], 1);
+        assert_eq!(intercept.names, ["intercept.plane_x"]);
+        let intercept = p.list(&["intercept".to_owned()], 0);
+        assert!(intercept.names.contains(&"intercept.refresh.max_age".to_owned()));
+        assert!(intercept.prefixes.contains(&"intercept.refresh".to_owned()));
+        assert_eq!(p.list(&[], 0).names.len(), p.names().count());
+    }
+
+    #[test]
+    fn sets_are_checked_and_refusals_change_nothing() {
+        let mut p = Parameters::new(&Config::default());
+        let (results, change) = p.set(&[
+            param("intercept.plane_x", double(-1.45)),
+            param("table.restitution", double(0.8)),
+            param("gating.probability", double(2.0)),
+            param("ekf.init_detections", double(5.0)),
+            param("nope", double(1.0)),
+            param("tracking.timeout", ParameterValue { int_value: 1, ..empty_value(ParameterType::INTEGER) }),
+        ]);
+        let ok: Vec<bool> = results.iter().map(|r| r.successful).collect();
+        assert_eq!(ok, [true, false, false, false, false, true]);
+        assert!(results[1].reason.contains("read-only"), "{}", results[1].reason);
+        assert!(results[2].reason.contains("gating.probability"), "{}", results[2].reason);
+        assert!(results[3].reason.contains("is an integer, not a double"), "{}", results[3].reason);
+        assert!(results[4].reason.contains("not declared"), "{}", results[4].reason);
+        assert_eq!(p.config().intercept.plane_x, -1.45);
+        assert_eq!(p.config().tracking.timeout, 1.0);
+        let change = change.unwrap();
+        assert_eq!(change.previous, Config::default());
+        assert_eq!(change.changed.len(), 2);
+
+        // Atomically: one bad value refuses all.
+        let before = p.config().clone();
+        let (result, change) = p.set_atomically(&[
+            param("intercept.plane_x", double(-1.3)),
+            param("tracking.coast_after", double(5.0)),
+        ]);
+        assert!(!result.successful && change.is_none(), "{result:?}");
+        assert!(result.reason.contains("tracking.coast_after"), "{}", result.reason);
+        assert_eq!(p.config(), &before);
+        let (result, change) = p.set_atomically(&[param("intercept.plane_x", double(-1.3))]);
+        assert!(result.successful && change.is_some());
+        assert_eq!(p.config().intercept.plane_x, -1.3);
+    }
+}
