@@ -69,7 +69,14 @@ pub fn context(domain: u16, interfaces: Option<&[IpAddr]>) -> Result<Context, No
 /// A ROS 2 node on `context`, publishing its log on `/rosout` when `rosout`.
 pub fn node(context: &Context, name: NodeName, rosout: bool) -> Result<Node, NodeError> {
     context
-        .new_node(name, NodeOptions::new().enable_rosout(rosout))
+        .new_node(
+            name,
+            // The node serves rcl_interfaces' parameter services itself, with its configured
+            // framing (ros2-client's own use the enhanced one and know no descriptors).
+            NodeOptions::new()
+                .enable_rosout(rosout)
+                .start_parameter_services(false),
+        )
         .map_err(error)
 }
 
@@ -180,6 +187,11 @@ pub fn reliable(depth: u32) -> QosProfile {
         .history(History::KeepLast {
             depth: depth_usize(depth),
         })
+}
+
+/// rclcpp's `ClockQoS` for `/clock`: best effort, keep last 1, volatile.
+pub fn clock() -> QosProfile {
+    sensor_data(1)
 }
 
 /// ROS 2's default QoS of services: reliable, keep last 10, volatile.

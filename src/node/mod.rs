@@ -50,6 +50,7 @@ pub use play::{Latency, LatencyReport, PlayOptions, PlaySummary, play};
 use crate::config::Config;
 use crate::estimator::Counters;
 use crate::msgs::diagnostic_msgs::DiagnosticArray;
+use crate::msgs::rosgraph_msgs::Clock;
 use crate::msgs::ttball_msgs::msg::{
     BallDetection, BallState, InterceptPrediction, PredictedTrajectory,
 };
@@ -58,9 +59,12 @@ use crate::pipeline::{Pipeline, Published};
 use crate::replay::{DETECTION_TYPE, INTERCEPT_TYPE, MARKERS_TYPE, STATE_TYPE, TRAJECTORY_TYPE};
 use crate::stats::{DurationHistogram, DurationSummary};
 use intake::{DetectionQueue, Queued, SequenceGaps};
-use services::{Reply, Servers, Service};
+use parameters::Parameters;
+use ros2_client::parameters::raw::ParameterEvent;
+use services::{Effect, Reply, Servers, Service};
 
 impl ros2_client::Message for BallDetection {}
+impl ros2_client::Message for Clock {}
 
 /// ROS 2 type of `/diagnostics`.
 pub const DIAGNOSTICS_TYPE: &str = "diagnostic_msgs/msg/DiagnosticArray";
@@ -76,6 +80,11 @@ pub const PREDICT_REBOUND_SERVICE: &str = "predict_rebound";
 pub const PLAN_RETURN_TYPE: &str = "ttball_msgs/srv/PlanReturn";
 /// Base name of the racket command service, private to the node (`~/plan_return`).
 pub const PLAN_RETURN_SERVICE: &str = "plan_return";
+
+/// ROS 2 type of `/clock`.
+pub const CLOCK_TYPE: &str = "rosgraph_msgs/msg/Clock";
+/// The simulated time's topic, followed with `use_sim_time`.
+pub const CLOCK_TOPIC: &str = "/clock";
 
 /// Service requests that may wait for the estimator thread; more are refused as busy.
 const REQUEST_QUEUE: usize = 16;
@@ -239,6 +248,7 @@ struct Outputs {
     trajectory: Publisher<PredictedTrajectory>,
     markers: Publisher<MarkerArray>,
     diagnostics: Publisher<DiagnosticArray>,
+    parameter_events: Publisher<ParameterEvent>,
 }
 
 /// Starts the node with a validated configuration: creates the participant, the node, its
@@ -264,7 +274,11 @@ fn start_here(config: &Config, placement: &Placement) -> Result<NodeHandle, Node
     let subscription: Subscription<BallDetection> = node
         .create_subscription(&detections_topic, None)
         .map_err(dds::error)?;
+    let parameter_events = node
+        .create_publisher(&context.get_parameter_events_topic(), None)
+        .map_err(dds::error)?;
     let outputs = Outputs {
+        parameter_events,
         state: publisher(&mut node, &topics.state, STATE_TYPE, &output_qos)?,
         intercept: publisher(&mut node, &topics.intercept, INTERCEPT_TYPE, &output_qos)?,
         trajectory: publisher(&mut node, &topics.trajectory, TRAJECTORY_TYPE, &output_qos)?,
@@ -276,6 +290,12 @@ fn start_here(config: &Config, placement: &Placement) -> Result<NodeHandle, Node
             &output_qos,
         )?,
     };
+    let clock_topic = node
+        .create_topic(&dds::name(CLOCK_TOPIC)?, dds::message_type(CLOCK_TYPE), &dds::clock())
+        .map_err(dds::error)?;
+    let clock: Subscription<Clock> = node
+        .create_subscription(&clock_topic, None)
+        .map_err(dds::error)?;
     let servers = Servers::new(&mut node, &node_name, config.node.service_mapping)?;
     let spinner = dds::spawn_spinner(&mut node)?;
 
@@ -286,14 +306,20 @@ fn start_here(config: &Config, placement: &Placement) -> Result<NodeHandle, Node
     let (stop_tx, stop_rx) = oneshot::channel::<()>();
     let (ended_tx, ended_rx) = channel::bounded::<()>(0);
 
+    let parameters = Parameters::new(config);
     let estimator = EstimatorThread {
         pipeline: Pipeline::new(config),
+        clock: NodeClock {
+            subscription: clock,
+            latest: None,
+        },
         outputs,
         shared: Arc::clone(&shared),
         node_name: fq_name.clone(),
         detections_topic: topics.detections.clone(),
         period: Duration::from_secs_f64(config.node.diagnostics_period),
         capacity,
+        parameters,
     };
     let estimator = std::thread::Builder::new()
         .name("ttball-estimator".to_owned())
@@ -446,6 +472,30 @@ struct EstimatorThread {
     detections_topic: String,
     period: Duration,
     capacity: usize,
+    /// The node's parameters (the configuration the pipeline runs with).
+    parameters: Parameters,
+    clock: NodeClock,
+}
+
+/// The node's clock: the system clock, or `/clock` with `use_sim_time` (0 until the first
+/// `/clock` message, as in rclcpp).
+struct NodeClock {
+    subscription: Subscription<Clock>,
+    latest: Option<i64>,
+}
+
+impl NodeClock {
+    /// Now [ns since the epoch].
+    fn now_ns(&mut self, use_sim_time: bool) -> i64 {
+        while let Ok(Some((clock, _))) = self.subscription.take() {
+            self.latest = Some(clock.clock.to_nanos());
+        }
+        if use_sim_time {
+            self.latest.unwrap_or(0)
+        } else {
+            wall_clock_ns()
+        }
+    }
 }
 
 /// What the estimator thread did.
@@ -486,6 +536,9 @@ impl EstimatorThread {
             count: 0,
             in_node: DurationHistogram::new(),
         };
+        let now = self.now();
+        let declared = self.parameters.declared_event(now, &self.node_name);
+        self.publish_parameter_event(declared);
         let ticker = channel::tick(self.period);
         let mut period_start = Instant::now();
         let mut transport_before = self.shared.snapshot();
@@ -515,10 +568,20 @@ impl EstimatorThread {
                 }
                 i if i == on_request => match operation.recv(requests) {
                     Ok((id, request)) => {
-                        let reply = request.answer(&self.pipeline);
+                        let (reply, effect) =
+                            request.answer(&mut self.pipeline, &mut self.parameters);
                         let (success, message) = reply.outcome();
                         debug!("{}: success {success} {message}", request.service().name());
                         let _ = replies.unbounded_send((id, reply));
+                        if let Effect::Changed(change) = effect {
+                            let names: Vec<&str> =
+                                change.changed.iter().map(|p| p.name.as_str()).collect();
+                            info!("parameters set: {}", names.join(", "));
+                            let now = self.now();
+                            let event =
+                                parameters::change_event(&change, now, &self.node_name);
+                            self.publish_parameter_event(event);
+                        }
                     }
                     // The DDS thread stopped: the node stops.
                     Err(_) => break,
@@ -651,14 +714,27 @@ impl EstimatorThread {
         }
     }
 
+    /// The node's time, as a ROS 2 time.
+    fn now(&mut self) -> ros2_client::builtin_interfaces::Time {
+        let use_sim_time = self.parameters.config().use_sim_time;
+        ros2_client::builtin_interfaces::Time::from_nanos(self.clock.now_ns(use_sim_time))
+    }
+
+    fn publish_parameter_event(&self, event: ParameterEvent) {
+        if self.outputs.parameter_events.publish(event).is_err() {
+            Shared::add(&self.shared.publish_errors);
+        }
+    }
+
     fn publish_diagnostics(
-        &self,
+        &mut self,
         window: &mut Window,
         period: Duration,
         transport: &TransportCounters,
         transport_before: &TransportCounters,
         queue_len: usize,
     ) {
+        let stamp = self.now().to_nanos();
         let counters = self.pipeline.counters();
         let estimator = self.pipeline.estimator();
         let learned = estimator.learned_params();
@@ -668,7 +744,7 @@ impl EstimatorThread {
             &Snapshot {
                 node: &self.node_name,
                 detections_topic: &self.detections_topic,
-                stamp: wall_clock_ns(),
+                stamp,
                 period: period.as_secs_f64(),
                 counters: &counters,
                 transport,
