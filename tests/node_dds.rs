@@ -681,3 +681,124 @@ echo $? > node.rc
         "{received} received + {lost} lost > {other_fields} + {sent} + {flooded} sent: {summary}"
     );
 }
+
+/// The node as a ROS 2 stack meets it: in a namespace given by a remap (its topics and services
+/// under it), its parameters listed, read, described and set through rcl_interfaces' services by
+/// a peer ttball did not write (a set taking effect between detections, refusals changing
+/// nothing), `/parameter_events` reporting the changes, and `~/reset`.
+#[test]
+fn the_node_is_a_ros2_citizen_over_cyclone_dds() {
+    let Some(DdsRun {
+        python,
+        dir,
+        ttball,
+        peer,
+        bag,
+        _turn,
+    }) = DdsRun::start("dds-citizen")
+    else {
+        return;
+    };
+    let script = format!(
+        r#"
+export ROS_DOMAIN_ID=43 ROS_LOCALHOST_ONLY=1
+cd "{dir}"
+"{ttball}" node -p node.service_mapping:=cyclone --ros-args -r __ns:=/robot1 -p intercept.plane_x:=-1.5 > node.out 2> node.err &
+node=$!
+"{python}" "{peer}" params --node /robot1/ttball --timeout 20 --out params.json 2> peer.err
+"{python}" "{peer}" publish "{bag}" --bag-topic /ball/detections --topic /robot1/ball/detections --state-topic /robot1/ball/state --intercept-topic /robot1/ball/intercept --count 900 --rate 2 --wait-match 30 --out publish.json 2>> peer.err
+kill -TERM $node
+wait $node
+echo $? > node.rc
+"#,
+        dir = dir.display(),
+        python = python.display(),
+        peer = peer.display(),
+        bag = bag.display(),
+    );
+    common::run_on_loopback_only(&script);
+    let read = |name: &str| std::fs::read_to_string(dir.join(name)).unwrap_or_default();
+    assert_eq!(read("node.rc").trim(), "0", "node: {}", read("node.err"));
+    let params = read_json(&dir.join("params.json"));
+    let context = format!("{params:#}\npeer: {}\nnode: {}", read("peer.err"), read("node.err"));
+
+    // Every configuration key is a declared parameter.
+    let listed: Vec<&str> = params["list"]
+        .as_array()
+        .unwrap_or_else(|| panic!("{context}"))
+        .iter()
+        .filter_map(Value::as_str)
+        .collect();
+    assert_eq!(
+        listed,
+        ttball::config::yaml::parameter_names(&Config::default()),
+        "{context}"
+    );
+    // Values as the command line and the remaps made them.
+    let get = &params["get"];
+    assert_eq!(get["intercept.plane_x"], -1.5, "{context}");
+    assert_eq!(get["table.restitution"], 0.9);
+    assert_eq!(get["node.namespace"], "/robot1");
+    assert_eq!(get["use_sim_time"], false);
+    assert_eq!(get["ekf.init_detections"], 4);
+    assert_eq!(get["aero.drag_coefficients"], serde_json::json!([0.42, 0.15]));
+    assert!(get["no.such_parameter"].is_null());
+    // Descriptors: type, description with the unit, the rule, read-only where a restart is needed.
+    let described = params["describe"].as_array().unwrap();
+    assert_eq!(described[0]["name"], "table.restitution");
+    assert_eq!(described[0]["type"], 3);
+    assert_eq!(described[0]["read_only"], true);
+    assert!(described[0]["description"].as_str().unwrap().contains("[-]"), "{context}");
+    assert_eq!(described[1]["read_only"], false);
+    assert_eq!(
+        described[2]["constraints"],
+        "greater than 0 and less than 1",
+        "{context}"
+    );
+    // Sets: one taken, the others refused with the reason.
+    let set = params["set"].as_array().unwrap();
+    let taken: Vec<bool> = set.iter().map(|s| s["successful"] == true).collect();
+    assert_eq!(taken, [true, false, false, false], "{context}");
+    assert!(set[1]["reason"].as_str().unwrap().contains("read-only"));
+    assert!(set[2]["reason"].as_str().unwrap().contains("gating.probability"));
+    assert!(set[3]["reason"].as_str().unwrap().contains("is a double, not a string"));
+    assert_eq!(params["atomic_refused"]["successful"], false);
+    assert!(
+        params["atomic_refused"]["reason"]
+            .as_str()
+            .unwrap()
+            .contains("tracking.coast_after")
+    );
+    assert_eq!(params["atomic"]["successful"], true, "{context}");
+    assert_eq!(params["get_after"]["intercept.plane_x"], -1.45);
+    assert_eq!(params["get_after"]["ekf.init_detections"], 4);
+    assert_eq!(params["reset"]["success"], true);
+    // /parameter_events: the two accepted sets, nothing for the refused ones.
+    let events: Vec<&Value> = params["events"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter(|e| e["node"] == "/robot1/ttball")
+        .collect();
+    assert_eq!(events.len(), 2, "{context}");
+    assert_eq!(events[0]["changed"]["intercept.plane_x"], -1.45);
+    assert_eq!(
+        events[1]["changed"]["sources.wide_150fps.position_sigma"],
+        0.0025
+    );
+
+    // The topics are in the namespace, and the live set moved the plane the ball is
+    // intercepted at.
+    let published = read_json(&dir.join("publish.json"));
+    let states = records(&published, "states");
+    let intercepts: Vec<InterceptPrediction> = records(&published, "intercepts")
+        .iter()
+        .map(|r| decode(&cdr_of(r)).unwrap())
+        .collect();
+    assert!(states.len() > 300, "{} states: {}", states.len(), read("peer.err"));
+    let valid: Vec<&InterceptPrediction> = intercepts.iter().filter(|i| i.valid).collect();
+    assert!(valid.len() > 100, "{} valid intercepts", valid.len());
+    for i in valid {
+        assert!((i.position.x + 1.45).abs() < 1e-6, "{:?}", i.position);
+    }
+}

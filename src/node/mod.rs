@@ -290,12 +290,17 @@ fn start_here(config: &Config, placement: &Placement) -> Result<NodeHandle, Node
             &output_qos,
         )?,
     };
-    let clock_topic = node
-        .create_topic(&dds::name(CLOCK_TOPIC)?, dds::message_type(CLOCK_TYPE), &dds::clock())
-        .map_err(dds::error)?;
-    let clock: Subscription<Clock> = node
-        .create_subscription(&clock_topic, None)
-        .map_err(dds::error)?;
+    // Only with use_sim_time: ros2-client's spinner keeps a /clock topic of its own under
+    // another type name (builtin_interfaces' Time, which no ROS 2 clock publisher matches), and
+    // RustDDS logs an error when one participant has a topic under two types.
+    let clock: Option<Subscription<Clock>> = if config.use_sim_time {
+        let topic = node
+            .create_topic(&dds::name(CLOCK_TOPIC)?, dds::message_type(CLOCK_TYPE), &dds::clock())
+            .map_err(dds::error)?;
+        Some(node.create_subscription(&topic, None).map_err(dds::error)?)
+    } else {
+        None
+    };
     let servers = Servers::new(&mut node, &node_name, config.node.service_mapping)?;
     let spinner = dds::spawn_spinner(&mut node)?;
 
@@ -477,24 +482,23 @@ struct EstimatorThread {
     clock: NodeClock,
 }
 
-/// The node's clock: the system clock, or `/clock` with `use_sim_time` (0 until the first
-/// `/clock` message, as in rclcpp).
+/// The node's clock: the system clock, or with `use_sim_time` the latest `/clock` (0 until the
+/// first, as in rclcpp).
 struct NodeClock {
-    subscription: Subscription<Clock>,
+    subscription: Option<Subscription<Clock>>,
     latest: Option<i64>,
 }
 
 impl NodeClock {
     /// Now [ns since the epoch].
-    fn now_ns(&mut self, use_sim_time: bool) -> i64 {
-        while let Ok(Some((clock, _))) = self.subscription.take() {
+    fn now_ns(&mut self) -> i64 {
+        let Some(subscription) = &self.subscription else {
+            return wall_clock_ns();
+        };
+        while let Ok(Some((clock, _))) = subscription.take() {
             self.latest = Some(clock.clock.to_nanos());
         }
-        if use_sim_time {
-            self.latest.unwrap_or(0)
-        } else {
-            wall_clock_ns()
-        }
+        self.latest.unwrap_or(0)
     }
 }
 
@@ -716,8 +720,7 @@ impl EstimatorThread {
 
     /// The node's time, as a ROS 2 time.
     fn now(&mut self) -> ros2_client::builtin_interfaces::Time {
-        let use_sim_time = self.parameters.config().use_sim_time;
-        ros2_client::builtin_interfaces::Time::from_nanos(self.clock.now_ns(use_sim_time))
+        ros2_client::builtin_interfaces::Time::from_nanos(self.clock.now_ns())
     }
 
     fn publish_parameter_event(&self, event: ParameterEvent) {

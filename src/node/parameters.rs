@@ -26,7 +26,7 @@ use crate::config::yaml;
 /// Sections (and single keys) whose parameters take effect between detections; the others are
 /// read-only, as they shape what the node was built with (its physics and what it learned of
 /// it, its DDS entities, the propagator's step).
-const LIVE: [&str; 11] = [
+const LIVE: [&str; 10] = [
     "ekf.",
     "gating.",
     "sources.",
@@ -37,7 +37,6 @@ const LIVE: [&str; 11] = [
     "stroke.",
     "prediction.horizon",
     "prediction.trajectory_",
-    "use_sim_time",
 ];
 
 /// Whether the parameter `name` may be set on the running node.

@@ -8,6 +8,7 @@ did not write: it proves the node interoperates over DDS, and lets you try the n
     python dds_peer.py call-predict --horizon 0.5   # needs `-p node.service_mapping:=cyclone`
     python dds_peer.py call-plan --target 0.9 0.3   # likewise
     python dds_peer.py call-rebound --racket 1.6 0 0.15 1 0 0
+    python dds_peer.py params --node /ttball         # rcl_interfaces' parameter services, ~/reset
 
 `publish` plays a bag's detections to /ball/detections at their recorded times and records the
 node's /ball/state and /ball/intercept (with latency); `listen` records detections published by
@@ -220,6 +221,164 @@ class PlanReturn_Response_(IdlStruct, typename="ttball_msgs::srv::dds_::PlanRetu
     wrist_force: t.float64
 
 
+# ---- rcl_interfaces (parameters) and std_srvs, with rmw_cyclonedds' request header -------------
+
+
+@dataclass
+class ParameterValue_(IdlStruct, typename="rcl_interfaces::msg::dds_::ParameterValue_"):
+    type: t.uint8
+    bool_value: bool
+    integer_value: t.int64
+    double_value: t.float64
+    string_value: str
+    byte_array_value: t.sequence[t.uint8]
+    bool_array_value: t.sequence[bool]
+    integer_array_value: t.sequence[t.int64]
+    double_array_value: t.sequence[t.float64]
+    string_array_value: t.sequence[str]
+
+
+@dataclass
+class Parameter_(IdlStruct, typename="rcl_interfaces::msg::dds_::Parameter_"):
+    name: str
+    value: ParameterValue_
+
+
+@dataclass
+class FloatingPointRange_(IdlStruct, typename="rcl_interfaces::msg::dds_::FloatingPointRange_"):
+    from_value: t.float64
+    to_value: t.float64
+    step: t.float64
+
+
+@dataclass
+class IntegerRange_(IdlStruct, typename="rcl_interfaces::msg::dds_::IntegerRange_"):
+    from_value: t.int64
+    to_value: t.int64
+    step: t.uint64
+
+
+@dataclass
+class ParameterDescriptor_(IdlStruct, typename="rcl_interfaces::msg::dds_::ParameterDescriptor_"):
+    name: str
+    type: t.uint8
+    description: str
+    additional_constraints: str
+    read_only: bool
+    dynamic_typing: bool
+    floating_point_range: t.sequence[FloatingPointRange_, 1]
+    integer_range: t.sequence[IntegerRange_, 1]
+
+
+@dataclass
+class SetParametersResult_(IdlStruct, typename="rcl_interfaces::msg::dds_::SetParametersResult_"):
+    successful: bool
+    reason: str
+
+
+@dataclass
+class ParameterEvent_(IdlStruct, typename="rcl_interfaces::msg::dds_::ParameterEvent_"):
+    stamp: Time_
+    node: str
+    new_parameters: t.sequence[Parameter_]
+    changed_parameters: t.sequence[Parameter_]
+    deleted_parameters: t.sequence[Parameter_]
+
+
+@dataclass
+class ListParametersResult_(IdlStruct, typename="rcl_interfaces::msg::dds_::ListParametersResult_"):
+    names: t.sequence[str]
+    prefixes: t.sequence[str]
+
+
+@dataclass
+class ListParameters_Request_(IdlStruct, typename="rcl_interfaces::srv::dds_::ListParameters_Request_"):
+    client_guid: t.uint64
+    sequence_number: t.int64
+    prefixes: t.sequence[str]
+    depth: t.uint64
+
+
+@dataclass
+class ListParameters_Response_(IdlStruct, typename="rcl_interfaces::srv::dds_::ListParameters_Response_"):
+    client_guid: t.uint64
+    sequence_number: t.int64
+    result: ListParametersResult_
+
+
+@dataclass
+class GetParameters_Request_(IdlStruct, typename="rcl_interfaces::srv::dds_::GetParameters_Request_"):
+    client_guid: t.uint64
+    sequence_number: t.int64
+    names: t.sequence[str]
+
+
+@dataclass
+class GetParameters_Response_(IdlStruct, typename="rcl_interfaces::srv::dds_::GetParameters_Response_"):
+    client_guid: t.uint64
+    sequence_number: t.int64
+    values: t.sequence[ParameterValue_]
+
+
+@dataclass
+class DescribeParameters_Request_(IdlStruct, typename="rcl_interfaces::srv::dds_::DescribeParameters_Request_"):
+    client_guid: t.uint64
+    sequence_number: t.int64
+    names: t.sequence[str]
+
+
+@dataclass
+class DescribeParameters_Response_(IdlStruct, typename="rcl_interfaces::srv::dds_::DescribeParameters_Response_"):
+    client_guid: t.uint64
+    sequence_number: t.int64
+    descriptors: t.sequence[ParameterDescriptor_]
+
+
+@dataclass
+class SetParameters_Request_(IdlStruct, typename="rcl_interfaces::srv::dds_::SetParameters_Request_"):
+    client_guid: t.uint64
+    sequence_number: t.int64
+    parameters: t.sequence[Parameter_]
+
+
+@dataclass
+class SetParameters_Response_(IdlStruct, typename="rcl_interfaces::srv::dds_::SetParameters_Response_"):
+    client_guid: t.uint64
+    sequence_number: t.int64
+    results: t.sequence[SetParametersResult_]
+
+
+@dataclass
+class SetParametersAtomically_Request_(
+        IdlStruct, typename="rcl_interfaces::srv::dds_::SetParametersAtomically_Request_"):
+    client_guid: t.uint64
+    sequence_number: t.int64
+    parameters: t.sequence[Parameter_]
+
+
+@dataclass
+class SetParametersAtomically_Response_(
+        IdlStruct, typename="rcl_interfaces::srv::dds_::SetParametersAtomically_Response_"):
+    client_guid: t.uint64
+    sequence_number: t.int64
+    result: SetParametersResult_
+
+
+@dataclass
+class Trigger_Request_(IdlStruct, typename="std_srvs::srv::dds_::Trigger_Request_"):
+    client_guid: t.uint64
+    sequence_number: t.int64
+    structure_needs_at_least_one_member: t.uint8
+
+
+@dataclass
+class Trigger_Response_(IdlStruct, typename="std_srvs::srv::dds_::Trigger_Response_"):
+    client_guid: t.uint64
+    sequence_number: t.int64
+    success: bool
+    message: str
+
+
 # ---- DDS plumbing ------------------------------------------------------------------------------
 
 
@@ -244,7 +403,8 @@ def ros_topic(prefix, name, suffix=""):
 def warn_incompatible(kind):
     """A listener that says so when QoS prevents a match (otherwise a silent non-match)."""
     def report(entity, status):
-        print(f"dds_peer: incompatible QoS on {kind} {entity.topic.name} (policy id {status.last_policy_id})",
+        topic = entity.topic.name if entity is not None else "?"
+        print(f"dds_peer: incompatible QoS on {kind} {topic} (policy id {status.last_policy_id})",
               file=sys.stderr)
 
     return Listener(on_offered_incompatible_qos=report, on_requested_incompatible_qos=report)
@@ -341,7 +501,7 @@ def latency_ms(sent, outputs):
 
 
 def cmd_publish(args):
-    detections = read_detections(args.bag, args.topic)
+    detections = read_detections(args.bag, args.bag_topic or args.topic)
     end = args.first + args.count if args.count else None
     detections = detections[args.first:end]
     if not detections:
@@ -536,6 +696,84 @@ def cmd_call_plan(args):
     return code if reply is None else report(args, reply, landing_error=reply.landing_error)
 
 
+def parameter_value(value):
+    """A Python bool, int, float, str or list of floats as rcl_interfaces/ParameterValue."""
+    fields = dict(type=0, bool_value=False, integer_value=0, double_value=0.0, string_value="",
+                  byte_array_value=[], bool_array_value=[], integer_array_value=[], double_array_value=[],
+                  string_array_value=[])
+    if isinstance(value, bool):
+        fields.update(type=1, bool_value=value)
+    elif isinstance(value, int):
+        fields.update(type=2, integer_value=value)
+    elif isinstance(value, float):
+        fields.update(type=3, double_value=value)
+    elif isinstance(value, str):
+        fields.update(type=4, string_value=value)
+    elif isinstance(value, list):
+        fields.update(type=8, double_array_value=[float(v) for v in value])
+    return ParameterValue_(**fields)
+
+
+def plain_value(value):
+    """An rcl_interfaces/ParameterValue as a Python value (None when NOT_SET)."""
+    return {0: None, 1: value.bool_value, 2: value.integer_value, 3: value.double_value,
+            4: value.string_value, 8: list(value.double_array_value)}.get(value.type, "?")
+
+
+def cmd_params(args):
+    """Lists, gets, describes and sets the node's parameters through rcl_interfaces' services (as
+    `ros2 param` does), records /parameter_events meanwhile, and calls ~/reset."""
+    node = args.node.rstrip("/")
+    dp = participant()
+    events = Recorder(dp, "rt/parameter_events", ParameterEvent_, True, 1000)
+    out = {}
+
+    def ask(service, request_type, reply_type, **fields):
+        ns = argparse.Namespace(service=f"{node}/{service}", timeout=args.timeout)
+        code, reply = call(ns, request_type, reply_type, **fields)
+        if reply is None:
+            sys.exit(code)
+        return reply
+
+    listed = ask("list_parameters", ListParameters_Request_, ListParameters_Response_, prefixes=[], depth=0)
+    out["list"] = list(listed.result.names)
+    names = ["intercept.plane_x", "table.restitution", "node.namespace", "use_sim_time",
+             "ekf.init_detections", "aero.drag_coefficients", "no.such_parameter"]
+    got = ask("get_parameters", GetParameters_Request_, GetParameters_Response_, names=names)
+    out["get"] = {n: plain_value(v) for n, v in zip(names, got.values)}
+    described = ask("describe_parameters", DescribeParameters_Request_, DescribeParameters_Response_,
+                    names=["table.restitution", "intercept.plane_x", "gating.probability"])
+    out["describe"] = [{"name": d.name, "type": d.type, "description": d.description,
+                        "constraints": d.additional_constraints, "read_only": d.read_only,
+                        "range": [[r.from_value, r.to_value] for r in d.floating_point_range]}
+                       for d in described.descriptors]
+    sets = [("intercept.plane_x", -1.45), ("table.restitution", 0.8), ("gating.probability", 2.0),
+            ("tracking.timeout", "fast")]
+    result = ask("set_parameters", SetParameters_Request_, SetParameters_Response_,
+                 parameters=[Parameter_(name=n, value=parameter_value(v)) for n, v in sets])
+    out["set"] = [{"name": n, "successful": r.successful, "reason": r.reason}
+                  for (n, _), r in zip(sets, result.results)]
+    atomic = ask("set_parameters_atomically", SetParametersAtomically_Request_, SetParametersAtomically_Response_,
+                 parameters=[Parameter_(name="ekf.acceleration_noise_density", value=parameter_value(0.003)),
+                             Parameter_(name="tracking.coast_after", value=parameter_value(5.0))])
+    out["atomic_refused"] = {"successful": atomic.result.successful, "reason": atomic.result.reason}
+    atomic = ask("set_parameters_atomically", SetParametersAtomically_Request_, SetParametersAtomically_Response_,
+                 parameters=[Parameter_(name="ekf.acceleration_noise_density", value=parameter_value(0.003)),
+                             Parameter_(name="sources.wide_150fps.position_sigma", value=parameter_value(0.0025))])
+    out["atomic"] = {"successful": atomic.result.successful, "reason": atomic.result.reason}
+    got = ask("get_parameters", GetParameters_Request_, GetParameters_Response_, names=names)
+    out["get_after"] = {n: plain_value(v) for n, v in zip(names, got.values)}
+    reset = ask("reset", Trigger_Request_, Trigger_Response_, structure_needs_at_least_one_member=0)
+    out["reset"] = {"success": reset.success, "message": reset.message}
+    time.sleep(0.5)
+    out["events"] = [{"node": e.node, "changed": {p.name: plain_value(p.value) for p in e.changed_parameters},
+                      "new": len(e.new_parameters)} for e in events.samples]
+    write_json(args.out, out)
+    print(f"dds_peer: {node}: {len(out['list'])} parameters, sets {[s['successful'] for s in out['set']]}, "
+          f"{len(out['events'])} parameter events", file=sys.stderr)
+    return 0
+
+
 STATE = ("X", "Y", "Z", "VX", "VY", "VZ", "WX", "WY", "WZ")
 # A ball at the robot's hitting plane after its bounce, flying toward the robot.
 INCOMING = [-1.6, 0.1, 0.25, -5.0, 0.4, -1.0, 20.0, -150.0, 30.0]
@@ -563,6 +801,7 @@ def main(argv=None):
                                    "intercepts, latency_ms}. Exit code 3 when no subscriber matched.")
     p.add_argument("bag", help="MCAP file with ttball_msgs/BallDetection messages (CDR)")
     p.add_argument("--topic", default="/ball/detections", help="detections topic (default %(default)s)")
+    p.add_argument("--bag-topic", help="the detections' topic in the bag (default: --topic)")
     p.add_argument("--state-topic", default="/ball/state", help="default %(default)s")
     p.add_argument("--intercept-topic", default="/ball/intercept", help="default %(default)s")
     p.add_argument("--rate", type=float, default=1.0, help="playback speed factor (default %(default)s)")
@@ -647,6 +886,14 @@ def main(argv=None):
     p.add_argument("--brush-speed", type=float, default=0.0, metavar="M/S",
                    help="racket speed along the face, upward (> 0 topspin) (default 0)")
     call_options(p, cmd_call_plan)
+
+    p = sub.add_parser("params", help="list, get, describe and set the node's parameters; call ~/reset",
+                       description="Call rcl_interfaces' parameter services of --node as `ros2 param` does "
+                                   "(rmw_cyclonedds mapping), set a few (some refused on purpose), call "
+                                   "~/reset, and record /parameter_events meanwhile. Writes JSON {list, get, "
+                                   "describe, set, atomic_refused, atomic, get_after, reset, events}.")
+    p.add_argument("--node", default="/ttball", help="the node's fully qualified name (default %(default)s)")
+    call_options(p, cmd_params)
 
     args = parser.parse_args(argv)
     return args.run(args)
