@@ -802,3 +802,67 @@ echo $? > node.rc
         assert!((i.position.x + 1.45).abs() < 1e-6, "{:?}", i.position);
     }
 }
+
+/// `launch/ttball.launch.py` starts the node with the namespace, parameters and remaps it is
+/// given: the command launch_ros would build from it (built by `tests/interop/launch_command.py`
+/// with stand-ins for launch and launch_ros, which are not on PyPI) run as it is.
+#[test]
+fn the_launch_file_starts_the_node_as_configured() {
+    let Some(DdsRun {
+        python, dir, ttball, ..
+    }) = DdsRun::start("dds-launch")
+    else {
+        return;
+    };
+    let root = common::root();
+    let out = Command::new(&python)
+        .arg(root.join("tests/interop/launch_command.py"))
+        .arg(root.join("launch/ttball.launch.py"))
+        .args([
+            "namespace:=robot1",
+            "detections:=/vision/ball",
+            "service_mapping:=cyclone",
+            "use_sim_time:=true",
+        ])
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let launch: Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(launch["package"], "ttball");
+    let cmd: Vec<String> = launch["cmd"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|a| a.as_str().unwrap().to_owned())
+        .collect();
+    assert_eq!(cmd[0], "ttball");
+    let quoted: Vec<String> = cmd[1..].iter().map(|a| format!("'{a}'")).collect();
+    let script = format!(
+        r#"
+export ROS_DOMAIN_ID=44 ROS_LOCALHOST_ONLY=1
+cd "{dir}"
+"{ttball}" {args} > node.out 2> node.err &
+node=$!
+sleep 3
+kill -TERM $node
+wait $node
+echo $? > node.rc
+"#,
+        dir = dir.display(),
+        args = quoted.join(" "),
+    );
+    common::run_on_loopback_only(&script);
+    let read = |name: &str| std::fs::read_to_string(dir.join(name)).unwrap_or_default();
+    let log = read("node.err");
+    assert_eq!(read("node.rc").trim(), "0", "{cmd:?}: {log}");
+    for expected in [
+        "node /robot1/ttball on DDS domain 44",
+        "detections from /vision/ball",
+        "outputs on /robot1/ball/state",
+        "services /robot1/ttball/predict_trajectory",
+        "(Cyclone mapping)",
+        "use_sim_time",
+    ] {
+        assert!(log.contains(expected), "{expected:?} not in {log}");
+    }
+}

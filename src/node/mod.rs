@@ -337,7 +337,7 @@ fn start_here(config: &Config, placement: &Placement) -> Result<NodeHandle, Node
         .collect::<Vec<_>>()
         .join(", ");
     info!(
-        "node {fq_name} on DDS domain {}, {}{}: detections from {} (best effort, depth {}), outputs on {}, {}, {}, {}, {} (reliable, depth {}), services {service_names} ({:?} mapping)",
+        "node {fq_name} on DDS domain {}, {}{}: detections from {} (best effort, depth {}), outputs on {}, {}, {}, {}, {} (reliable, depth {}), services {service_names} ({:?} mapping){}",
         placement.domain,
         placement.describe_interfaces(),
         if config.node.cpus.is_empty() {
@@ -354,6 +354,11 @@ fn start_here(config: &Config, placement: &Placement) -> Result<NodeHandle, Node
         topics.diagnostics,
         config.qos.outputs_depth,
         config.node.service_mapping,
+        if config.use_sim_time {
+            format!("; node time from {CLOCK_TOPIC} (use_sim_time)")
+        } else {
+            String::new()
+        },
     );
 
     let dds = std::thread::Builder::new()
