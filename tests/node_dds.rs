@@ -703,10 +703,16 @@ fn the_node_is_a_ros2_citizen_over_cyclone_dds() {
         r#"
 export ROS_DOMAIN_ID=43 ROS_LOCALHOST_ONLY=1
 cd "{dir}"
-"{ttball}" node -p node.service_mapping:=cyclone --ros-args -r __ns:=/robot1 -p intercept.plane_x:=-1.5 > node.out 2> node.err &
+"{ttball}" node -p node.service_mapping:=cyclone -p node.source_stale_after:=1.0 --ros-args -r __ns:=/robot1 -p intercept.plane_x:=-1.5 > node.out 2> node.err &
 node=$!
+"{python}" "{peer}" record --seconds 120 --until-file stop --out record.json 2> record.err &
+recorder=$!
 "{python}" "{peer}" params --node /robot1/ttball --timeout 20 --out params.json 2> peer.err
 "{python}" "{peer}" publish "{bag}" --bag-topic /ball/detections --topic /robot1/ball/detections --state-topic /robot1/ball/state --intercept-topic /robot1/ball/intercept --count 900 --rate 2 --wait-match 30 --out publish.json 2>> peer.err
+"{python}" "{peer}" publish-wrong other-fields --topic /robot1/ball/detections --count 5 --out wrong.json 2>> peer.err
+"{python}" "{peer}" publish "{bag}" --bag-topic /ball/detections --topic /robot1/ball/detections --only-source 1 --rate 0.5 --count-only --wait-match 30 --out only150.json 2>> peer.err
+touch stop
+wait $recorder
 kill -TERM $node
 wait $node
 echo $? > node.rc
@@ -801,6 +807,47 @@ echo $? > node.rc
     for i in valid {
         assert!((i.position.x + 1.45).abs() < 1e-6, "{:?}", i.position);
     }
+
+    // /diagnostics: a status per source besides the estimator's, hardware ids set; the 900 fps
+    // camera STALE once only the 150 fps camera delivers. /rosout: the node's warning about the
+    // undecodable samples, under its logger name.
+    let recorded = read_json(&dir.join("record.json"));
+    let context = format!("{recorded:#}\nrecorder: {}", read("record.err"));
+    let statuses: Vec<&Value> = recorded["diagnostics"]
+        .as_array()
+        .unwrap_or_else(|| panic!("{context}"))
+        .iter()
+        .flat_map(|d| d["status"].as_array().unwrap())
+        .collect();
+    let of = |name: &str| -> Vec<&Value> {
+        statuses.iter().copied().filter(|s| s["name"] == name).collect()
+    };
+    let estimator = of("robot1/ttball: estimator");
+    let wide = of("robot1/ttball: source wide_150fps");
+    let fast = of("robot1/ttball: source highspeed_900fps");
+    assert!(!estimator.is_empty() && !wide.is_empty() && !fast.is_empty(), "{context}");
+    assert_eq!(estimator[0]["hardware_id"], "/robot1/ttball");
+    assert_eq!(fast[0]["hardware_id"], "highspeed_900fps");
+    const OK: u64 = 0;
+    const STALE: u64 = 3;
+    assert!(
+        fast.iter().any(|s| s["level"] == OK && s["message"].as_str().unwrap().contains("fps")),
+        "{context}"
+    );
+    assert!(fast.iter().any(|s| s["level"] == STALE), "{context}");
+    assert!(wide.iter().all(|s| s["level"] == OK), "{context}");
+    let warnings: Vec<&Value> = recorded["rosout"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter(|r| r["name"] == "robot1.ttball" && r["level"] == 30)
+        .collect();
+    assert!(
+        warnings
+            .iter()
+            .any(|r| r["msg"].as_str().unwrap().contains("did not decode")),
+        "{context}"
+    );
 }
 
 /// `launch/ttball.launch.py` starts the node with the namespace, parameters and remaps it is

@@ -284,15 +284,56 @@ pub fn exit_code_for(err: &anyhow::Error) -> ExitCode {
 /// warnings are about datagram sizes and ROS_DISTRO; `RUST_LOG=rustdds=warn` shows them).
 pub fn init_logging(level: Option<&str>) {
     use tracing_subscriber::EnvFilter;
+    use tracing_subscriber::layer::SubscriberExt;
+    use tracing_subscriber::util::SubscriberInitExt;
     let filter = EnvFilter::try_from_default_env().unwrap_or_else(|_| {
         let level = level.unwrap_or("info");
         EnvFilter::new(format!("{level},rustdds=error,ros2_client=error"))
     });
-    let _ = tracing_subscriber::fmt()
-        .with_env_filter(filter)
-        .with_writer(std::io::stderr)
-        .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
+    let _ = tracing_subscriber::registry()
+        .with(filter)
+        .with(
+            tracing_subscriber::fmt::layer()
+                .with_writer(std::io::stderr)
+                .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr())),
+        )
+        .with(RosoutLayer)
         .try_init();
+}
+
+/// Hands ttball's WARN and ERROR events to `/rosout` while a node runs
+/// (`ttball::node::rosout`).
+struct RosoutLayer;
+
+impl<S: tracing::Subscriber> tracing_subscriber::Layer<S> for RosoutLayer {
+    fn on_event(&self, event: &tracing::Event<'_>, _: tracing_subscriber::layer::Context<'_, S>) {
+        let meta = event.metadata();
+        let level = match *meta.level() {
+            tracing::Level::ERROR => ttball::node::rosout::ERROR,
+            tracing::Level::WARN => ttball::node::rosout::WARN,
+            _ => return,
+        };
+        if !meta.target().starts_with("ttball") {
+            return;
+        }
+        struct Message(String);
+        impl tracing::field::Visit for Message {
+            fn record_debug(&mut self, field: &tracing::field::Field, value: &dyn std::fmt::Debug) {
+                if field.name() == "message" {
+                    self.0 = format!("{value:?}");
+                }
+            }
+        }
+        let mut message = Message(String::new());
+        event.record(&mut message);
+        ttball::node::rosout::forward(
+            level,
+            &message.0,
+            meta.file().unwrap_or_default(),
+            meta.module_path().unwrap_or_default(),
+            meta.line().unwrap_or_default(),
+        );
+    }
 }
 
 /// A flag that Ctrl-C (SIGINT) and SIGTERM set, for commands that stop cleanly, and whether

@@ -361,6 +361,10 @@ pub struct SourceParams {
     /// 0.29 ms; a jittered exposure clock: more). 0: exact stamps. The estimator learns the
     /// timing and position noise each source really has (`ekf.learn_noise`), starting here.
     pub stamp_sigma: f64,
+    /// Frames per second the source delivers while it sees the ball [Hz]: the node's
+    /// `/diagnostics` warns when its stamps show another rate and reports it STALE when it falls
+    /// silent while the other sources deliver. 0: no expectation (a setup without this camera).
+    pub frame_rate: f64,
 }
 
 /// Measurement noise per camera source (physics.md "Cameras in the seed setup").
@@ -385,6 +389,7 @@ impl Default for SourcesParams {
                 spin_sigma: 0.0,
                 latency: 0.008,
                 stamp_sigma: 0.0,
+                frame_rate: 150.0,
             },
             // Narrow view, so finer pixels; spin from the marks on the ball.
             highspeed_900fps: SourceParams {
@@ -392,6 +397,7 @@ impl Default for SourcesParams {
                 spin_sigma: 12.0,
                 latency: 0.004,
                 stamp_sigma: 0.0,
+                frame_rate: 900.0,
             },
             // Conservative: worse than either known camera.
             unknown: SourceParams {
@@ -399,6 +405,7 @@ impl Default for SourcesParams {
                 spin_sigma: 30.0,
                 latency: 0.008,
                 stamp_sigma: 0.0,
+                frame_rate: 0.0,
             },
         }
     }
@@ -621,6 +628,9 @@ pub struct NodeParams {
     /// CPU may be given as a bare number (`-p node.cpus:=1`).
     #[serde(deserialize_with = "text_or_number")]
     pub cpus: String,
+    /// How long a camera source with a frame rate (`sources.*.frame_rate`) may stay silent while
+    /// the others deliver before `/diagnostics` reports it STALE [s].
+    pub source_stale_after: f64,
 }
 
 impl NodeParams {
@@ -690,6 +700,7 @@ impl Default for NodeParams {
             interface_address: String::new(),
             diagnostics_period: 1.0,
             cpus: String::new(),
+            source_stale_after: 3.0,
         }
     }
 }

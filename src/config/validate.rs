@@ -276,6 +276,12 @@ impl Checker {
             |v| (0.0..=1.0).contains(&v),
             "between 0 and 1 (seconds)",
         );
+        self.real(
+            &format!("{key}.frame_rate"),
+            source.frame_rate,
+            |v| (0.0..=100_000.0).contains(&v),
+            "between 0 (no expectation) and 100000 (Hz)",
+        );
     }
 }
 
@@ -753,6 +759,12 @@ impl Config {
             .then_some("give the address of one of this machine's interfaces, e.g. \"192.168.1.20\", or \"\" for all"),
         );
         c.name("node.cpus", &n.cpus, "CPU list", n.cpu_list().err());
+        c.real(
+            "node.source_stale_after",
+            n.source_stale_after,
+            |v| (0.1..=3600.0).contains(&v),
+            "from 0.1 to 3600 (s)",
+        );
         c.real(
             "node.diagnostics_period",
             n.diagnostics_period,

@@ -1,6 +1,9 @@
-//! The node's `/diagnostics` message (`diagnostic_msgs/DiagnosticArray`, one status named
-//! `<node>: estimator`): rates, what happened to every detection (by reason), queue drops and
-//! processing time over the last period. Pure: the caller passes the clock readings.
+//! The node's `/diagnostics` message (`diagnostic_msgs/DiagnosticArray`): one status named
+//! `<node>: estimator` (rates, what happened to every detection by reason, queue drops and
+//! processing time over the last period), and one per camera source, `<node>: source <key>`
+//! ([`source_status`]: its detections, frame rate against the configured band, rejections,
+//! STALE when it falls silent while the others deliver). Pure: the caller passes the clock
+//! readings.
 
 use crate::ekf::NoiseScales;
 use crate::estimator::{Counters, Rejection};
@@ -224,9 +227,168 @@ pub fn diagnostics_msg(snapshot: &Snapshot<'_>, window: &mut Window) -> Diagnost
             level,
             name: format!("{}: estimator", s.node.trim_start_matches('/')),
             message,
-            hardware_id: String::new(),
+            hardware_id: s.node.to_owned(),
             values,
         }],
+    }
+}
+
+/// One camera source's detections over a diagnostics period.
+#[derive(Debug, Clone, Default)]
+pub struct SourceWindow {
+    /// Detections of the source in the period.
+    pub detections: u64,
+    /// Of those, rejected (by the estimator, or never reaching it).
+    pub rejected: u64,
+    /// Stamp differences of consecutive detections [ns] (bounded: the first ones of the period).
+    intervals: Vec<i64>,
+    last_stamp: Option<i64>,
+}
+
+/// Stamp intervals kept per period and source (a 900 fps camera's second).
+const MAX_INTERVALS: usize = 1024;
+
+impl SourceWindow {
+    /// An empty window (room for its intervals allocated once).
+    pub fn new() -> Self {
+        Self {
+            intervals: Vec::with_capacity(MAX_INTERVALS),
+            ..Self::default()
+        }
+    }
+
+    /// Records one detection of stamp `stamp` [ns].
+    pub fn record(&mut self, stamp: i64, rejected: bool) {
+        self.detections += 1;
+        self.rejected += u64::from(rejected);
+        if let Some(last) = self.last_stamp
+            && self.intervals.len() < MAX_INTERVALS
+        {
+            self.intervals.push(stamp - last);
+        }
+        self.last_stamp = Some(stamp);
+    }
+
+    /// The frame rate its stamps show [Hz]: the median interval between consecutive
+    /// detections, over intervals shorter than `max_interval` [s] (within a flight).
+    fn frame_rate(&mut self, max_interval: f64) -> Option<f64> {
+        let max = (max_interval * 1e9) as i64;
+        let mut within: Vec<i64> = self
+            .intervals
+            .iter()
+            .copied()
+            .filter(|&d| d > 0 && d <= max)
+            .collect();
+        if within.len() < 5 {
+            return None;
+        }
+        within.sort_unstable();
+        Some(1e9 / within[within.len() / 2] as f64)
+    }
+
+    fn clear(&mut self) {
+        self.detections = 0;
+        self.rejected = 0;
+        self.intervals.clear();
+    }
+}
+
+/// A source's expectations: its configuration key, frame rate (0: none) and when silence is
+/// STALE.
+#[derive(Debug, Clone, Copy)]
+pub struct SourceExpectation<'a> {
+    /// `sources.<key>`.
+    pub key: &'a str,
+    /// Frames per second it should deliver while it sees the ball [Hz]; 0: no expectation
+    /// (never STALE, no rate check).
+    pub frame_rate: f64,
+    /// Silence after which, while other sources deliver, it is STALE [s].
+    pub stale_after: f64,
+}
+
+/// Most detections of a source rejected (with at least this many) is an ERROR.
+const MIN_FOR_REJECTION_RULE: u64 = 20;
+/// The frame-rate band, as fractions of the expected rate.
+const RATE_BAND: (f64, f64) = (0.8, 1.25);
+
+/// The status of one source over a period, and empties `window`. `silent_for`: seconds since its
+/// last detection (infinite if never); `others`: the other sources' detections in the period.
+pub fn source_status(
+    node: &str,
+    expected: &SourceExpectation<'_>,
+    window: &mut SourceWindow,
+    silent_for: f64,
+    others: u64,
+) -> DiagnosticStatus {
+    let key = expected.key;
+    let max_interval = if expected.frame_rate > 0.0 {
+        5.0 / expected.frame_rate
+    } else {
+        0.05
+    };
+    let rate = window.frame_rate(max_interval);
+    let (n, rejected) = (window.detections, window.rejected);
+    let (level, message) = if n == 0 {
+        if expected.frame_rate > 0.0 && silent_for > expected.stale_after && others > 0 {
+            let since = if silent_for.is_finite() {
+                format!("for {silent_for:.1} s")
+            } else {
+                "since the node started".to_owned()
+            };
+            (
+                DiagnosticStatus::STALE,
+                format!(
+                    "no detections {since} while the other sources delivered {others}: is the camera running and publishing? (sources.{key}.frame_rate: 0 if this setup has no such camera)"
+                ),
+            )
+        } else {
+            (DiagnosticStatus::OK, "no detections (idle)".to_owned())
+        }
+    } else if n >= MIN_FOR_REJECTION_RULE && 2 * rejected > n {
+        (
+            DiagnosticStatus::ERROR,
+            format!(
+                "{rejected} of its {n} detections rejected: check the camera's calibration, frame and stamps (the estimator's status says why)"
+            ),
+        )
+    } else {
+        match rate {
+            Some(r)
+                if expected.frame_rate > 0.0
+                    && !(RATE_BAND.0 * expected.frame_rate..=RATE_BAND.1 * expected.frame_rate)
+                        .contains(&r) =>
+            {
+                (
+                    DiagnosticStatus::WARN,
+                    format!(
+                        "frame rate {r:.0} Hz, expected {:.0} Hz (sources.{key}.frame_rate): dropped frames or another camera mode",
+                        expected.frame_rate
+                    ),
+                )
+            }
+            Some(r) => (DiagnosticStatus::OK, format!("{n} detections at {r:.0} fps")),
+            None => (DiagnosticStatus::OK, format!("{n} detections")),
+        }
+    };
+    window.clear();
+    let mut values = vec![
+        kv("detections", n.to_string()),
+        kv("rejected", rejected.to_string()),
+        kv(
+            "frame rate [Hz]",
+            rate.map_or_else(|| "unknown".to_owned(), |r| format!("{r:.1}")),
+        ),
+        kv("expected frame rate [Hz]", format!("{:.1}", expected.frame_rate)),
+    ];
+    if silent_for.is_finite() {
+        values.push(kv("seconds since its last detection", format!("{silent_for:.1}")));
+    }
+    DiagnosticStatus {
+        level,
+        name: format!("{}: source {key}", node.trim_start_matches('/')),
+        message,
+        hardware_id: key.to_owned(),
+        values,
     }
 }
 
@@ -249,6 +411,52 @@ mod tests {
             .find(|kv| kv.key == key)
             .map(|kv| kv.value.as_str())
             .unwrap_or_else(|| panic!("no {key}"))
+    }
+
+    #[test]
+    fn sources_are_ok_warn_error_or_stale_by_rule() {
+        let expected = SourceExpectation {
+            key: "highspeed_900fps",
+            frame_rate: 900.0,
+            stale_after: 3.0,
+        };
+        let mut w = SourceWindow::new();
+        let frame = 1_000_000_000 / 900;
+        for i in 0..300 {
+            w.record(i * frame, i % 10 == 0);
+        }
+        let ok = source_status("/ttball", &expected, &mut w, 0.0, 150);
+        assert_eq!((ok.level, ok.hardware_id.as_str()), (DiagnosticStatus::OK, "highspeed_900fps"));
+        assert_eq!(ok.name, "ttball: source highspeed_900fps");
+        assert_eq!(ok.message, "300 detections at 900 fps");
+        assert_eq!(w.detections, 0, "emptied");
+        // Every other frame: 450 fps.
+        for i in 0..300 {
+            w.record(2 * i * frame, false);
+        }
+        let slow = source_status("/ttball", &expected, &mut w, 0.0, 150);
+        assert_eq!(slow.level, DiagnosticStatus::WARN, "{}", slow.message);
+        for i in 0..300 {
+            w.record(i * frame, i % 3 != 0);
+        }
+        let bad = source_status("/ttball", &expected, &mut w, 0.0, 150);
+        assert_eq!(bad.level, DiagnosticStatus::ERROR, "{}", bad.message);
+        // Silent while the 150 fps camera delivers: STALE; all silent: idle.
+        let stale = source_status("/ttball", &expected, &mut w, 4.2, 150);
+        assert_eq!(stale.level, DiagnosticStatus::STALE);
+        assert!(stale.message.contains("for 4.2 s"), "{}", stale.message);
+        let never = source_status("/ttball", &expected, &mut w, f64::INFINITY, 150);
+        assert!(never.message.contains("since the node started"), "{}", never.message);
+        let idle = source_status("/ttball", &expected, &mut w, 4.2, 0);
+        assert_eq!(idle.level, DiagnosticStatus::OK);
+        let short = source_status("/ttball", &expected, &mut w, 1.0, 150);
+        assert_eq!(short.level, DiagnosticStatus::OK);
+        let unexpected = SourceExpectation {
+            frame_rate: 0.0,
+            ..expected
+        };
+        let unknown = source_status("/ttball", &unexpected, &mut w, f64::INFINITY, 150);
+        assert_eq!(unknown.level, DiagnosticStatus::OK);
     }
 
     #[test]

@@ -26,6 +26,7 @@ mod dds;
 mod diagnostics;
 mod intake;
 pub mod parameters;
+pub mod rosout;
 mod play;
 mod services;
 
@@ -44,11 +45,15 @@ use serde::Serialize;
 use tracing::{debug, info, warn};
 
 pub use dds::domain_id;
-pub use diagnostics::{Snapshot, TransportCounters, Window, diagnostics_msg};
+pub use diagnostics::{
+    Snapshot, SourceExpectation, SourceWindow, TransportCounters, Window, diagnostics_msg,
+    source_status,
+};
 pub use play::{Latency, LatencyReport, PlayOptions, PlaySummary, play};
 
 use crate::config::Config;
-use crate::estimator::Counters;
+use crate::detection::Source;
+use crate::estimator::{Counters, SOURCE_NAMES, Verdict};
 use crate::msgs::diagnostic_msgs::DiagnosticArray;
 use crate::msgs::rosgraph_msgs::Clock;
 use crate::msgs::ttball_msgs::msg::{
@@ -265,7 +270,7 @@ pub fn start(config: &Config, placement: &Placement) -> Result<NodeHandle, NodeE
 fn start_here(config: &Config, placement: &Placement) -> Result<NodeHandle, NodeError> {
     let context = dds::context(placement.domain, placement.interfaces.as_deref())?;
     let node_name = dds::node_name(config)?;
-    let mut node = dds::node(&context, node_name.clone(), true)?;
+    let mut node = dds::node(&context, node_name.clone(), false)?;
     let fq_name = node_name.fully_qualified_name();
 
     let topics = &config.resolved_topics();
@@ -302,6 +307,11 @@ fn start_here(config: &Config, placement: &Placement) -> Result<NodeHandle, Node
         None
     };
     let servers = Servers::new(&mut node, &node_name, config.node.service_mapping)?;
+    rosout::install(
+        node.create_publisher(&context.get_rosout_topic(), None)
+            .map_err(dds::error)?,
+        &fq_name,
+    );
     let spinner = dds::spawn_spinner(&mut node)?;
 
     let shared = Arc::new(Shared::default());
@@ -325,6 +335,8 @@ fn start_here(config: &Config, placement: &Placement) -> Result<NodeHandle, Node
         period: Duration::from_secs_f64(config.node.diagnostics_period),
         capacity,
         parameters,
+        sources: std::array::from_fn(|_| (SourceWindow::new(), None)),
+        started: Instant::now(),
     };
     let estimator = std::thread::Builder::new()
         .name("ttball-estimator".to_owned())
@@ -373,6 +385,7 @@ fn start_here(config: &Config, placement: &Placement) -> Result<NodeHandle, Node
                 .map_err(|_| NodeError::Thread("the estimator thread panicked".to_owned()))?;
             // Readers and writers go before their node (the estimator's went with it), the node
             // before its participant.
+            rosout::uninstall();
             drop(servers);
             spinner.stop_with(node);
             drop(context);
@@ -485,6 +498,10 @@ struct EstimatorThread {
     /// The node's parameters (the configuration the pipeline runs with).
     parameters: Parameters,
     clock: NodeClock,
+    /// Each source's detections over the diagnostics period, in the order of
+    /// [`crate::estimator::SOURCE_NAMES`], and when it last delivered one.
+    sources: [(SourceWindow, Option<Instant>); 3],
+    started: Instant,
 }
 
 /// The node's clock: the system clock, or with `use_sim_time` the latest `/clock` (0 until the
@@ -691,6 +708,14 @@ impl EstimatorThread {
         let started = Instant::now();
         let step = self.pipeline.on_detection(&detection);
         let ns = nanos(started.elapsed());
+        let fused = matches!(
+            step.verdict,
+            Ok(Verdict::Fused { .. } | Verdict::Initializing | Verdict::Held)
+        );
+        let source = usize::from(Source::from_code(detection.source).code()).min(2);
+        let (window, last) = &mut self.sources[source];
+        window.record(detection.header.stamp.to_nanos(), !fused);
+        *last = Some(started);
         timings
             .window
             .record(ns, nanos(started.duration_since(taken_at)));
@@ -765,6 +790,42 @@ impl EstimatorThread {
             },
             window,
         );
+        let mut msg = msg;
+        let now = Instant::now();
+        let counts: Vec<u64> = self.sources.iter().map(|(w, _)| w.detections).collect();
+        let total: u64 = counts.iter().sum();
+        let config = self.parameters.config();
+        for (i, (window, last)) in self.sources.iter_mut().enumerate() {
+            let params = [
+                &config.sources.unknown,
+                &config.sources.wide_150fps,
+                &config.sources.highspeed_900fps,
+            ][i];
+            let expected = SourceExpectation {
+                key: SOURCE_NAMES[i],
+                frame_rate: params.frame_rate,
+                stale_after: config.node.source_stale_after,
+            };
+            // Never seen: silent since the node started.
+            let silent_for = last.map_or_else(
+                || {
+                    let up = now.duration_since(self.started).as_secs_f64();
+                    if up > expected.stale_after { f64::INFINITY } else { up }
+                },
+                |t| now.duration_since(t).as_secs_f64(),
+            );
+            // The unknown source is reported only once it has delivered.
+            if i == 0 && last.is_none() {
+                continue;
+            }
+            msg.status.push(source_status(
+                &self.node_name,
+                &expected,
+                window,
+                silent_for,
+                total - counts[i],
+            ));
+        }
         if self.outputs.diagnostics.publish(msg).is_err() {
             Shared::add(&self.shared.publish_errors);
         }

@@ -152,6 +152,7 @@ impl CameraParams {
             },
             latency: self.latency_mean,
             stamp_sigma: self.stamp_resolution / 12f64.sqrt(),
+            frame_rate: self.frame_rate,
         }
     }
 

@@ -379,6 +379,41 @@ class Trigger_Response_(IdlStruct, typename="std_srvs::srv::dds_::Trigger_Respon
     message: str
 
 
+# ---- diagnostic_msgs and rcl_interfaces/Log, for `record` ---------------------------------------
+
+
+@dataclass
+class KeyValue_(IdlStruct, typename="diagnostic_msgs::msg::dds_::KeyValue_"):
+    key: str
+    value: str
+
+
+@dataclass
+class DiagnosticStatus_(IdlStruct, typename="diagnostic_msgs::msg::dds_::DiagnosticStatus_"):
+    level: t.uint8
+    name: str
+    message: str
+    hardware_id: str
+    values: t.sequence[KeyValue_]
+
+
+@dataclass
+class DiagnosticArray_(IdlStruct, typename="diagnostic_msgs::msg::dds_::DiagnosticArray_"):
+    header: Header_
+    status: t.sequence[DiagnosticStatus_]
+
+
+@dataclass
+class Log_(IdlStruct, typename="rcl_interfaces::msg::dds_::Log_"):
+    stamp: Time_
+    level: t.uint8
+    name: str
+    msg: str
+    file: str
+    function: str
+    line: t.uint32
+
+
 # ---- DDS plumbing ------------------------------------------------------------------------------
 
 
@@ -504,6 +539,8 @@ def cmd_publish(args):
     detections = read_detections(args.bag, args.bag_topic or args.topic)
     end = args.first + args.count if args.count else None
     detections = detections[args.first:end]
+    if args.only_source is not None:
+        detections = [(t_, d) for t_, d in detections if d.source == args.only_source]
     if not detections:
         sys.exit(f"dds_peer: no messages on {args.topic} in {args.bag}")
     dp = participant()
@@ -774,6 +811,27 @@ def cmd_params(args):
     return 0
 
 
+def cmd_record(args):
+    """Records /diagnostics and /rosout for --seconds."""
+    dp = participant()
+    diagnostics = Recorder(dp, "rt/diagnostics", DiagnosticArray_, True, 1000)
+    rosout = Recorder(dp, "rt/rosout", Log_, True, 1000)
+    deadline = time.monotonic() + args.seconds
+    while time.monotonic() < deadline and not (args.until_file and os.path.exists(args.until_file)):
+        time.sleep(0.1)
+    out = {
+        "diagnostics": [{"stamp_ns": stamp_ns(d.header.stamp),
+                         "status": [{"level": s.level, "name": s.name, "message": s.message,
+                                     "hardware_id": s.hardware_id} for s in d.status]}
+                        for d in diagnostics.samples],
+        "rosout": [{"level": r.level, "name": r.name, "msg": r.msg} for r in rosout.samples],
+    }
+    write_json(args.out, out)
+    print(f"dds_peer: recorded {len(out['diagnostics'])} diagnostics, {len(out['rosout'])} log records",
+          file=sys.stderr)
+    return 0
+
+
 STATE = ("X", "Y", "Z", "VX", "VY", "VZ", "WX", "WY", "WZ")
 # A ball at the robot's hitting plane after its bounce, flying toward the robot.
 INCOMING = [-1.6, 0.1, 0.25, -5.0, 0.4, -1.0, 20.0, -150.0, 30.0]
@@ -807,6 +865,8 @@ def main(argv=None):
     p.add_argument("--rate", type=float, default=1.0, help="playback speed factor (default %(default)s)")
     p.add_argument("--first", type=int, default=0, help="index of the first detection to send (default 0)")
     p.add_argument("--count", type=int, default=0, help="how many to send (default: all from --first)")
+    p.add_argument("--only-source", type=int, metavar="CODE",
+                   help="send only the detections of this source (BallDetection.SOURCE_*: 1 the 150 fps camera)")
     p.add_argument("--count-only", action="store_true",
                    help="keep counts only, not every sample (long runs); writes {sent, states, intercepts}")
     p.add_argument("--wait-match", type=float, default=10.0, metavar="SECONDS",
@@ -886,6 +946,15 @@ def main(argv=None):
     p.add_argument("--brush-speed", type=float, default=0.0, metavar="M/S",
                    help="racket speed along the face, upward (> 0 topspin) (default 0)")
     call_options(p, cmd_call_plan)
+
+    p = sub.add_parser("record", help="record /diagnostics and /rosout",
+                       description="Subscribe to /diagnostics and /rosout (Reliable, KeepLast 1000) for --seconds. "
+                                   "Writes JSON {diagnostics: [{stamp_ns, status: [{level, name, message, "
+                                   "hardware_id}]}], rosout: [{level, name, msg}]}.")
+    p.add_argument("--seconds", type=float, default=10.0, help="at most (default %(default)s)")
+    p.add_argument("--until-file", metavar="PATH", help="stop as soon as this file exists")
+    p.add_argument("--out", metavar="FILE.json", help="write the records here")
+    p.set_defaults(run=cmd_record)
 
     p = sub.add_parser("params", help="list, get, describe and set the node's parameters; call ~/reset",
                        description="Call rcl_interfaces' parameter services of --node as `ros2 param` does "
