@@ -39,6 +39,7 @@ pub mod detection;
 pub mod ekf;
 pub mod estimator;
 pub mod eval;
+pub mod frames;
 pub mod intercept;
 #[cfg(feature = "interface")]
 pub mod msgs;

@@ -10,7 +10,7 @@ use crate::config::Config;
 use crate::estimator::{Counters, Estimator, InterceptEstimate, Output, Rejection, Verdict};
 use crate::msgs::builtin_interfaces::Time;
 use crate::msgs::convert::{
-    ConvertError, detection_from_msg, intercept_msg, markers, offset, plan_response,
+    ConvertError, add_static_transforms, detection_from_msg_in, intercept_msg, markers, offset, plan_response,
     rebound_request, rebound_response, state_from_msg, state_msg, trajectory_msg,
 };
 use crate::msgs::ttball_msgs::msg::{
@@ -22,6 +22,8 @@ use crate::msgs::ttball_msgs::srv::{
 };
 use crate::msgs::visualization_msgs::MarkerArray;
 use crate::physics::{self, StateMatrix};
+use crate::frames::{FrameError, Frames};
+use crate::msgs::tf2_msgs::TFMessage;
 use crate::stroke::{Aim, Stroke};
 
 /// The messages to publish after one detection.
@@ -60,6 +62,9 @@ pub struct Pipeline {
     last_trajectory: Option<(u32, i64)>,
     /// The interception last published on `/ball/intercept`.
     last_intercept: Option<InterceptEstimate>,
+    /// The static transforms from `/tf_static` that bring detections in other frames into
+    /// `table`.
+    frames: Frames,
 }
 
 impl Pipeline {
@@ -73,7 +78,15 @@ impl Pipeline {
             horizon: config.prediction.horizon,
             last_trajectory: None,
             last_intercept: None,
+            frames: Frames::new(crate::msgs::convert::TABLE_FRAME),
         }
+    }
+
+    /// Takes the static transforms of a `/tf_static` message (tf2_msgs/TFMessage): detections in
+    /// a frame they connect to `table` are brought into it. Returns the transforms refused, with
+    /// why.
+    pub fn on_static_transforms(&mut self, msg: &TFMessage) -> Vec<FrameError> {
+        add_static_transforms(&mut self.frames, msg)
     }
 
     /// The estimator behind the pipeline.
@@ -107,7 +120,7 @@ impl Pipeline {
 
     /// Handles one detection message, in arrival order.
     pub fn on_detection(&mut self, msg: &BallDetection) -> Step {
-        let detection = match detection_from_msg(msg) {
+        let detection = match detection_from_msg_in(msg, &self.frames) {
             Ok(d) => d,
             Err(e) => {
                 self.estimator.reject(Rejection::UnknownFrame);

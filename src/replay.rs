@@ -27,10 +27,15 @@ use crate::msgs::convert::{
 };
 use crate::msgs::definitions;
 use crate::msgs::ttball_msgs::msg::{BallDetection, BallState, InterceptPrediction};
+use crate::msgs::tf2_msgs::TFMessage;
 use crate::pipeline::Pipeline;
 use crate::smooth::{SmoothedState, Smoothing, smooth};
 use crate::stats::DurationHistogram;
 
+/// The static transforms' topic (tf2), read by the node and, when a bag has it, by the replay.
+pub const TF_STATIC_TOPIC: &str = "/tf_static";
+/// ROS 2 type of `/tf_static`.
+pub const TF_MESSAGE_TYPE: &str = "tf2_msgs/msg/TFMessage";
 /// The type of the detection topic.
 pub const DETECTION_TYPE: &str = "ttball_msgs/msg/BallDetection";
 /// The type of `/ball/state` and `/ball/truth`.
@@ -302,6 +307,7 @@ pub fn replay(
     let mut times = DurationHistogram::new();
     let mut first_last: Option<(u64, u64)> = None;
     let mut interrupted = false;
+    let mut tf_static_on: Option<usize> = None;
     let result = (|| -> Result<(), ReplayError> {
         while let Some(m) = reader.next_message() {
             if cancel.load(Ordering::Relaxed) {
@@ -317,6 +323,16 @@ pub fn replay(
             written += 1;
             if detections_on.is_none() && reader.channel(topic).is_some() {
                 detections_on = Some(detection_channel(reader.channels(), topic, input)?);
+            }
+            if tf_static_on.is_none() {
+                tf_static_on = reader.channel(TF_STATIC_TOPIC);
+            }
+            // Static transforms bring detections in other frames into `table`, as in the node.
+            if Some(m.channel) == tf_static_on {
+                if let Ok(msg) = decode::<TFMessage>(&m.data) {
+                    pipeline.on_static_transforms(&msg);
+                }
+                continue;
             }
             if Some(m.channel) != detections_on {
                 continue;

@@ -159,6 +159,8 @@ fn node_refuses_bad_ros_args() {
         &["node", "--ros-args", "-p", "ekf.nope:=1"],
         &["ekf.nope"],
     );
+    // Several parameters files are read in order (launch_ros passes one per entry): each
+    // must exist.
     refused(
         &[],
         &[
@@ -168,8 +170,15 @@ fn node_refuses_bad_ros_args() {
             "--ros-args",
             "--params-file",
             "config/ttball.yaml",
+            "--params-file",
+            "no/such.yaml",
         ],
-        &["either --config or --ros-args --params-file"],
+        &["no/such.yaml", "does not exist"],
+    );
+    refused(
+        &[],
+        &["node", "--ros-args", "-p", "use_sim_time:=maybe"],
+        &["use_sim_time", "true or false"],
     );
 }
 

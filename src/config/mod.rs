@@ -743,6 +743,28 @@ impl Default for TopicsParams {
     }
 }
 
+/// Coordinate frames (tf2): detections may come in any frame a static transform on
+/// `/tf_static` connects to `table`; the node can publish the table's own pose.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct FramesParams {
+    /// The frame the node publishes the `table` frame's pose in, on `/tf_static` (e.g.
+    /// `world`, so that the robot's TF tree has the table); empty: none.
+    pub table_parent: String,
+    /// The `table` frame's pose in `table_parent`: x, y, z [m], then the rotation as a
+    /// quaternion x, y, z, w [-].
+    pub table_pose: Vec<f64>,
+}
+
+impl Default for FramesParams {
+    fn default() -> Self {
+        Self {
+            table_parent: String::new(),
+            table_pose: vec![0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0],
+        }
+    }
+}
+
 /// Quality of service of the ROS 2 topics (keep-last history depths; REP 2003).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -800,6 +822,8 @@ pub struct Config {
     pub node: NodeParams,
     /// ROS 2 topic names.
     pub topics: TopicsParams,
+    /// Coordinate frames (tf2).
+    pub frames: FramesParams,
     /// ROS 2 quality of service.
     pub qos: QosParams,
     /// ROS 2's `use_sim_time`: the node's clock (the stamps of `/diagnostics`) follows `/clock`
@@ -851,6 +875,7 @@ impl Default for Config {
             tracking: TrackingParams::default(),
             node: NodeParams::default(),
             topics: TopicsParams::default(),
+            frames: FramesParams::default(),
             qos: QosParams::default(),
             use_sim_time: false,
         }

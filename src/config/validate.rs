@@ -149,6 +149,14 @@ impl Checker {
         }
     }
 
+    /// Records `allowed` as the rule of `key`, replacing what the checks recorded.
+    fn rule_is(&mut self, key: &str, allowed: &'static str) {
+        match self.rules.iter_mut().find(|(k, _)| k == key) {
+            Some((_, rule)) => *rule = allowed,
+            None => self.rules.push((key.to_owned(), allowed)),
+        }
+    }
+
     fn real(&mut self, key: &str, value: f64, ok: impl Fn(f64) -> bool, allowed: &'static str) {
         self.rule(key, allowed);
         if !value.is_finite() {
@@ -785,6 +793,34 @@ impl Config {
         ] {
             c.name(key, value, "topic name", super::names::name_problem(value));
         }
+
+        let f = &self.frames;
+        c.name(
+            "frames.table_parent",
+            &f.table_parent,
+            "frame name",
+            (f.table_parent.trim_start_matches('/') == "table")
+                .then_some("the table cannot be its own parent; give the frame the table is placed in, e.g. \"world\", or \"\" for none"),
+        );
+        let pose = &f.table_pose;
+        if pose.len() != 7 {
+            c.violations.push(Violation::LengthMismatch {
+                key: "frames.table_pose".to_owned(),
+                len: pose.len(),
+                other_key: "x, y, z, qx, qy, qz, qw".to_owned(),
+                other_len: 7,
+            });
+        } else {
+            for (i, v) in pose.iter().enumerate() {
+                c.real(&format!("frames.table_pose[{i}]"), *v, |_| true, "a finite number");
+            }
+            let q: f64 = pose[3..].iter().map(|v| v * v).sum();
+            c.real("frames.table_pose[3..7]", q, |v| v > 1e-12, "a non-zero quaternion");
+        }
+        c.rule_is(
+            "frames.table_pose",
+            "7 finite values: x, y, z [m], then a non-zero quaternion x, y, z, w",
+        );
 
         c.count(
             "qos.detections_depth",

@@ -23,7 +23,7 @@ pub const TABLE_FRAME: &str = "table";
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 pub enum ConvertError {
     /// The detection is not in the `table` frame.
-    #[error("frame_id `{0}` is not `table`: ttball takes detections in the table frame only")]
+    #[error("frame_id `{0}` is not `table`, and no static transform on /tf_static connects it to `table`")]
     UnknownFrame(String),
 }
 
@@ -85,12 +85,60 @@ fn header(stamp: i64) -> Header {
     }
 }
 
-/// A `BallDetection` message as the core's detection.
+/// A `BallDetection` message as the core's detection (in the `table` frame only; see
+/// [`detection_from_msg_in`] for the others).
 pub fn detection_from_msg(msg: &BallDetection) -> Result<Detection, ConvertError> {
     if msg.header.frame_id != TABLE_FRAME {
         return Err(ConvertError::UnknownFrame(msg.header.frame_id.to_string()));
     }
+    Ok(detection_fields(msg))
+}
+
+/// A `BallDetection` message in any frame that `frames` connects to the `table` frame, brought
+/// into it (position, spin and their covariances).
+pub fn detection_from_msg_in(
+    msg: &BallDetection,
+    frames: &crate::frames::Frames,
+) -> Result<Detection, ConvertError> {
+    if msg.header.frame_id == TABLE_FRAME {
+        return Ok(detection_fields(msg));
+    }
+    let Some(t) = frames.to_fixed(&msg.header.frame_id) else {
+        return Err(ConvertError::UnknownFrame(msg.header.frame_id.to_string()));
+    };
+    let d = detection_fields(msg);
     Ok(Detection {
+        position: t.point(&d.position),
+        position_covariance: d.position_covariance.map(|c| t.covariance(&c)),
+        spin: d.spin.map(|w| t.vector(&w)),
+        spin_covariance: d.spin_covariance.map(|c| t.covariance(&c)),
+        ..d
+    })
+}
+
+/// The static transforms of a `TFMessage` added to `frames`; the refused ones with why.
+pub fn add_static_transforms(
+    frames: &mut crate::frames::Frames,
+    msg: &crate::msgs::tf2_msgs::TFMessage,
+) -> Vec<crate::frames::FrameError> {
+    msg.transforms
+        .iter()
+        .filter_map(|t| {
+            let (r, p) = (t.transform.rotation, t.transform.translation);
+            frames
+                .insert(
+                    &t.header.frame_id,
+                    &t.child_frame_id,
+                    [r.x, r.y, r.z, r.w],
+                    [p.x, p.y, p.z],
+                )
+                .err()
+        })
+        .collect()
+}
+
+fn detection_fields(msg: &BallDetection) -> Detection {
+    Detection {
         stamp: msg.header.stamp.to_nanos(),
         source: Source::from_code(msg.source),
         position: from_point(&msg.position),
@@ -98,7 +146,7 @@ pub fn detection_from_msg(msg: &BallDetection) -> Result<Detection, ConvertError
         spin: msg.has_spin.then(|| from_vector(&msg.spin)),
         spin_covariance: covariance3(&msg.spin_covariance),
         confidence: msg.confidence,
-    })
+    }
 }
 
 /// The core's detection as a `BallDetection` message.

@@ -58,3 +58,24 @@ pub struct Pose {
     /// Orientation.
     pub orientation: Quaternion,
 }
+
+/// `geometry_msgs/msg/Transform`: the pose of a child frame in its parent.
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
+pub struct Transform {
+    /// The child frame's origin in the parent frame [m].
+    pub translation: Vector3,
+    /// The child frame's orientation in the parent frame.
+    pub rotation: Quaternion,
+}
+
+/// `geometry_msgs/msg/TransformStamped`: a transform from `header.frame_id` (the parent) to
+/// `child_frame_id`.
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+pub struct TransformStamped {
+    /// Stamp and parent frame.
+    pub header: super::std_msgs::Header,
+    /// The child frame.
+    pub child_frame_id: String,
+    /// The child frame's pose in the parent.
+    pub transform: Transform,
+}

@@ -18,5 +18,6 @@ pub mod rosgraph_msgs;
 pub mod sensor_msgs;
 pub mod std_msgs;
 pub mod std_srvs;
+pub mod tf2_msgs;
 pub mod ttball_msgs;
 pub mod visualization_msgs;

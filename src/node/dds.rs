@@ -189,6 +189,15 @@ pub fn reliable(depth: u32) -> QosProfile {
         })
 }
 
+/// tf2's `/tf_static` QoS: reliable, transient local (a late subscriber gets the transforms),
+/// keep last 100 (tf2_ros's StaticListenerQoS; its broadcaster keeps 1).
+pub fn tf_static() -> QosProfile {
+    QosProfile::subscription_default()
+        .reliability_reliable(WhenFull::DEFAULT)
+        .durability(Durability::TransientLocal)
+        .history(History::KeepLast { depth: 100 })
+}
+
 /// rclcpp's `ClockQoS` for `/clock`: best effort, keep last 1, volatile.
 pub fn clock() -> QosProfile {
     sensor_data(1)

@@ -55,12 +55,16 @@ use crate::config::Config;
 use crate::detection::Source;
 use crate::estimator::{Counters, SOURCE_NAMES, Verdict};
 use crate::msgs::diagnostic_msgs::DiagnosticArray;
+use crate::msgs::geometry_msgs::{Quaternion, Transform, TransformStamped, Vector3};
 use crate::msgs::rosgraph_msgs::Clock;
+use crate::msgs::std_msgs::Header;
+use crate::msgs::tf2_msgs::TFMessage;
 use crate::msgs::ttball_msgs::msg::{
     BallDetection, BallState, InterceptPrediction, PredictedTrajectory,
 };
 use crate::msgs::visualization_msgs::MarkerArray;
 use crate::pipeline::{Pipeline, Published};
+use crate::replay::{TF_MESSAGE_TYPE, TF_STATIC_TOPIC};
 use crate::replay::{DETECTION_TYPE, INTERCEPT_TYPE, MARKERS_TYPE, STATE_TYPE, TRAJECTORY_TYPE};
 use crate::stats::{DurationHistogram, DurationSummary};
 use intake::{DetectionQueue, Queued, SequenceGaps};
@@ -70,6 +74,7 @@ use services::{Effect, Reply, Servers, Service};
 
 impl ros2_client::Message for BallDetection {}
 impl ros2_client::Message for Clock {}
+impl ros2_client::Message for TFMessage {}
 
 /// ROS 2 type of `/diagnostics`.
 pub const DIAGNOSTICS_TYPE: &str = "diagnostic_msgs/msg/DiagnosticArray";
@@ -306,6 +311,28 @@ fn start_here(config: &Config, placement: &Placement) -> Result<NodeHandle, Node
     } else {
         None
     };
+    let tf_topic = node
+        .create_topic(
+            &dds::name(TF_STATIC_TOPIC)?,
+            dds::message_type(TF_MESSAGE_TYPE),
+            &dds::tf_static(),
+        )
+        .map_err(dds::error)?;
+    let tf_static: Subscription<TFMessage> = node
+        .create_subscription(&tf_topic, None)
+        .map_err(dds::error)?;
+    let table_pose = table_transform(config, wall_clock_ns());
+    let tf_publisher = match &table_pose {
+        Some(msg) => {
+            let publisher: Publisher<TFMessage> =
+                node.create_publisher(&tf_topic, None).map_err(dds::error)?;
+            if publisher.publish(msg.clone()).is_err() {
+                warn!("the table's pose could not be published on {TF_STATIC_TOPIC}");
+            }
+            Some(publisher)
+        }
+        None => None,
+    };
     let servers = Servers::new(&mut node, &node_name, config.node.service_mapping)?;
     rosout::install(
         node.create_publisher(&context.get_rosout_topic(), None)
@@ -322,8 +349,14 @@ fn start_here(config: &Config, placement: &Placement) -> Result<NodeHandle, Node
     let (ended_tx, ended_rx) = channel::bounded::<()>(0);
 
     let parameters = Parameters::new(config);
+    let mut pipeline = Pipeline::new(config);
+    if let Some(msg) = &table_pose {
+        pipeline.on_static_transforms(msg);
+    }
     let estimator = EstimatorThread {
-        pipeline: Pipeline::new(config),
+        pipeline,
+        tf_static,
+        _tf_publisher: tf_publisher,
         clock: NodeClock {
             subscription: clock,
             latest: None,
@@ -502,6 +535,36 @@ struct EstimatorThread {
     /// [`crate::estimator::SOURCE_NAMES`], and when it last delivered one.
     sources: [(SourceWindow, Option<Instant>); 3],
     started: Instant,
+    /// `/tf_static`, taken between detections.
+    tf_static: Subscription<TFMessage>,
+    /// The writer of the table's pose (kept: the transform is transient local).
+    _tf_publisher: Option<Publisher<TFMessage>>,
+}
+
+/// The table's pose in `frames.table_parent` as a `/tf_static` message, if one is configured.
+fn table_transform(config: &Config, stamp: i64) -> Option<TFMessage> {
+    let parent = config.frames.table_parent.trim_start_matches('/');
+    let &[x, y, z, qx, qy, qz, qw] = config.frames.table_pose.as_slice() else {
+        return None;
+    };
+    (!parent.is_empty()).then(|| TFMessage {
+        transforms: vec![TransformStamped {
+            header: Header {
+                stamp: crate::msgs::builtin_interfaces::Time::from_nanos(stamp),
+                frame_id: parent.to_owned().into(),
+            },
+            child_frame_id: crate::msgs::convert::TABLE_FRAME.to_owned(),
+            transform: Transform {
+                translation: Vector3 { x, y, z },
+                rotation: Quaternion {
+                    x: qx,
+                    y: qy,
+                    z: qz,
+                    w: qw,
+                },
+            },
+        }],
+    })
 }
 
 /// The node's clock: the system clock, or with `use_sim_time` the latest `/clock` (0 until the
@@ -574,6 +637,7 @@ impl EstimatorThread {
         let on_request = wake_on.recv(requests);
         wake_on.recv(&ticker);
         loop {
+            self.take_static_transforms();
             self.take_from_dds(detections.as_mut(), &mut context, &mut queue, &mut gaps);
             if let Some(queued) = queue.pop() {
                 self.process(queued, &mut timings);
@@ -700,6 +764,22 @@ impl EstimatorThread {
                     }
                 }
             }
+        }
+    }
+
+    /// Takes the static transforms `/tf_static` brought (rarely: when a broadcaster starts).
+    fn take_static_transforms(&mut self) {
+        while let Ok(Some((msg, _))) = self.tf_static.take() {
+            let refused = self.pipeline.on_static_transforms(&msg);
+            for e in refused {
+                warn!("{TF_STATIC_TOPIC}: {e} (ignored)");
+            }
+            let names: Vec<String> = msg
+                .transforms
+                .iter()
+                .map(|t| format!("{} -> {}", t.header.frame_id, t.child_frame_id))
+                .collect();
+            debug!("{TF_STATIC_TOPIC}: {}", names.join(", "));
         }
     }
 
