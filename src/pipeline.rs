@@ -765,4 +765,74 @@ mod tests {
             r.message
         );
     }
+
+    /// A detection in a camera frame that `/tf_static` connects to `table` is the same
+    /// detection as in `table`; without the transform it is refused with the reason.
+    #[test]
+    fn detections_in_a_connected_frame_are_brought_into_table() {
+        use crate::msgs::geometry_msgs::{Quaternion, Transform, TransformStamped};
+        use crate::msgs::std_msgs::Header;
+        let config = Config::default();
+        let options = SimOptions {
+            shots: 1,
+            ..SimOptions::default()
+        };
+        let session = simulate(&config, &options).expect("simulated");
+        // camera_link: in world, 2.5 m above and 3 m behind the table's centre, turned a
+        // quarter about z; the table at the origin of world.
+        let h = std::f64::consts::FRAC_1_SQRT_2;
+        let stamped = |parent: &str, child: &str, t: [f64; 3], q: [f64; 4]| TransformStamped {
+            header: Header {
+                frame_id: parent.to_owned().into(),
+                ..Header::default()
+            },
+            child_frame_id: child.to_owned(),
+            transform: Transform {
+                translation: Vector3 { x: t[0], y: t[1], z: t[2] },
+                rotation: Quaternion { x: q[0], y: q[1], z: q[2], w: q[3] },
+            },
+        };
+        let tf = TFMessage {
+            transforms: vec![
+                stamped("world", "table", [0.0; 3], [0.0, 0.0, 0.0, 1.0]),
+                stamped("world", "camera_link", [-3.0, 0.0, 2.5], [0.0, 0.0, h, h]),
+            ],
+        };
+        let mut in_table = Pipeline::new(&config);
+        let mut in_camera = Pipeline::new(&config);
+        let mut frames = Frames::new("table");
+        assert!(add_static_transforms(&mut frames, &tf).is_empty());
+        let to_camera = frames.to_fixed("camera_link").expect("connected").inverse();
+        // Before the transform arrives: refused, saying why.
+        let first = &session.stream[0].detection;
+        let mut msg = detection_to_msg(first);
+        msg.header.frame_id = "camera_link".into();
+        let refused = in_camera.on_detection(&msg);
+        assert!(matches!(refused.verdict, Err(ConvertError::UnknownFrame(_))));
+        assert!(in_camera.on_static_transforms(&tf).is_empty());
+        in_camera.reset(&config);
+        for d in session.stream.iter().take(200) {
+            let a = in_table.on_detection(&detection_to_msg(&d.detection));
+            let mut camera = d.detection;
+            camera.position = to_camera.point(&d.detection.position);
+            camera.spin = d.detection.spin.map(|w| to_camera.vector(&w));
+            camera.spin_covariance = d.detection.spin_covariance.map(|c| to_camera.covariance(&c));
+            camera.position_covariance =
+                d.detection.position_covariance.map(|c| to_camera.covariance(&c));
+            let mut msg = detection_to_msg(&camera);
+            msg.header.frame_id = "camera_link".into();
+            let b = in_camera.on_detection(&msg);
+            assert_eq!(
+                std::mem::discriminant(&a.verdict),
+                std::mem::discriminant(&b.verdict)
+            );
+            if let (Some(x), Some(y)) = (
+                a.output.and_then(|o| o.estimate),
+                b.output.and_then(|o| o.estimate),
+            ) {
+                assert!((x.state.position - y.state.position).norm() < 1e-9);
+                assert!((x.state.spin - y.state.spin).norm() < 1e-6);
+            }
+        }
+    }
 }

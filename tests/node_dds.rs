@@ -710,7 +710,7 @@ recorder=$!
 "{python}" "{peer}" params --node /robot1/ttball --timeout 20 --out params.json 2> peer.err
 "{python}" "{peer}" publish "{bag}" --bag-topic /ball/detections --topic /robot1/ball/detections --state-topic /robot1/ball/state --intercept-topic /robot1/ball/intercept --count 900 --rate 2 --wait-match 30 --out publish.json 2>> peer.err
 "{python}" "{peer}" publish-wrong other-fields --topic /robot1/ball/detections --count 5 --out wrong.json 2>> peer.err
-"{python}" "{peer}" publish "{bag}" --bag-topic /ball/detections --topic /robot1/ball/detections --only-source 1 --rate 0.5 --count-only --wait-match 30 --out only150.json 2>> peer.err
+"{python}" "{peer}" publish "{bag}" --bag-topic /ball/detections --topic /robot1/ball/detections --only-source 1 --frame camera_link --state-topic /robot1/ball/state --rate 0.5 --count-only --wait-match 30 --out only150.json 2>> peer.err
 touch stop
 wait $recorder
 kill -TERM $node
@@ -807,6 +807,13 @@ echo $? > node.rc
     for i in valid {
         assert!((i.position.x + 1.45).abs() < 1e-6, "{:?}", i.position);
     }
+
+    // Detections in a camera frame that the peer's /tf_static connects to `table` are taken:
+    // the states follow, and no detection was refused for its frame.
+    let only150 = read_json(&dir.join("only150.json"));
+    assert!(only150["states"].as_u64().unwrap_or(0) > 100, "{only150}: {}", read("peer.err"));
+    let summary = read("node.out");
+    assert!(!summary.contains("unknown_frame"), "{summary}");
 
     // /diagnostics: a status per source besides the estimator's, hardware ids set; the 900 fps
     // camera STALE once only the 150 fps camera delivers. /rosout: the node's warning about the

@@ -414,6 +414,62 @@ class Log_(IdlStruct, typename="rcl_interfaces::msg::dds_::Log_"):
     line: t.uint32
 
 
+# ---- tf2_msgs, for detections in a camera frame --------------------------------------------------
+
+
+@dataclass
+class Quaternion_(IdlStruct, typename="geometry_msgs::msg::dds_::Quaternion_"):
+    x: t.float64
+    y: t.float64
+    z: t.float64
+    w: t.float64
+
+
+@dataclass
+class Transform_(IdlStruct, typename="geometry_msgs::msg::dds_::Transform_"):
+    translation: Vector3_
+    rotation: Quaternion_
+
+
+@dataclass
+class TransformStamped_(IdlStruct, typename="geometry_msgs::msg::dds_::TransformStamped_"):
+    header: Header_
+    child_frame_id: str
+    transform: Transform_
+
+
+@dataclass
+class TFMessage_(IdlStruct, typename="tf2_msgs::msg::dds_::TFMessage_"):
+    transforms: t.sequence[TransformStamped_]
+
+
+def rotate(q, v, inverse=False):
+    """The vector v rotated by the unit quaternion q = (x, y, z, w) (or by its inverse)."""
+    x, y, z, w = q
+    if inverse:
+        x, y, z = -x, -y, -z
+    # v' = v + 2 w (u x v) + 2 u x (u x v), u = (x, y, z)
+    ux = (y * v[2] - z * v[1], z * v[0] - x * v[2], x * v[1] - y * v[0])
+    uux = (y * ux[2] - z * ux[1], z * ux[0] - x * ux[2], x * ux[1] - y * ux[0])
+    return [v[i] + 2 * w * ux[i] + 2 * uux[i] for i in range(3)]
+
+
+def into_frame(detection, frame, pose):
+    """The table-frame detection expressed in `frame`, whose pose in `table` is `pose`
+    (x, y, z, qx, qy, qz, qw): p_frame = R^T (p_table - t), spin likewise rotated."""
+    t_, q = pose[:3], pose[3:]
+    n = math.sqrt(sum(c * c for c in q))
+    q = [c / n for c in q]
+    p = detection.position
+    local = rotate(q, [p.x - t_[0], p.y - t_[1], p.z - t_[2]], inverse=True)
+    w = detection.spin
+    spin = rotate(q, [w.x, w.y, w.z], inverse=True)
+    detection.header.frame_id = frame
+    detection.position = Point_(x=local[0], y=local[1], z=local[2])
+    detection.spin = Vector3_(x=spin[0], y=spin[1], z=spin[2])
+    return detection
+
+
 # ---- DDS plumbing ------------------------------------------------------------------------------
 
 
@@ -541,6 +597,8 @@ def cmd_publish(args):
     detections = detections[args.first:end]
     if args.only_source is not None:
         detections = [(t_, d) for t_, d in detections if d.source == args.only_source]
+    if args.frame:
+        detections = [(t_, into_frame(d, args.frame, args.frame_pose)) for t_, d in detections]
     if not detections:
         sys.exit(f"dds_peer: no messages on {args.topic} in {args.bag}")
     dp = participant()
@@ -548,6 +606,16 @@ def cmd_publish(args):
     states = Recorder(dp, ros_topic("rt", args.state_topic), BallState_, True, 10000, keep)
     intercepts = Recorder(dp, ros_topic("rt", args.intercept_topic), InterceptPrediction_, True, 10000, keep)
     out = writer(dp, ros_topic("rt", args.topic), BallDetection_, False, 100)  # REP 2003 sensor data
+    if args.frame:
+        # table -> frame on /tf_static, transient local as tf2's static broadcaster publishes it.
+        tf_qos = Qos(Policy.Reliability.Reliable(duration(seconds=1)), Policy.History.KeepLast(1),
+                     Policy.Durability.TransientLocal)
+        tf_writer = DataWriter(dp, Topic(dp, "rt/tf_static", TFMessage_), tf_qos)
+        x, y, z, qx, qy, qz, qw = args.frame_pose
+        tf_writer.write(TFMessage_(transforms=[TransformStamped_(
+            header=Header_(stamp=Time_(sec=0, nanosec=0), frame_id="table"), child_frame_id=args.frame,
+            transform=Transform_(translation=Vector3_(x=x, y=y, z=z),
+                                 rotation=Quaternion_(x=qx, y=qy, z=qz, w=qw)))]))
 
     # The detections are volatile: send none before the node's reader has matched ours. Then give
     # the node's state/intercept writers up to 2 s more to match our readers (not required).
@@ -865,6 +933,11 @@ def main(argv=None):
     p.add_argument("--rate", type=float, default=1.0, help="playback speed factor (default %(default)s)")
     p.add_argument("--first", type=int, default=0, help="index of the first detection to send (default 0)")
     p.add_argument("--count", type=int, default=0, help="how many to send (default: all from --first)")
+    p.add_argument("--frame", help="send the detections in this frame, after publishing its pose in `table` "
+                                    "(--frame-pose) on /tf_static")
+    p.add_argument("--frame-pose", type=float, nargs=7, metavar=("X", "Y", "Z", "QX", "QY", "QZ", "QW"),
+                   default=[-3.0, 0.5, 2.5, 0.0, 0.0, 0.7071067811865476, 0.7071067811865476],
+                   help="the frame's pose in `table` (default: 3 m behind, 2.5 m up, a quarter turn about z)")
     p.add_argument("--only-source", type=int, metavar="CODE",
                    help="send only the detections of this source (BallDetection.SOURCE_*: 1 the 150 fps camera)")
     p.add_argument("--count-only", action="store_true",
