@@ -749,6 +749,36 @@ fn constants_match_their_rust_associated_consts() {
             "STATUS_COASTING",
             ConstValue::U8(BallState::STATUS_COASTING),
         ),
+        (
+            "ttball_msgs/InterceptPrediction",
+            "REASON_VALID",
+            ConstValue::U8(InterceptPrediction::REASON_VALID),
+        ),
+        (
+            "ttball_msgs/InterceptPrediction",
+            "REASON_NET",
+            ConstValue::U8(InterceptPrediction::REASON_NET),
+        ),
+        (
+            "ttball_msgs/InterceptPrediction",
+            "REASON_MISSES_TABLE",
+            ConstValue::U8(InterceptPrediction::REASON_MISSES_TABLE),
+        ),
+        (
+            "ttball_msgs/InterceptPrediction",
+            "REASON_NO_BOUNCE",
+            ConstValue::U8(InterceptPrediction::REASON_NO_BOUNCE),
+        ),
+        (
+            "ttball_msgs/InterceptPrediction",
+            "REASON_TWO_BOUNCES",
+            ConstValue::U8(InterceptPrediction::REASON_TWO_BOUNCES),
+        ),
+        (
+            "ttball_msgs/InterceptPrediction",
+            "REASON_BEYOND_HORIZON",
+            ConstValue::U8(InterceptPrediction::REASON_BEYOND_HORIZON),
+        ),
     ];
     let parsed: Vec<(String, Constant)> = package_specs()
         .into_iter()
@@ -1097,6 +1127,8 @@ fn every_mirror_round_trips_through_cdr() {
         bounce_valid: true,
         bounce_stamp: Time::from_nanos(1_700_000_000_300_000_000),
         bounce_position: p(-0.8),
+        reason: InterceptPrediction::REASON_VALID,
+        time_variance: 2.5e-7,
     });
     let trajectory = PredictedTrajectory {
         header: header.clone(),

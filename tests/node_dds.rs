@@ -804,6 +804,15 @@ echo $? > node.rc
     assert!(states.len() > 300, "{} states: {}", states.len(), read("peer.err"));
     let valid: Vec<&InterceptPrediction> = intercepts.iter().filter(|i| i.valid).collect();
     assert!(valid.len() > 100, "{} valid intercepts", valid.len());
+    // Each says why not, or how sure of the time it is.
+    for i in &intercepts {
+        if i.valid {
+            assert_eq!(i.reason, InterceptPrediction::REASON_VALID);
+            assert!(i.time_variance > 0.0 && i.time_variance < 1e-2, "{}", i.time_variance);
+        } else {
+            assert_ne!(i.reason, InterceptPrediction::REASON_VALID);
+        }
+    }
     for i in valid {
         assert!((i.position.x + 1.45).abs() < 1e-6, "{:?}", i.position);
     }

@@ -251,6 +251,18 @@ pub fn offset(stamp: i64, seconds: f64) -> Time {
     Time::from_nanos(stamp + seconds_to_ns(seconds))
 }
 
+/// `InterceptPrediction.reason` of why there is no interception.
+pub fn reason_code(why: crate::intercept::NoIntercept) -> u8 {
+    use crate::intercept::NoIntercept;
+    match why {
+        NoIntercept::NetHit => InterceptPrediction::REASON_NET,
+        NoIntercept::MissesTable => InterceptPrediction::REASON_MISSES_TABLE,
+        NoIntercept::NoBounce => InterceptPrediction::REASON_NO_BOUNCE,
+        NoIntercept::TwoBounces => InterceptPrediction::REASON_TWO_BOUNCES,
+        NoIntercept::NotWithinHorizon => InterceptPrediction::REASON_BEYOND_HORIZON,
+    }
+}
+
 /// An interception prediction as an `InterceptPrediction` message.
 pub fn intercept_msg(i: &InterceptEstimate) -> InterceptPrediction {
     let mut msg = InterceptPrediction {
@@ -258,13 +270,17 @@ pub fn intercept_msg(i: &InterceptEstimate) -> InterceptPrediction {
         track_id: i.track_id,
         ..InterceptPrediction::default()
     };
-    if let Ok(c) = &i.intercept.crossing {
-        msg.valid = true;
-        msg.intercept_stamp = offset(i.stamp, c.time);
-        msg.position = point(&c.state.position);
-        msg.velocity = vector(&c.state.velocity);
-        msg.spin = vector(&c.state.spin);
-        msg.covariance = row_major9(&c.covariance);
+    match &i.intercept.crossing {
+        Ok(c) => {
+            msg.valid = true;
+            msg.intercept_stamp = offset(i.stamp, c.time);
+            msg.position = point(&c.state.position);
+            msg.velocity = vector(&c.state.velocity);
+            msg.spin = vector(&c.state.spin);
+            msg.covariance = row_major9(&c.covariance);
+            msg.time_variance = c.time_sigma * c.time_sigma;
+        }
+        Err(why) => msg.reason = reason_code(*why),
     }
     if let Some(b) = &i.intercept.bounce {
         msg.bounce_valid = true;
@@ -501,5 +517,20 @@ mod tests {
             detection_from_msg(&other),
             Err(ConvertError::UnknownFrame("camera".into()))
         );
+    }
+
+    #[test]
+    fn every_reason_has_its_own_code() {
+        use crate::intercept::NoIntercept;
+        let all = [
+            NoIntercept::NetHit,
+            NoIntercept::MissesTable,
+            NoIntercept::NoBounce,
+            NoIntercept::TwoBounces,
+            NoIntercept::NotWithinHorizon,
+        ];
+        let codes: Vec<u8> = all.iter().map(|w| reason_code(*w)).collect();
+        assert_eq!(codes, [1, 2, 3, 4, 5]);
+        assert_eq!(InterceptPrediction::default().reason, InterceptPrediction::REASON_VALID);
     }
 }

@@ -123,6 +123,8 @@ class InterceptPrediction_(IdlStruct, typename="ttball_msgs::msg::dds_::Intercep
     bounce_valid: bool
     bounce_stamp: Time_
     bounce_position: Point_
+    reason: t.uint8
+    time_variance: t.float64
 
 
 @dataclass

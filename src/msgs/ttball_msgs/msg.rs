@@ -117,6 +117,25 @@ pub struct InterceptPrediction {
     pub bounce_stamp: Time,
     /// Ball centre at that bounce [m]; valid only when `bounce_valid`.
     pub bounce_position: Point,
+    /// Why `valid` is false (`REASON_*`; [`Self::REASON_VALID`] when valid).
+    pub reason: u8,
+    /// Variance of the crossing time [s^2].
+    pub time_variance: f64,
+}
+
+impl InterceptPrediction {
+    /// `reason`: the ball crosses the plane after one bounce on the robot's half.
+    pub const REASON_VALID: u8 = 0;
+    /// `reason`: the ball will hit the net.
+    pub const REASON_NET: u8 = 1;
+    /// `reason`: the ball will miss the table.
+    pub const REASON_MISSES_TABLE: u8 = 2;
+    /// `reason`: the ball will reach the plane without bouncing on the robot's half.
+    pub const REASON_NO_BOUNCE: u8 = 3;
+    /// `reason`: the ball will bounce twice on the robot's half.
+    pub const REASON_TWO_BOUNCES: u8 = 4;
+    /// `reason`: the ball will not reach the plane within the prediction horizon.
+    pub const REASON_BEYOND_HORIZON: u8 = 5;
 }
 
 impl Default for InterceptPrediction {
@@ -133,6 +152,8 @@ impl Default for InterceptPrediction {
             bounce_valid: false,
             bounce_stamp: Time::default(),
             bounce_position: Point::default(),
+            reason: Self::REASON_VALID,
+            time_variance: 0.0,
         }
     }
 }
