@@ -64,7 +64,9 @@ impl Transform {
 pub enum FrameError {
     /// Its rotation is not a rotation (a zero or non-finite quaternion) or its translation is
     /// not finite.
-    #[error("the transform {parent} -> {child} is not a rigid transform (non-finite values or a zero quaternion)")]
+    #[error(
+        "the transform {parent} -> {child} is not a rigid transform (non-finite values or a zero quaternion)"
+    )]
     NotRigid {
         /// Parent frame.
         parent: String,
@@ -155,7 +157,8 @@ impl Frames {
 
     /// Every frame connected to the fixed one (walking the edges either way).
     fn connect(&mut self) {
-        let mut reached: Vec<(String, Transform)> = vec![(self.fixed.clone(), Transform::identity())];
+        let mut reached: Vec<(String, Transform)> =
+            vec![(self.fixed.clone(), Transform::identity())];
         let mut next = 0;
         while next < reached.len() {
             let (frame, into_fixed) = reached[next].clone();
@@ -202,30 +205,67 @@ mod tests {
         assert_eq!(frames.to_fixed("table"), Some(Transform::identity()));
         let t = frames.to_fixed("camera_link").unwrap();
         // The camera's x axis is world y; its origin is 2 m above world's origin.
-        assert_relative_eq!(t.point(&Vector3::new(1.0, 0.0, 0.0)), Vector3::new(-1.0, 1.0, 2.0), epsilon = 1e-12);
-        assert_relative_eq!(t.vector(&Vector3::new(0.0, 100.0, 0.0)), Vector3::new(-100.0, 0.0, 0.0), epsilon = 1e-12);
+        assert_relative_eq!(
+            t.point(&Vector3::new(1.0, 0.0, 0.0)),
+            Vector3::new(-1.0, 1.0, 2.0),
+            epsilon = 1e-12
+        );
+        assert_relative_eq!(
+            t.vector(&Vector3::new(0.0, 100.0, 0.0)),
+            Vector3::new(-100.0, 0.0, 0.0),
+            epsilon = 1e-12
+        );
         let c = Matrix3::from_diagonal(&Vector3::new(4.0, 1.0, 9.0));
-        assert_relative_eq!(t.covariance(&c), Matrix3::from_diagonal(&Vector3::new(1.0, 4.0, 9.0)), epsilon = 1e-12);
+        assert_relative_eq!(
+            t.covariance(&c),
+            Matrix3::from_diagonal(&Vector3::new(1.0, 4.0, 9.0)),
+            epsilon = 1e-12
+        );
         // Round trip through world.
         let w = frames.to_fixed("world").unwrap();
-        assert_relative_eq!(w.point(&Vector3::new(1.0, 0.0, 0.0)), Vector3::zeros(), epsilon = 1e-12);
+        assert_relative_eq!(
+            w.point(&Vector3::new(1.0, 0.0, 0.0)),
+            Vector3::zeros(),
+            epsilon = 1e-12
+        );
         // A replaced transform replaces.
         frames
             .insert("world", "table", [0.0, 0.0, 0.0, 1.0], [0.0, 0.0, 0.0])
             .unwrap();
         let w = frames.to_fixed("world").unwrap();
-        assert_relative_eq!(w.point(&Vector3::new(1.0, 0.0, 0.0)), Vector3::new(1.0, 0.0, 0.0), epsilon = 1e-12);
+        assert_relative_eq!(
+            w.point(&Vector3::new(1.0, 0.0, 0.0)),
+            Vector3::new(1.0, 0.0, 0.0),
+            epsilon = 1e-12
+        );
     }
 
     #[test]
     fn bad_transforms_are_refused() {
         let mut frames = Frames::new("table");
-        assert!(frames.insert("a", "a", [0.0, 0.0, 0.0, 1.0], [0.0; 3]).is_err());
-        assert!(frames.insert("", "b", [0.0, 0.0, 0.0, 1.0], [0.0; 3]).is_err());
+        assert!(
+            frames
+                .insert("a", "a", [0.0, 0.0, 0.0, 1.0], [0.0; 3])
+                .is_err()
+        );
+        assert!(
+            frames
+                .insert("", "b", [0.0, 0.0, 0.0, 1.0], [0.0; 3])
+                .is_err()
+        );
         assert!(frames.insert("a", "b", [0.0; 4], [0.0; 3]).is_err());
-        assert!(frames.insert("a", "b", [0.0, 0.0, 0.0, 1.0], [f64::NAN, 0.0, 0.0]).is_err());
+        assert!(
+            frames
+                .insert("a", "b", [0.0, 0.0, 0.0, 1.0], [f64::NAN, 0.0, 0.0])
+                .is_err()
+        );
         // An unnormalised quaternion is normalised.
-        frames.insert("table", "b", [0.0, 0.0, 0.0, 2.0], [0.0; 3]).unwrap();
-        assert_eq!(frames.to_fixed("b").unwrap().rotation, UnitQuaternion::identity());
+        frames
+            .insert("table", "b", [0.0, 0.0, 0.0, 2.0], [0.0; 3])
+            .unwrap();
+        assert_eq!(
+            frames.to_fixed("b").unwrap().rotation,
+            UnitQuaternion::identity()
+        );
     }
 }

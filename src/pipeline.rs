@@ -8,11 +8,13 @@ use nalgebra::Vector2;
 
 use crate::config::Config;
 use crate::estimator::{Counters, Estimator, InterceptEstimate, Output, Rejection, Verdict};
+use crate::frames::{FrameError, Frames};
 use crate::msgs::builtin_interfaces::Time;
 use crate::msgs::convert::{
-    ConvertError, add_static_transforms, detection_from_msg_in, intercept_msg, markers, offset, plan_response,
-    rebound_request, rebound_response, state_from_msg, state_msg, trajectory_msg,
+    ConvertError, add_static_transforms, detection_from_msg_in, intercept_msg, markers, offset,
+    plan_response, rebound_request, rebound_response, state_from_msg, state_msg, trajectory_msg,
 };
+use crate::msgs::tf2_msgs::TFMessage;
 use crate::msgs::ttball_msgs::msg::{
     BallDetection, BallState, InterceptPrediction, PredictedTrajectory,
 };
@@ -22,8 +24,6 @@ use crate::msgs::ttball_msgs::srv::{
 };
 use crate::msgs::visualization_msgs::MarkerArray;
 use crate::physics::{self, StateMatrix};
-use crate::frames::{FrameError, Frames};
-use crate::msgs::tf2_msgs::TFMessage;
 use crate::stroke::{Aim, Stroke};
 
 /// The messages to publish after one detection.
@@ -788,8 +788,17 @@ mod tests {
             },
             child_frame_id: child.to_owned(),
             transform: Transform {
-                translation: Vector3 { x: t[0], y: t[1], z: t[2] },
-                rotation: Quaternion { x: q[0], y: q[1], z: q[2], w: q[3] },
+                translation: Vector3 {
+                    x: t[0],
+                    y: t[1],
+                    z: t[2],
+                },
+                rotation: Quaternion {
+                    x: q[0],
+                    y: q[1],
+                    z: q[2],
+                    w: q[3],
+                },
             },
         };
         let tf = TFMessage {
@@ -808,7 +817,10 @@ mod tests {
         let mut msg = detection_to_msg(first);
         msg.header.frame_id = "camera_link".into();
         let refused = in_camera.on_detection(&msg);
-        assert!(matches!(refused.verdict, Err(ConvertError::UnknownFrame(_))));
+        assert!(matches!(
+            refused.verdict,
+            Err(ConvertError::UnknownFrame(_))
+        ));
         assert!(in_camera.on_static_transforms(&tf).is_empty());
         in_camera.reset(&config);
         for d in session.stream.iter().take(200) {
@@ -816,9 +828,14 @@ mod tests {
             let mut camera = d.detection;
             camera.position = to_camera.point(&d.detection.position);
             camera.spin = d.detection.spin.map(|w| to_camera.vector(&w));
-            camera.spin_covariance = d.detection.spin_covariance.map(|c| to_camera.covariance(&c));
-            camera.position_covariance =
-                d.detection.position_covariance.map(|c| to_camera.covariance(&c));
+            camera.spin_covariance = d
+                .detection
+                .spin_covariance
+                .map(|c| to_camera.covariance(&c));
+            camera.position_covariance = d
+                .detection
+                .position_covariance
+                .map(|c| to_camera.covariance(&c));
             let mut msg = detection_to_msg(&camera);
             msg.header.frame_id = "camera_link".into();
             let b = in_camera.on_detection(&msg);

@@ -27,7 +27,10 @@ pub fn write_session(
     let truth_channels = if with_truth {
         Some((
             writer.channel(&config.resolved_topics().truth, STATE_TYPE)?,
-            writer.channel(&truth_intercept_topic(&config.resolved_topics().truth), INTERCEPT_TYPE)?,
+            writer.channel(
+                &truth_intercept_topic(&config.resolved_topics().truth),
+                INTERCEPT_TYPE,
+            )?,
         ))
     } else {
         None

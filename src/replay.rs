@@ -26,8 +26,8 @@ use crate::msgs::convert::{
     detection_from_msg, state_from_msg, state_msg, truth_intercept_from_msg,
 };
 use crate::msgs::definitions;
-use crate::msgs::ttball_msgs::msg::{BallDetection, BallState, InterceptPrediction};
 use crate::msgs::tf2_msgs::TFMessage;
+use crate::msgs::ttball_msgs::msg::{BallDetection, BallState, InterceptPrediction};
 use crate::pipeline::Pipeline;
 use crate::smooth::{SmoothedState, Smoothing, smooth};
 use crate::stats::DurationHistogram;
@@ -166,7 +166,10 @@ struct BagTruth {
 fn truth_channels(channels: &[ChannelInfo], config: &Config) -> Option<(usize, usize)> {
     Some((
         channel_of(channels, &config.resolved_topics().truth)?,
-        channel_of(channels, &truth_intercept_topic(&config.resolved_topics().truth))?,
+        channel_of(
+            channels,
+            &truth_intercept_topic(&config.resolved_topics().truth),
+        )?,
     ))
 }
 
@@ -434,7 +437,11 @@ pub struct BagDetections {
 /// Reads `path` and decodes its detections (`topics.detections`).
 pub fn read_detections(path: &Path, config: &Config) -> Result<BagDetections, ReplayError> {
     let contents = read_bag_file(path)?;
-    let channel = detection_channel(&contents.channels, &config.resolved_topics().detections, path)?;
+    let channel = detection_channel(
+        &contents.channels,
+        &config.resolved_topics().detections,
+        path,
+    )?;
     let mut detections = Vec::new();
     let mut message_detection = Vec::with_capacity(contents.messages.len());
     let (mut undecodable, mut unknown_frame) = (0u64, 0u64);

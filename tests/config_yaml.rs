@@ -199,7 +199,10 @@ robot1:
     assert_eq!((root.table.restitution, root.gravity), (0.9, 9.80665));
     // Renamed into /robot1 by a later layer: the file is read again for that node.
     let robot1 = load_text(text, &["node.namespace:=/robot1"]).unwrap();
-    assert_eq!((robot1.table.friction, robot1.intercept.plane_x), (0.2, -1.3));
+    assert_eq!(
+        (robot1.table.friction, robot1.intercept.plane_x),
+        (0.2, -1.3)
+    );
     assert_eq!((robot1.table.restitution, robot1.gravity), (0.85, 9.80665));
     // As the remaps name the node.
     let path = std::env::temp_dir().join(format!("ttball-sections-{}.yaml", std::process::id()));
@@ -212,7 +215,10 @@ robot1:
     ];
     let robot2 = yaml::load_layers(&layers, Some("/robot2/ttball")).unwrap();
     assert_eq!((robot2.gravity, robot2.table.friction), (2.0, 0.1));
-    assert_eq!((robot2.ekf.init_detections, robot2.tracking.timeout), (7, 0.3));
+    assert_eq!(
+        (robot2.ekf.init_detections, robot2.tracking.timeout),
+        (7, 0.3)
+    );
     // Files and overrides apply in the order given.
     let layers = [
         Layer::Param("table.friction:=0.3".to_owned()),
@@ -220,7 +226,10 @@ robot1:
         Layer::Param("intercept.plane_x:=-1.2".to_owned()),
     ];
     let ordered = yaml::load_layers(&layers, None).unwrap();
-    assert_eq!((ordered.table.friction, ordered.intercept.plane_x), (0.1, -1.2));
+    assert_eq!(
+        (ordered.table.friction, ordered.intercept.plane_x),
+        (0.1, -1.2)
+    );
     std::fs::remove_file(&path).unwrap();
 }
 
@@ -580,10 +589,20 @@ fn every_parameter_is_described() {
         let text = descriptions.get(&name).map_or("", String::as_str);
         assert!(text.len() > 10, "{name}: {text:?}");
     }
-    assert!(descriptions["table.restitution"].contains("[-]"), "{}", descriptions["table.restitution"]);
+    assert!(
+        descriptions["table.restitution"].contains("[-]"),
+        "{}",
+        descriptions["table.restitution"]
+    );
     let rules = config.rules();
     let rule = |key: &str| rules.iter().find(|(k, _)| k == key).map(|(_, r)| *r);
-    assert_eq!(rule("gravity"), Some("greater than 0 and at most 30 (m/s^2; Earth: 9.81)"));
-    assert_eq!(rule("aero.drag_coefficients"), Some("1 to 8 finite coefficients, lowest order first"));
+    assert_eq!(
+        rule("gravity"),
+        Some("greater than 0 and at most 30 (m/s^2; Earth: 9.81)")
+    );
+    assert_eq!(
+        rule("aero.drag_coefficients"),
+        Some("1 to 8 finite coefficients, lowest order first")
+    );
     assert_eq!(rule("topics.state"), Some("topic name"));
 }

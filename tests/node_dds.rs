@@ -726,7 +726,11 @@ echo $? > node.rc
     let read = |name: &str| std::fs::read_to_string(dir.join(name)).unwrap_or_default();
     assert_eq!(read("node.rc").trim(), "0", "node: {}", read("node.err"));
     let params = read_json(&dir.join("params.json"));
-    let context = format!("{params:#}\npeer: {}\nnode: {}", read("peer.err"), read("node.err"));
+    let context = format!(
+        "{params:#}\npeer: {}\nnode: {}",
+        read("peer.err"),
+        read("node.err")
+    );
 
     // Every configuration key is a declared parameter.
     let listed: Vec<&str> = params["list"]
@@ -747,18 +751,26 @@ echo $? > node.rc
     assert_eq!(get["node.namespace"], "/robot1");
     assert_eq!(get["use_sim_time"], false);
     assert_eq!(get["ekf.init_detections"], 4);
-    assert_eq!(get["aero.drag_coefficients"], serde_json::json!([0.42, 0.15]));
+    assert_eq!(
+        get["aero.drag_coefficients"],
+        serde_json::json!([0.42, 0.15])
+    );
     assert!(get["no.such_parameter"].is_null());
     // Descriptors: type, description with the unit, the rule, read-only where a restart is needed.
     let described = params["describe"].as_array().unwrap();
     assert_eq!(described[0]["name"], "table.restitution");
     assert_eq!(described[0]["type"], 3);
     assert_eq!(described[0]["read_only"], true);
-    assert!(described[0]["description"].as_str().unwrap().contains("[-]"), "{context}");
+    assert!(
+        described[0]["description"]
+            .as_str()
+            .unwrap()
+            .contains("[-]"),
+        "{context}"
+    );
     assert_eq!(described[1]["read_only"], false);
     assert_eq!(
-        described[2]["constraints"],
-        "greater than 0 and less than 1",
+        described[2]["constraints"], "greater than 0 and less than 1",
         "{context}"
     );
     // Sets: one taken, the others refused with the reason.
@@ -766,8 +778,18 @@ echo $? > node.rc
     let taken: Vec<bool> = set.iter().map(|s| s["successful"] == true).collect();
     assert_eq!(taken, [true, false, false, false], "{context}");
     assert!(set[1]["reason"].as_str().unwrap().contains("read-only"));
-    assert!(set[2]["reason"].as_str().unwrap().contains("gating.probability"));
-    assert!(set[3]["reason"].as_str().unwrap().contains("is a double, not a string"));
+    assert!(
+        set[2]["reason"]
+            .as_str()
+            .unwrap()
+            .contains("gating.probability")
+    );
+    assert!(
+        set[3]["reason"]
+            .as_str()
+            .unwrap()
+            .contains("is a double, not a string")
+    );
     assert_eq!(params["atomic_refused"]["successful"], false);
     assert!(
         params["atomic_refused"]["reason"]
@@ -801,14 +823,23 @@ echo $? > node.rc
         .iter()
         .map(|r| decode(&cdr_of(r)).unwrap())
         .collect();
-    assert!(states.len() > 300, "{} states: {}", states.len(), read("peer.err"));
+    assert!(
+        states.len() > 300,
+        "{} states: {}",
+        states.len(),
+        read("peer.err")
+    );
     let valid: Vec<&InterceptPrediction> = intercepts.iter().filter(|i| i.valid).collect();
     assert!(valid.len() > 100, "{} valid intercepts", valid.len());
     // Each says why not, or how sure of the time it is.
     for i in &intercepts {
         if i.valid {
             assert_eq!(i.reason, InterceptPrediction::REASON_VALID);
-            assert!(i.time_variance > 0.0 && i.time_variance < 1e-2, "{}", i.time_variance);
+            assert!(
+                i.time_variance > 0.0 && i.time_variance < 1e-2,
+                "{}",
+                i.time_variance
+            );
         } else {
             assert_ne!(i.reason, InterceptPrediction::REASON_VALID);
         }
@@ -820,7 +851,11 @@ echo $? > node.rc
     // Detections in a camera frame that the peer's /tf_static connects to `table` are taken:
     // the states follow, and no detection was refused for its frame.
     let only150 = read_json(&dir.join("only150.json"));
-    assert!(only150["states"].as_u64().unwrap_or(0) > 100, "{only150}: {}", read("peer.err"));
+    assert!(
+        only150["states"].as_u64().unwrap_or(0) > 100,
+        "{only150}: {}",
+        read("peer.err")
+    );
     let summary = read("node.out");
     assert!(!summary.contains("unknown_frame"), "{summary}");
 
@@ -836,18 +871,26 @@ echo $? > node.rc
         .flat_map(|d| d["status"].as_array().unwrap())
         .collect();
     let of = |name: &str| -> Vec<&Value> {
-        statuses.iter().copied().filter(|s| s["name"] == name).collect()
+        statuses
+            .iter()
+            .copied()
+            .filter(|s| s["name"] == name)
+            .collect()
     };
     let estimator = of("robot1/ttball: estimator");
     let wide = of("robot1/ttball: source wide_150fps");
     let fast = of("robot1/ttball: source highspeed_900fps");
-    assert!(!estimator.is_empty() && !wide.is_empty() && !fast.is_empty(), "{context}");
+    assert!(
+        !estimator.is_empty() && !wide.is_empty() && !fast.is_empty(),
+        "{context}"
+    );
     assert_eq!(estimator[0]["hardware_id"], "/robot1/ttball");
     assert_eq!(fast[0]["hardware_id"], "highspeed_900fps");
     const OK: u64 = 0;
     const STALE: u64 = 3;
     assert!(
-        fast.iter().any(|s| s["level"] == OK && s["message"].as_str().unwrap().contains("fps")),
+        fast.iter()
+            .any(|s| s["level"] == OK && s["message"].as_str().unwrap().contains("fps")),
         "{context}"
     );
     assert!(fast.iter().any(|s| s["level"] == STALE), "{context}");
@@ -872,7 +915,10 @@ echo $? > node.rc
 #[test]
 fn the_launch_file_starts_the_node_as_configured() {
     let Some(DdsRun {
-        python, dir, ttball, ..
+        python,
+        dir,
+        ttball,
+        ..
     }) = DdsRun::start("dds-launch")
     else {
         return;
@@ -889,7 +935,11 @@ fn the_launch_file_starts_the_node_as_configured() {
         ])
         .output()
         .unwrap();
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     let launch: Value = serde_json::from_slice(&out.stdout).unwrap();
     assert_eq!(launch["package"], "ttball");
     let cmd: Vec<String> = launch["cmd"]

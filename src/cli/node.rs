@@ -154,7 +154,14 @@ impl NodeArgs {
         super::init_logging(ros.log_level.as_deref());
         // ttball's own --config and -p first, then --ros-args' files and -p in their order.
         let layers: Vec<Layer> = (self.config.config.clone().map(Layer::File).into_iter())
-            .chain(self.config.overrides.params.iter().cloned().map(Layer::Param))
+            .chain(
+                self.config
+                    .overrides
+                    .params
+                    .iter()
+                    .cloned()
+                    .map(Layer::Param),
+            )
             .chain(ros.layers.iter().cloned())
             .collect();
         let mut config = yaml::load_layers(&layers, remapped_node_fqn(&ros.remaps).as_deref())?;
@@ -265,12 +272,7 @@ mod tests {
             ]
         );
         assert_eq!(ros.log_level.as_deref(), Some("debug"));
-        for bad in [
-            "-p",
-            "-r nocolon",
-            "--enclave /x",
-            "--params-file",
-        ] {
+        for bad in ["-p", "-r nocolon", "--enclave /x", "--params-file"] {
             assert!(parse_ros_args(&words(bad)).is_err(), "{bad}");
         }
     }
@@ -297,7 +299,10 @@ mod tests {
         assert_eq!(config.topics.markers, "/robot1/ttball_left/markers");
         assert_eq!(config.topics.intercept, "ball/intercept");
         assert_eq!(config.resolved_topics().intercept, "/robot1/ball/intercept");
-        assert_eq!(config.resolved_topics().trajectory, "/robot1/ball/trajectory");
+        assert_eq!(
+            config.resolved_topics().trajectory,
+            "/robot1/ball/trajectory"
+        );
         assert_eq!(config.resolved_topics().diagnostics, "/diagnostics");
         assert_eq!(config.node.name, "ttball_left");
         assert_eq!(config.node.namespace, "/robot1");

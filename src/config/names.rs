@@ -17,7 +17,9 @@
 /// (`/x`), relative (`x`) or private (`~`, `~/x`).
 pub fn name_problem(name: &str) -> Option<&'static str> {
     if name.is_empty() {
-        return Some("it must not be empty; e.g. \"ball/state\" (in the node's namespace) or \"/ball/state\"");
+        return Some(
+            "it must not be empty; e.g. \"ball/state\" (in the node's namespace) or \"/ball/state\"",
+        );
     }
     if name == "~" {
         return None;
@@ -116,7 +118,17 @@ mod tests {
         for good in ["ball/state", "/ball/state", "~", "~/reset", "a_1/b2"] {
             assert_eq!(name_problem(good), None, "{good}");
         }
-        for bad in ["", "/", "a//b", "a/", "1a", "~x", "a b", "/ball/~/x", "ball-state"] {
+        for bad in [
+            "",
+            "/",
+            "a//b",
+            "a/",
+            "1a",
+            "~x",
+            "a b",
+            "/ball/~/x",
+            "ball-state",
+        ] {
             assert!(name_problem(bad).is_some(), "{bad}");
         }
     }

@@ -812,10 +812,20 @@ impl Config {
             });
         } else {
             for (i, v) in pose.iter().enumerate() {
-                c.real(&format!("frames.table_pose[{i}]"), *v, |_| true, "a finite number");
+                c.real(
+                    &format!("frames.table_pose[{i}]"),
+                    *v,
+                    |_| true,
+                    "a finite number",
+                );
             }
             let q: f64 = pose[3..].iter().map(|v| v * v).sum();
-            c.real("frames.table_pose[3..7]", q, |v| v > 1e-12, "a non-zero quaternion");
+            c.real(
+                "frames.table_pose[3..7]",
+                q,
+                |v| v > 1e-12,
+                "a non-zero quaternion",
+            );
         }
         c.rule_is(
             "frames.table_pose",

@@ -210,7 +210,11 @@ pub fn load<S: AsRef<str>>(file: Option<&Path>, overrides: &[S]) -> Result<Confi
     let layers: Vec<Layer> = file
         .map(|path| Layer::File(path.to_owned()))
         .into_iter()
-        .chain(overrides.iter().map(|o| Layer::Param(o.as_ref().to_owned())))
+        .chain(
+            overrides
+                .iter()
+                .map(|o| Layer::Param(o.as_ref().to_owned())),
+        )
         .collect();
     load_layers(&layers, None)
 }
@@ -244,7 +248,11 @@ pub fn load_str<S: AsRef<str>>(
         text: text.to_owned(),
         path: path.to_owned(),
     })
-    .chain(overrides.iter().map(|o| Source::Param(o.as_ref().to_owned())))
+    .chain(
+        overrides
+            .iter()
+            .map(|o| Source::Param(o.as_ref().to_owned())),
+    )
     .collect();
     load_sources(&sources, None)
 }

@@ -787,7 +787,8 @@ impl Estimator {
             settings.gravity = old.gravity;
         }
         self.settings = settings;
-        self.intercepts.reconfigure(config.intercept.refresh.clone());
+        self.intercepts
+            .reconfigure(config.intercept.refresh.clone());
         if previous.sources != config.sources
             || previous.ekf.learn_noise != config.ekf.learn_noise
             || previous.ekf.noise_memory != config.ekf.noise_memory

@@ -23,7 +23,9 @@ pub const TABLE_FRAME: &str = "table";
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 pub enum ConvertError {
     /// The detection is not in the `table` frame.
-    #[error("frame_id `{0}` is not `table`, and no static transform on /tf_static connects it to `table`")]
+    #[error(
+        "frame_id `{0}` is not `table`, and no static transform on /tf_static connects it to `table`"
+    )]
     UnknownFrame(String),
 }
 
@@ -531,6 +533,9 @@ mod tests {
         ];
         let codes: Vec<u8> = all.iter().map(|w| reason_code(*w)).collect();
         assert_eq!(codes, [1, 2, 3, 4, 5]);
-        assert_eq!(InterceptPrediction::default().reason, InterceptPrediction::REASON_VALID);
+        assert_eq!(
+            InterceptPrediction::default().reason,
+            InterceptPrediction::REASON_VALID
+        );
     }
 }

@@ -366,7 +366,10 @@ pub fn source_status(
                     ),
                 )
             }
-            Some(r) => (DiagnosticStatus::OK, format!("{n} detections at {r:.0} fps")),
+            Some(r) => (
+                DiagnosticStatus::OK,
+                format!("{n} detections at {r:.0} fps"),
+            ),
             None => (DiagnosticStatus::OK, format!("{n} detections")),
         }
     };
@@ -378,10 +381,16 @@ pub fn source_status(
             "frame rate [Hz]",
             rate.map_or_else(|| "unknown".to_owned(), |r| format!("{r:.1}")),
         ),
-        kv("expected frame rate [Hz]", format!("{:.1}", expected.frame_rate)),
+        kv(
+            "expected frame rate [Hz]",
+            format!("{:.1}", expected.frame_rate),
+        ),
     ];
     if silent_for.is_finite() {
-        values.push(kv("seconds since its last detection", format!("{silent_for:.1}")));
+        values.push(kv(
+            "seconds since its last detection",
+            format!("{silent_for:.1}"),
+        ));
     }
     DiagnosticStatus {
         level,
@@ -426,7 +435,10 @@ mod tests {
             w.record(i * frame, i % 10 == 0);
         }
         let ok = source_status("/ttball", &expected, &mut w, 0.0, 150);
-        assert_eq!((ok.level, ok.hardware_id.as_str()), (DiagnosticStatus::OK, "highspeed_900fps"));
+        assert_eq!(
+            (ok.level, ok.hardware_id.as_str()),
+            (DiagnosticStatus::OK, "highspeed_900fps")
+        );
         assert_eq!(ok.name, "ttball: source highspeed_900fps");
         assert_eq!(ok.message, "300 detections at 900 fps");
         assert_eq!(w.detections, 0, "emptied");
@@ -446,7 +458,11 @@ mod tests {
         assert_eq!(stale.level, DiagnosticStatus::STALE);
         assert!(stale.message.contains("for 4.2 s"), "{}", stale.message);
         let never = source_status("/ttball", &expected, &mut w, f64::INFINITY, 150);
-        assert!(never.message.contains("since the node started"), "{}", never.message);
+        assert!(
+            never.message.contains("since the node started"),
+            "{}",
+            never.message
+        );
         let idle = source_status("/ttball", &expected, &mut w, 4.2, 0);
         assert_eq!(idle.level, DiagnosticStatus::OK);
         let short = source_status("/ttball", &expected, &mut w, 1.0, 150);

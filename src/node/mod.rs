@@ -26,8 +26,8 @@ mod dds;
 mod diagnostics;
 mod intake;
 pub mod parameters;
-pub mod rosout;
 mod play;
+pub mod rosout;
 mod services;
 
 use std::pin::Pin;
@@ -64,8 +64,8 @@ use crate::msgs::ttball_msgs::msg::{
 };
 use crate::msgs::visualization_msgs::MarkerArray;
 use crate::pipeline::{Pipeline, Published};
-use crate::replay::{TF_MESSAGE_TYPE, TF_STATIC_TOPIC};
 use crate::replay::{DETECTION_TYPE, INTERCEPT_TYPE, MARKERS_TYPE, STATE_TYPE, TRAJECTORY_TYPE};
+use crate::replay::{TF_MESSAGE_TYPE, TF_STATIC_TOPIC};
 use crate::stats::{DurationHistogram, DurationSummary};
 use intake::{DetectionQueue, Queued, SequenceGaps};
 use parameters::Parameters;
@@ -305,7 +305,11 @@ fn start_here(config: &Config, placement: &Placement) -> Result<NodeHandle, Node
     // RustDDS logs an error when one participant has a topic under two types.
     let clock: Option<Subscription<Clock>> = if config.use_sim_time {
         let topic = node
-            .create_topic(&dds::name(CLOCK_TOPIC)?, dds::message_type(CLOCK_TYPE), &dds::clock())
+            .create_topic(
+                &dds::name(CLOCK_TOPIC)?,
+                dds::message_type(CLOCK_TYPE),
+                &dds::clock(),
+            )
             .map_err(dds::error)?;
         Some(node.create_subscription(&topic, None).map_err(dds::error)?)
     } else {
@@ -668,8 +672,7 @@ impl EstimatorThread {
                                 change.changed.iter().map(|p| p.name.as_str()).collect();
                             info!("parameters set: {}", names.join(", "));
                             let now = self.now();
-                            let event =
-                                parameters::change_event(&change, now, &self.node_name);
+                            let event = parameters::change_event(&change, now, &self.node_name);
                             self.publish_parameter_event(event);
                         }
                     }
@@ -890,7 +893,11 @@ impl EstimatorThread {
             let silent_for = last.map_or_else(
                 || {
                     let up = now.duration_since(self.started).as_secs_f64();
-                    if up > expected.stale_after { f64::INFINITY } else { up }
+                    if up > expected.stale_after {
+                        f64::INFINITY
+                    } else {
+                        up
+                    }
                 },
                 |t| now.duration_since(t).as_secs_f64(),
             );

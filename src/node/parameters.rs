@@ -68,7 +68,9 @@ impl Parameters {
         let declared = match serde_norway::to_value(config) {
             Ok(value) => {
                 let mut out = Vec::new();
-                leaves(&value, "", &mut |name, leaf| out.push((name, type_of(leaf))));
+                leaves(&value, "", &mut |name, leaf| {
+                    out.push((name, type_of(leaf)))
+                });
                 out
             }
             Err(_) => Vec::new(),
@@ -136,10 +138,12 @@ impl Parameters {
         let tree = serde_norway::to_value(&self.config).unwrap_or(Value::Null);
         names
             .iter()
-            .map(|name| match (self.declared_type(name), lookup(&tree, name)) {
-                (Some(ptype), Some(leaf)) => to_parameter_value(leaf, ptype),
-                _ => not_set(),
-            })
+            .map(
+                |name| match (self.declared_type(name), lookup(&tree, name)) {
+                    (Some(ptype), Some(leaf)) => to_parameter_value(leaf, ptype),
+                    _ => not_set(),
+                },
+            )
             .collect()
     }
 
@@ -212,7 +216,10 @@ impl Parameters {
     }
 
     /// `set_parameters_atomically`: all or none, the configuration checked as a whole.
-    pub fn set_atomically(&mut self, parameters: &[Parameter]) -> (SetParametersResult, Option<Change>) {
+    pub fn set_atomically(
+        &mut self,
+        parameters: &[Parameter],
+    ) -> (SetParametersResult, Option<Change>) {
         match self.checked(parameters) {
             Ok(config) => {
                 let previous = std::mem::replace(&mut self.config, config);
@@ -248,7 +255,11 @@ impl Parameters {
     }
 
     /// The event that announces every parameter (`new_parameters`), when the node starts.
-    pub fn declared_event(&self, stamp: ros2_client::builtin_interfaces::Time, node: &str) -> ParameterEvent {
+    pub fn declared_event(
+        &self,
+        stamp: ros2_client::builtin_interfaces::Time,
+        node: &str,
+    ) -> ParameterEvent {
         let names: Vec<String> = self.names().map(str::to_owned).collect();
         let values = self.get(&names);
         ParameterEvent {
@@ -266,7 +277,11 @@ impl Parameters {
 }
 
 /// The event that reports `change`.
-pub fn change_event(change: &Change, stamp: ros2_client::builtin_interfaces::Time, node: &str) -> ParameterEvent {
+pub fn change_event(
+    change: &Change,
+    stamp: ros2_client::builtin_interfaces::Time,
+    node: &str,
+) -> ParameterEvent {
     ParameterEvent {
         stamp,
         node: node.to_owned(),
@@ -328,7 +343,8 @@ fn not_set() -> ParameterValue {
     empty_value(ParameterType::NOT_SET)
 }
 
-fn empty_value(ptype: u8) -> ParameterValue {
+/// A value of type `ptype` with every field zero or empty.
+pub(crate) fn empty_value(ptype: u8) -> ParameterValue {
     ParameterValue {
         ptype,
         boolean_value: false,
@@ -367,16 +383,20 @@ fn to_yaml(name: &str, value: &ParameterValue, declared: u8) -> Result<Value, St
     let real = |x: f64| Value::Number(x.into());
     match (declared, value.ptype) {
         (ParameterType::BOOL, ParameterType::BOOL) => Ok(Value::Bool(value.boolean_value)),
-        (ParameterType::INTEGER, ParameterType::INTEGER) => Ok(Value::Number(value.int_value.into())),
+        (ParameterType::INTEGER, ParameterType::INTEGER) => {
+            Ok(Value::Number(value.int_value.into()))
+        }
         (ParameterType::DOUBLE, ParameterType::DOUBLE) => Ok(real(value.double_value)),
         (ParameterType::DOUBLE, ParameterType::INTEGER) => Ok(real(value.int_value as f64)),
-        (ParameterType::STRING, ParameterType::STRING) => Ok(Value::String(value.string_value.clone())),
-        (ParameterType::DOUBLE_ARRAY, ParameterType::DOUBLE_ARRAY) => {
-            Ok(Value::Sequence(value.double_array.iter().map(|x| real(*x)).collect()))
+        (ParameterType::STRING, ParameterType::STRING) => {
+            Ok(Value::String(value.string_value.clone()))
         }
-        (ParameterType::DOUBLE_ARRAY, ParameterType::INTEGER_ARRAY) => {
-            Ok(Value::Sequence(value.int_array.iter().map(|x| real(*x as f64)).collect()))
-        }
+        (ParameterType::DOUBLE_ARRAY, ParameterType::DOUBLE_ARRAY) => Ok(Value::Sequence(
+            value.double_array.iter().map(|x| real(*x)).collect(),
+        )),
+        (ParameterType::DOUBLE_ARRAY, ParameterType::INTEGER_ARRAY) => Ok(Value::Sequence(
+            value.int_array.iter().map(|x| real(*x as f64)).collect(),
+        )),
         (_, ParameterType::NOT_SET) => Err(format!(
             "parameter '{name}' cannot be unset: every parameter of ttball has a value"
         )),
@@ -405,7 +425,11 @@ fn type_name(ptype: u8) -> &'static str {
 
 /// The closed interval of a rule in words (`"from 0 to 1 ..."`, `"between 0 and 0.1 ..."`).
 fn float_range(rule: &str) -> Option<FloatingPointRange> {
-    let number = |text: &str| text.trim_matches(|c: char| c == ',' || c == '(').parse::<f64>().ok();
+    let number = |text: &str| {
+        text.trim_matches(|c: char| c == ',' || c == '(')
+            .parse::<f64>()
+            .ok()
+    };
     let words: Vec<&str> = rule.split_whitespace().collect();
     match words.as_slice() {
         ["from", a, "to", b, ..] | ["between", a, "and", b, ..] => Some(FloatingPointRange {
@@ -419,7 +443,11 @@ fn float_range(rule: &str) -> Option<FloatingPointRange> {
 
 /// The interval of a count's rule (`"at least 1"`, `"from 3 to 100"`).
 fn integer_range(rule: &str) -> Option<IntegerRange> {
-    let number = |text: &str| text.trim_matches(|c: char| c == ',' || c == '(').parse::<i64>().ok();
+    let number = |text: &str| {
+        text.trim_matches(|c: char| c == ',' || c == '(')
+            .parse::<i64>()
+            .ok()
+    };
     let words: Vec<&str> = rule.split_whitespace().collect();
     match words.as_slice() {
         ["at", "least", a, ..] => Some(IntegerRange {
@@ -459,8 +487,15 @@ mod tests {
         let p = Parameters::new(&Config::default());
         let names: Vec<&str> = p.names().collect();
         assert_eq!(names, yaml::parameter_names(&Config::default()));
-        let asked = ["table.restitution", "ekf.init_detections", "node.name", "aero.drag_coefficients", "use_sim_time", "nope"]
-            .map(str::to_owned);
+        let asked = [
+            "table.restitution",
+            "ekf.init_detections",
+            "node.name",
+            "aero.drag_coefficients",
+            "use_sim_time",
+            "nope",
+        ]
+        .map(str::to_owned);
         assert_eq!(p.get_types(&asked), [3, 2, 4, 8, 1, 0]);
         let values = p.get(&asked);
         assert_eq!(values[0].double_value, 0.9);
@@ -470,14 +505,21 @@ mod tests {
         assert!(!values[4].boolean_value);
         assert_eq!(values[5].ptype, ParameterType::NOT_SET);
         let d = p.describe(&asked);
-        assert!(d[0].read_only && d[0].description.contains("[-]"), "{:?}", d[0]);
+        assert!(
+            d[0].read_only && d[0].description.contains("[-]"),
+            "{:?}",
+            d[0]
+        );
         assert!(!d[1].read_only);
         assert_eq!(d[1].integer_range.len(), 1);
         assert!(d[2].read_only);
         assert_eq!(d[5].r#type, ParameterType::NOT_SET);
         let sigma = &p.describe(&["sources.wide_150fps.stamp_sigma".to_owned()])[0];
         assert_eq!(
-            (sigma.floating_point_range[0].from_value, sigma.floating_point_range[0].to_value),
+            (
+                sigma.floating_point_range[0].from_value,
+                sigma.floating_point_range[0].to_value
+            ),
             (0.0, 0.1)
         );
     }
@@ -490,7 +532,11 @@ mod tests {
         let intercept = p.list(&["intercept".to_owned()], 1);
         assert_eq!(intercept.names, ["intercept.plane_x"]);
         let intercept = p.list(&["intercept".to_owned()], 0);
-        assert!(intercept.names.contains(&"intercept.refresh.max_age".to_owned()));
+        assert!(
+            intercept
+                .names
+                .contains(&"intercept.refresh.max_age".to_owned())
+        );
         assert!(intercept.prefixes.contains(&"intercept.refresh".to_owned()));
         assert_eq!(p.list(&[], 0).names.len(), p.names().count());
     }
@@ -504,14 +550,36 @@ mod tests {
             param("gating.probability", double(2.0)),
             param("ekf.init_detections", double(5.0)),
             param("nope", double(1.0)),
-            param("tracking.timeout", ParameterValue { int_value: 1, ..empty_value(ParameterType::INTEGER) }),
+            param(
+                "tracking.timeout",
+                ParameterValue {
+                    int_value: 1,
+                    ..empty_value(ParameterType::INTEGER)
+                },
+            ),
         ]);
         let ok: Vec<bool> = results.iter().map(|r| r.successful).collect();
         assert_eq!(ok, [true, false, false, false, false, true]);
-        assert!(results[1].reason.contains("read-only"), "{}", results[1].reason);
-        assert!(results[2].reason.contains("gating.probability"), "{}", results[2].reason);
-        assert!(results[3].reason.contains("is an integer, not a double"), "{}", results[3].reason);
-        assert!(results[4].reason.contains("not declared"), "{}", results[4].reason);
+        assert!(
+            results[1].reason.contains("read-only"),
+            "{}",
+            results[1].reason
+        );
+        assert!(
+            results[2].reason.contains("gating.probability"),
+            "{}",
+            results[2].reason
+        );
+        assert!(
+            results[3].reason.contains("is an integer, not a double"),
+            "{}",
+            results[3].reason
+        );
+        assert!(
+            results[4].reason.contains("not declared"),
+            "{}",
+            results[4].reason
+        );
         assert_eq!(p.config().intercept.plane_x, -1.45);
         assert_eq!(p.config().tracking.timeout, 1.0);
         let change = change.unwrap();
@@ -525,7 +593,11 @@ mod tests {
             param("tracking.coast_after", double(5.0)),
         ]);
         assert!(!result.successful && change.is_none(), "{result:?}");
-        assert!(result.reason.contains("tracking.coast_after"), "{}", result.reason);
+        assert!(
+            result.reason.contains("tracking.coast_after"),
+            "{}",
+            result.reason
+        );
         assert_eq!(p.config(), &before);
         let (result, change) = p.set_atomically(&[param("intercept.plane_x", double(-1.3))]);
         assert!(result.successful && change.is_some());

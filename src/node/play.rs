@@ -179,7 +179,11 @@ pub fn play(
     progress: &mut dyn FnMut(u64, u64),
 ) -> Result<PlaySummary, NodeError> {
     let contents = read_bag_file(bag).map_err(crate::replay::ReplayError::from)?;
-    let channel = detection_channel(&contents.channels, &config.resolved_topics().detections, bag)?;
+    let channel = detection_channel(
+        &contents.channels,
+        &config.resolved_topics().detections,
+        bag,
+    )?;
     let mut undecodable = 0u64;
     let detections: Vec<(u64, BallDetection)> = contents
         .messages

@@ -9,18 +9,18 @@ use futures::StreamExt;
 use futures::stream::{self, FusedStream, LocalBoxStream};
 use ros2_client::rcl_interfaces::{
     DescribeParametersRequest, DescribeParametersResponse, GetParameterTypesRequest,
-    GetParameterTypesResponse, GetParametersRequest, GetParametersResponse,
-    ListParametersRequest, ListParametersResponse, SetParametersAtomicallyResponse,
-    SetParametersRequest, SetParametersResponse,
+    GetParameterTypesResponse, GetParametersRequest, GetParametersResponse, ListParametersRequest,
+    ListParametersResponse, SetParametersAtomicallyResponse, SetParametersRequest,
+    SetParametersResponse,
 };
 use ros2_client::{Node, NodeName, RmwRequestId, Server};
 
 use super::dds;
+use super::parameters::{Change, Parameters};
 use super::{
     NodeError, PLAN_RETURN_SERVICE, PLAN_RETURN_TYPE, PREDICT_REBOUND_SERVICE,
     PREDICT_REBOUND_TYPE, PREDICT_TRAJECTORY_SERVICE, PREDICT_TRAJECTORY_TYPE,
 };
-use super::parameters::{Change, Parameters};
 use crate::config;
 use crate::msgs::std_srvs::{TriggerRequest, TriggerResponse};
 use crate::msgs::ttball_msgs::srv::{
@@ -193,38 +193,61 @@ impl Request {
     /// parameters theirs; `~/reset` resets the pipeline; a change of parameters is applied to it.
     pub fn answer(&self, pipeline: &mut Pipeline, parameters: &mut Parameters) -> (Reply, Effect) {
         let (reply, change) = match self {
-            Self::PredictTrajectory(r) => (Reply::PredictTrajectory(pipeline.predict_trajectory(r)), None),
+            Self::PredictTrajectory(r) => (
+                Reply::PredictTrajectory(pipeline.predict_trajectory(r)),
+                None,
+            ),
             Self::PredictRebound(r) => (Reply::PredictRebound(pipeline.predict_rebound(r)), None),
             Self::PlanReturn(r) => (Reply::PlanReturn(pipeline.plan_return(r)), None),
             Self::Reset => {
                 pipeline.reset(parameters.config());
                 let message = "tracks dropped; the physics, the cameras' noise and the model's \
                                noise learned so far forgotten (the configured values again)";
-                (Reply::Reset(TriggerResponse { success: true, message: message.to_owned() }), None)
+                (
+                    Reply::Reset(TriggerResponse {
+                        success: true,
+                        message: message.to_owned(),
+                    }),
+                    None,
+                )
             }
             Self::ListParameters(r) => (
-                Reply::ListParameters(ListParametersResponse { result: parameters.list(&r.prefixes, r.depth) }),
+                Reply::ListParameters(ListParametersResponse {
+                    result: parameters.list(&r.prefixes, r.depth),
+                }),
                 None,
             ),
             Self::GetParameters(r) => (
-                Reply::GetParameters(GetParametersResponse { values: parameters.get(&r.names) }),
+                Reply::GetParameters(GetParametersResponse {
+                    values: parameters.get(&r.names),
+                }),
                 None,
             ),
             Self::GetParameterTypes(r) => (
-                Reply::GetParameterTypes(GetParameterTypesResponse { values: parameters.get_types(&r.names) }),
+                Reply::GetParameterTypes(GetParameterTypesResponse {
+                    values: parameters.get_types(&r.names),
+                }),
                 None,
             ),
             Self::DescribeParameters(r) => (
-                Reply::DescribeParameters(DescribeParametersResponse { values: parameters.describe(&r.names) }),
+                Reply::DescribeParameters(DescribeParametersResponse {
+                    values: parameters.describe(&r.names),
+                }),
                 None,
             ),
             Self::SetParameters(r) => {
                 let (results, change) = parameters.set(&r.parameter);
-                (Reply::SetParameters(SetParametersResponse { results }), change)
+                (
+                    Reply::SetParameters(SetParametersResponse { results }),
+                    change,
+                )
             }
             Self::SetParametersAtomically(r) => {
                 let (result, change) = parameters.set_atomically(&r.parameter);
-                (Reply::SetParametersAtomically(SetParametersAtomicallyResponse { result }), change)
+                (
+                    Reply::SetParametersAtomically(SetParametersAtomicallyResponse { result }),
+                    change,
+                )
             }
         };
         match change {
@@ -263,14 +286,28 @@ impl Reply {
             reason: message.clone(),
         };
         match service {
-            Service::Reset => Self::Reset(TriggerResponse { success: false, message }),
-            Service::ListParameters => Self::ListParameters(ListParametersResponse {
-                result: ros2_client::rcl_interfaces::ListParametersResult { names: Vec::new(), prefixes: Vec::new() },
+            Service::Reset => Self::Reset(TriggerResponse {
+                success: false,
+                message,
             }),
-            Service::GetParameters => Self::GetParameters(GetParametersResponse { values: Vec::new() }),
-            Service::GetParameterTypes => Self::GetParameterTypes(GetParameterTypesResponse { values: Vec::new() }),
-            Service::DescribeParameters => Self::DescribeParameters(DescribeParametersResponse { values: Vec::new() }),
-            Service::SetParameters => Self::SetParameters(SetParametersResponse { results: vec![refused()] }),
+            Service::ListParameters => Self::ListParameters(ListParametersResponse {
+                result: ros2_client::rcl_interfaces::ListParametersResult {
+                    names: Vec::new(),
+                    prefixes: Vec::new(),
+                },
+            }),
+            Service::GetParameters => {
+                Self::GetParameters(GetParametersResponse { values: Vec::new() })
+            }
+            Service::GetParameterTypes => {
+                Self::GetParameterTypes(GetParameterTypesResponse { values: Vec::new() })
+            }
+            Service::DescribeParameters => {
+                Self::DescribeParameters(DescribeParametersResponse { values: Vec::new() })
+            }
+            Service::SetParameters => Self::SetParameters(SetParametersResponse {
+                results: vec![refused()],
+            }),
             Service::SetParametersAtomically => {
                 Self::SetParametersAtomically(SetParametersAtomicallyResponse { result: refused() })
             }
@@ -373,7 +410,9 @@ impl Servers {
                 Request::PredictRebound,
             ),
             incoming(&self.plan_return, Service::PlanReturn, Request::PlanReturn),
-            incoming(&self.reset, Service::Reset, |_: TriggerRequest| Request::Reset),
+            incoming(&self.reset, Service::Reset, |_: TriggerRequest| {
+                Request::Reset
+            }),
             incoming(
                 &self.list_parameters,
                 Service::ListParameters,
@@ -551,16 +590,8 @@ mod tests {
         let mut pipeline = Pipeline::new(&config);
         let mut parameters = Parameters::new(&config);
         let value = ParameterValue {
-            ptype: ParameterType::DOUBLE,
-            boolean_value: false,
-            int_value: 0,
             double_value: -1.2,
-            string_value: String::new(),
-            byte_array: Vec::new(),
-            bool_array: Vec::new(),
-            int_array: Vec::new(),
-            double_array: Vec::new(),
-            string_array: Vec::new(),
+            ..super::super::parameters::empty_value(ParameterType::DOUBLE)
         };
         let request = Request::SetParameters(SetParametersRequest {
             parameter: vec![Parameter {
