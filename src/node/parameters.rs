@@ -118,7 +118,7 @@ impl Parameters {
                         || name
                             .strip_prefix(prefix.as_str())
                             .and_then(|rest| rest.strip_prefix('.'))
-                            .is_some_and(|rest| within(rest))
+                            .is_some_and(&within)
                 })
             };
             if listed {

@@ -168,7 +168,7 @@ pub enum Effect {
     None,
     /// Parameters changed: the pipeline takes the configuration [`Parameters::config`] (from
     /// `previous`), and `/parameter_events` reports it.
-    Changed(Change),
+    Changed(Box<Change>),
 }
 
 impl Request {
@@ -253,7 +253,7 @@ impl Request {
         match change {
             Some(change) => {
                 pipeline.reconfigure(&change.previous, parameters.config());
-                (reply, Effect::Changed(change))
+                (reply, Effect::Changed(Box::new(change)))
             }
             None => (reply, Effect::None),
         }
