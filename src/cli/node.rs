@@ -18,10 +18,12 @@ pub struct NodeArgs {
     #[command(flatten)]
     pub config: ConfigArgs,
 
-    /// ROS 2 arguments, as `ros2 run` passes them: `--ros-args [-p NAME:=VALUE]
-    /// [-r FROM:=TO] [--params-file FILE] [--log-level LEVEL] [--]`. Remaps rename a topic
-    /// (`-r /ball/detections:=/vision/ball`), the node (`-r __node:=ttball_left`) or its
-    /// namespace (`-r __ns:=/robot1`).
+    /// ROS 2 arguments, as `ros2 run` and launch_ros pass them: `--ros-args [-p NAME:=VALUE]
+    /// [-r FROM:=TO] [--params-file FILE]... [--log-level LEVEL] [--]`. Parameters files and
+    /// `-p` apply in the order given, after --config; a file's sections apply when they name
+    /// this node (`ttball`, `/robot1/ttball`, `/**`, `/**/ttball`). Remaps rename a topic
+    /// (`-r ball/detections:=/vision/ball`), the node (`-r __node:=ttball_left`) or its
+    /// namespace (`-r __ns:=/robot1`: the topics, relative by default, follow it).
     #[arg(
         long = "ros-args",
         num_args = 0..,
