@@ -11,9 +11,11 @@ use crate::estimator::{Counters, Estimator, InterceptEstimate, Output, Rejection
 use crate::frames::{FrameError, Frames};
 use crate::msgs::builtin_interfaces::Time;
 use crate::msgs::convert::{
-    ConvertError, add_static_transforms, detection_from_msg_in, intercept_msg, markers, offset,
-    plan_response, rebound_request, rebound_response, state_from_msg, state_msg, trajectory_msg,
+    ConvertError, add_static_transforms, detection_from_msg_in, intercept_msg, markers,
+    odometry_msg, offset, plan_response, rebound_request, rebound_response, state_from_msg,
+    state_msg, trajectory_msg,
 };
+use crate::msgs::nav_msgs::Odometry;
 use crate::msgs::tf2_msgs::TFMessage;
 use crate::msgs::ttball_msgs::msg::{
     BallDetection, BallState, InterceptPrediction, PredictedTrajectory,
@@ -37,6 +39,8 @@ pub struct Published {
     pub trajectory: Option<PredictedTrajectory>,
     /// `/ball/markers`, with each trajectory.
     pub markers: Option<MarkerArray>,
+    /// `topics.odometry`, with each state, when that topic is set.
+    pub odometry: Option<Odometry>,
 }
 
 /// What happened to one detection message.
@@ -65,6 +69,8 @@ pub struct Pipeline {
     /// The static transforms from `/tf_static` that bring detections in other frames into
     /// `table`.
     frames: Frames,
+    /// Whether the state is published as odometry too (`topics.odometry` set).
+    odometry: bool,
 }
 
 impl Pipeline {
@@ -79,6 +85,7 @@ impl Pipeline {
             last_trajectory: None,
             last_intercept: None,
             frames: Frames::new(crate::msgs::convert::TABLE_FRAME),
+            odometry: !config.topics.odometry.is_empty(),
         }
     }
 
@@ -138,6 +145,11 @@ impl Pipeline {
         let mut published = Published {
             state: out.estimate.as_ref().map(state_msg),
             intercept: out.intercept.as_ref().map(intercept_msg),
+            odometry: out
+                .estimate
+                .as_ref()
+                .filter(|_| self.odometry)
+                .map(odometry_msg),
             ..Published::default()
         };
         if let (Some(estimate), Some(intercept)) = (&out.estimate, &out.intercept) {
@@ -851,5 +863,49 @@ mod tests {
                 assert!((x.state.spin - y.state.spin).norm() < 1e-6);
             }
         }
+    }
+
+    /// With `topics.odometry` set, every state is also published as odometry: the same
+    /// position, velocity and spin, the covariance's blocks; by default none is.
+    #[test]
+    fn odometry_mirrors_the_state_when_asked_for() {
+        let mut config = Config::default();
+        let options = SimOptions {
+            shots: 1,
+            ..SimOptions::default()
+        };
+        let session = simulate(&config, &options).expect("simulated");
+        let mut plain = Pipeline::new(&config);
+        config.topics.odometry = "ball/odometry".to_owned();
+        let mut with = Pipeline::new(&config);
+        let mut seen = 0;
+        for d in session.stream.iter().take(150) {
+            let msg = detection_to_msg(&d.detection);
+            assert!(plain.on_detection(&msg).published.odometry.is_none());
+            let p = with.on_detection(&msg).published;
+            let (Some(state), Some(odometry)) = (p.state, p.odometry) else {
+                continue;
+            };
+            seen += 1;
+            assert_eq!(odometry.header, state.header);
+            assert_eq!(odometry.child_frame_id, "ball");
+            assert_eq!(odometry.pose.pose.position, state.position);
+            assert_eq!(odometry.twist.twist.linear, state.velocity);
+            assert_eq!(odometry.twist.twist.angular, state.spin);
+            for (i, j) in [(0, 0), (1, 2), (2, 1)] {
+                assert_eq!(
+                    odometry.pose.covariance[6 * i + j],
+                    state.covariance[9 * i + j]
+                );
+            }
+            for (i, j) in [(0, 0), (2, 4), (5, 5), (4, 1)] {
+                assert_eq!(
+                    odometry.twist.covariance[6 * i + j],
+                    state.covariance[9 * (3 + i) + 3 + j]
+                );
+            }
+        }
+        assert!(seen > 100, "{seen} states");
+        assert!(crate::msgs::definitions::schema("nav_msgs/msg/Odometry").is_some());
     }
 }

@@ -36,6 +36,8 @@ use crate::stats::DurationHistogram;
 pub const TF_STATIC_TOPIC: &str = "/tf_static";
 /// ROS 2 type of `/tf_static`.
 pub const TF_MESSAGE_TYPE: &str = "tf2_msgs/msg/TFMessage";
+/// The type of the optional odometry output (`topics.odometry`).
+pub const ODOMETRY_TYPE: &str = "nav_msgs/msg/Odometry";
 /// The type of the detection topic.
 pub const DETECTION_TYPE: &str = "ttball_msgs/msg/BallDetection";
 /// The type of `/ball/state` and `/ball/truth`.
@@ -153,6 +155,8 @@ struct Outputs {
     intercept: u16,
     trajectory: u16,
     markers: u16,
+    /// When `topics.odometry` is set.
+    odometry: Option<u16>,
 }
 
 /// The truth a bag carries, indexed for scoring.
@@ -299,6 +303,10 @@ pub fn replay(
         intercept: writer.channel(&config.resolved_topics().intercept, INTERCEPT_TYPE)?,
         trajectory: writer.channel(&config.resolved_topics().trajectory, TRAJECTORY_TYPE)?,
         markers: writer.channel(&config.resolved_topics().markers, MARKERS_TYPE)?,
+        odometry: match config.resolved_topics().odometry.as_str() {
+            "" => None,
+            topic => Some(writer.channel(topic, ODOMETRY_TYPE)?),
+        },
     };
     let mut copied: Vec<u16> = Vec::new();
 
@@ -366,6 +374,10 @@ pub fn replay(
             }
             if let Some(mk) = &p.markers {
                 writer.write(outputs.markers, MARKERS_TYPE, t, mk)?;
+                written += 1;
+            }
+            if let (Some(channel), Some(o)) = (outputs.odometry, &p.odometry) {
+                writer.write(channel, ODOMETRY_TYPE, t, o)?;
                 written += 1;
             }
             if let (Some(scorer), Some(truth), Some(out), Ok(d)) = (

@@ -62,7 +62,14 @@ fn python_clients_decode_every_message_ttball_writes_to_the_same_values() {
         "5",
     ]);
     let replayed = d.join("replayed.mcap");
-    ttball(&["replay", &s(&sim), "--output", &s(&replayed)]);
+    ttball(&[
+        "replay",
+        &s(&sim),
+        "--output",
+        &s(&replayed),
+        "-p",
+        "topics.odometry:=ball/odometry",
+    ]);
     // Smoothing the replay's output adds /ball/smoothed to everything above.
     ttball(&["smooth", &s(&replayed), "--output", &s(&out)]);
     let dump = ttball(&["dump", &s(&out)]);
@@ -86,6 +93,7 @@ fn python_clients_decode_every_message_ttball_writes_to_the_same_values() {
         "/ball/intercept",
         "/ball/trajectory",
         "/ball/markers",
+        "/ball/odometry",
         "/ball/truth",
         "/ball/smoothed",
     ] {

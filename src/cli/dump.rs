@@ -9,6 +9,7 @@ use anyhow::Context;
 use clap::Args;
 use serde_json::{Value, json};
 use ttball::bag::{DecodeError, decode, read_bag_file};
+use ttball::msgs::nav_msgs::Odometry;
 use ttball::msgs::ttball_msgs::msg::{
     BallDetection, BallState, InterceptPrediction, PredictedTrajectory,
 };
@@ -41,6 +42,7 @@ fn decode_json(schema: &str, data: &[u8]) -> Option<Result<Value, DecodeError>> 
         "ttball_msgs/msg/InterceptPrediction" => to_json::<InterceptPrediction>(data),
         "ttball_msgs/msg/PredictedTrajectory" => to_json::<PredictedTrajectory>(data),
         "visualization_msgs/msg/MarkerArray" => to_json::<MarkerArray>(data),
+        "nav_msgs/msg/Odometry" => to_json::<Odometry>(data),
         _ => return None,
     })
 }

@@ -726,6 +726,9 @@ pub struct TopicsParams {
     pub truth: String,
     /// Output of `ttball smooth`: the batch-fitted (smoothed) state at every detection.
     pub smoothed: String,
+    /// Output (optional): the state as `nav_msgs/Odometry` (pose = position, twist = velocity
+    /// and spin, with their covariances), for tools that draw covariances natively; empty: off.
+    pub odometry: String,
 }
 
 impl Default for TopicsParams {
@@ -739,6 +742,7 @@ impl Default for TopicsParams {
             diagnostics: "/diagnostics".to_owned(),
             truth: "ball/truth".to_owned(),
             smoothed: "ball/smoothed".to_owned(),
+            odometry: String::new(),
         }
     }
 }
@@ -846,6 +850,11 @@ impl Config {
             diagnostics: resolve(&t.diagnostics),
             truth: resolve(&t.truth),
             smoothed: resolve(&t.smoothed),
+            odometry: if t.odometry.is_empty() {
+                String::new()
+            } else {
+                resolve(&t.odometry)
+            },
         }
     }
 

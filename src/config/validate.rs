@@ -793,6 +793,14 @@ impl Config {
         ] {
             c.name(key, value, "topic name", super::names::name_problem(value));
         }
+        c.name(
+            "topics.odometry",
+            &tp.odometry,
+            "topic name, or \"\" for none",
+            (!tp.odometry.is_empty())
+                .then(|| super::names::name_problem(&tp.odometry))
+                .flatten(),
+        );
 
         let f = &self.frames;
         c.name(

@@ -165,6 +165,47 @@ pub fn detection_to_msg(d: &Detection) -> BallDetection {
     }
 }
 
+/// The frame of an odometry message's twist: the ball, axes parallel to the table's.
+pub const BALL_FRAME: &str = "ball";
+
+/// An estimate as a `nav_msgs/Odometry` message: pose = position (orientation the identity, not
+/// estimated: zero covariance), twist = velocity (linear) and spin (angular), each covariance
+/// the matching blocks of the state's.
+pub fn odometry_msg(e: &Estimate) -> crate::msgs::nav_msgs::Odometry {
+    use crate::msgs::geometry_msgs::{PoseWithCovariance, Twist, TwistWithCovariance};
+    let c = &e.covariance;
+    let mut pose_covariance = [0.0; 36];
+    let mut twist_covariance = [0.0; 36];
+    for i in 0..3 {
+        for j in 0..3 {
+            pose_covariance[6 * i + j] = c[(i, j)];
+        }
+    }
+    for i in 0..6 {
+        for j in 0..6 {
+            twist_covariance[6 * i + j] = c[(3 + i, 3 + j)];
+        }
+    }
+    crate::msgs::nav_msgs::Odometry {
+        header: header(e.stamp),
+        child_frame_id: BALL_FRAME.into(),
+        pose: PoseWithCovariance {
+            pose: Pose {
+                position: point(&e.state.position),
+                orientation: Quaternion::default(),
+            },
+            covariance: pose_covariance,
+        },
+        twist: TwistWithCovariance {
+            twist: Twist {
+                linear: vector(&e.state.velocity),
+                angular: vector(&e.state.spin),
+            },
+            covariance: twist_covariance,
+        },
+    }
+}
+
 /// An estimate as a `BallState` message.
 pub fn state_msg(e: &Estimate) -> BallState {
     BallState {

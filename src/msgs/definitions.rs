@@ -44,6 +44,19 @@ const DEFINITIONS: &[(&str, &str)] = &[
         "Point position\nQuaternion orientation\n",
     ),
     (
+        "geometry_msgs/PoseWithCovariance",
+        "Pose pose\nfloat64[36] covariance\n",
+    ),
+    ("geometry_msgs/Twist", "Vector3 linear\nVector3 angular\n"),
+    (
+        "geometry_msgs/TwistWithCovariance",
+        "Twist twist\nfloat64[36] covariance\n",
+    ),
+    (
+        "nav_msgs/Odometry",
+        "std_msgs/Header header\nstring child_frame_id\ngeometry_msgs/PoseWithCovariance pose\ngeometry_msgs/TwistWithCovariance twist\n",
+    ),
+    (
         "sensor_msgs/CompressedImage",
         "std_msgs/Header header\nstring format\nuint8[] data\n",
     ),

@@ -79,3 +79,34 @@ pub struct TransformStamped {
     /// The child frame's pose in the parent.
     pub transform: Transform,
 }
+
+/// `geometry_msgs/msg/PoseWithCovariance`: a pose with the row-major 6x6 covariance of (x, y, z,
+/// rotation about x, y, z).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct PoseWithCovariance {
+    /// The pose.
+    pub pose: Pose,
+    /// Row-major 6x6 covariance [m^2, rad^2].
+    #[serde(with = "serde_big_array::BigArray")]
+    pub covariance: [f64; 36],
+}
+
+/// `geometry_msgs/msg/Twist`: linear and angular velocity.
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
+pub struct Twist {
+    /// Linear velocity [m/s].
+    pub linear: Vector3,
+    /// Angular velocity [rad/s].
+    pub angular: Vector3,
+}
+
+/// `geometry_msgs/msg/TwistWithCovariance`: a twist with the row-major 6x6 covariance of
+/// (linear, angular).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct TwistWithCovariance {
+    /// The twist.
+    pub twist: Twist,
+    /// Row-major 6x6 covariance [(m/s)^2, (rad/s)^2].
+    #[serde(with = "serde_big_array::BigArray")]
+    pub covariance: [f64; 36],
+}

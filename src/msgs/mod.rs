@@ -14,6 +14,7 @@ pub mod convert;
 pub mod definitions;
 pub mod diagnostic_msgs;
 pub mod geometry_msgs;
+pub mod nav_msgs;
 pub mod rosgraph_msgs;
 pub mod sensor_msgs;
 pub mod std_msgs;

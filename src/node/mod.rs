@@ -56,6 +56,7 @@ use crate::detection::Source;
 use crate::estimator::{Counters, SOURCE_NAMES, Verdict};
 use crate::msgs::diagnostic_msgs::DiagnosticArray;
 use crate::msgs::geometry_msgs::{Quaternion, Transform, TransformStamped, Vector3};
+use crate::msgs::nav_msgs::Odometry;
 use crate::msgs::rosgraph_msgs::Clock;
 use crate::msgs::std_msgs::Header;
 use crate::msgs::tf2_msgs::TFMessage;
@@ -65,7 +66,7 @@ use crate::msgs::ttball_msgs::msg::{
 use crate::msgs::visualization_msgs::MarkerArray;
 use crate::pipeline::{Pipeline, Published};
 use crate::replay::{DETECTION_TYPE, INTERCEPT_TYPE, MARKERS_TYPE, STATE_TYPE, TRAJECTORY_TYPE};
-use crate::replay::{TF_MESSAGE_TYPE, TF_STATIC_TOPIC};
+use crate::replay::{ODOMETRY_TYPE, TF_MESSAGE_TYPE, TF_STATIC_TOPIC};
 use crate::stats::{DurationHistogram, DurationSummary};
 use intake::{DetectionQueue, Queued, SequenceGaps};
 use parameters::Parameters;
@@ -259,6 +260,8 @@ struct Outputs {
     markers: Publisher<MarkerArray>,
     diagnostics: Publisher<DiagnosticArray>,
     parameter_events: Publisher<ParameterEvent>,
+    /// When `topics.odometry` is set.
+    odometry: Option<Publisher<Odometry>>,
 }
 
 /// Starts the node with a validated configuration: creates the participant, the node, its
@@ -288,6 +291,10 @@ fn start_here(config: &Config, placement: &Placement) -> Result<NodeHandle, Node
         .create_publisher(&context.get_parameter_events_topic(), None)
         .map_err(dds::error)?;
     let outputs = Outputs {
+        odometry: match topics.odometry.as_str() {
+            "" => None,
+            topic => Some(publisher(&mut node, topic, ODOMETRY_TYPE, &output_qos)?),
+        },
         parameter_events,
         state: publisher(&mut node, &topics.state, STATE_TYPE, &output_qos)?,
         intercept: publisher(&mut node, &topics.intercept, INTERCEPT_TYPE, &output_qos)?,
@@ -820,6 +827,10 @@ impl EstimatorThread {
                 .trajectory
                 .map(|m| o.trajectory.publish(m).is_ok()),
             published.markers.map(|m| o.markers.publish(m).is_ok()),
+            published
+                .odometry
+                .zip(o.odometry.as_ref())
+                .map(|(m, p)| p.publish(m).is_ok()),
         ];
         for ok in results.into_iter().flatten() {
             if !ok {
