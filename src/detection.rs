@@ -30,6 +30,11 @@ impl Source {
         }
     }
 
+    /// Its place in per-source arrays ordered by code (unknown, 150 fps, 900 fps): its code.
+    pub fn index(self) -> usize {
+        usize::from(self.code())
+    }
+
     /// The source of a `SOURCE_*` code; unknown codes map to [`Source::Unknown`].
     pub fn from_code(code: u8) -> Self {
         match code {

@@ -379,6 +379,14 @@ pub struct SourcesParams {
     pub unknown: SourceParams,
 }
 
+impl SourcesParams {
+    /// Every source's parameters, in the order of `BallDetection.SOURCE_*` (unknown, 150 fps,
+    /// 900 fps).
+    pub fn in_code_order(&self) -> [&SourceParams; 3] {
+        [&self.unknown, &self.wide_150fps, &self.highspeed_900fps]
+    }
+}
+
 impl Default for SourcesParams {
     fn default() -> Self {
         Self {

@@ -328,11 +328,7 @@ impl Settings {
             gate_position: chi_square_quantile(p, 3),
             gate_position_spin: chi_square_quantile(p, 6),
             gate_probability: p,
-            sources: [
-                SourceNoise::new(&config.sources.unknown),
-                SourceNoise::new(&config.sources.wide_150fps),
-                SourceNoise::new(&config.sources.highspeed_900fps),
-            ],
+            sources: config.sources.in_code_order().map(SourceNoise::new),
             min_confidence: config.ekf.min_confidence,
             init_count: config.ekf.init_detections.max(3) as usize,
             init_span: seconds_to_ns(config.ekf.init_max_span),
@@ -348,7 +344,7 @@ impl Settings {
     }
 
     fn source(&self, source: Source) -> SourceNoise {
-        self.sources[usize::from(source.code()).min(2)]
+        self.sources[source.index()]
     }
 }
 

@@ -70,11 +70,6 @@ pub(crate) struct Innovation {
     pub spin: Option<(Vector3<f64>, Matrix3<f64>, Matrix3<f64>)>,
 }
 
-/// A source's place in [`NoiseLearner`]'s estimates: its [`Source::code`].
-fn index(source: Source) -> usize {
-    usize::from(source.code()).min(2)
-}
-
 /// The learned noise of every source, indexed by [`Source::code`].
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub(crate) struct NoiseLearner {
@@ -87,11 +82,9 @@ impl NoiseLearner {
     pub(crate) fn new(config: &Config) -> Self {
         let s = &config.sources;
         Self {
-            sources: [
-                SourceNoiseEstimate::prior(s.unknown.stamp_sigma),
-                SourceNoiseEstimate::prior(s.wide_150fps.stamp_sigma),
-                SourceNoiseEstimate::prior(s.highspeed_900fps.stamp_sigma),
-            ],
+            sources: s
+                .in_code_order()
+                .map(|p| SourceNoiseEstimate::prior(p.stamp_sigma)),
             memory: f64::from(config.ekf.noise_memory).max(PRIOR_WEIGHT),
             enabled: config.ekf.learn_noise,
         }
@@ -99,7 +92,7 @@ impl NoiseLearner {
 
     /// The current estimate for a source.
     pub(crate) fn of(&self, source: Source) -> SourceNoiseEstimate {
-        self.sources[index(source)]
+        self.sources[source.index()]
     }
 
     /// Every source's estimate, in the order unknown, 150 fps, 900 fps.
@@ -113,7 +106,7 @@ impl NoiseLearner {
             return;
         }
         let memory = self.memory;
-        let e = &mut self.sources[index(source)];
+        let e = &mut self.sources[source.index()];
         let i = innovation;
         let speed = i.velocity.norm();
         let (across, along) = if speed >= MIN_SPEED {

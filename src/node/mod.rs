@@ -802,8 +802,7 @@ impl EstimatorThread {
             step.verdict,
             Ok(Verdict::Fused { .. } | Verdict::Initializing | Verdict::Held)
         );
-        let source = usize::from(Source::from_code(detection.source).code()).min(2);
-        let (window, last) = &mut self.sources[source];
+        let (window, last) = &mut self.sources[Source::from_code(detection.source).index()];
         window.record(detection.header.stamp.to_nanos(), !fused);
         *last = Some(started);
         timings
@@ -889,15 +888,11 @@ impl EstimatorThread {
         let counts: Vec<u64> = self.sources.iter().map(|(w, _)| w.detections).collect();
         let total: u64 = counts.iter().sum();
         let config = self.parameters.config();
+        let params = config.sources.in_code_order();
         for (i, (window, last)) in self.sources.iter_mut().enumerate() {
-            let params = [
-                &config.sources.unknown,
-                &config.sources.wide_150fps,
-                &config.sources.highspeed_900fps,
-            ][i];
             let expected = SourceExpectation {
                 key: SOURCE_NAMES[i],
-                frame_rate: params.frame_rate,
+                frame_rate: params[i].frame_rate,
                 stale_after: config.node.source_stale_after,
             };
             // Never seen: silent since the node started.
