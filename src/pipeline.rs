@@ -7,6 +7,7 @@
 use nalgebra::Vector2;
 
 use crate::config::Config;
+use crate::detection::Detection;
 use crate::estimator::{Counters, Estimator, InterceptEstimate, Output, Rejection, Verdict};
 use crate::frames::{FrameError, Frames};
 use crate::msgs::builtin_interfaces::Time;
@@ -48,6 +49,8 @@ pub struct Published {
 pub struct Step {
     /// The estimator's verdict, or why the message never reached it.
     pub verdict: Result<Verdict, ConvertError>,
+    /// The detection as the estimator took it (in the table frame), when the message reached it.
+    pub detection: Option<Detection>,
     /// The estimator's output, when the message reached it.
     pub output: Option<Output>,
     /// The messages to publish.
@@ -84,7 +87,7 @@ impl Pipeline {
             horizon: config.prediction.horizon,
             last_trajectory: None,
             last_intercept: None,
-            frames: Frames::new(crate::msgs::convert::TABLE_FRAME),
+            frames: Frames::new(&config.frames.table_frame),
             odometry: !config.topics.odometry.is_empty(),
         }
     }
@@ -133,23 +136,25 @@ impl Pipeline {
                 self.estimator.reject(Rejection::UnknownFrame);
                 return Step {
                     verdict: Err(e),
+                    detection: None,
                     output: None,
                     published: Published::default(),
                 };
             }
         };
         let out = self.estimator.handle(&detection);
+        let frame = self.frames.fixed();
         if out.intercept.is_some() {
             self.last_intercept = out.intercept;
         }
         let mut published = Published {
-            state: out.estimate.as_ref().map(state_msg),
-            intercept: out.intercept.as_ref().map(intercept_msg),
+            state: out.estimate.as_ref().map(|e| state_msg(e, frame)),
+            intercept: out.intercept.as_ref().map(|i| intercept_msg(i, frame)),
             odometry: out
                 .estimate
                 .as_ref()
                 .filter(|_| self.odometry)
-                .map(odometry_msg),
+                .map(|e| odometry_msg(e, frame)),
             ..Published::default()
         };
         if let (Some(estimate), Some(intercept)) = (&out.estimate, &out.intercept) {
@@ -162,12 +167,14 @@ impl Pipeline {
                     .predicted_trajectory(self.trajectory_dt, self.horizon)
             {
                 self.last_trajectory = Some((estimate.track_id, stamp));
-                published.trajectory = Some(trajectory_msg(stamp, estimate.track_id, &trajectory));
-                published.markers = Some(markers(estimate, Some(intercept), &trajectory));
+                published.trajectory =
+                    Some(trajectory_msg(stamp, estimate.track_id, &trajectory, frame));
+                published.markers = Some(markers(estimate, Some(intercept), &trajectory, frame));
             }
         }
         Step {
             verdict: Ok(out.verdict),
+            detection: Some(detection),
             output: Some(out),
             published,
         }
@@ -227,14 +234,19 @@ impl Pipeline {
                 return Err("the initial state has a non-finite value".to_owned());
             }
             let trajectory = self.estimator.predict_flight(&start, dt, horizon);
-            return Ok(trajectory_msg(stamp, 0, &trajectory));
+            return Ok(trajectory_msg(stamp, 0, &trajectory, self.frames.fixed()));
         }
         let live = self.live_track(request.track_id, "an initial state")?;
         let (stamp, trajectory) = self
             .estimator
             .predicted_trajectory(dt, horizon)
             .ok_or_else(|| format!("track {} ended", request.track_id))?;
-        Ok(trajectory_msg(stamp, live, &trajectory))
+        Ok(trajectory_msg(
+            stamp,
+            live,
+            &trajectory,
+            self.frames.fixed(),
+        ))
     }
 
     /// The stroke model flying the physics the estimator learned so far (the configured physics
@@ -831,7 +843,7 @@ mod tests {
         let refused = in_camera.on_detection(&msg);
         assert!(matches!(
             refused.verdict,
-            Err(ConvertError::UnknownFrame(_))
+            Err(ConvertError::UnknownFrame { .. })
         ));
         assert!(in_camera.on_static_transforms(&tf).is_empty());
         in_camera.reset(&config);
@@ -863,6 +875,55 @@ mod tests {
                 assert!((x.state.spin - y.state.spin).norm() < 1e-6);
             }
         }
+    }
+
+    /// With `frames.table_frame` renamed, detections in that frame are taken as they are,
+    /// every output is stamped in it, and detections in `table` are refused until `/tf_static`
+    /// says where `table` is; the estimates are those of the default name.
+    #[test]
+    fn a_renamed_table_frame_names_inputs_and_outputs() {
+        let config = Config::default();
+        let mut renamed_config = config.clone();
+        renamed_config.frames.table_frame = "tt_table".to_owned();
+        let options = SimOptions {
+            shots: 1,
+            ..SimOptions::default()
+        };
+        let session = simulate(&config, &options).expect("simulated");
+        let mut default = Pipeline::new(&config);
+        let mut renamed = Pipeline::new(&renamed_config);
+        let refused = renamed.on_detection(&detection_to_msg(&session.stream[0].detection));
+        assert_eq!(
+            refused.verdict,
+            Err(ConvertError::UnknownFrame {
+                frame: "table".into(),
+                table: "tt_table".into()
+            })
+        );
+        renamed.reset(&renamed_config);
+        let (mut states, mut trajectories) = (0, 0);
+        for d in session.stream.iter().take(300) {
+            let msg = detection_to_msg(&d.detection);
+            let a = default.on_detection(&msg);
+            let mut msg = msg;
+            msg.header.frame_id = "tt_table".into();
+            let b = renamed.on_detection(&msg);
+            assert_eq!(a.output, b.output);
+            let p = b.published;
+            if let Some(state) = &p.state {
+                assert_eq!(state.header.frame_id, "tt_table");
+                states += 1;
+            }
+            if let Some(i) = &p.intercept {
+                assert_eq!(i.header.frame_id, "tt_table");
+            }
+            if let (Some(t), Some(m)) = (&p.trajectory, &p.markers) {
+                assert_eq!(t.header.frame_id, "tt_table");
+                assert!(m.markers.iter().all(|m| m.header.frame_id == "tt_table"));
+                trajectories += 1;
+            }
+        }
+        assert!(states > 100 && trajectories > 0, "{states} {trajectories}");
     }
 
     /// With `topics.odometry` set, every state is also published as odometry: the same

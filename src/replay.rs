@@ -22,8 +22,10 @@ use crate::config::Config;
 use crate::detection::Detection;
 use crate::estimator::{Counters, Estimate, TrackStatus};
 use crate::eval::{EvalReport, Scorer, ShotTruth};
+use crate::frames::Frames;
 use crate::msgs::convert::{
-    detection_from_msg, state_from_msg, state_msg, truth_intercept_from_msg,
+    add_static_transforms, detection_from_msg_in, state_from_msg, state_msg,
+    truth_intercept_from_msg,
 };
 use crate::msgs::definitions;
 use crate::msgs::tf2_msgs::TFMessage;
@@ -380,15 +382,15 @@ pub fn replay(
                 writer.write(channel, ODOMETRY_TYPE, t, o)?;
                 written += 1;
             }
-            if let (Some(scorer), Some(truth), Some(out), Ok(d)) = (
+            if let (Some(scorer), Some(truth), Some(out), Some(d)) = (
                 scorer.as_mut(),
                 truth.as_ref(),
                 step.output.as_ref(),
-                detection_from_msg(&msg),
+                step.detection.as_ref(),
             ) && let Some((shot, state)) = truth.states.get(&d.stamp)
             {
                 let outlier = (d.position - state.position).norm() > OUTLIER_DISTANCE;
-                scorer.score(*shot, &d, state, outlier, out);
+                scorer.score(*shot, d, state, outlier, out);
             }
             if detections.is_multiple_of(1024) {
                 let (done, total) = reader.progress();
@@ -436,13 +438,14 @@ pub fn replay(
 pub struct BagDetections {
     /// The whole bag.
     pub contents: BagContents,
-    /// The detections in the `table` frame, in log-time (arrival) order.
+    /// The detections brought into the table frame (`frames.table_frame`, by the bag's
+    /// `/tf_static` as the node would), in log-time (arrival) order.
     pub detections: Vec<Detection>,
     /// For every message of the bag, the index of its detection in `detections`.
     pub message_detection: Vec<Option<usize>>,
     /// Detection messages that could not be decoded.
     pub undecodable: u64,
-    /// Detection messages not in the `table` frame.
+    /// Detection messages in a frame not connected to the table frame.
     pub unknown_frame: u64,
 }
 
@@ -454,13 +457,23 @@ pub fn read_detections(path: &Path, config: &Config) -> Result<BagDetections, Re
         &config.resolved_topics().detections,
         path,
     )?;
+    let tf_static = contents
+        .channels
+        .iter()
+        .position(|c| c.topic == TF_STATIC_TOPIC);
+    let mut frames = Frames::new(&config.frames.table_frame);
     let mut detections = Vec::new();
     let mut message_detection = Vec::with_capacity(contents.messages.len());
     let (mut undecodable, mut unknown_frame) = (0u64, 0u64);
     for m in &contents.messages {
         let mut index = None;
+        if Some(m.channel) == tf_static
+            && let Ok(msg) = decode::<TFMessage>(&m.data)
+        {
+            add_static_transforms(&mut frames, &msg);
+        }
         if m.channel == channel {
-            match decode::<BallDetection>(&m.data).map(|msg| detection_from_msg(&msg)) {
+            match decode::<BallDetection>(&m.data).map(|msg| detection_from_msg_in(&msg, &frames)) {
                 Err(_) => undecodable += 1,
                 Ok(Err(_)) => unknown_frame += 1,
                 Ok(Ok(d)) => {
@@ -555,7 +568,12 @@ pub fn smooth_bag(
             writer.write_raw(copied[m.channel], m.log_time, m.publish_time, &m.data)?;
             written += 1;
             if let Some(s) = index.and_then(|i| by_detection[i]) {
-                writer.write(smoothed, STATE_TYPE, m.log_time, &smoothed_msg(s))?;
+                writer.write(
+                    smoothed,
+                    STATE_TYPE,
+                    m.log_time,
+                    &smoothed_msg(s, &config.frames.table_frame),
+                )?;
                 written += 1;
             }
         }
@@ -599,14 +617,17 @@ pub fn smooth_bag(
 
 /// A smoothed state as a `BallState` message: status TRACKING, `nis` the detection's squared
 /// whitened residual against the smoothed state.
-fn smoothed_msg(s: &SmoothedState) -> BallState {
-    state_msg(&Estimate {
-        stamp: s.stamp,
-        track_id: s.track_id,
-        status: TrackStatus::Tracking,
-        state: s.fitted.state,
-        covariance: s.fitted.covariance,
-        bounces: s.fitted.bounces,
-        nis: s.nis,
-    })
+fn smoothed_msg(s: &SmoothedState, frame: &str) -> BallState {
+    state_msg(
+        &Estimate {
+            stamp: s.stamp,
+            track_id: s.track_id,
+            status: TrackStatus::Tracking,
+            state: s.fitted.state,
+            covariance: s.fitted.covariance,
+            bounces: s.fitted.bounces,
+            nis: s.nis,
+        },
+        frame,
+    )
 }

@@ -12,14 +12,15 @@ use std::process::ExitCode;
 
 use anyhow::{Context, bail};
 use clap::Args;
-use ttball::bag::{decode, read_bag_file};
+use ttball::bag::decode;
 use ttball::detection::seconds_to_ns;
 use ttball::estimator::{Estimator, TrackStatus};
-use ttball::msgs::convert::{detection_from_msg, state_from_msg};
-use ttball::msgs::ttball_msgs::msg::{BallDetection, BallState};
+use ttball::msgs::convert::state_from_msg;
+use ttball::msgs::ttball_msgs::msg::BallState;
 use ttball::plot::{
     PlotData, PlotOptions, PlotTrajectory, PlotTruth, Selection, render_png, render_svg,
 };
+use ttball::replay::read_detections;
 
 use super::{ConfigArgs, write_stdout};
 
@@ -67,19 +68,12 @@ impl PlotArgs {
     /// Draws the figure.
     pub fn run(self) -> anyhow::Result<ExitCode> {
         let config = self.config.load()?;
-        let contents = read_bag_file(&self.bag)?;
-        let topic = &config.resolved_topics().detections;
-        let channel = contents.channel(topic).with_context(|| {
-            format!(
-                "{}: no topic {topic}; set it with -p topics.detections:=/your/topic",
-                self.bag.display()
-            )
-        })?;
-        let truth_channel = contents.channel(&config.resolved_topics().truth);
+        let bag = read_detections(&self.bag, &config)?;
+        let truth_channel = bag.contents.channel(&config.resolved_topics().truth);
         let mut data = PlotData::new(&config);
         let mut estimator = Estimator::new(&config);
         let mut estimates = 0usize;
-        for m in &contents.messages {
+        for (m, index) in bag.contents.messages.iter().zip(&bag.message_detection) {
             if Some(m.channel) == truth_channel {
                 if let Ok(msg) = decode::<BallState>(&m.data) {
                     let (stamp, _, state) = state_from_msg(&msg);
@@ -87,13 +81,7 @@ impl PlotArgs {
                 }
                 continue;
             }
-            if m.channel != channel {
-                continue;
-            }
-            let Some(detection) = decode::<BallDetection>(&m.data)
-                .ok()
-                .and_then(|msg| detection_from_msg(&msg).ok())
-            else {
+            let Some(detection) = index.map(|i| bag.detections[i]) else {
                 continue;
             };
             let out = estimator.handle(&detection);

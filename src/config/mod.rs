@@ -760,6 +760,11 @@ impl Default for TopicsParams {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct FramesParams {
+    /// The name of the table frame: the frame the estimator works in (origin at the centre of
+    /// the playing surface, x along the table towards the opponent, y to the robot's left,
+    /// z up), the frame of every output, and the frame `/tf_static` must connect a detection's
+    /// frame to.
+    pub table_frame: String,
     /// The frame the node publishes the `table` frame's pose in, on `/tf_static` (e.g.
     /// `world`, so that the robot's TF tree has the table); empty: none.
     pub table_parent: String,
@@ -771,6 +776,7 @@ pub struct FramesParams {
 impl Default for FramesParams {
     fn default() -> Self {
         Self {
+            table_frame: "table".to_owned(),
             table_parent: String::new(),
             table_pose: vec![0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0],
         }

@@ -306,6 +306,19 @@ fn node_name_problem(name: &str) -> Option<&'static str> {
     }
 }
 
+/// Why `frame` is not a valid tf2 frame id, if it is not (tf2 refuses a leading '/').
+fn frame_problem(frame: &str) -> Option<&'static str> {
+    if frame.is_empty() {
+        Some("it must not be empty; e.g. \"table\"")
+    } else if frame.starts_with('/') {
+        Some("tf2 frame ids must not start with '/'")
+    } else if frame.chars().any(char::is_whitespace) {
+        Some("it must not contain white space")
+    } else {
+        None
+    }
+}
+
 /// Why `namespace` is not a valid ROS 2 namespace, if it is not.
 fn namespace_problem(namespace: &str) -> Option<&'static str> {
     if namespace.is_empty() || namespace == "/" {
@@ -804,11 +817,21 @@ impl Config {
 
         let f = &self.frames;
         c.name(
+            "frames.table_frame",
+            &f.table_frame,
+            "frame name",
+            frame_problem(&f.table_frame),
+        );
+        c.name(
             "frames.table_parent",
             &f.table_parent,
             "frame name",
-            (f.table_parent.trim_start_matches('/') == "table")
-                .then_some("the table cannot be its own parent; give the frame the table is placed in, e.g. \"world\", or \"\" for none"),
+            (!f.table_parent.is_empty() && f.table_parent.trim_start_matches('/') == f.table_frame)
+                .then_some("the table cannot be its own parent; give the frame the table is placed in, e.g. \"world\", or \"\" for none")
+                .or_else(|| {
+                    let parent = f.table_parent.trim_start_matches('/');
+                    (!parent.is_empty()).then(|| frame_problem(parent)).flatten()
+                }),
         );
         let pose = &f.table_pose;
         if pose.len() != 7 {
@@ -919,6 +942,31 @@ mod tests {
         let text = c.validate().expect_err("invalid").to_string();
         assert!(
             text.contains("`node.cpus` = \"2-1\" is not a valid CPU list: a range must go up"),
+            "{text}"
+        );
+    }
+
+    #[test]
+    fn frame_names_are_tf2_frame_ids() {
+        let mut c = Config::default();
+        for (frame, parent, bad) in [
+            ("tt_table", "world", &[][..]),
+            ("tt_table", "/world", &[]),
+            ("", "", &["frames.table_frame"]),
+            ("/table", "", &["frames.table_frame"]),
+            ("my table", "", &["frames.table_frame"]),
+            ("tt_table", "tt_table", &["frames.table_parent"]),
+            ("table", "/table", &["frames.table_parent"]),
+            ("table", "the world", &["frames.table_parent"]),
+        ] {
+            c.frames.table_frame = frame.to_owned();
+            c.frames.table_parent = parent.to_owned();
+            assert_eq!(keys(&c), bad, "{frame:?} in {parent:?}");
+        }
+        c.frames.table_frame = "/table".to_owned();
+        let text = c.validate().expect_err("invalid").to_string();
+        assert!(
+            text.contains("tf2 frame ids must not start with '/'"),
             "{text}"
         );
     }

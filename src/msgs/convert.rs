@@ -16,17 +16,23 @@ use crate::estimator::{Estimate, InterceptEstimate, TrackStatus};
 use crate::physics::{self, RacketState, StateMatrix, Trajectory};
 use crate::stroke::{Plan, Rebound, ReturnOutcome};
 
-/// The one frame every ttball message is in.
+/// The table frame's default name (`frames.table_frame`); the frame of the simulator's
+/// messages.
 pub const TABLE_FRAME: &str = "table";
 
 /// A message that cannot become a core value.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 pub enum ConvertError {
-    /// The detection is not in the `table` frame.
+    /// The detection is not in the table frame, nor in a frame connected to it.
     #[error(
-        "frame_id `{0}` is not `table`, and no static transform on /tf_static connects it to `table`"
+        "frame_id `{frame}` is not the table frame `{table}`, and no static transform on /tf_static connects it to `{table}`"
     )]
-    UnknownFrame(String),
+    UnknownFrame {
+        /// The detection's frame.
+        frame: String,
+        /// The table frame's name.
+        table: String,
+    },
 }
 
 fn point(v: &Vector3<f64>) -> Point {
@@ -80,33 +86,32 @@ fn row_major9(m: &StateMatrix) -> [f64; 81] {
     out
 }
 
-fn header(stamp: i64) -> Header {
+/// A header in `frame`; the default table frame's name is borrowed (no allocation per message).
+fn header(stamp: i64, frame: &str) -> Header {
     Header {
         stamp: Time::from_nanos(stamp),
-        frame_id: TABLE_FRAME.into(),
+        frame_id: if frame == TABLE_FRAME {
+            TABLE_FRAME.into()
+        } else {
+            frame.to_owned().into()
+        },
     }
 }
 
-/// A `BallDetection` message as the core's detection (in the `table` frame only; see
-/// [`detection_from_msg_in`] for the others).
-pub fn detection_from_msg(msg: &BallDetection) -> Result<Detection, ConvertError> {
-    if msg.header.frame_id != TABLE_FRAME {
-        return Err(ConvertError::UnknownFrame(msg.header.frame_id.to_string()));
-    }
-    Ok(detection_fields(msg))
-}
-
-/// A `BallDetection` message in any frame that `frames` connects to the `table` frame, brought
-/// into it (position, spin and their covariances).
+/// A `BallDetection` message in the table frame (`frames.fixed()`) or in any frame that
+/// `frames` connects to it, brought into it (position, spin and their covariances).
 pub fn detection_from_msg_in(
     msg: &BallDetection,
     frames: &crate::frames::Frames,
 ) -> Result<Detection, ConvertError> {
-    if msg.header.frame_id == TABLE_FRAME {
+    if msg.header.frame_id == frames.fixed() {
         return Ok(detection_fields(msg));
     }
     let Some(t) = frames.to_fixed(&msg.header.frame_id) else {
-        return Err(ConvertError::UnknownFrame(msg.header.frame_id.to_string()));
+        return Err(ConvertError::UnknownFrame {
+            frame: msg.header.frame_id.to_string(),
+            table: frames.fixed().to_owned(),
+        });
     };
     let d = detection_fields(msg);
     Ok(Detection {
@@ -154,7 +159,7 @@ fn detection_fields(msg: &BallDetection) -> Detection {
 /// The core's detection as a `BallDetection` message.
 pub fn detection_to_msg(d: &Detection) -> BallDetection {
     BallDetection {
-        header: header(d.stamp),
+        header: header(d.stamp, TABLE_FRAME),
         position: point(&d.position),
         position_covariance: row_major3(&d.position_covariance),
         has_spin: d.spin.is_some(),
@@ -171,7 +176,7 @@ pub const BALL_FRAME: &str = "ball";
 /// An estimate as a `nav_msgs/Odometry` message: pose = position (orientation the identity, not
 /// estimated: zero covariance), twist = velocity (linear) and spin (angular), each covariance
 /// the matching blocks of the state's.
-pub fn odometry_msg(e: &Estimate) -> crate::msgs::nav_msgs::Odometry {
+pub fn odometry_msg(e: &Estimate, frame: &str) -> crate::msgs::nav_msgs::Odometry {
     use crate::msgs::geometry_msgs::{PoseWithCovariance, Twist, TwistWithCovariance};
     let c = &e.covariance;
     let mut pose_covariance = [0.0; 36];
@@ -187,7 +192,7 @@ pub fn odometry_msg(e: &Estimate) -> crate::msgs::nav_msgs::Odometry {
         }
     }
     crate::msgs::nav_msgs::Odometry {
-        header: header(e.stamp),
+        header: header(e.stamp, frame),
         child_frame_id: BALL_FRAME.into(),
         pose: PoseWithCovariance {
             pose: Pose {
@@ -207,9 +212,9 @@ pub fn odometry_msg(e: &Estimate) -> crate::msgs::nav_msgs::Odometry {
 }
 
 /// An estimate as a `BallState` message.
-pub fn state_msg(e: &Estimate) -> BallState {
+pub fn state_msg(e: &Estimate, frame: &str) -> BallState {
     BallState {
-        header: header(e.stamp),
+        header: header(e.stamp, frame),
         track_id: e.track_id,
         status: e.status.code(),
         position: point(&e.state.position),
@@ -225,7 +230,7 @@ pub fn state_msg(e: &Estimate) -> BallState {
 /// covariance, `track_id` = the shot's number (from 1).
 pub fn truth_msg(stamp: i64, shot: u32, state: &physics::BallState) -> BallState {
     BallState {
-        header: header(stamp),
+        header: header(stamp, TABLE_FRAME),
         track_id: shot,
         status: TrackStatus::Tracking.code(),
         position: point(&state.position),
@@ -261,7 +266,7 @@ pub fn truth_intercept_msg(
     bounce_position: &Vector3<f64>,
 ) -> InterceptPrediction {
     InterceptPrediction {
-        header: header(launch_stamp),
+        header: header(launch_stamp, TABLE_FRAME),
         track_id: shot,
         valid: true,
         intercept_stamp: Time::from_nanos(crossing_stamp),
@@ -307,9 +312,9 @@ pub fn reason_code(why: crate::intercept::NoIntercept) -> u8 {
 }
 
 /// An interception prediction as an `InterceptPrediction` message.
-pub fn intercept_msg(i: &InterceptEstimate) -> InterceptPrediction {
+pub fn intercept_msg(i: &InterceptEstimate, frame: &str) -> InterceptPrediction {
     let mut msg = InterceptPrediction {
-        header: header(i.stamp),
+        header: header(i.stamp, frame),
         track_id: i.track_id,
         ..InterceptPrediction::default()
     };
@@ -334,9 +339,14 @@ pub fn intercept_msg(i: &InterceptEstimate) -> InterceptPrediction {
 }
 
 /// A predicted trajectory (times relative to `stamp`) as a `PredictedTrajectory` message.
-pub fn trajectory_msg(stamp: i64, track_id: u32, t: &Trajectory) -> PredictedTrajectory {
+pub fn trajectory_msg(
+    stamp: i64,
+    track_id: u32,
+    t: &Trajectory,
+    frame: &str,
+) -> PredictedTrajectory {
     PredictedTrajectory {
-        header: header(stamp),
+        header: header(stamp, frame),
         track_id,
         stamps: t.samples.iter().map(|s| offset(stamp, s.t)).collect(),
         positions: t.samples.iter().map(|s| point(&s.state.position)).collect(),
@@ -443,9 +453,9 @@ fn color(r: f32, g: f32, b: f32) -> ColorRGBA {
     ColorRGBA { r, g, b, a: 1.0 }
 }
 
-fn marker(stamp: i64, id: i32, type_: i32) -> Marker {
+fn marker(header: &Header, id: i32, type_: i32) -> Marker {
     Marker {
-        header: header(stamp),
+        header: header.clone(),
         ns: "ttball".to_string(),
         id,
         type_,
@@ -455,7 +465,7 @@ fn marker(stamp: i64, id: i32, type_: i32) -> Marker {
     }
 }
 
-fn sphere(stamp: i64, id: i32, at: &Vector3<f64>, diameter: f64, c: ColorRGBA) -> Marker {
+fn sphere(header: &Header, id: i32, at: &Vector3<f64>, diameter: f64, c: ColorRGBA) -> Marker {
     Marker {
         pose: Pose {
             position: point(at),
@@ -467,21 +477,26 @@ fn sphere(stamp: i64, id: i32, at: &Vector3<f64>, diameter: f64, c: ColorRGBA) -
             z: diameter,
         },
         color: c,
-        ..marker(stamp, id, Marker::SPHERE)
+        ..marker(header, id, Marker::SPHERE)
     }
 }
 
-fn delete(stamp: i64, id: i32) -> Marker {
+fn delete(header: &Header, id: i32) -> Marker {
     Marker {
         action: Marker::DELETE,
-        ..marker(stamp, id, Marker::SPHERE)
+        ..marker(header, id, Marker::SPHERE)
     }
 }
 
 /// Markers for RViz and Foxglove: the predicted path (green line), the ball (white), the
 /// predicted bounce (orange) and interception point (red) with the time left until it.
-pub fn markers(e: &Estimate, i: Option<&InterceptEstimate>, t: &Trajectory) -> MarkerArray {
-    let stamp = e.stamp;
+pub fn markers(
+    e: &Estimate,
+    i: Option<&InterceptEstimate>,
+    t: &Trajectory,
+    frame: &str,
+) -> MarkerArray {
+    let h = &header(e.stamp, frame);
     let path = Marker {
         scale: RosVector3 {
             x: 0.006,
@@ -490,21 +505,21 @@ pub fn markers(e: &Estimate, i: Option<&InterceptEstimate>, t: &Trajectory) -> M
         },
         color: color(0.2, 0.9, 0.3),
         points: t.samples.iter().map(|s| point(&s.state.position)).collect(),
-        ..marker(stamp, PATH, Marker::LINE_STRIP)
+        ..marker(h, PATH, Marker::LINE_STRIP)
     };
     let mut markers = vec![
         path,
-        sphere(stamp, BALL, &e.state.position, 0.04, color(1.0, 1.0, 1.0)),
+        sphere(h, BALL, &e.state.position, 0.04, color(1.0, 1.0, 1.0)),
     ];
     let bounce = i.and_then(|i| i.intercept.bounce);
     markers.push(match bounce {
-        Some(b) => sphere(stamp, BOUNCE, &b.position, 0.03, color(1.0, 0.6, 0.1)),
-        None => delete(stamp, BOUNCE),
+        Some(b) => sphere(h, BOUNCE, &b.position, 0.03, color(1.0, 0.6, 0.1)),
+        None => delete(h, BOUNCE),
     });
     match i.and_then(|i| i.intercept.crossing.ok()) {
         Some(c) => {
             markers.push(sphere(
-                stamp,
+                h,
                 INTERCEPT,
                 &c.state.position,
                 0.05,
@@ -524,12 +539,12 @@ pub fn markers(e: &Estimate, i: Option<&InterceptEstimate>, t: &Trajectory) -> M
                 },
                 color: color(1.0, 1.0, 1.0),
                 text: format!("{:.0} ms", c.time * 1e3),
-                ..marker(stamp, LABEL, Marker::TEXT_VIEW_FACING)
+                ..marker(h, LABEL, Marker::TEXT_VIEW_FACING)
             });
         }
         None => {
-            markers.push(delete(stamp, INTERCEPT));
-            markers.push(delete(stamp, LABEL));
+            markers.push(delete(h, INTERCEPT));
+            markers.push(delete(h, LABEL));
         }
     }
     MarkerArray { markers }
@@ -553,12 +568,16 @@ mod tests {
         let msg = detection_to_msg(&d);
         assert_eq!(msg.position_covariance, [0.0; 9]);
         assert_eq!(msg.spin_covariance[4], 144.0);
-        assert_eq!(detection_from_msg(&msg), Ok(d));
+        let table = crate::frames::Frames::new(TABLE_FRAME);
+        assert_eq!(detection_from_msg_in(&msg, &table), Ok(d));
         let mut other = msg;
         other.header.frame_id = "camera".into();
         assert_eq!(
-            detection_from_msg(&other),
-            Err(ConvertError::UnknownFrame("camera".into()))
+            detection_from_msg_in(&other, &table),
+            Err(ConvertError::UnknownFrame {
+                frame: "camera".into(),
+                table: "table".into()
+            })
         );
     }
 

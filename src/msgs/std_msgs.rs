@@ -11,9 +11,9 @@ use super::builtin_interfaces::Time;
 pub struct Header {
     /// Time the data refers to [s, ns]; each message says which time that is.
     pub stamp: Time,
-    /// Coordinate frame of the data; `"table"` for every ttball message. Borrowed from a
-    /// constant in the messages ttball writes, so building one allocates nothing (a `string` on
-    /// the wire either way).
+    /// Coordinate frame of the data; the table frame (`frames.table_frame`, `"table"` by
+    /// default) for every ttball output. The default is borrowed from a constant, so building a
+    /// message allocates nothing (a `string` on the wire either way).
     pub frame_id: Cow<'static, str>,
 }
 

@@ -564,7 +564,7 @@ fn table_transform(config: &Config, stamp: i64) -> Option<TFMessage> {
                 stamp: crate::msgs::builtin_interfaces::Time::from_nanos(stamp),
                 frame_id: parent.to_owned().into(),
             },
-            child_frame_id: crate::msgs::convert::TABLE_FRAME.to_owned(),
+            child_frame_id: config.frames.table_frame.clone(),
             transform: Transform {
                 translation: Vector3 { x, y, z },
                 rotation: Quaternion {
