@@ -586,7 +586,7 @@ mod tests {
             let stamp = (t * 1e9).round() as i64;
             out.push(if k % 3 == 0 {
                 Detection {
-                    source: Source::HighSpeed900Fps,
+                    source: Source::HIGHSPEED_900FPS,
                     position_covariance: Some(Matrix3::identity() * 1e-6),
                     spin: Some(cursor.state.fixed_rows::<3>(SPIN) + Vector3::new(5.0, -3.0, 2.0)),
                     spin_covariance: Some(Matrix3::identity() * 144.0),
@@ -649,7 +649,7 @@ mod tests {
     fn detection(stamp: i64, position: Vector3<f64>) -> Detection {
         Detection {
             stamp,
-            source: Source::Wide150Fps,
+            source: Source::WIDE_150FPS,
             position,
             position_covariance: None,
             spin: None,

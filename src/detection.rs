@@ -9,40 +9,21 @@ pub fn seconds_to_ns(seconds: f64) -> i64 {
     (seconds * 1e9).round() as i64
 }
 
-/// The camera system that made a detection.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
-pub enum Source {
-    /// Not stated: the estimator uses `sources.unknown`.
-    Unknown,
-    /// The 150 fps camera system that sees the whole table (position only).
-    Wide150Fps,
-    /// The 900 fps camera system that sees the robot's half (position, and spin on most frames).
-    HighSpeed900Fps,
-}
+/// The camera system that made a detection: `BallDetection.source`, a `SOURCE_*` code or the
+/// id of a camera configured under `sources.*` (`sources.<name>.id`). The estimator takes each
+/// source's noise from the source configured with its id, and `sources.unknown`'s for an id no
+/// source has.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub struct Source(pub u8);
 
 impl Source {
-    /// The `SOURCE_*` code of `BallDetection.msg`.
-    pub fn code(self) -> u8 {
-        match self {
-            Self::Unknown => 0,
-            Self::Wide150Fps => 1,
-            Self::HighSpeed900Fps => 2,
-        }
-    }
-
-    /// Its place in per-source arrays ordered by code (unknown, 150 fps, 900 fps): its code.
-    pub fn index(self) -> usize {
-        usize::from(self.code())
-    }
-
-    /// The source of a `SOURCE_*` code; unknown codes map to [`Source::Unknown`].
-    pub fn from_code(code: u8) -> Self {
-        match code {
-            1 => Self::Wide150Fps,
-            2 => Self::HighSpeed900Fps,
-            _ => Self::Unknown,
-        }
-    }
+    /// `SOURCE_UNKNOWN`: not stated.
+    pub const UNKNOWN: Self = Self(0);
+    /// `SOURCE_WIDE_150FPS`: the 150 fps camera system that sees the whole table (position only).
+    pub const WIDE_150FPS: Self = Self(1);
+    /// `SOURCE_HIGHSPEED_900FPS`: the 900 fps camera system that sees the robot's half
+    /// (position, and spin on most frames).
+    pub const HIGHSPEED_900FPS: Self = Self(2);
 }
 
 /// One detection of the ball centre in the `table` frame.

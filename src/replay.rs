@@ -119,7 +119,7 @@ pub struct ReplaySummary {
     /// The physical parameters the estimator learned, as it ended.
     pub learned: crate::estimator::LearnedParams,
     /// The noise it learned of each source (unknown, 150 fps, 900 fps), as it ended.
-    pub learned_noise: [crate::estimator::LearnedSourceNoise; 3],
+    pub learned_noise: Vec<crate::estimator::LearnedSourceNoise>,
     /// How far it learned the flights stray from its model, as it ended.
     pub learned_model_noise: crate::estimator::LearnedModelNoise,
     /// Messages written to the output bag.

@@ -606,3 +606,63 @@ fn every_parameter_is_described() {
     );
     assert_eq!(rule("topics.state"), Some("topic name"));
 }
+
+/// More cameras are added by name with their own id: in a params file (keys not given from
+/// `unknown`'s defaults), by `-p`, printed and loaded back; a misspelt source, a shared id and an
+/// id beyond a `uint8` are each refused saying what to do.
+#[test]
+fn camera_sources_are_added_by_name_and_id() {
+    let text = params(
+        "sources:\n  side_camera:\n    id: 3\n    position_sigma: 0.004\n    frame_rate: 120.0\n",
+    );
+    let config = load_text(&text, &["sources.ceiling.id:=7"]).unwrap();
+    let side = &config.sources.more["side_camera"];
+    assert_eq!(
+        (side.id, side.position_sigma, side.frame_rate),
+        (3, 0.004, 120.0)
+    );
+    assert_eq!(
+        side.spin_sigma,
+        Config::default().sources.unknown.spin_sigma
+    );
+    assert_eq!(config.sources.more["ceiling"].id, 7);
+    let names: Vec<&str> = config.sources.all().iter().map(|(n, _)| *n).collect();
+    assert_eq!(
+        names,
+        [
+            "unknown",
+            "wide_150fps",
+            "highspeed_900fps",
+            "ceiling",
+            "side_camera"
+        ]
+    );
+    let printed = yaml::to_ros_params_yaml(&config);
+    assert!(
+        printed.contains("      side_camera:\n        id: 3\n"),
+        "{printed}"
+    );
+    assert_eq!(load_text(&printed, NO_OVERRIDES).unwrap(), config);
+    assert!(yaml::parameter_names(&config).contains(&"sources.ceiling.frame_rate".to_owned()));
+
+    let typo = error(
+        &params("sources:\n  wide_150fsp:\n    position_sigma: 0.004\n"),
+        NO_OVERRIDES,
+    );
+    assert!(
+        typo.contains("1 problem")
+            && typo.contains("`sources.wide_150fsp` is not a source; to add a camera, set `sources.wide_150fsp.id`")
+            && typo.contains("did you mean `sources.wide_150fps`?"),
+        "{typo}"
+    );
+    let shared = error(&text, &["sources.side_camera.id:=2"]);
+    assert!(
+        shared.contains("`sources.side_camera.id` = 2 is also `sources.highspeed_900fps.id`"),
+        "{shared}"
+    );
+    let wide = error(&text, &["sources.side_camera.id:=256"]);
+    assert!(
+        wide.contains("1 problem") && wide.contains("a whole number from 0 to 255"),
+        "{wide}"
+    );
+}

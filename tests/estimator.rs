@@ -103,7 +103,7 @@ fn spin_from_curvature(config: &Config, sigma_limit: f64, error_limit: f64) {
             0.0,
             0.38, // the whole flight up to just before the bounce (0.39 s to 0.53 s)
             0.002,
-            Source::Wide150Fps,
+            Source::WIDE_150FPS,
             &mut Rng::new(3),
         );
         let mut estimator = Estimator::new(config);
@@ -144,7 +144,7 @@ fn tracks_through_the_bounce_without_a_reset() {
         0.0,
         0.80,
         0.002,
-        Source::Wide150Fps,
+        Source::WIDE_150FPS,
         &mut Rng::new(5),
     );
     let mut estimator = Estimator::new(&wide_config());
@@ -191,14 +191,22 @@ fn tracks_through_the_bounce_without_a_reset() {
 fn out_of_order_fusion_equals_in_order_fusion() {
     let start = shot([1.3, 0.0, 0.30], [-4.5, 0.1, 1.6], [20.0, -120.0, 10.0]);
     let mut rng = Rng::new(9);
-    let wide = camera(&start, 150.0, 0.0, 0.7, 0.002, Source::Wide150Fps, &mut rng);
+    let wide = camera(
+        &start,
+        150.0,
+        0.0,
+        0.7,
+        0.002,
+        Source::WIDE_150FPS,
+        &mut rng,
+    );
     let fast: Vec<_> = camera(
         &start,
         900.0,
         0.0003,
         0.7,
         0.001,
-        Source::HighSpeed900Fps,
+        Source::HIGHSPEED_900FPS,
         &mut rng,
     )
     .into_iter()
@@ -262,7 +270,7 @@ fn outliers_are_rejected_and_the_track_goes_on() {
         0.0,
         0.6,
         0.002,
-        Source::Wide150Fps,
+        Source::WIDE_150FPS,
         &mut Rng::new(11),
     );
     for k in [20, 40, 60] {
@@ -300,7 +308,7 @@ fn the_track_coasts_through_a_short_run_of_rejections() {
         0.0,
         0.5,
         0.002,
-        Source::Wide150Fps,
+        Source::WIDE_150FPS,
         &mut Rng::new(21),
     );
     for (detection, _) in &mut detections[30..34] {
@@ -331,7 +339,7 @@ fn a_new_ball_starts_a_new_track() {
         0.0,
         0.5,
         0.002,
-        Source::Wide150Fps,
+        Source::WIDE_150FPS,
         &mut Rng::new(1),
     ) {
         estimator.handle(&d);
@@ -345,7 +353,7 @@ fn a_new_ball_starts_a_new_track() {
         0.0,
         0.3,
         0.002,
-        Source::Wide150Fps,
+        Source::WIDE_150FPS,
         &mut Rng::new(2),
     ) {
         d.stamp += 900_000_000;
@@ -366,7 +374,7 @@ fn a_new_ball_starts_a_new_track() {
         0.0,
         0.2,
         0.002,
-        Source::Wide150Fps,
+        Source::WIDE_150FPS,
         &mut Rng::new(4),
     )
     .into_iter()
@@ -390,7 +398,7 @@ fn every_detection_is_accounted_for() {
         0.0,
         0.6,
         0.002,
-        Source::Wide150Fps,
+        Source::WIDE_150FPS,
         &mut Rng::new(12),
     );
     detections[30].0.position.x = f64::NAN;
@@ -414,20 +422,27 @@ fn every_detection_is_accounted_for() {
 fn two_cameras(seed: u64) -> Vec<Detection> {
     let start = shot([1.3, 0.0, 0.30], [-4.5, 0.0, 1.6], [0.0, -80.0, 0.0]);
     let mut rng = Rng::new(seed);
-    let mut all: Vec<Detection> =
-        camera(&start, 150.0, 0.0, 0.6, 0.002, Source::Wide150Fps, &mut rng)
-            .into_iter()
-            .chain(camera(
-                &start,
-                900.0,
-                0.0005,
-                0.6,
-                0.001,
-                Source::HighSpeed900Fps,
-                &mut rng,
-            ))
-            .map(|(d, _)| d)
-            .collect();
+    let mut all: Vec<Detection> = camera(
+        &start,
+        150.0,
+        0.0,
+        0.6,
+        0.002,
+        Source::WIDE_150FPS,
+        &mut rng,
+    )
+    .into_iter()
+    .chain(camera(
+        &start,
+        900.0,
+        0.0005,
+        0.6,
+        0.001,
+        Source::HIGHSPEED_900FPS,
+        &mut rng,
+    ))
+    .map(|(d, _)| d)
+    .collect();
     all.sort_by_key(|d| d.stamp);
     all
 }
@@ -523,7 +538,7 @@ fn bad_fields_are_rejected_by_reason_and_the_track_goes_on() {
         1e-6, -1e-6, 1e-6,
     )));
     let zero_spin: Vec<usize> = (250..detections.len())
-        .filter(|&i| detections[i].source == Source::HighSpeed900Fps)
+        .filter(|&i| detections[i].source == Source::HIGHSPEED_900FPS)
         .take(20)
         .collect();
     for &i in &zero_spin {
@@ -558,7 +573,7 @@ fn a_burst_of_ten_times_the_rate_is_absorbed() {
     let mut burst = Vec::new();
     for pair in detections.windows(2) {
         burst.push(pair[0]);
-        if pair[0].source == Source::HighSpeed900Fps && (300..345).contains(&burst.len()) {
+        if pair[0].source == Source::HIGHSPEED_900FPS && (300..345).contains(&burst.len()) {
             for k in 1..10 {
                 let mut extra = pair[0];
                 extra.stamp += k * 111_111;
@@ -671,7 +686,7 @@ fn a_frame_at_the_contact_gets_the_contacts_noise() {
         0.0,
         0.80,
         0.001,
-        Source::Wide150Fps,
+        Source::WIDE_150FPS,
         &mut Rng::new(5),
     );
     let radius = Config::default().ball.radius;
@@ -710,4 +725,78 @@ fn a_frame_at_the_contact_gets_the_contacts_noise() {
         "{at_contact:?}"
     );
     assert_eq!(above, gated);
+}
+
+/// Cameras configured by id: a rally whose two cameras carry the ids 5 and 9, with sources
+/// `left` and `right` configured as the seed setup's two, is estimated exactly as the original
+/// rally (each detection takes its own camera's noise); with the ids not configured, the
+/// detections fall back to `unknown`'s noise and the estimates differ.
+#[test]
+fn cameras_configured_by_id_take_their_own_noise() {
+    use ttball::sim::{Cameras, SimOptions, simulate};
+    let config = Config::default();
+    let session = simulate(
+        &config,
+        &SimOptions {
+            cameras: Cameras::WideAndHighSpeed,
+            shots: 2,
+            seed: 5,
+            ..SimOptions::default()
+        },
+    )
+    .unwrap();
+    let mut by_id = config.clone();
+    let left = ttball::config::SourceParams {
+        id: 5,
+        ..config.sources.wide_150fps.clone()
+    };
+    let right = ttball::config::SourceParams {
+        id: 9,
+        ..config.sources.highspeed_900fps.clone()
+    };
+    by_id.sources.more.insert("left".to_owned(), left);
+    by_id.sources.more.insert("right".to_owned(), right);
+    assert_eq!(by_id.validate(), Ok(()));
+    let relabel = |d: &Detection| Detection {
+        source: match d.source {
+            Source::WIDE_150FPS => Source(5),
+            Source::HIGHSPEED_900FPS => Source(9),
+            other => other,
+        },
+        ..*d
+    };
+    let mut original = Estimator::new(&config);
+    let mut configured = Estimator::new(&by_id);
+    let mut unconfigured = Estimator::new(&config);
+    let (mut compared, mut differing) = (0, 0);
+    for sim in &session.stream {
+        let a = original.handle(&sim.detection);
+        let b = configured.handle(&relabel(&sim.detection));
+        let c = unconfigured.handle(&relabel(&sim.detection));
+        assert_eq!(a.estimate, b.estimate);
+        assert_eq!(a.intercept, b.intercept);
+        if let (Some(a), Some(c)) = (a.estimate, c.estimate) {
+            compared += 1;
+            differing += usize::from(a.covariance != c.covariance);
+        }
+    }
+    assert!(
+        compared > 500 && differing * 10 > compared * 9,
+        "{differing} of {compared}"
+    );
+    let learned: Vec<String> = configured
+        .learned_noise()
+        .into_iter()
+        .map(|n| n.source)
+        .collect();
+    assert_eq!(
+        learned,
+        [
+            "unknown",
+            "wide_150fps",
+            "highspeed_900fps",
+            "left",
+            "right"
+        ]
+    );
 }

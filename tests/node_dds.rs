@@ -703,7 +703,7 @@ fn the_node_is_a_ros2_citizen_over_cyclone_dds() {
         r#"
 export ROS_DOMAIN_ID=43 ROS_LOCALHOST_ONLY=1
 cd "{dir}"
-"{ttball}" node -p node.service_mapping:=cyclone -p node.source_stale_after:=1.0 --ros-args -r __ns:=/robot1 -p intercept.plane_x:=-1.5 > node.out 2> node.err &
+"{ttball}" node -p node.service_mapping:=cyclone -p node.source_stale_after:=1.0 --ros-args -r __ns:=/robot1 -p intercept.plane_x:=-1.5 -p sources.side_camera.id:=3 -p sources.side_camera.frame_rate:=120.0 > node.out 2> node.err &
 node=$!
 "{python}" "{peer}" record --seconds 120 --until-file stop --out record.json 2> record.err &
 recorder=$!
@@ -732,18 +732,29 @@ echo $? > node.rc
         read("node.err")
     );
 
-    // Every configuration key is a declared parameter.
+    // Every configuration key is a declared parameter, the third camera's included.
     let listed: Vec<&str> = params["list"]
         .as_array()
         .unwrap_or_else(|| panic!("{context}"))
         .iter()
         .filter_map(Value::as_str)
         .collect();
+    let mut configured = Config::default();
+    let side_camera = ttball::config::SourceParams {
+        id: 3,
+        frame_rate: 120.0,
+        ..configured.sources.unknown.clone()
+    };
+    configured
+        .sources
+        .more
+        .insert("side_camera".to_owned(), side_camera);
     assert_eq!(
         listed,
-        ttball::config::yaml::parameter_names(&Config::default()),
+        ttball::config::yaml::parameter_names(&configured),
         "{context}"
     );
+    assert!(listed.contains(&"sources.side_camera.position_sigma"));
     // Values as the command line and the remaps made them.
     let get = &params["get"];
     assert_eq!(get["intercept.plane_x"], -1.5, "{context}");
@@ -880,8 +891,9 @@ echo $? > node.rc
     let estimator = of("robot1/ttball: estimator");
     let wide = of("robot1/ttball: source wide_150fps");
     let fast = of("robot1/ttball: source highspeed_900fps");
+    let side = of("robot1/ttball: source side_camera");
     assert!(
-        !estimator.is_empty() && !wide.is_empty() && !fast.is_empty(),
+        !estimator.is_empty() && !wide.is_empty() && !fast.is_empty() && !side.is_empty(),
         "{context}"
     );
     assert_eq!(estimator[0]["hardware_id"], "/robot1/ttball");
@@ -894,6 +906,9 @@ echo $? > node.rc
         "{context}"
     );
     assert!(fast.iter().any(|s| s["level"] == STALE), "{context}");
+    // The third camera, configured by id, never delivered: STALE.
+    assert_eq!(side[0]["hardware_id"], "side_camera");
+    assert!(side.iter().any(|s| s["level"] == STALE), "{context}");
     assert!(wide.iter().all(|s| s["level"] == OK), "{context}");
     let warnings: Vec<&Value> = recorded["rosout"]
         .as_array()

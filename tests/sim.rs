@@ -85,12 +85,12 @@ fn wide_only_is_the_wide_part_of_the_two_camera_session() {
     assert!(
         wide.stream
             .iter()
-            .all(|d| d.detection.source == Source::Wide150Fps)
+            .all(|d| d.detection.source == Source::WIDE_150FPS)
     );
     let wide_of_both: Vec<_> = both
         .stream
         .iter()
-        .filter(|d| d.detection.source == Source::Wide150Fps)
+        .filter(|d| d.detection.source == Source::WIDE_150FPS)
         .copied()
         .collect();
     assert_eq!(wide.stream, wide_of_both);
@@ -103,7 +103,7 @@ fn wide_only_is_the_wide_part_of_the_two_camera_session() {
 fn stream_is_sorted_by_arrival_and_stamps_come_out_of_order() {
     let stream = &session().stream;
     assert!(stream.windows(2).all(|w| {
-        let key = |d: &SimDetection| (d.arrival, d.detection.stamp, d.detection.source.code());
+        let key = |d: &SimDetection| (d.arrival, d.detection.stamp, d.detection.source.0);
         key(&w[0]) < key(&w[1])
     }));
     let inversions: Vec<i64> = stream
@@ -112,7 +112,7 @@ fn stream_is_sorted_by_arrival_and_stamps_come_out_of_order() {
         .map(|w| w[0].detection.stamp - w[1].detection.stamp)
         .collect();
     // Each wide detection (8 ms) arrives after the high-speed frames (3 ms) up to ~5 ms younger.
-    let wide = of(Source::Wide150Fps).count();
+    let wide = of(Source::WIDE_150FPS).count();
     assert!(
         inversions.len() > wide / 2,
         "{} inversions for {wide} wide detections",
@@ -126,8 +126,8 @@ fn stream_is_sorted_by_arrival_and_stamps_come_out_of_order() {
 #[test]
 fn latencies_have_the_configured_mean_and_jitter() {
     for (source, mean, jitter) in [
-        (Source::Wide150Fps, 0.008, 0.0015),
-        (Source::HighSpeed900Fps, 0.003, 0.0005),
+        (Source::WIDE_150FPS, 0.008, 0.0015),
+        (Source::HIGHSPEED_900FPS, 0.003, 0.0005),
     ] {
         let latencies: Vec<f64> = of(source)
             .map(|d| (d.arrival - d.detection.stamp) as f64 * 1e-9)
@@ -146,8 +146,8 @@ fn latencies_have_the_configured_mean_and_jitter() {
 fn measurement_noise_matches_the_sigmas() {
     // The specified defaults: 2 mm wide, 1 mm high-speed, 12 rad/s spin.
     for (source, sigma) in [
-        (Source::Wide150Fps, 0.002),
-        (Source::HighSpeed900Fps, 0.001),
+        (Source::WIDE_150FPS, 0.002),
+        (Source::HIGHSPEED_900FPS, 0.001),
     ] {
         let errors: Vec<Vector3<f64>> = of(source)
             .filter(|d| !d.outlier)
@@ -166,7 +166,7 @@ fn measurement_noise_matches_the_sigmas() {
         // No good detection is further than 6 sigma from the ball in any axis.
         assert!(errors.iter().all(|e| e.amax() < 6.0 * sigma));
     }
-    let spin_errors: Vec<Vector3<f64>> = of(Source::HighSpeed900Fps)
+    let spin_errors: Vec<Vector3<f64>> = of(Source::HIGHSPEED_900FPS)
         .filter_map(|d| d.detection.spin.map(|w| w - d.truth.spin))
         .collect();
     for axis in 0..3 {
@@ -190,7 +190,7 @@ fn outliers_are_half_a_percent_displaced_5_to_30_cm_with_low_confidence() {
         (0.0035..0.0065).contains(&fraction),
         "outlier fraction {fraction}"
     );
-    for source in [Source::Wide150Fps, Source::HighSpeed900Fps] {
+    for source in [Source::WIDE_150FPS, Source::HIGHSPEED_900FPS] {
         assert!(outliers.iter().any(|d| d.detection.source == source));
     }
     for d in &outliers {
@@ -231,7 +231,7 @@ fn two_percent_of_the_frames_are_dropped() {
     let period = 1e9 / 900.0;
     let (mut spanned, mut missing) = (0.0, 0.0);
     for shot in 0..session.shots.len() {
-        let mut stamps: Vec<i64> = of(Source::HighSpeed900Fps)
+        let mut stamps: Vec<i64> = of(Source::HIGHSPEED_900FPS)
             .filter(|d| d.shot == shot)
             .map(|d| d.detection.stamp)
             .collect();
@@ -252,16 +252,18 @@ fn two_percent_of_the_frames_are_dropped() {
 
 #[test]
 fn the_high_speed_camera_measures_spin_on_80_percent_of_its_frames_the_wide_never() {
-    let good: Vec<&SimDetection> = of(Source::HighSpeed900Fps).filter(|d| !d.outlier).collect();
+    let good: Vec<&SimDetection> = of(Source::HIGHSPEED_900FPS)
+        .filter(|d| !d.outlier)
+        .collect();
     let with_spin = good.iter().filter(|d| d.detection.spin.is_some()).count();
     let fraction = with_spin as f64 / good.len() as f64;
     assert!((0.78..0.82).contains(&fraction), "spin fraction {fraction}");
-    assert!(of(Source::Wide150Fps).all(|d| d.detection.spin.is_none()));
+    assert!(of(Source::WIDE_150FPS).all(|d| d.detection.spin.is_none()));
 }
 
 #[test]
 fn the_high_speed_camera_sees_only_the_robots_half() {
-    let high_speed: Vec<&SimDetection> = of(Source::HighSpeed900Fps).collect();
+    let high_speed: Vec<&SimDetection> = of(Source::HIGHSPEED_900FPS).collect();
     assert!(
         high_speed
             .iter()
@@ -269,9 +271,9 @@ fn the_high_speed_camera_sees_only_the_robots_half() {
     );
     // It does see up to its edge, and the wide camera sees beyond it.
     assert!(high_speed.iter().any(|d| d.truth.position.x > 0.0));
-    assert!(of(Source::Wide150Fps).any(|d| d.truth.position.x > 1.0));
+    assert!(of(Source::WIDE_150FPS).any(|d| d.truth.position.x > 1.0));
     // Frame rates: 900 fps and 150 fps over the same flights.
-    let ratio = high_speed.len() as f64 / of(Source::Wide150Fps).count() as f64;
+    let ratio = high_speed.len() as f64 / of(Source::WIDE_150FPS).count() as f64;
     assert!((2.5..5.5).contains(&ratio), "{ratio}");
 }
 

@@ -89,7 +89,7 @@ impl ImportCommand {
         for flight in &raw {
             let flight = flight.to_table(&transform);
             let span = flight.samples.last().map_or(0.0, |(t, _)| *t);
-            detections.extend(flight_detections(&flight, epoch, Source::Wide150Fps));
+            detections.extend(flight_detections(&flight, epoch, Source::WIDE_150FPS));
             epoch += seconds_to_ns(span + 1.0);
         }
         let written = write_detections(&detections, &config, &args.output)?;

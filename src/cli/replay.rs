@@ -269,7 +269,7 @@ pub fn model_noise_json(m: &LearnedModelNoise) -> serde_json::Value {
 /// The noise learned of the sources that sent detections, in one line: "learned noise:
 /// wide_150fps position sigma 3.0 mm (1.50x configured), stamps 0.3 ms; ...", or `None` when no
 /// source has learned anything.
-pub fn noise_text(noise: &[LearnedSourceNoise; 3]) -> Option<String> {
+pub fn noise_text(noise: &[LearnedSourceNoise]) -> Option<String> {
     let parts: Vec<String> = noise
         .iter()
         .filter(|n| n.has_learned())
@@ -287,7 +287,7 @@ pub fn noise_text(noise: &[LearnedSourceNoise; 3]) -> Option<String> {
 }
 
 /// The learned noise of each source as JSON.
-pub fn noise_json(noise: &[LearnedSourceNoise; 3]) -> serde_json::Value {
+pub fn noise_json(noise: &[LearnedSourceNoise]) -> serde_json::Value {
     let sources: serde_json::Map<String, serde_json::Value> = noise
         .iter()
         .map(|n| {

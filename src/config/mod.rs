@@ -8,7 +8,11 @@
 //! Every parameter is a ROS 2 parameter type (bool, integer, double, string or an array of one of
 //! those), so the node can declare each dotted key (`table.restitution`) as a ROS 2 parameter.
 
+use std::collections::BTreeMap;
+
 use serde::{Deserialize, Serialize};
+
+use crate::detection::Source;
 
 pub mod names;
 mod validate;
@@ -348,6 +352,11 @@ impl Default for RefreshParams {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct SourceParams {
+    /// The `BallDetection.source` code of this camera's detections: `SOURCE_WIDE_150FPS` (1),
+    /// `SOURCE_HIGHSPEED_900FPS` (2), or an id of the camera pipeline's choosing for more
+    /// cameras (3-255). `unknown` has `SOURCE_UNKNOWN` (0), and also takes the detections of
+    /// every id no source has.
+    pub id: u8,
     /// Standard deviation of one position measurement, per axis [m].
     pub position_sigma: f64,
     /// Standard deviation of one spin measurement, per axis [rad/s]; 0 means the source does not
@@ -367,23 +376,60 @@ pub struct SourceParams {
     pub frame_rate: f64,
 }
 
-/// Measurement noise per camera source (physics.md "Cameras in the seed setup").
+/// Measurement noise per camera source (physics.md "Cameras in the seed setup"), each matched
+/// to detections by its `id`. The two cameras of the seed setup and `unknown` are always there;
+/// more cameras are added by name (`sources.side_camera.id: 3`, ...).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
 pub struct SourcesParams {
     /// The 150 fps camera that sees the whole table; position only.
     pub wide_150fps: SourceParams,
     /// The 900 fps camera with a narrow view; measures spin from marks on the ball.
     pub highspeed_900fps: SourceParams,
-    /// Detections whose source is not one of the above.
+    /// Detections whose source is not one of the others.
     pub unknown: SourceParams,
+    /// More cameras, by name (the key under `sources`).
+    #[serde(flatten)]
+    pub more: BTreeMap<String, SourceParams>,
 }
 
+/// The name of the source every unconfigured id falls back to.
+pub const UNKNOWN_SOURCE: &str = "unknown";
+
 impl SourcesParams {
-    /// Every source's parameters, in the order of `BallDetection.SOURCE_*` (unknown, 150 fps,
-    /// 900 fps).
-    pub fn in_code_order(&self) -> [&SourceParams; 3] {
-        [&self.unknown, &self.wide_150fps, &self.highspeed_900fps]
+    /// Every source by name, in their index order ([`SourceIndex`]): `unknown` (index 0),
+    /// `wide_150fps`, `highspeed_900fps`, then the others by name.
+    pub fn all(&self) -> Vec<(&str, &SourceParams)> {
+        let mut all = vec![
+            (UNKNOWN_SOURCE, &self.unknown),
+            ("wide_150fps", &self.wide_150fps),
+            ("highspeed_900fps", &self.highspeed_900fps),
+        ];
+        all.extend(self.more.iter().map(|(name, p)| (name.as_str(), p)));
+        all
+    }
+
+    /// Each detection source's place in [`SourcesParams::all`].
+    pub fn index(&self) -> SourceIndex {
+        let mut of_id = [0u8; 256];
+        // Later sources cannot share an id (`Config::validate`); `unknown` is the fallback.
+        for (i, (_, p)) in self.all().iter().enumerate().skip(1).rev() {
+            of_id[usize::from(p.id)] = u8::try_from(i).unwrap_or(0);
+        }
+        SourceIndex { of_id }
+    }
+}
+
+/// Where a detection's source sits in per-source arrays ordered as [`SourcesParams::all`]:
+/// the source configured with its id, else `unknown` (0).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct SourceIndex {
+    of_id: [u8; 256],
+}
+
+impl SourceIndex {
+    /// The index of `source`'s configuration.
+    pub fn of(&self, source: Source) -> usize {
+        usize::from(self.of_id[usize::from(source.0)])
     }
 }
 
@@ -393,6 +439,7 @@ impl Default for SourcesParams {
             // Stereo triangulation of a 40 mm ball over the whole table: a few mm. Latency about
             // one frame period (6.7 ms) plus detection.
             wide_150fps: SourceParams {
+                id: Source::WIDE_150FPS.0,
                 position_sigma: 0.002,
                 spin_sigma: 0.0,
                 latency: 0.008,
@@ -401,6 +448,7 @@ impl Default for SourcesParams {
             },
             // Narrow view, so finer pixels; spin from the marks on the ball.
             highspeed_900fps: SourceParams {
+                id: Source::HIGHSPEED_900FPS.0,
                 position_sigma: 0.001,
                 spin_sigma: 12.0,
                 latency: 0.004,
@@ -409,12 +457,14 @@ impl Default for SourcesParams {
             },
             // Conservative: worse than either known camera.
             unknown: SourceParams {
+                id: Source::UNKNOWN.0,
                 position_sigma: 0.005,
                 spin_sigma: 30.0,
                 latency: 0.008,
                 stamp_sigma: 0.0,
                 frame_rate: 0.0,
             },
+            more: BTreeMap::new(),
         }
     }
 }

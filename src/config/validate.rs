@@ -84,6 +84,18 @@ pub enum Violation {
         /// The most it may hold.
         max: usize,
     },
+    /// Two camera sources have the same id, so detections could not tell them apart.
+    #[error(
+        "`{key}` = {id} is also `{other_key}`: each camera source needs its own id (the BallDetection.source its detections carry; 3-255 are free)"
+    )]
+    SharedId {
+        /// Dotted key of the later source's id.
+        key: String,
+        /// The id.
+        id: u8,
+        /// Dotted key of the earlier source's id.
+        other_key: String,
+    },
     /// Two lists that pair up element by element have different lengths.
     #[error(
         "`{key}` has {len} elements but `{other_key}` has {other_len}: give one per element of `{other_key}`"
@@ -111,6 +123,7 @@ impl Violation {
             | Self::BadName { key, .. }
             | Self::Exceeds { key, .. }
             | Self::TooLong { key, .. }
+            | Self::SharedId { key, .. }
             | Self::LengthMismatch { key, .. } => key,
         }
     }
@@ -260,6 +273,10 @@ impl Checker {
     }
 
     fn source(&mut self, key: &str, source: &SourceParams) {
+        self.rule(
+            &format!("{key}.id"),
+            "from 0 to 255, each source's own (the BallDetection.source of its detections)",
+        );
         self.real(
             &format!("{key}.stamp_sigma"),
             source.stamp_sigma,
@@ -611,9 +628,30 @@ impl Config {
         c.non_negative("intercept.refresh.velocity", r.velocity);
         c.non_negative("intercept.refresh.spin", r.spin);
 
-        c.source("sources.wide_150fps", &self.sources.wide_150fps);
-        c.source("sources.highspeed_900fps", &self.sources.highspeed_900fps);
-        c.source("sources.unknown", &self.sources.unknown);
+        // In the configuration's order: the seed setup's two cameras, `unknown`, the others.
+        let mut sources = self.sources.all();
+        sources[..3].rotate_left(1);
+        for (i, (name, source)) in sources.iter().enumerate() {
+            let key = format!("sources.{name}");
+            if self.sources.more.contains_key(*name)
+                && let Some(reason) = token_problem(name)
+            {
+                c.violations.push(Violation::BadName {
+                    key: key.clone(),
+                    value: (*name).to_owned(),
+                    kind: "source name",
+                    reason,
+                });
+            }
+            c.source(&key, source);
+            if let Some((other, _)) = sources[..i].iter().find(|(_, s)| s.id == source.id) {
+                c.violations.push(Violation::SharedId {
+                    key: format!("{key}.id"),
+                    id: source.id,
+                    other_key: format!("sources.{other}.id"),
+                });
+            }
+        }
 
         let e = &self.ekf;
         c.positive(

@@ -26,7 +26,8 @@ use std::path::{Path, PathBuf};
 use serde_norway::Value;
 use thiserror::Error;
 
-use super::{Config, ConfigError, Violation};
+use super::names::token_problem;
+use super::{Config, ConfigError, UNKNOWN_SOURCE, Violation};
 
 /// The node name `ttball config print` writes at the top of a parameters file.
 pub const NODE_KEY: &str = "ttball";
@@ -464,6 +465,10 @@ struct Loader {
     known: Vec<String>,
     set_at: HashMap<String, Origin>,
     problems: Vec<Problem>,
+    /// Camera sources the layers added (`sources.<name>`), with where each was first named.
+    new_sources: Vec<(String, Origin)>,
+    /// Every key a layer gave a value to, valid or not.
+    given: std::collections::HashSet<String>,
 }
 
 impl Loader {
@@ -482,12 +487,52 @@ impl Loader {
             known,
             set_at: HashMap::new(),
             problems: Vec::new(),
+            new_sources: Vec::new(),
+            given: std::collections::HashSet::new(),
         })
+    }
+
+    /// A camera source named for the first time (`sources.<name>.<key>`) is added, starting
+    /// from the default `unknown` source's values; its `id` must then be set (checked in
+    /// [`Loader::finish`]). A source the base configuration has is taken as it is.
+    fn declare_source(&mut self, key: &[String], origin: &Origin) {
+        let [section, name, ..] = key else {
+            return;
+        };
+        if section != "sources" || token_problem(name).is_some() {
+            return;
+        }
+        let name = Value::String(name.clone());
+        let in_base = self
+            .merged
+            .get("sources")
+            .and_then(|s| s.get(&name))
+            .cloned();
+        let (Some(Value::Mapping(defaults)), Some(Value::Mapping(merged))) = (
+            self.defaults.get_mut("sources"),
+            self.merged.get_mut("sources"),
+        ) else {
+            return;
+        };
+        if defaults.contains_key(&name) {
+            return;
+        }
+        let Some(template) = in_base.or_else(|| defaults.get(UNKNOWN_SOURCE).cloned()) else {
+            return;
+        };
+        if !merged.contains_key(&name) {
+            self.new_sources
+                .push((format!("sources.{}", key[1]), origin.clone()));
+            merged.insert(name.clone(), template.clone());
+        }
+        defaults.insert(name, template);
     }
 
     /// Applies one value if its key exists and its type fits; records a problem otherwise.
     fn apply(&mut self, entry: Entry) {
+        self.declare_source(&entry.key, &entry.origin);
         let dotted = entry.key.join(".");
+        self.given.insert(dotted.clone());
         let mut node = &self.defaults;
         for (depth, segment) in entry.key.iter().enumerate() {
             match node {
@@ -535,10 +580,15 @@ impl Loader {
                     set(&mut self.merged, &entry.key, entry.value);
                     self.set_at.insert(dotted, entry.origin);
                 } else {
+                    let expected = if dotted.starts_with("sources.") && dotted.ends_with(".id") {
+                        "a whole number from 0 to 255 (a BallDetection.source)".to_owned()
+                    } else {
+                        describe_expected(leaf)
+                    };
                     self.problems.push(Problem::WrongType {
                         key: dotted,
                         origin: entry.origin,
-                        expected: describe_expected(leaf),
+                        expected,
                         found: describe_found(value),
                     });
                 }
@@ -547,10 +597,45 @@ impl Loader {
     }
 
     fn finish(mut self) -> Result<Config, LoadError> {
+        let mut not_sources = Vec::new();
+        for (source, origin) in std::mem::take(&mut self.new_sources) {
+            if !self.given.contains(&format!("{source}.id")) {
+                not_sources.push(format!("{source}.id"));
+                let known: Vec<String> = self
+                    .known
+                    .iter()
+                    .filter(|k| k.starts_with("sources.") && k.matches('.').count() == 1)
+                    .cloned()
+                    .collect();
+                self.problems.push(Problem::Layout {
+                    origin,
+                    message: format!(
+                        "`{source}` is not a source; to add a camera, set `{source}.id` to the BallDetection.source its detections carry (3-255){}",
+                        match suggest(&source, &known) {
+                            Some(s) => format!(", or did you mean `{s}`?"),
+                            None => String::new(),
+                        }
+                    ),
+                });
+            }
+        }
         match serde_norway::from_value::<Config>(self.merged) {
             Ok(config) => {
                 if let Err(ConfigError::Invalid { violations }) = config.validate() {
-                    for violation in violations {
+                    // A misspelt source is reported as such, not for the id it never had, and a
+                    // value of the wrong type not again for the default left in its place.
+                    let wrong_type: Vec<String> = self
+                        .problems
+                        .iter()
+                        .filter_map(|p| match p {
+                            Problem::WrongType { key, .. } => Some(key.clone()),
+                            _ => None,
+                        })
+                        .collect();
+                    for violation in violations
+                        .into_iter()
+                        .filter(|v| !not_sources.iter().chain(&wrong_type).any(|k| k == v.key()))
+                    {
                         let key = violation.key();
                         let key = key.split_once('[').map_or(key, |(k, _)| k);
                         let mut origin = self.set_at.get(key).cloned();

@@ -28,7 +28,7 @@ use std::collections::VecDeque;
 
 use nalgebra::{Matrix3, Matrix6, SVector, Vector3};
 
-use crate::config::{Config, SourceParams};
+use crate::config::{Config, SourceIndex, SourceParams};
 use crate::detection::{Detection, Source, seconds_to_ns};
 use crate::ekf::{
     BounceNoise, Ekf, FilterNoise, Fused, NOISE_SCALES, NoiseScore, NoiseSensitivity,
@@ -242,15 +242,18 @@ pub struct Output {
 }
 
 /// Measurement noise of one source, as variances.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, PartialEq)]
 struct SourceNoise {
+    /// The source's name (its key under `sources`).
+    name: String,
     position_var: f64,
     spin_var: Option<f64>,
 }
 
 impl SourceNoise {
-    fn new(p: &SourceParams) -> Self {
+    fn new(name: &str, p: &SourceParams) -> Self {
         Self {
+            name: name.to_owned(),
             position_var: p.position_sigma * p.position_sigma,
             spin_var: (p.spin_sigma > 0.0).then_some(p.spin_sigma * p.spin_sigma),
         }
@@ -273,7 +276,10 @@ pub(crate) struct Settings {
     gate_position: f64,
     gate_position_spin: f64,
     gate_probability: f64,
-    sources: [SourceNoise; 3],
+    /// Every source's noise, in the order of [`SourcesParams::all`].
+    sources: Vec<SourceNoise>,
+    /// Each detection's source's place in `sources`.
+    source_index: SourceIndex,
     min_confidence: f64,
     init_count: usize,
     init_span: i64,
@@ -328,7 +334,13 @@ impl Settings {
             gate_position: chi_square_quantile(p, 3),
             gate_position_spin: chi_square_quantile(p, 6),
             gate_probability: p,
-            sources: config.sources.in_code_order().map(SourceNoise::new),
+            sources: config
+                .sources
+                .all()
+                .into_iter()
+                .map(|(name, p)| SourceNoise::new(name, p))
+                .collect(),
+            source_index: config.sources.index(),
             min_confidence: config.ekf.min_confidence,
             init_count: config.ekf.init_detections.max(3) as usize,
             init_span: seconds_to_ns(config.ekf.init_max_span),
@@ -343,8 +355,8 @@ impl Settings {
         }
     }
 
-    fn source(&self, source: Source) -> SourceNoise {
-        self.sources[source.index()]
+    fn source(&self, source: Source) -> &SourceNoise {
+        &self.sources[self.source_index.of(source)]
     }
 }
 
@@ -572,15 +584,11 @@ pub struct Estimator {
     learned: Learned,
 }
 
-/// The camera sources by name (as their configuration keys, `sources.*`), in the order of
-/// [`Estimator::learned_noise`]: `Source::code` 0, 1, 2.
-pub const SOURCE_NAMES: [&str; 3] = ["unknown", "wide_150fps", "highspeed_900fps"];
-
 /// What the estimator has learned of one source's noise ([`Estimator::learned_noise`]).
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, PartialEq)]
 pub struct LearnedSourceNoise {
     /// The source's configuration key (`sources.*`).
-    pub source: &'static str,
+    pub source: String,
     /// Its position sigma [m]: the configured one times the learned scale's square root.
     pub position_sigma: f64,
     /// The sigma of its stamps' timing [s].
@@ -1101,7 +1109,8 @@ impl Estimator {
     /// Checks a detection and turns it into a measurement with its noise, as learned of its
     /// source.
     fn measurement(&self, d: &Detection) -> Result<Measurement, Rejection> {
-        Ok(measurement(&self.settings, d)?.with_learned_noise(&self.noise.of(d.source)))
+        let source = self.settings.source_index.of(d.source);
+        Ok(measurement(&self.settings, d)?.with_learned_noise(&self.noise.of(source)))
     }
 
     /// Learns the noise of a detection's source from the innovation of its first fusion (the
@@ -1125,7 +1134,8 @@ impl Estimator {
                     .map(|((y, hph, _), r0)| (y, hph, r0)),
                 ..innovation
             };
-            self.noise.learn(d.source, &innovation);
+            self.noise
+                .learn(self.settings.source_index.of(d.source), &innovation);
         }
         if let Some(score) = self.score.take() {
             self.model_noise.learn(&score);
@@ -1145,16 +1155,19 @@ impl Estimator {
     }
 
     /// What the estimator has learned of each source's noise, in the order of
-    /// [`SOURCE_NAMES`].
-    pub fn learned_noise(&self) -> [LearnedSourceNoise; 3] {
-        let estimates = self.noise.all();
-        std::array::from_fn(|i| LearnedSourceNoise {
-            source: SOURCE_NAMES[i],
-            position_sigma: self.settings.sources[i].position_var.sqrt()
-                * estimates[i].position_scale.sqrt(),
-            stamp_sigma: estimates[i].timing_variance.sqrt(),
-            estimate: estimates[i],
-        })
+    /// [`SourcesParams::all`](crate::config::SourcesParams::all).
+    pub fn learned_noise(&self) -> Vec<LearnedSourceNoise> {
+        self.settings
+            .sources
+            .iter()
+            .zip(self.noise.all())
+            .map(|(source, estimate)| LearnedSourceNoise {
+                source: source.name.clone(),
+                position_sigma: source.position_var.sqrt() * estimate.position_scale.sqrt(),
+                stamp_sigma: estimate.timing_variance.sqrt(),
+                estimate: *estimate,
+            })
+            .collect()
     }
 
     fn process(&mut self, d: &Detection, m: Measurement) -> Verdict {

@@ -18,7 +18,6 @@
 use nalgebra::{Matrix3, Vector3};
 
 use crate::config::Config;
-use crate::detection::Source;
 
 /// The configured noise counts as this many detections when the learning starts.
 pub const PRIOR_WEIGHT: f64 = 20.0;
@@ -70,43 +69,47 @@ pub(crate) struct Innovation {
     pub spin: Option<(Vector3<f64>, Matrix3<f64>, Matrix3<f64>)>,
 }
 
-/// The learned noise of every source, indexed by [`Source::code`].
-#[derive(Debug, Clone, Copy, PartialEq)]
+/// The learned noise of every source, in the order of
+/// [`SourcesParams::all`](crate::config::SourcesParams::all) (indexed by
+/// [`SourceIndex::of`](crate::config::SourceIndex::of)).
+#[derive(Debug, Clone, PartialEq)]
 pub(crate) struct NoiseLearner {
-    sources: [SourceNoiseEstimate; 3],
+    sources: Vec<SourceNoiseEstimate>,
     memory: f64,
     enabled: bool,
 }
 
 impl NoiseLearner {
     pub(crate) fn new(config: &Config) -> Self {
-        let s = &config.sources;
         Self {
-            sources: s
-                .in_code_order()
-                .map(|p| SourceNoiseEstimate::prior(p.stamp_sigma)),
+            sources: config
+                .sources
+                .all()
+                .into_iter()
+                .map(|(_, p)| SourceNoiseEstimate::prior(p.stamp_sigma))
+                .collect(),
             memory: f64::from(config.ekf.noise_memory).max(PRIOR_WEIGHT),
             enabled: config.ekf.learn_noise,
         }
     }
 
-    /// The current estimate for a source.
-    pub(crate) fn of(&self, source: Source) -> SourceNoiseEstimate {
-        self.sources[source.index()]
+    /// The current estimate for the source at `index`.
+    pub(crate) fn of(&self, index: usize) -> SourceNoiseEstimate {
+        self.sources[index]
     }
 
-    /// Every source's estimate, in the order unknown, 150 fps, 900 fps.
-    pub(crate) fn all(&self) -> [SourceNoiseEstimate; 3] {
-        self.sources
+    /// Every source's estimate, in index order.
+    pub(crate) fn all(&self) -> &[SourceNoiseEstimate] {
+        &self.sources
     }
 
-    /// Learns from one detection's prior innovation.
-    pub(crate) fn learn(&mut self, source: Source, innovation: &Innovation) {
+    /// Learns from one detection's prior innovation (of the source at `index`).
+    pub(crate) fn learn(&mut self, index: usize, innovation: &Innovation) {
         if !self.enabled {
             return;
         }
         let memory = self.memory;
-        let e = &mut self.sources[source.index()];
+        let e = &mut self.sources[index];
         let i = innovation;
         let speed = i.velocity.norm();
         let (across, along) = if speed >= MIN_SPEED {
@@ -180,13 +183,13 @@ mod tests {
                 velocity,
                 spin: None,
             };
-            learner.learn(Source::Wide150Fps, &innovation);
+            learner.learn(1, &innovation);
         }
-        let e = learner.of(Source::Wide150Fps);
+        let e = learner.of(1);
         assert!((e.position_scale - 4.0).abs() < 0.1, "{e:?}");
         assert!((e.timing_variance - 1.0e-6).abs() < 0.05e-6, "{e:?}");
         // The other sources learned nothing.
-        assert_eq!(learner.of(Source::HighSpeed900Fps).position_scale, 1.0);
+        assert_eq!(learner.of(2).position_scale, 1.0);
     }
 
     #[test]
@@ -201,7 +204,7 @@ mod tests {
             velocity: Vector3::new(-5.0, 0.0, 0.0),
             spin: None,
         };
-        learner.learn(Source::Wide150Fps, &innovation);
+        learner.learn(1, &innovation);
         assert_eq!(learner, NoiseLearner::new(&config));
     }
 }

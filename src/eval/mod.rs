@@ -277,7 +277,7 @@ impl Scorer {
             }
         }
         let spin_error: Vector3<f64> = estimate.state.spin - truth.spin;
-        if record.high_speed_start.is_none() && detection.source != Source::HighSpeed900Fps {
+        if record.high_speed_start.is_none() && detection.source != Source::HIGHSPEED_900FPS {
             record.before_high_speed = Some((self.detections, estimate));
         }
         if !record.scored_at_age && estimate.stamp - start >= seconds_to_ns(TRACK_AGE) {
@@ -291,7 +291,7 @@ impl Scorer {
             self.spin_par.push(parallel);
             self.spin_perp.push((spin_error - along * parallel).norm());
         }
-        if detection.source == Source::HighSpeed900Fps {
+        if detection.source == Source::HIGHSPEED_900FPS {
             let first = *record.high_speed_start.get_or_insert(detection.stamp);
             if detection.stamp - first >= seconds_to_ns(HIGH_SPEED_SETTLE) {
                 self.spin_fast.push(spin_error.norm());

@@ -147,7 +147,7 @@ pub fn add_static_transforms(
 fn detection_fields(msg: &BallDetection) -> Detection {
     Detection {
         stamp: msg.header.stamp.to_nanos(),
-        source: Source::from_code(msg.source),
+        source: Source(msg.source),
         position: from_point(&msg.position),
         position_covariance: covariance3(&msg.position_covariance),
         spin: msg.has_spin.then(|| from_vector(&msg.spin)),
@@ -165,7 +165,7 @@ pub fn detection_to_msg(d: &Detection) -> BallDetection {
         has_spin: d.spin.is_some(),
         spin: vector(&d.spin.unwrap_or_else(Vector3::zeros)),
         spin_covariance: row_major3(&d.spin_covariance),
-        source: d.source.code(),
+        source: d.source.0,
         confidence: d.confidence,
     }
 }
@@ -558,7 +558,7 @@ mod tests {
     fn detections_round_trip_and_zero_covariance_means_default() {
         let d = Detection {
             stamp: 1_700_000_000_123_456_789,
-            source: Source::HighSpeed900Fps,
+            source: Source::HIGHSPEED_900FPS,
             position: Vector3::new(-0.5, 0.1, 0.2),
             position_covariance: None,
             spin: Some(Vector3::new(1.0, -150.0, 3.0)),

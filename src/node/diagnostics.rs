@@ -208,7 +208,7 @@ pub fn diagnostics_msg(snapshot: &Snapshot<'_>, window: &mut Window) -> Diagnost
     }
     values.push(kv("learned physics: tracks", s.learned.tracks.to_string()));
     for n in s.learned_noise.iter().filter(|n| n.has_learned()) {
-        let source = n.source;
+        let source = &n.source;
         values.push(kv(
             &format!("learned noise {source}: position sigma [mm]"),
             format!("{:.2}", n.position_sigma * 1e3),
@@ -549,8 +549,8 @@ mod tests {
 
     /// The 150 fps camera has taught its noise, the 900 fps one nothing yet.
     fn learned_noise() -> [LearnedSourceNoise; 2] {
-        let source = |source, position_sigma, stamp_sigma, weight| LearnedSourceNoise {
-            source,
+        let source = |source: &str, position_sigma, stamp_sigma, weight| LearnedSourceNoise {
+            source: source.to_owned(),
             position_sigma,
             stamp_sigma,
             estimate: crate::estimator::SourceNoiseEstimate {

@@ -51,9 +51,9 @@ pub use diagnostics::{
 };
 pub use play::{Latency, LatencyReport, PlayOptions, PlaySummary, play};
 
-use crate::config::Config;
+use crate::config::{Config, SourceIndex};
 use crate::detection::Source;
-use crate::estimator::{Counters, SOURCE_NAMES, Verdict};
+use crate::estimator::{Counters, Verdict};
 use crate::msgs::diagnostic_msgs::DiagnosticArray;
 use crate::msgs::geometry_msgs::{Quaternion, Transform, TransformStamped, Vector3};
 use crate::msgs::nav_msgs::Odometry;
@@ -379,7 +379,13 @@ fn start_here(config: &Config, placement: &Placement) -> Result<NodeHandle, Node
         period: Duration::from_secs_f64(config.node.diagnostics_period),
         capacity,
         parameters,
-        sources: std::array::from_fn(|_| (SourceWindow::new(), None)),
+        sources: config
+            .sources
+            .all()
+            .iter()
+            .map(|_| (SourceWindow::new(), None))
+            .collect(),
+        source_index: config.sources.index(),
         started: Instant::now(),
     };
     let estimator = std::thread::Builder::new()
@@ -543,8 +549,10 @@ struct EstimatorThread {
     parameters: Parameters,
     clock: NodeClock,
     /// Each source's detections over the diagnostics period, in the order of
-    /// [`crate::estimator::SOURCE_NAMES`], and when it last delivered one.
-    sources: [(SourceWindow, Option<Instant>); 3],
+    /// [`crate::config::SourcesParams::all`], and when it last delivered one.
+    sources: Vec<(SourceWindow, Option<Instant>)>,
+    /// Each detection's source's place in `sources` (the ids are read-only parameters).
+    source_index: SourceIndex,
     started: Instant,
     /// `/tf_static`, taken between detections.
     tf_static: Subscription<TFMessage>,
@@ -802,7 +810,7 @@ impl EstimatorThread {
             step.verdict,
             Ok(Verdict::Fused { .. } | Verdict::Initializing | Verdict::Held)
         );
-        let (window, last) = &mut self.sources[Source::from_code(detection.source).index()];
+        let (window, last) = &mut self.sources[self.source_index.of(Source(detection.source))];
         window.record(detection.header.stamp.to_nanos(), !fused);
         *last = Some(started);
         timings
@@ -888,11 +896,12 @@ impl EstimatorThread {
         let counts: Vec<u64> = self.sources.iter().map(|(w, _)| w.detections).collect();
         let total: u64 = counts.iter().sum();
         let config = self.parameters.config();
-        let params = config.sources.in_code_order();
-        for (i, (window, last)) in self.sources.iter_mut().enumerate() {
+        let params = config.sources.all();
+        for (i, ((window, last), (name, source))) in self.sources.iter_mut().zip(params).enumerate()
+        {
             let expected = SourceExpectation {
-                key: SOURCE_NAMES[i],
-                frame_rate: params[i].frame_rate,
+                key: name,
+                frame_rate: source.frame_rate,
                 stale_after: config.node.source_stale_after,
             };
             // Never seen: silent since the node started.

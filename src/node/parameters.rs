@@ -20,8 +20,8 @@ use ros2_client::parameters::raw::{
 use ros2_client::rcl_interfaces::ListParametersResult;
 use serde_norway::Value;
 
-use crate::config::Config;
 use crate::config::yaml;
+use crate::config::{Config, UNKNOWN_SOURCE};
 
 /// Sections (and single keys) whose parameters take effect between detections; the others are
 /// read-only, as they shape what the node was built with (its physics and what it learned of
@@ -39,9 +39,11 @@ const LIVE: [&str; 10] = [
     "prediction.trajectory_",
 ];
 
-/// Whether the parameter `name` may be set on the running node.
+/// Whether the parameter `name` may be set on the running node. A source's `id` may not: the
+/// node's per-source diagnostics are laid out by id when it starts.
 pub fn is_live(name: &str) -> bool {
     LIVE.iter().any(|prefix| name.starts_with(prefix))
+        && !(name.starts_with("sources.") && name.ends_with(".id"))
 }
 
 /// A configuration accepted by a set, and the event that reports it.
@@ -172,7 +174,7 @@ impl Parameters {
                 ParameterDescriptor {
                     name: name.clone(),
                     r#type: ptype.unwrap_or(ParameterType::NOT_SET),
-                    description: self.descriptions.get(name.as_str()).cloned().unwrap_or_default(),
+                    description: self.description(name),
                     additional_constraints: match (ptype, is_live(name)) {
                         (None, _) => String::new(),
                         (Some(_), true) => rule.to_owned(),
@@ -192,6 +194,26 @@ impl Parameters {
                 }
             })
             .collect()
+    }
+
+    /// A parameter's description: the shipped file's comment, and for a camera source added
+    /// by name, the same key's of `sources.unknown`.
+    fn description(&self, name: &str) -> String {
+        let shipped = self.descriptions.get(name).cloned();
+        shipped
+            .or_else(|| {
+                let (source, key) = name.strip_prefix("sources.")?.split_once('.')?;
+                if key == "id" {
+                    return Some(format!(
+                        "The BallDetection.source of camera source `{source}`'s detections [-]."
+                    ));
+                }
+                let unknown = self
+                    .descriptions
+                    .get(&format!("sources.{UNKNOWN_SOURCE}.{key}"))?;
+                Some(format!("{unknown} (camera source `{source}`)"))
+            })
+            .unwrap_or_default()
     }
 
     /// `set_parameters`: each parameter set on its own, in order (each checked against the

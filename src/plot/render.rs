@@ -130,17 +130,32 @@ fn default_title(data: &PlotData, selection: &Selection, origin: i64) -> String 
     }
 }
 
+/// The plots' three groups of cameras: the seed setup's two (by their own source) and every
+/// other source as [`Source::UNKNOWN`].
+fn camera_group(s: Source) -> Source {
+    if s == Source::WIDE_150FPS || s == Source::HIGHSPEED_900FPS {
+        s
+    } else {
+        Source::UNKNOWN
+    }
+}
+
 fn summary(data: &PlotData) -> String {
-    let count = |s: Source| data.detections.iter().filter(|d| d.source == s).count();
+    let count = |s: Source| {
+        data.detections
+            .iter()
+            .filter(|d| camera_group(d.source) == s)
+            .count()
+    };
     let rejected = data.detections.iter().filter(|d| d.rejected).count();
     let mut parts = vec![format!(
         "{} detections ({} at 150 fps, {} at 900 fps{}, {} rejected)",
         data.detections.len(),
-        count(Source::Wide150Fps),
-        count(Source::HighSpeed900Fps),
-        match count(Source::Unknown) {
+        count(Source::WIDE_150FPS),
+        count(Source::HIGHSPEED_900FPS),
+        match count(Source::UNKNOWN) {
             0 => String::new(),
-            n => format!(", {n} unknown camera"),
+            n => format!(", {n} other or unknown camera"),
         },
         rejected
     )];
@@ -564,14 +579,14 @@ fn draw_view<DB: DrawingBackend>(
     // Detections by camera, rejected ones as crosses.
     let r = fig.px(2.6);
     for (source, colour) in [
-        (Source::Wide150Fps, WIDE),
-        (Source::HighSpeed900Fps, HIGH_SPEED),
-        (Source::Unknown, UNKNOWN),
+        (Source::WIDE_150FPS, WIDE),
+        (Source::HIGHSPEED_900FPS, HIGH_SPEED),
+        (Source::UNKNOWN, UNKNOWN),
     ] {
         chart.draw_series(
             d.detections
                 .iter()
-                .filter(|x| x.source == source && !x.rejected && inside(&x.position))
+                .filter(|x| camera_group(x.source) == source && !x.rejected && inside(&x.position))
                 .map(|x| Circle::new(view.project(&x.position), r, colour.mix(0.75).filled())),
         )?;
     }
@@ -885,17 +900,21 @@ fn log_ticks(lo: f64, hi: f64) -> Vec<f64> {
 
 fn legend_entries(fig: &Figure) -> Vec<(String, Glyph)> {
     let d = &fig.data;
-    let has = |s: Source| d.detections.iter().any(|x| x.source == s && !x.rejected);
+    let has = |s: Source| {
+        d.detections
+            .iter()
+            .any(|x| camera_group(x.source) == s && !x.rejected)
+    };
     let mut out = Vec::new();
     let mut push = |label: &str, glyph: Glyph| out.push((label.to_string(), glyph));
-    if has(Source::Wide150Fps) {
+    if has(Source::WIDE_150FPS) {
         push("150 fps detection", Glyph::Dot(WIDE));
     }
-    if has(Source::HighSpeed900Fps) {
+    if has(Source::HIGHSPEED_900FPS) {
         push("900 fps detection", Glyph::Dot(HIGH_SPEED));
     }
-    if has(Source::Unknown) {
-        push("detection, unknown camera", Glyph::Dot(UNKNOWN));
+    if has(Source::UNKNOWN) {
+        push("detection, other camera", Glyph::Dot(UNKNOWN));
     }
     if d.detections.iter().any(|x| x.rejected) {
         push("rejected detection", Glyph::Cross(REJECTED));

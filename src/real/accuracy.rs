@@ -77,7 +77,7 @@ impl Default for RealEvalOptions {
             leads: vec![0.2, 0.1],
             plane: Plane::AfterBounce(0.02),
             epoch_ns: 1_700_000_000_000_000_000,
-            source: Source::Wide150Fps,
+            source: Source::WIDE_150FPS,
             carry_over: true,
         }
     }

@@ -409,7 +409,7 @@ fn median_interval(samples: &[Sample]) -> f64 {
 /// confidence 1.
 ///
 /// The recordings come from a camera system that sees the whole table and measures position
-/// only, at about 180 Hz: [`Source::Wide150Fps`] describes it (set its
+/// only, at about 180 Hz: [`Source::WIDE_150FPS`] describes it (set its
 /// `sources.wide_150fps.position_sigma` to the noise of these flights, see
 /// [`estimate_noise`](super::noise::estimate_noise)).
 pub fn flight_detections(flight: &Flight, epoch_ns: i64, source: Source) -> Vec<Detection> {
@@ -478,7 +478,7 @@ mod tests {
                 samples: vec![(0.0056, p)],
             },
             1_000,
-            Source::Wide150Fps,
+            Source::WIDE_150FPS,
         );
         assert_eq!(d[0].stamp, 5_601_000);
         assert_eq!(d[0].position, p);

@@ -99,7 +99,7 @@ impl CameraParams {
     /// The wide camera: 150 fps over the whole table volume, 2 mm, 8 ms +- 1.5 ms, position only.
     pub fn wide() -> Self {
         Self {
-            source: Source::Wide150Fps,
+            source: Source::WIDE_150FPS,
             frame_rate: 150.0,
             view: FieldOfView {
                 x: Interval::new(-1.9, 1.9),
@@ -125,7 +125,7 @@ impl CameraParams {
     /// the frames with 12 rad/s, 3 ms +- 0.5 ms.
     pub fn high_speed() -> Self {
         Self {
-            source: Source::HighSpeed900Fps,
+            source: Source::HIGHSPEED_900FPS,
             frame_rate: 900.0,
             view: FieldOfView {
                 x: Interval::new(-1.9, 0.05),
@@ -144,6 +144,7 @@ impl CameraParams {
     /// The estimator's source parameters that match this camera: its sigmas and mean latency.
     pub fn source_params(&self) -> SourceParams {
         SourceParams {
+            id: self.source.0,
             position_sigma: self.position_sigma,
             spin_sigma: if self.spin_probability > 0.0 {
                 self.spin_sigma
@@ -494,8 +495,8 @@ mod tests {
         assert_eq!(p.wide.frame_rate, 150.0);
         assert_eq!(p.high_speed.frame_rate, 900.0);
         assert_eq!(p.high_speed.view.x.max, 0.05);
-        assert_eq!(p.wide.source, Source::Wide150Fps);
-        assert_eq!(p.high_speed.source, Source::HighSpeed900Fps);
+        assert_eq!(p.wide.source, Source::WIDE_150FPS);
+        assert_eq!(p.high_speed.source, Source::HIGHSPEED_900FPS);
     }
 
     #[test]

@@ -328,7 +328,7 @@ pub fn simulate(config: &Config, options: &SimOptions) -> Result<Session, SimErr
         });
         previous_end = end_stamp;
     }
-    stream.sort_by_key(|d| (d.arrival, d.detection.stamp, d.detection.source.code()));
+    stream.sort_by_key(|d| (d.arrival, d.detection.stamp, d.detection.source.0));
     Ok(Session {
         shots,
         stream,
