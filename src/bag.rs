@@ -263,27 +263,92 @@ struct Records {
     ids: BTreeMap<u16, usize>,
 }
 
+/// The MCAP files of a rosbag2 directory in recording order: `metadata.yaml`'s
+/// `relative_file_paths` when it has one (as `ros2 bag play` reads them), else the `.mcap` files
+/// by their split number (`name_2` before `name_10`), then by name.
+pub fn rosbag2_files(dir: &Path) -> Result<Vec<PathBuf>, BagError> {
+    let not_a_bag = |reason: String| BagError::NotMcap {
+        path: dir.to_path_buf(),
+        reason,
+    };
+    let metadata = dir.join("metadata.yaml");
+    if let Ok(text) = std::fs::read_to_string(&metadata) {
+        let listed = rosbag2_listed_files(&text).map_err(|e| {
+            not_a_bag(format!(
+                "its metadata.yaml is not rosbag2's ({e}); move it away to read the .mcap files by their split number"
+            ))
+        })?;
+        let mut files = Vec::with_capacity(listed.len());
+        for name in listed {
+            // Before metadata version 4 the paths began with the bag directory's own name.
+            let file = Some(dir.join(&name))
+                .filter(|f| f.is_file())
+                .or_else(|| dir.parent().map(|p| p.join(&name)))
+                .unwrap_or_else(|| dir.join(&name));
+            if !name.ends_with(".mcap") {
+                return Err(not_a_bag(format!(
+                    "metadata.yaml lists `{name}`, which is not an MCAP file (a bag compressed per file: `ros2 bag decompress` it first)"
+                )));
+            }
+            if !file.is_file() {
+                return Err(not_a_bag(format!(
+                    "metadata.yaml lists `{name}`, which is missing from the directory"
+                )));
+            }
+            files.push(file);
+        }
+        if !files.is_empty() {
+            return Ok(files);
+        }
+    }
+    let entries = std::fs::read_dir(dir).map_err(|source| BagError::Io {
+        path: dir.to_path_buf(),
+        source,
+    })?;
+    let mut files: Vec<PathBuf> = entries
+        .filter_map(|entry| entry.ok().map(|e| e.path()))
+        .filter(|p| p.extension().is_some_and(|e| e == "mcap"))
+        .collect();
+    files.sort_by_cached_key(|p| {
+        let stem = p.file_stem().map(|s| s.to_string_lossy().into_owned());
+        let split = stem
+            .as_deref()
+            .and_then(|s| s.rsplit_once('_'))
+            .and_then(|(_, n)| n.parse::<u64>().ok());
+        (split, p.clone())
+    });
+    if files.is_empty() {
+        return Err(not_a_bag("a directory without .mcap files".to_string()));
+    }
+    Ok(files)
+}
+
+/// `rosbag2_bagfile_information.relative_file_paths` of a rosbag2 `metadata.yaml`.
+fn rosbag2_listed_files(text: &str) -> Result<Vec<String>, String> {
+    let document: serde_norway::Value = serde_norway::from_str(text).map_err(|e| e.to_string())?;
+    let info = document
+        .get("rosbag2_bagfile_information")
+        .ok_or("no rosbag2_bagfile_information")?;
+    let Some(paths) = info.get("relative_file_paths") else {
+        return Ok(Vec::new());
+    };
+    paths
+        .as_sequence()
+        .ok_or("relative_file_paths is not a list")?
+        .iter()
+        .map(|p| {
+            p.as_str()
+                .map(str::to_owned)
+                .ok_or_else(|| "relative_file_paths holds a non-string".to_owned())
+        })
+        .collect()
+}
+
 impl BagReader {
     /// Opens a bag file or rosbag2 directory; the channels of its summary sections are read.
     pub fn open(path: &Path) -> Result<Self, BagError> {
-        let io = |source| BagError::Io {
-            path: path.to_path_buf(),
-            source,
-        };
         let files = if path.is_dir() {
-            let mut files: Vec<PathBuf> = std::fs::read_dir(path)
-                .map_err(io)?
-                .filter_map(|entry| entry.ok().map(|e| e.path()))
-                .filter(|p| p.extension().is_some_and(|e| e == "mcap"))
-                .collect();
-            files.sort();
-            if files.is_empty() {
-                return Err(BagError::NotMcap {
-                    path: path.to_path_buf(),
-                    reason: "a directory without .mcap files".to_string(),
-                });
-            }
-            files
+            rosbag2_files(path)?
         } else {
             vec![path.to_path_buf()]
         };
@@ -827,8 +892,20 @@ impl<W: Write + Seek> BagWriter<W> {
     }
 
     /// The channel of a topic carrying one of ttball's known types (`pkg/msg/Type`), created on
-    /// first use with the type's full `ros2msg` schema.
+    /// first use with the type's full `ros2msg` schema, offered reliable and volatile (ttball's
+    /// outputs; see [`Self::channel_with_qos`]).
     pub fn channel(&mut self, topic: &str, type_name: &str) -> Result<u16, BagError> {
+        self.channel_with_qos(topic, type_name, OfferedQos::Reliable)
+    }
+
+    /// [`Self::channel`] with the QoS its publisher offers, recorded as rosbag2 records it
+    /// (the channel's `offered_qos_profiles`), so that `ros2 bag play` republishes it so.
+    pub fn channel_with_qos(
+        &mut self,
+        topic: &str,
+        type_name: &str,
+        qos: OfferedQos,
+    ) -> Result<u16, BagError> {
         if let Some(id) = self.channels.get(topic) {
             return Ok(*id);
         }
@@ -840,7 +917,7 @@ impl<W: Write + Seek> BagWriter<W> {
             schema_encoding: "ros2msg".to_string(),
             schema_data: schema.into_bytes(),
             message_encoding: "cdr".to_string(),
-            metadata: BTreeMap::new(),
+            metadata: BTreeMap::from([(OFFERED_QOS_PROFILES.to_owned(), qos.profiles_yaml())]),
         })
     }
 
@@ -918,6 +995,41 @@ impl<W: Write + Seek> BagWriter<W> {
             path: self.path.clone(),
             source,
         })
+    }
+}
+
+/// The channel metadata key under which rosbag2 records the QoS a topic's publishers offered
+/// (required by MCAP's `ros2` profile).
+pub const OFFERED_QOS_PROFILES: &str = "offered_qos_profiles";
+
+/// The QoS a channel's publisher offers, as far as `ros2 bag play` uses it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum OfferedQos {
+    /// Sensor data (REP 2003): best effort, volatile. The detections.
+    SensorData,
+    /// Reliable, volatile: ttball's outputs and the simulator's truth.
+    Reliable,
+    /// Reliable, transient local (latched): `/tf_static`.
+    TransientLocal,
+}
+
+impl OfferedQos {
+    /// The profile list as rosbag2 writes it (a YAML list of one profile, with the numeric
+    /// `rmw_qos_*_policy` values every ROS 2 distribution reads): history and depth unknown
+    /// (discovery does not carry them; rosbag2 records 3 / 0 too), durations infinite,
+    /// liveliness automatic.
+    pub fn profiles_yaml(self) -> String {
+        // rmw_qos_reliability_policy_e: 1 reliable, 2 best effort; rmw_qos_durability_policy_e:
+        // 1 transient local, 2 volatile.
+        let (reliability, durability) = match self {
+            Self::SensorData => (2, 2),
+            Self::Reliable => (1, 2),
+            Self::TransientLocal => (1, 1),
+        };
+        let infinite = "\n    sec: 2147483647\n    nsec: 4294967295";
+        format!(
+            "- history: 3\n  depth: 0\n  reliability: {reliability}\n  durability: {durability}\n  deadline:{infinite}\n  lifespan:{infinite}\n  liveliness: 1\n  liveliness_lease_duration:{infinite}\n  avoid_ros_namespace_conventions: false"
+        )
     }
 }
 

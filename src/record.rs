@@ -6,7 +6,7 @@
 
 use std::path::Path;
 
-use crate::bag::{BagError, BagWriter, encode, mcap_time};
+use crate::bag::{BagError, BagWriter, OfferedQos, encode, mcap_time};
 use crate::config::Config;
 use crate::detection::Detection;
 use crate::msgs::convert::{detection_to_msg, truth_intercept_msg, truth_msg};
@@ -22,7 +22,11 @@ pub fn write_session(
     with_truth: bool,
 ) -> Result<u64, BagError> {
     let mut writer = BagWriter::create(path)?;
-    let detections = writer.channel(&config.resolved_topics().detections, DETECTION_TYPE)?;
+    let detections = writer.channel_with_qos(
+        &config.resolved_topics().detections,
+        DETECTION_TYPE,
+        OfferedQos::SensorData,
+    )?;
     // Without truth, no truth channels either: the bag is what a camera system records.
     let truth_channels = if with_truth {
         Some((
@@ -83,7 +87,11 @@ pub fn write_detections(
     path: &Path,
 ) -> Result<u64, BagError> {
     let mut writer = BagWriter::create(path)?;
-    let channel = writer.channel(&config.resolved_topics().detections, DETECTION_TYPE)?;
+    let channel = writer.channel_with_qos(
+        &config.resolved_topics().detections,
+        DETECTION_TYPE,
+        OfferedQos::SensorData,
+    )?;
     let mut sorted: Vec<&Detection> = detections.iter().collect();
     sorted.sort_by_key(|d| d.stamp);
     for d in &sorted {

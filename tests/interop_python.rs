@@ -102,6 +102,18 @@ fn python_clients_decode_every_message_ttball_writes_to_the_same_values() {
             "{topic} not checked: {report}"
         );
     }
+    // The standard types, decoded by rosbags' own Humble and Jazzy definitions as well.
+    for standard in [
+        "visualization_msgs/msg/MarkerArray (humble)",
+        "visualization_msgs/msg/MarkerArray (jazzy)",
+        "nav_msgs/msg/Odometry (humble)",
+        "nav_msgs/msg/Odometry (jazzy)",
+    ] {
+        assert!(
+            report.contains(standard),
+            "{standard} not checked: {report}"
+        );
+    }
 }
 
 #[test]

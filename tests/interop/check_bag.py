@@ -6,9 +6,12 @@ Usage: check_bag.py BAG.mcap DUMP.jsonl
 DUMP.jsonl is `ttball dump BAG.mcap` (one JSON object per message, in log-time order). Each
 message is decoded twice, independently: by `mcap` + `mcap-ros2-support` (which parse the
 ros2msg schema embedded in the bag) and by `rosbags` (its own CDR deserialiser, with the types
-registered from the same schema text). Every field must equal ttball's value: integers and
-strings exactly, float64 exactly, float32 after rounding both sides to float32. Exit code 0
-when everything matches, 1 otherwise (with the first differences printed).
+registered from the same schema text). Messages of ROS 2's standard types are decoded a third
+and fourth time with rosbags' own typestores of ROS 2 Humble and Jazzy, independently of the
+schemas the bag embeds. Every field must equal ttball's value: integers and strings exactly,
+float64 exactly, float32 after rounding both sides to float32. Every channel must carry the
+`offered_qos_profiles` rosbag2 records (best effort for the detections, reliable otherwise).
+Exit code 0 when everything matches, 1 otherwise (with the first differences printed).
 """
 
 import dataclasses
@@ -19,7 +22,11 @@ import sys
 
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
+import yaml
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+
+# rosbags' own definitions of the ROS 2 distributions ttball targets.
+DISTRIBUTIONS = {"humble": get_typestore(Stores.ROS2_HUMBLE), "jazzy": get_typestore(Stores.ROS2_JAZZY)}
 
 
 def plain(value):
@@ -84,15 +91,21 @@ def main():
         expected = [json.loads(line) for line in f if line.strip()]
     decoded = []
     schemas = {}
+    problems = []
     with open(bag, "rb") as f:
         reader = make_reader(f, decoder_factories=[DecoderFactory()])
+        for channel in reader.get_summary().channels.values():
+            profiles = yaml.safe_load(channel.metadata.get("offered_qos_profiles", "null"))
+            reliability = 2 if channel.topic.endswith("/detections") else 1
+            if not (isinstance(profiles, list) and profiles and profiles[0].get("reliability") == reliability):
+                problems.append(f"{channel.topic}: offered_qos_profiles {profiles!r}, expected reliability {reliability}")
         for schema, channel, message, ros_msg in reader.iter_decoded_messages(log_time_order=True):
             schemas[schema.name] = schema.data.decode()
             decoded.append((channel.topic, schema.name, message, ros_msg))
     store = rosbags_typestore(schemas)
     known = {e["type"] for e in expected}
     decoded = [d for d in decoded if d[1] in known]
-    problems = []
+    standard = {}
     if len(decoded) != len(expected):
         problems.append(f"{len(decoded)} messages decoded, ttball wrote {len(expected)}")
     counts = {}
@@ -104,11 +117,17 @@ def main():
         compare(ours["message"], plain(ros_msg), f"{topic}@{message.log_time} (mcap-ros2)", problems)
         other = store.deserialize_cdr(message.data, type_name)
         compare(ours["message"], plain(other), f"{topic}@{message.log_time} (rosbags)", problems)
+        for distribution, typestore in DISTRIBUTIONS.items():
+            if type_name in typestore.fielddefs:
+                theirs = typestore.deserialize_cdr(message.data, type_name)
+                compare(ours["message"], plain(theirs), f"{topic}@{message.log_time} (rosbags {distribution})", problems)
+                standard[(type_name, distribution)] = standard.get((type_name, distribution), 0) + 1
         if len(problems) > 20:
             break
     for p in problems[:20]:
         print("MISMATCH", p)
     print("checked", ", ".join(f"{t}: {n}" for t, n in sorted(counts.items())))
+    print("standard types", ", ".join(f"{t} ({d}): {n}" for (t, d), n in sorted(standard.items())))
     sys.exit(1 if problems else 0)
 
 
