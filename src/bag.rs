@@ -751,20 +751,27 @@ impl Records {
             }
             mcap::records::Record::Channel(c) => {
                 let schema = self.schemas.get(&c.schema_id);
-                let index = channels
-                    .iter()
-                    .position(|known| known.topic == c.topic)
-                    .unwrap_or_else(|| {
-                        channels.push(ChannelInfo {
-                            topic: c.topic.clone(),
-                            schema_name: schema.map(|s| s.0.clone()).unwrap_or_default(),
-                            schema_encoding: schema.map(|s| s.1.clone()).unwrap_or_default(),
-                            schema_data: schema.map(|s| s.2.clone()).unwrap_or_default(),
-                            message_encoding: c.message_encoding.clone(),
-                            metadata: c.metadata.clone(),
-                        });
-                        channels.len() - 1
+                let known = channels.iter().position(|known| known.topic == c.topic);
+                // A summary may repeat its channels without their schemas (the data section has
+                // them): the channel then learns its schema when the data section names it.
+                if let (Some(i), Some((name, encoding, data))) = (known, schema)
+                    && channels[i].schema_name.is_empty()
+                {
+                    channels[i].schema_name.clone_from(name);
+                    channels[i].schema_encoding.clone_from(encoding);
+                    channels[i].schema_data.clone_from(data);
+                }
+                let index = known.unwrap_or_else(|| {
+                    channels.push(ChannelInfo {
+                        topic: c.topic.clone(),
+                        schema_name: schema.map(|s| s.0.clone()).unwrap_or_default(),
+                        schema_encoding: schema.map(|s| s.1.clone()).unwrap_or_default(),
+                        schema_data: schema.map(|s| s.2.clone()).unwrap_or_default(),
+                        message_encoding: c.message_encoding.clone(),
+                        metadata: c.metadata.clone(),
                     });
+                    channels.len() - 1
+                });
                 self.ids.insert(c.id, index);
             }
             _ => {}

@@ -232,7 +232,10 @@ mod tests {
             let low = sample[rank.saturating_sub(1)] as f64 * (1.0 - 1e-3);
             let high = sample[(rank + 1).min(sample.len() - 1)] as f64 * (1.0 + 1e-3) + 1.0;
             let value = histogram.quantile(q);
-            assert!((low..=high).contains(&value), "p{percent}: {value} not in {low}..{high}");
+            assert!(
+                (low..=high).contains(&value),
+                "p{percent}: {value} not in {low}..{high}"
+            );
         }
         let mut small = DurationHistogram::new();
         for ns in [100, 200, 300] {

@@ -1,0 +1,359 @@
+//! Interoperability with MCAP clients ttball did not write: Python `mcap` + `mcap-ros2-support`
+//! and `rosbags`, and Foxglove's own TypeScript parsers (`@mcap/core`, `@mcap/support`,
+//! `@foxglove/rosmsg`, `@foxglove/rosmsg2-serialization`, `@foxglove/rosmsg-msgs-common`),
+//! decode every message of a replay's output, smoothed (`ttball smooth`), to the same values
+//! ttball wrote, and a bag written by `mcap-ros2-support` replays in ttball.
+//!
+//! Needs a Python with those packages and the npm packages of `tests/interop/foxglove/`:
+//! `.ci/run` makes a virtual environment and sets `TTBALL_PYTHON` to its interpreter, and runs
+//! `npm ci` there. Without them the tests say so and pass, except under CI (`CI=true`), where
+//! a missing client fails them.
+#![cfg(feature = "cli")]
+#![allow(
+    clippy::unwrap_used,
+    clippy::expect_used,
+    reason = "test code: fail loudly"
+)]
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+mod common;
+
+use common::ok as ttball;
+
+fn dir() -> PathBuf {
+    common::scratch("interop")
+}
+
+fn python() -> Option<PathBuf> {
+    match std::env::var_os("TTBALL_PYTHON") {
+        Some(p) => Some(PathBuf::from(p)),
+        None => {
+            assert!(
+                std::env::var("CI").as_deref() != Ok("true"),
+                "CI must set TTBALL_PYTHON (see .ci/run)"
+            );
+            eprintln!(
+                "skipped: set TTBALL_PYTHON to a Python with mcap, mcap-ros2-support and rosbags (see .ci/run)"
+            );
+            None
+        }
+    }
+}
+
+fn script(name: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("tests/interop")
+        .join(name)
+}
+
+/// The npm packages' directory, when `npm ci` has filled it.
+fn foxglove_parsers() -> Option<PathBuf> {
+    let dir = script("foxglove");
+    if dir.join("node_modules/@mcap/core").is_dir() {
+        return Some(dir);
+    }
+    assert!(
+        std::env::var("CI").as_deref() != Ok("true"),
+        "CI must install Foxglove's parsers: npm ci in tests/interop/foxglove (see .ci/run)"
+    );
+    eprintln!("skipped: run `npm ci` in tests/interop/foxglove for Foxglove's parsers");
+    None
+}
+
+/// A replay's output (all its topics, odometry included) smoothed: every message type ttball
+/// writes in one bag, and its `ttball dump`.
+fn every_output(d: &Path) -> (PathBuf, PathBuf) {
+    let s = |p: &Path| p.to_str().unwrap().to_owned();
+    let sim = d.join("sim.mcap");
+    let out = d.join("out.mcap");
+    ttball(&[
+        "simulate",
+        "--output",
+        &s(&sim),
+        "--shots",
+        "2",
+        "--seed",
+        "5",
+    ]);
+    let replayed = d.join("replayed.mcap");
+    ttball(&[
+        "replay",
+        &s(&sim),
+        "--output",
+        &s(&replayed),
+        "-p",
+        "topics.odometry:=ball/odometry",
+    ]);
+    // Smoothing the replay's output adds /ball/smoothed to everything above.
+    ttball(&["smooth", &s(&replayed), "--output", &s(&out)]);
+    let dump = ttball(&["dump", &s(&out)]);
+    let dump_path = d.join("out.jsonl");
+    std::fs::write(&dump_path, &dump).unwrap();
+    (out, dump_path)
+}
+
+/// Every topic a replay writes (and the smoother's), as a client's report must list them.
+const EVERY_TOPIC: [&str; 8] = [
+    "/ball/detections",
+    "/ball/state",
+    "/ball/intercept",
+    "/ball/trajectory",
+    "/ball/markers",
+    "/ball/odometry",
+    "/ball/truth",
+    "/ball/smoothed",
+];
+
+#[test]
+fn foxglove_parsers_decode_every_message_ttball_writes_to_the_same_values() {
+    let Some(parsers) = foxglove_parsers() else {
+        return;
+    };
+    let d = common::scratch("interop-foxglove");
+    let (out, dump_path) = every_output(&d);
+    let check = Command::new("node")
+        .arg(parsers.join("check_bag.mjs"))
+        .arg(&out)
+        .arg(&dump_path)
+        .current_dir(&parsers)
+        .output()
+        .unwrap();
+    let report = String::from_utf8_lossy(&check.stdout);
+    assert!(
+        check.status.success(),
+        "{report}{}",
+        String::from_utf8_lossy(&check.stderr)
+    );
+    for topic in EVERY_TOPIC {
+        assert!(
+            report.contains(&format!("{topic}: ")),
+            "{topic} not checked: {report}"
+        );
+    }
+    assert!(report.contains("CRCs valid"), "{report}");
+    // ttball's standard definitions are ROS 2 Humble's: equal to Jazzy's but for the marker
+    // type Jazzy added (a constant: the wire format and type hash are the same).
+    for standard in [
+        "std_msgs/Header (humble)",
+        "std_msgs/Header (jazzy)",
+        "visualization_msgs/Marker (humble)",
+        "visualization_msgs/Marker (jazzy; jazzy adds ARROW_STRIP=12)",
+        "geometry_msgs/TwistWithCovariance (jazzy)",
+    ] {
+        assert!(
+            report.contains(standard),
+            "{standard} not checked: {report}"
+        );
+    }
+}
+
+#[test]
+fn python_clients_decode_every_message_ttball_writes_to_the_same_values() {
+    let Some(python) = python() else { return };
+    let (out, dump_path) = every_output(&dir());
+    let check = Command::new(&python)
+        .arg(script("check_bag.py"))
+        .arg(&out)
+        .arg(&dump_path)
+        .output()
+        .unwrap();
+    let report = String::from_utf8_lossy(&check.stdout);
+    assert!(
+        check.status.success(),
+        "{report}{}",
+        String::from_utf8_lossy(&check.stderr)
+    );
+    for topic in EVERY_TOPIC {
+        assert!(
+            report.contains(&format!("{topic}: ")),
+            "{topic} not checked: {report}"
+        );
+    }
+    // The standard types, decoded by rosbags' own Humble and Jazzy definitions as well.
+    for standard in [
+        "visualization_msgs/msg/MarkerArray (humble)",
+        "visualization_msgs/msg/MarkerArray (jazzy)",
+        "nav_msgs/msg/Odometry (humble)",
+        "nav_msgs/msg/Odometry (jazzy)",
+    ] {
+        assert!(
+            report.contains(standard),
+            "{standard} not checked: {report}"
+        );
+    }
+}
+
+#[test]
+fn a_bag_written_by_mcap_ros2_support_replays_in_ttball() {
+    let Some(python) = python() else { return };
+    let d = dir();
+    let bag = d.join("python.mcap");
+    let write = Command::new(&python)
+        .arg(script("write_bag.py"))
+        .arg(&bag)
+        .arg(Path::new(env!("CARGO_MANIFEST_DIR")).join("msgs/msg"))
+        .output()
+        .unwrap();
+    assert!(
+        write.status.success(),
+        "{}",
+        String::from_utf8_lossy(&write.stderr)
+    );
+    let out = d.join("python-out.mcap");
+    let summary = ttball(&[
+        "replay",
+        bag.to_str().unwrap(),
+        "--output",
+        out.to_str().unwrap(),
+    ]);
+    assert!(
+        summary.contains("detections read 45, fused 41, initialising 4, rejected 0, undecodable 0"),
+        "{summary}"
+    );
+    assert!(summary.contains("tracks 1"), "{summary}");
+}
+
+/// The MCAP format's conformance corpus (`tests/data/mcap_conformance/`: every record type in
+/// every layout the writers produce: statistics, summaries, chunks, indexes, repeated schemas and
+/// channels, ...), each variant written from its JSON by Foxglove's own writer
+/// (`write_conformance.mjs`; the corpus's own files are Git LFS objects the copy lacks):
+/// ttball's reader gives each file's channels (with their schemas) and messages as the JSON
+/// lists them (messages in log-time order, file order among equal times), undamaged; the
+/// records ttball does not use (attachments, metadata, indexes, statistics) are read past
+/// without error. The padded variants cannot be written by McapWriter and are not checked.
+#[test]
+fn the_mcap_conformance_corpus_reads_as_its_json_lists() {
+    use serde_json::Value;
+    use std::collections::{BTreeMap, HashMap};
+    let Some(parsers) = foxglove_parsers() else {
+        return;
+    };
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/mcap_conformance");
+    let written = common::scratch("mcap-conformance");
+    let generate = Command::new("node")
+        .arg(parsers.join("write_conformance.mjs"))
+        .arg(&root)
+        .arg(&written)
+        .current_dir(&parsers)
+        .output()
+        .unwrap();
+    let log = String::from_utf8_lossy(&generate.stdout);
+    assert!(
+        generate.status.success() && log.contains("written 208, skipped 208 padded variants"),
+        "{log}{}",
+        String::from_utf8_lossy(&generate.stderr)
+    );
+    let number = |v: &Value| v.as_str().unwrap().parse::<u64>().unwrap();
+    let bytes = |v: &Value| -> Vec<u8> {
+        v.as_array()
+            .unwrap()
+            .iter()
+            .map(|b| u8::try_from(number(b)).unwrap())
+            .collect()
+    };
+    let text = |v: &Value| v.as_str().unwrap().to_owned();
+    let mut files = 0;
+    let mut messages = 0;
+    let mut dirs: Vec<PathBuf> = std::fs::read_dir(&root)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .filter(|p| p.is_dir())
+        .collect();
+    dirs.sort();
+    for dir in dirs {
+        let mut specs: Vec<PathBuf> = std::fs::read_dir(&dir)
+            .unwrap()
+            .map(|e| e.unwrap().path())
+            .filter(|p| p.extension().is_some_and(|e| e == "json"))
+            .collect();
+        specs.sort();
+        for spec in specs {
+            let path = written.join(spec.with_extension("mcap").file_name().unwrap());
+            if !path.exists() {
+                continue; // a padded variant
+            }
+            let name = path.display().to_string();
+            let listed: Value =
+                serde_json::from_str(&std::fs::read_to_string(&spec).unwrap()).unwrap();
+            let mut schemas: HashMap<u64, (String, String, Vec<u8>)> = HashMap::new();
+            let mut channels: HashMap<u64, ttball::bag::ChannelInfo> = HashMap::new();
+            let mut expected = Vec::new();
+            for record in listed["records"].as_array().unwrap() {
+                let fields: HashMap<&str, &Value> = record["fields"]
+                    .as_array()
+                    .unwrap()
+                    .iter()
+                    .map(|f| (f[0].as_str().unwrap(), &f[1]))
+                    .collect();
+                match record["type"].as_str().unwrap() {
+                    "Schema" => {
+                        schemas.insert(
+                            number(fields["id"]),
+                            (
+                                text(fields["name"]),
+                                text(fields["encoding"]),
+                                bytes(fields["data"]),
+                            ),
+                        );
+                    }
+                    "Channel" => {
+                        let (schema_name, schema_encoding, schema_data) = schemas
+                            .get(&number(fields["schema_id"]))
+                            .cloned()
+                            .unwrap_or_default();
+                        let metadata: BTreeMap<String, String> = fields["metadata"]
+                            .as_object()
+                            .unwrap()
+                            .iter()
+                            .map(|(k, v)| (k.clone(), text(v)))
+                            .collect();
+                        channels.insert(
+                            number(fields["id"]),
+                            ttball::bag::ChannelInfo {
+                                topic: text(fields["topic"]),
+                                schema_name,
+                                schema_encoding,
+                                schema_data,
+                                message_encoding: text(fields["message_encoding"]),
+                                metadata,
+                            },
+                        );
+                    }
+                    "Message" => expected.push((
+                        channels[&number(fields["channel_id"])].clone(),
+                        number(fields["log_time"]),
+                        number(fields["publish_time"]),
+                        bytes(fields["data"]),
+                    )),
+                    _ => {}
+                }
+            }
+            expected.sort_by_key(|m| m.1);
+            let bag = ttball::bag::read_bag_file(&path).unwrap_or_else(|e| panic!("{name}: {e}"));
+            assert_eq!(bag.damage, None, "{name}");
+            for channel in channels.values() {
+                assert!(bag.channels.contains(channel), "{name}: {channel:?}");
+            }
+            let read: Vec<_> = bag
+                .messages
+                .iter()
+                .map(|m| {
+                    (
+                        bag.channels[m.channel].clone(),
+                        m.log_time,
+                        m.publish_time,
+                        m.data.clone(),
+                    )
+                })
+                .collect();
+            assert_eq!(read, expected, "{name}");
+            files += 1;
+            messages += read.len();
+        }
+    }
+    // Every variant written was read, with every message its JSON lists.
+    assert_eq!(files, 208);
+    assert!(messages > 400, "{messages}");
+}
