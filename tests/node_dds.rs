@@ -994,3 +994,256 @@ echo $? > node.rc
         assert!(log.contains(expected), "{expected:?} not in {log}");
     }
 }
+
+/// The Fast DDS peer (`tests/interop/fastdds/`, built by `.ci/run` with Debian's Fast DDS and
+/// fastddsgen; `TTBALL_FASTDDS_PEER` names it), or why the test cannot run.
+fn fastdds_peer() -> Option<PathBuf> {
+    let ci = std::env::var("CI").as_deref() == Ok("true");
+    let skip = |why: &str| {
+        assert!(
+            !ci,
+            "CI must be able to run the Fast DDS interop test: {why}"
+        );
+        eprintln!("skipped: {why}");
+        None
+    };
+    let Some(peer) = std::env::var_os("TTBALL_FASTDDS_PEER").map(PathBuf::from) else {
+        return skip(
+            "set TTBALL_FASTDDS_PEER to the peer tests/interop/fastdds/build.sh builds (see .ci/run)",
+        );
+    };
+    let netns = Command::new("unshare")
+        .args(["-n", "true"])
+        .status()
+        .is_ok_and(|s| s.success());
+    if !netns {
+        return skip("cannot make a loopback-only network namespace (`unshare -n` failed)");
+    }
+    Some(peer)
+}
+
+fn to_hex(bytes: &[u8]) -> String {
+    bytes.iter().map(|b| format!("{b:02x}")).collect()
+}
+
+/// ROS 2's default middleware, Fast DDS (`rmw_fastrtps`), meets the node with ttball's default
+/// service framing (`enhanced`): a C++ peer on Debian's Fast DDS, with types from fastddsgen
+/// for the IDL of `msgs/`, publishes the bag's detections and records `/ball/state` and
+/// `/ball/intercept`, then calls `~/predict_trajectory`, `~/predict_rebound`, `~/plan_return`,
+/// `~/list_parameters` and `~/get_parameters` as rmw_fastrtps does (the reply reader's GUID in
+/// the request's related sample identity, the reply matched by the one the server sets).
+/// Every detection arrives; the states and interceptions equal the replay's bit for bit; every
+/// reply equals the in-process answer, bit for bit.
+#[test]
+fn the_node_talks_to_fast_dds_as_rmw_fastrtps_does() {
+    use ros2_client::rcl_interfaces::{
+        GetParametersRequest, GetParametersResponse, ListParametersRequest, ListParametersResponse,
+    };
+    let Some(peer) = fastdds_peer() else {
+        return;
+    };
+    let _turn = DDS
+        .lock()
+        .unwrap_or_else(std::sync::PoisonError::into_inner);
+    let dir = common::scratch("dds-fastdds");
+    let detections = bag_detections(&common::root().join(BAG));
+    let lines: String = detections
+        .iter()
+        .map(|(_, data)| to_hex(data) + "\n")
+        .collect();
+    std::fs::write(dir.join("detections.hex"), lines).unwrap();
+
+    // The calls, and what the pipeline that took the same detections answers in process.
+    let config = Config::default();
+    let mut pipeline = Pipeline::new(&config);
+    for (_, data) in &detections {
+        pipeline.on_detection(&decode(data).unwrap());
+    }
+    let stamp = Time {
+        sec: 1_700_000_100,
+        nanosec: 250_000_000,
+    };
+    let mut predict = PredictTrajectoryRequest {
+        track_id: 0,
+        horizon: 0.5,
+        dt: 0.01,
+        ..PredictTrajectoryRequest::default()
+    };
+    predict.initial.header.stamp = stamp;
+    set_state(
+        &mut predict.initial,
+        [
+            1.0178, -0.0184, 0.4448, -5.4122, -0.1333, 1.5129, 7.051, -40.643, -3.915,
+        ],
+    );
+    let mut plan = PlanReturnRequest {
+        track_id: 0,
+        target: Point {
+            x: 0.9,
+            y: 0.3,
+            z: 0.0,
+        },
+        impact_offset: 0.05,
+        brush_speed: 1.0,
+        ..PlanReturnRequest::default()
+    };
+    plan.ball.header.stamp = stamp;
+    set_state(
+        &mut plan.ball,
+        [-1.6, 0.1, 0.25, -5.0, 0.4, -1.0, 20.0, -150.0, 30.0],
+    );
+    let planned = pipeline.plan_return(&plan);
+    assert!(planned.success, "{}", planned.message);
+    let rebound = PredictReboundRequest {
+        ball_position: plan.ball.position,
+        ball_velocity: plan.ball.velocity,
+        ball_spin: plan.ball.spin,
+        racket_velocity: planned.racket_velocity,
+        racket_normal: planned.racket_normal,
+        impact_offset: 0.05,
+    };
+    let list = ListParametersRequest {
+        prefixes: vec![],
+        depth: 0,
+    };
+    let names = vec![
+        "intercept.plane_x".to_owned(),
+        "table.restitution".to_owned(),
+        "sources.wide_150fps.position_sigma".to_owned(),
+        "node.name".to_owned(),
+    ];
+    let get = GetParametersRequest {
+        names: names.clone(),
+    };
+    let parameters = ttball::node::parameters::Parameters::new(&config);
+    let calls = [
+        (
+            "/ttball/predict_trajectory",
+            "PredictTrajectory",
+            cdr(&predict),
+            cdr(&pipeline.predict_trajectory(&predict)),
+        ),
+        (
+            "/ttball/predict_rebound",
+            "PredictRebound",
+            cdr(&rebound),
+            cdr(&pipeline.predict_rebound(&rebound)),
+        ),
+        (
+            "/ttball/plan_return",
+            "PlanReturn",
+            cdr(&plan),
+            cdr(&planned),
+        ),
+        (
+            "/ttball/list_parameters",
+            "ListParameters",
+            cdr(&list),
+            cdr(&ListParametersResponse {
+                result: parameters.list(&[], 0),
+            }),
+        ),
+        (
+            "/ttball/get_parameters",
+            "GetParameters",
+            cdr(&get),
+            cdr(&GetParametersResponse {
+                values: parameters.get(&names),
+            }),
+        ),
+    ];
+    let call_lines: String = calls
+        .iter()
+        .map(|(service, kind, request, _)| format!("{service} {kind} {}\n", to_hex(request)))
+        .collect();
+    std::fs::write(dir.join("calls.txt"), call_lines).unwrap();
+
+    let script = format!(
+        r#"
+export ROS_DOMAIN_ID=45
+cd "{dir}"
+"{ttball}" node -p node.localhost_only:=true > node.out 2> node.err &
+node=$!
+"{peer}" --domain 45 --detections detections.hex --rate 500 --calls calls.txt --out . > peer.out 2> peer.err
+echo $? > peer.rc
+kill -TERM $node
+wait $node
+echo $? > node.rc
+"#,
+        dir = dir.display(),
+        ttball = env!("CARGO_BIN_EXE_ttball"),
+        peer = peer.display(),
+    );
+    common::run_on_loopback_only(&script);
+    let read = |name: &str| std::fs::read_to_string(dir.join(name)).unwrap_or_default();
+    let context = format!(
+        "peer: {}{}{}\nnode: {}",
+        read("summary.txt"),
+        read("peer.out"),
+        read("peer.err"),
+        read("node.err")
+    );
+    assert_eq!(read("peer.rc").trim(), "0", "{context}");
+    assert_eq!(read("node.rc").trim(), "0", "{context}");
+    let summary = read("summary.txt");
+    assert!(!summary.contains("error"), "{context}");
+    assert!(
+        summary.contains(&format!("sent {}\n", detections.len())),
+        "{context}"
+    );
+
+    // Every detection reached the node; the outputs are the replay's, bit for bit.
+    let node_out = read("node.out");
+    let received: usize = node_out
+        .split("detections received ")
+        .nth(1)
+        .and_then(|rest| rest.split(',').next())
+        .and_then(|n| n.parse().ok())
+        .unwrap_or_else(|| panic!("no summary from the node: {node_out}"));
+    let decoded = |name: &str| -> Vec<Vec<u8>> { read(name).lines().map(hex).collect() };
+    let states: Vec<BallState> = decoded("states.hex")
+        .iter()
+        .map(|b| decode(b).unwrap())
+        .collect();
+    let intercepts: Vec<InterceptPrediction> = decoded("intercepts.hex")
+        .iter()
+        .map(|b| decode(b).unwrap())
+        .collect();
+    let (replay_states, replay_intercepts) = replayed_outputs(&dir, BAG);
+    eprintln!(
+        "Fast DDS: {received} of {} detections arrived; {} states, {} intercepts",
+        detections.len(),
+        states.len(),
+        intercepts.len()
+    );
+    let whole = received == detections.len();
+    compare("states", &states, &replay_states, whole);
+    compare("intercepts", &intercepts, &replay_intercepts, whole);
+    assert!(
+        received * 100 >= detections.len() * 99,
+        "{received} of {} detections arrived",
+        detections.len()
+    );
+
+    // Every reply, as rmw_fastrtps matched it, equals the in-process answer.
+    let replies: Vec<(String, Vec<u8>)> = read("replies.txt")
+        .lines()
+        .map(|line| {
+            let (service, payload) = line.split_once(' ').unwrap();
+            (service.to_owned(), hex(payload))
+        })
+        .collect();
+    assert_eq!(replies.len(), calls.len(), "{context}");
+    for ((service, reply), (expected_service, kind, _, expected)) in replies.iter().zip(&calls) {
+        assert_eq!(service, expected_service);
+        // Fast CDR may pad the end of a payload to 4 bytes: equal up to that.
+        let trimmed = &reply[..expected.len().min(reply.len())];
+        assert_eq!(trimmed, &expected[..], "{kind}: the reply differs");
+        assert!(reply.len() - expected.len() < 4, "{kind}");
+    }
+}
+
+/// A value's ROS 2 CDR payload (encapsulation header included).
+fn cdr<T: Serialize>(value: &T) -> Vec<u8> {
+    ttball::bag::encode("a service message", value).unwrap()
+}
