@@ -854,8 +854,15 @@ pub struct BagWriter<W: Write + Seek> {
     path: PathBuf,
     schemas: BTreeMap<(String, Vec<u8>), u16>,
     channels: BTreeMap<String, u16>,
+    /// Each channel's description, by id (for the observer).
+    infos: BTreeMap<u16, ChannelInfo>,
     sequence: u32,
+    observer: Option<Observer>,
 }
+
+/// Sees every message a [`BagWriter`] writes, after it is written: its channel, log time and
+/// payload (e.g. the live view, [`crate::live_view`]).
+pub type Observer = Box<dyn FnMut(&ChannelInfo, u64, &[u8])>;
 
 impl BagWriter<BufWriter<File>> {
     /// Creates (or replaces) a bag file.
@@ -887,8 +894,15 @@ impl<W: Write + Seek> BagWriter<W> {
             path: path.to_path_buf(),
             schemas: BTreeMap::new(),
             channels: BTreeMap::new(),
+            infos: BTreeMap::new(),
             sequence: 0,
+            observer: None,
         })
+    }
+
+    /// Shows every message written from now on to `observer` as well.
+    pub fn observe(&mut self, observer: Observer) {
+        self.observer = Some(observer);
     }
 
     fn write_error(&self, e: mcap::McapError) -> BagError {
@@ -959,6 +973,7 @@ impl<W: Write + Seek> BagWriter<W> {
             )
             .map_err(|e| self.write_error(e))?;
         self.channels.insert(info.topic.clone(), id);
+        self.infos.insert(id, info.clone());
         Ok(id)
     }
 
@@ -979,7 +994,11 @@ impl<W: Write + Seek> BagWriter<W> {
         };
         self.writer
             .write_to_known_channel(&header, data)
-            .map_err(|e| self.write_error(e))
+            .map_err(|e| self.write_error(e))?;
+        if let (Some(observe), Some(info)) = (&mut self.observer, self.infos.get(&channel)) {
+            observe(info, log_time, data);
+        }
+        Ok(())
     }
 
     /// Encodes a message as CDR and writes it; log and publish time are `log_time` [ns].

@@ -41,6 +41,8 @@ pub mod estimator;
 pub mod eval;
 pub mod frames;
 pub mod intercept;
+#[cfg(feature = "live-view")]
+pub mod live_view;
 #[cfg(feature = "interface")]
 pub mod msgs;
 #[cfg(feature = "node")]

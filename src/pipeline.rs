@@ -74,6 +74,8 @@ pub struct Pipeline {
     frames: Frames,
     /// Whether the state is published as odometry too (`topics.odometry` set).
     odometry: bool,
+    /// The table the markers draw.
+    table: crate::config::TableParams,
 }
 
 impl Pipeline {
@@ -89,6 +91,7 @@ impl Pipeline {
             last_intercept: None,
             frames: Frames::new(&config.frames.table_frame),
             odometry: !config.topics.odometry.is_empty(),
+            table: config.table.clone(),
         }
     }
 
@@ -169,7 +172,13 @@ impl Pipeline {
                 self.last_trajectory = Some((estimate.track_id, stamp));
                 published.trajectory =
                     Some(trajectory_msg(stamp, estimate.track_id, &trajectory, frame));
-                published.markers = Some(markers(estimate, Some(intercept), &trajectory, frame));
+                published.markers = Some(markers(
+                    estimate,
+                    Some(intercept),
+                    &trajectory,
+                    &self.table,
+                    frame,
+                ));
             }
         }
         Step {

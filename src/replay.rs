@@ -274,6 +274,19 @@ pub fn replay(
     progress: &mut dyn FnMut(u64, u64),
     cancel: &AtomicBool,
 ) -> Result<ReplaySummary, ReplayError> {
+    replay_observed(input, output, config, progress, cancel, None)
+}
+
+/// [`replay`], every message written to `output` shown to `observer` too, as it is written
+/// (e.g. the live view at recorded pace: `ttball replay --foxglove`).
+pub fn replay_observed(
+    input: &Path,
+    output: &Path,
+    config: &Config,
+    progress: &mut dyn FnMut(u64, u64),
+    cancel: &AtomicBool,
+    observer: Option<crate::bag::Observer>,
+) -> Result<ReplaySummary, ReplayError> {
     let mut reader = BagReader::open(input)?;
     let topic = &config.resolved_topics().detections;
     // A finished bag names its channels in its summary: the detection topic is checked before
@@ -300,6 +313,9 @@ pub fn replay(
         .map(|t| Scorer::new(t.shots.clone()));
 
     let mut writer = BagWriter::create(output)?;
+    if let Some(observer) = observer {
+        writer.observe(observer);
+    }
     let outputs = Outputs {
         state: writer.channel(&config.resolved_topics().state, STATE_TYPE)?,
         intercept: writer.channel(&config.resolved_topics().intercept, INTERCEPT_TYPE)?,

@@ -357,3 +357,275 @@ fn the_mcap_conformance_corpus_reads_as_its_json_lists() {
     assert_eq!(files, 208);
     assert!(messages > 400, "{messages}");
 }
+
+/// A free TCP port on 127.0.0.1 (bound, then released for the server to take).
+fn free_port() -> u16 {
+    std::net::TcpListener::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port()
+}
+
+/// Foxglove's own WebSocket client (`live_client.mjs`, `@foxglove/ws-protocol`) watching
+/// `url` for `seconds` after the first message; its report.
+fn watch_live_view(parsers: &Path, url: &str, seconds: u32, report: &Path) -> Command {
+    let mut client = Command::new("node");
+    client
+        .arg(parsers.join("live_client.mjs"))
+        .arg(url)
+        .arg(seconds.to_string())
+        .arg(report)
+        .current_dir(parsers);
+    client
+}
+
+/// The report's every channel advertised with its ros2msg schema and cdr encoding, every
+/// message received on each of `topics` decoded with nothing left over.
+fn assert_live_view(report: &serde_json::Value, topics: &[&str]) {
+    assert_eq!(report["server"]["name"], "ttball", "{report:#}");
+    assert!(
+        report["problems"].as_array().unwrap().is_empty(),
+        "{report:#}"
+    );
+    for channel in report["channels"].as_array().unwrap() {
+        assert_eq!(channel["encoding"], "cdr", "{channel}");
+        assert_eq!(channel["schemaEncoding"], "ros2msg", "{channel}");
+    }
+    for topic in topics {
+        let seen = &report["topics"][topic];
+        let received = seen["received"].as_u64().unwrap_or(0);
+        assert!(received > 0, "nothing on {topic}: {report:#}");
+        assert_eq!(seen["decoded"].as_u64(), Some(received), "{topic}");
+    }
+}
+
+/// Whether two JSON values are equal, numbers compared as doubles (1 == 1.0).
+fn same_json(a: &serde_json::Value, b: &serde_json::Value) -> bool {
+    use serde_json::Value;
+    match (a, b) {
+        (Value::Number(x), Value::Number(y)) => x.as_f64() == y.as_f64(),
+        (Value::Array(x), Value::Array(y)) => {
+            x.len() == y.len() && x.iter().zip(y).all(|(p, q)| same_json(p, q))
+        }
+        (Value::Object(x), Value::Object(y)) => {
+            x.len() == y.len()
+                && x.iter()
+                    .all(|(k, v)| y.get(k).is_some_and(|w| same_json(v, w)))
+        }
+        _ => a == b,
+    }
+}
+
+/// `ttball replay --foxglove` serves the bag and the outputs at recorded pace (here 8x) to
+/// Foxglove's own WebSocket client: every topic advertised with its schema, every message
+/// decoded, and each topic's first one equal to the message of the same topic and log time in
+/// the replay's output bag.
+#[test]
+fn a_replay_is_watched_live_by_foxglove_s_websocket_client() {
+    let Some(parsers) = foxglove_parsers() else {
+        return;
+    };
+    let d = common::scratch("live-replay");
+    let port = free_port();
+    let output = d.join("out.mcap");
+    let bag = common::root().join("bags/sim_rally_2cams.mcap");
+    let replay = Command::new(env!("CARGO_BIN_EXE_ttball"))
+        .args(["replay", bag.to_str().unwrap(), "--output"])
+        .arg(&output)
+        .args(["--foxglove", &format!("127.0.0.1:{port}")])
+        .args(["--rate", "8", "--foxglove-wait", "30"])
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let report_path = d.join("view.json");
+    let client = watch_live_view(&parsers, &format!("ws://127.0.0.1:{port}"), 4, &report_path)
+        .output()
+        .unwrap();
+    let replayed = replay.wait_with_output().unwrap();
+    assert!(
+        client.status.success() && replayed.status.success(),
+        "client: {}{}\nreplay: {}",
+        String::from_utf8_lossy(&client.stdout),
+        String::from_utf8_lossy(&client.stderr),
+        String::from_utf8_lossy(&replayed.stderr)
+    );
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&report_path).unwrap()).unwrap();
+    let topics = [
+        "/ball/detections",
+        "/ball/state",
+        "/ball/intercept",
+        "/ball/trajectory",
+        "/ball/markers",
+        "/ball/truth",
+    ];
+    assert_live_view(&report, &topics);
+    let dump = ttball(&["dump", output.to_str().unwrap()]);
+    for topic in topics {
+        let seen = &report["topics"][topic];
+        let log_time = seen["first_log_time"].as_str().unwrap();
+        let needle = format!("{{\"log_time\":{log_time},");
+        let recorded = dump
+            .lines()
+            .filter(|l| l.starts_with(&needle) && l.contains(&format!("\"topic\":\"{topic}\"")))
+            .map(|l| serde_json::from_str::<serde_json::Value>(l).unwrap())
+            .any(|m| same_json(&m["message"], &seen["first"]));
+        assert!(
+            recorded,
+            "{topic}: the first message seen live is not the bag's"
+        );
+    }
+}
+
+/// `ttball node --foxglove` shows the detections it takes and every output live to Foxglove's
+/// own WebSocket client, beside DDS (fed by `ttball play`, in the loopback-only namespace).
+#[test]
+fn the_node_is_watched_live_by_foxglove_s_websocket_client() {
+    let Some(parsers) = foxglove_parsers() else {
+        return;
+    };
+    let netns = Command::new("unshare")
+        .args(["-n", "true"])
+        .status()
+        .is_ok_and(|s| s.success());
+    if !netns {
+        assert!(
+            std::env::var("CI").as_deref() != Ok("true"),
+            "CI must be able to make a loopback-only network namespace"
+        );
+        eprintln!("skipped: `unshare -n` failed");
+        return;
+    }
+    let d = common::scratch("live-node");
+    let report_path = d.join("view.json");
+    let client = watch_live_view(&parsers, "ws://127.0.0.1:18765", 3, &report_path);
+    let script = format!(
+        r#"
+export ROS_DOMAIN_ID=46 ROS_LOCALHOST_ONLY=1
+cd "{dir}"
+"{ttball}" node --foxglove 127.0.0.1:18765 > node.out 2> node.err &
+node=$!
+{client:?} > client.out 2> client.err &
+client=$!
+"{ttball}" play "{bag}" --rate 4 --wait 30 > play.out 2> play.err
+wait $client
+kill -TERM $node
+wait $node
+echo $? > node.rc
+"#,
+        dir = d.display(),
+        ttball = env!("CARGO_BIN_EXE_ttball"),
+        bag = common::root().join("bags/sim_rally_2cams.mcap").display(),
+    );
+    common::run_on_loopback_only(&script);
+    let read = |name: &str| std::fs::read_to_string(d.join(name)).unwrap_or_default();
+    assert_eq!(read("node.rc").trim(), "0", "node: {}", read("node.err"));
+    let report: serde_json::Value = serde_json::from_str(&read("view.json")).unwrap_or_else(|e| {
+        panic!(
+            "{e}: client: {}{}\nnode: {}",
+            read("client.out"),
+            read("client.err"),
+            read("node.err")
+        )
+    });
+    assert_live_view(
+        &report,
+        &[
+            "/ball/detections",
+            "/ball/state",
+            "/ball/intercept",
+            "/ball/trajectory",
+            "/ball/markers",
+        ],
+    );
+}
+
+/// The shipped viewer configurations (`config/foxglove_layout.json`, `config/ttball.rviz`) show
+/// what ttball publishes: every topic they name is one of the node's (by default names;
+/// `/ball/odometry` once `topics.odometry` is set), every panel the layout places is
+/// configured, and both are fixed on the table frame.
+#[test]
+fn the_viewer_configurations_name_ttball_s_topics_and_frame() {
+    use serde_json::Value;
+    let config = ttball::config::Config::default();
+    let t = config.resolved_topics();
+    let published = [
+        t.state.as_str(),
+        t.intercept.as_str(),
+        t.trajectory.as_str(),
+        t.markers.as_str(),
+        t.diagnostics.as_str(),
+        "/ball/odometry",
+        "/rosout",
+    ];
+    let root = common::root();
+    let layout: Value = serde_json::from_str(
+        &std::fs::read_to_string(root.join("config/foxglove_layout.json")).unwrap(),
+    )
+    .unwrap();
+    let panels = layout["configById"].as_object().unwrap();
+    let mut named = Vec::new();
+    for panel in panels.values() {
+        for key in ["topicPath", "topicToRender"] {
+            if let Some(topic) = panel[key].as_str() {
+                named.push(topic.to_owned());
+            }
+        }
+        for path in panel["paths"].as_array().into_iter().flatten() {
+            let value = path["value"].as_str().unwrap();
+            named.push(value.split('.').next().unwrap().to_owned());
+        }
+        for topic in panel["topics"]
+            .as_object()
+            .into_iter()
+            .flatten()
+            .map(|(k, _)| k)
+        {
+            named.push(topic.clone());
+        }
+    }
+    assert!(named.len() > 10, "{named:?}");
+    for topic in &named {
+        assert!(
+            published.contains(&topic.as_str()),
+            "the layout names {topic}"
+        );
+    }
+    assert_eq!(
+        panels["3D!table"]["followTf"],
+        config.frames.table_frame.as_str()
+    );
+    fn leaves(node: &Value, out: &mut Vec<String>) {
+        match node {
+            Value::String(id) => out.push(id.clone()),
+            Value::Object(split) => {
+                leaves(&split["first"], out);
+                leaves(&split["second"], out);
+            }
+            _ => panic!("not a layout node: {node}"),
+        }
+    }
+    let mut placed = Vec::new();
+    leaves(&layout["layout"], &mut placed);
+    let mut configured: Vec<String> = panels.keys().cloned().collect();
+    placed.sort();
+    configured.sort();
+    assert_eq!(placed, configured);
+
+    let rviz: serde_norway::Value =
+        serde_norway::from_str(&std::fs::read_to_string(root.join("config/ttball.rviz")).unwrap())
+            .unwrap();
+    let manager = &rviz["Visualization Manager"];
+    assert_eq!(
+        manager["Global Options"]["Fixed Frame"].as_str(),
+        Some(config.frames.table_frame.as_str())
+    );
+    let topics: Vec<&str> = manager["Displays"]
+        .as_sequence()
+        .unwrap()
+        .iter()
+        .filter_map(|d| d["Topic"]["Value"].as_str())
+        .collect();
+    assert_eq!(topics, [t.markers.as_str(), "/ball/odometry"]);
+}

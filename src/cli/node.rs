@@ -31,6 +31,12 @@ pub struct NodeArgs {
         value_name = "ARGS"
     )]
     pub ros_args: Option<Vec<String>>,
+
+    /// Also serve the detections and every output live to the Foxglove app, over the Foxglove
+    /// WebSocket protocol, without ROS 2: in Foxglove, "Open connection" to ws://HOST:PORT
+    /// (127.0.0.1:8765 is the app's default; 0.0.0.0:8765 for other machines).
+    #[arg(long, value_name = "HOST:PORT")]
+    pub foxglove: Option<String>,
 }
 
 /// The parts of `--ros-args` ttball understands.
@@ -174,7 +180,8 @@ impl NodeArgs {
         for name in unused {
             tracing::warn!("remap of {name}: the node has no such topic (ignored)");
         }
-        let placement = Placement::from_env(&config).map_err(node_error)?;
+        let mut placement = Placement::from_env(&config).map_err(node_error)?;
+        placement.live_view.clone_from(&self.foxglove);
 
         let (signal_tx, signal_rx) = crossbeam::channel::bounded::<()>(1);
         ctrlc::set_handler(move || {

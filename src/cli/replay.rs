@@ -10,8 +10,9 @@ use anyhow::{Context, bail};
 use clap::Args;
 use ttball::ekf::NoiseScales;
 use ttball::estimator::{LearnedModelNoise, LearnedParams, LearnedSourceNoise, Rejection};
+use ttball::live_view::LiveView;
 use ttball::physics::PhysicsParams;
-use ttball::replay::{ReplaySummary, replay};
+use ttball::replay::{ReplaySummary, replay, replay_observed};
 
 use super::report::accuracy_table;
 use super::{ConfigArgs, cancel_on_interrupt, progress_bar, write_stdout};
@@ -35,6 +36,30 @@ pub struct ReplayArgs {
     #[arg(long, value_name = "FILE.json")]
     pub report: Option<PathBuf>,
 
+    /// Also serve the bag's topics and the outputs live to the Foxglove app, at recorded pace,
+    /// over the Foxglove WebSocket protocol (one input): in Foxglove, "Open connection" to
+    /// ws://HOST:PORT. Waits for the app to connect first (--foxglove-wait).
+    #[arg(long, value_name = "HOST:PORT")]
+    pub foxglove: Option<String>,
+
+    /// With --foxglove: how many times faster than recorded to play.
+    #[arg(
+        long,
+        default_value_t = 1.0,
+        requires = "foxglove",
+        value_name = "FACTOR"
+    )]
+    pub rate: f64,
+
+    /// With --foxglove: seconds to wait for the app to connect before starting (0: start at once).
+    #[arg(
+        long,
+        default_value_t = 60.0,
+        requires = "foxglove",
+        value_name = "SECONDS"
+    )]
+    pub foxglove_wait: f64,
+
     /// The estimator's configuration and the topics.
     #[command(flatten)]
     pub config: ConfigArgs,
@@ -45,6 +70,9 @@ impl ReplayArgs {
     pub fn run(self) -> anyhow::Result<ExitCode> {
         let config = self.config.load()?;
         let jobs = self.jobs()?;
+        if let Some(address) = &self.foxglove {
+            return self.run_with_live_view(address, &config, &jobs);
+        }
         // Only one handler per process (tests run several commands): a failure is ignored.
         let (cancel, _) = cancel_on_interrupt();
         let workers = std::thread::available_parallelism()
@@ -106,6 +134,59 @@ impl ReplayArgs {
                 .with_context(|| format!("cannot write {}", path.display()))?;
         }
         Ok(if failed || cancel.load(Ordering::Relaxed) {
+            ExitCode::FAILURE
+        } else {
+            ExitCode::SUCCESS
+        })
+    }
+
+    /// One bag replayed at recorded pace with its messages served to Foxglove as they are written.
+    fn run_with_live_view(
+        &self,
+        address: &str,
+        config: &ttball::config::Config,
+        jobs: &[(PathBuf, PathBuf)],
+    ) -> anyhow::Result<ExitCode> {
+        let [(input, output)] = jobs else {
+            bail!("--foxglove replays one bag at a time");
+        };
+        if !(self.rate > 0.0 && self.rate.is_finite()) {
+            bail!(
+                "--rate {} must be a positive factor (1 = recorded pace)",
+                self.rate
+            );
+        }
+        let view = LiveView::start(address)?.at_recorded_pace(self.rate);
+        let url = format!(
+            "ws://{}:{}",
+            address.rsplit_once(':').map_or("", |(h, _)| h),
+            view.port()
+        );
+        eprintln!("Foxglove live view on {url} (in Foxglove: Open connection, {url})");
+        if self.foxglove_wait > 0.0 {
+            eprintln!(
+                "waiting up to {} s for Foxglove to connect ...",
+                self.foxglove_wait
+            );
+            if !view.wait_for_client(std::time::Duration::from_secs_f64(self.foxglove_wait)) {
+                eprintln!("no client connected; replaying anyway");
+            }
+        }
+        let (cancel, _) = cancel_on_interrupt();
+        let mut view = view;
+        let summary = replay_observed(
+            input,
+            output,
+            config,
+            &mut |_, _| {},
+            &cancel,
+            Some(Box::new(move |channel, log_time, payload| {
+                view.log(channel, log_time, payload);
+            })),
+        )
+        .with_context(|| format!("cannot replay {}", input.display()))?;
+        write_stdout(&summary_text(&summary))?;
+        Ok(if cancel.load(Ordering::Relaxed) {
             ExitCode::FAILURE
         } else {
             ExitCode::SUCCESS

@@ -448,6 +448,8 @@ const BALL: i32 = 1;
 const BOUNCE: i32 = 2;
 const INTERCEPT: i32 = 3;
 const LABEL: i32 = 4;
+const TABLE: i32 = 5;
+const NET: i32 = 6;
 
 fn color(r: f32, g: f32, b: f32) -> ColorRGBA {
     ColorRGBA { r, g, b, a: 1.0 }
@@ -488,15 +490,54 @@ fn delete(header: &Header, id: i32) -> Marker {
     }
 }
 
-/// Markers for RViz and Foxglove: the predicted path (green line), the ball (white), the
-/// predicted bounce (orange) and interception point (red) with the time left until it.
+/// A box of size `size` [m] centred at `centre`, axes along the table frame's.
+fn cuboid(header: &Header, id: i32, centre: [f64; 3], size: [f64; 3], c: ColorRGBA) -> Marker {
+    let [x, y, z] = centre;
+    Marker {
+        pose: Pose {
+            position: Point { x, y, z },
+            orientation: Quaternion::default(),
+        },
+        scale: RosVector3 {
+            x: size[0],
+            y: size[1],
+            z: size[2],
+        },
+        color: c,
+        ..marker(header, id, Marker::CUBE)
+    }
+}
+
+/// Markers for RViz and Foxglove: the table (its playing surface, 3 cm thick, and the net, as
+/// `table` configures them), the predicted path (green line), the ball (white), the predicted
+/// bounce (orange) and interception point (red) with the time left until it.
 pub fn markers(
     e: &Estimate,
     i: Option<&InterceptEstimate>,
     t: &Trajectory,
+    table: &crate::config::TableParams,
     frame: &str,
 ) -> MarkerArray {
     let h = &header(e.stamp, frame);
+    const THICKNESS: f64 = 0.03;
+    let surface = cuboid(
+        h,
+        TABLE,
+        [0.0, 0.0, -0.5 * THICKNESS],
+        [table.length, table.width, THICKNESS],
+        color(0.05, 0.2, 0.45),
+    );
+    let net_width = table.width + 2.0 * table.net_overhang;
+    let net = cuboid(
+        h,
+        NET,
+        [0.0, 0.0, 0.5 * table.net_height],
+        [0.005, net_width, table.net_height],
+        ColorRGBA {
+            a: 0.6,
+            ..color(0.9, 0.9, 0.9)
+        },
+    );
     let path = Marker {
         scale: RosVector3 {
             x: 0.006,
@@ -508,6 +549,8 @@ pub fn markers(
         ..marker(h, PATH, Marker::LINE_STRIP)
     };
     let mut markers = vec![
+        surface,
+        net,
         path,
         sphere(h, BALL, &e.state.position, 0.04, color(1.0, 1.0, 1.0)),
     ];

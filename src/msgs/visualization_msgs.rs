@@ -73,6 +73,8 @@ pub struct Marker {
 impl Marker {
     /// Shape: an arrow.
     pub const ARROW: i32 = 0;
+    /// Shape: a box centred at `pose`, of sizes `scale`.
+    pub const CUBE: i32 = 1;
     /// Shape: a sphere at `pose`, of diameters `scale`.
     pub const SPHERE: i32 = 2;
     /// Shape: a polyline through `points`, `scale.x` wide.

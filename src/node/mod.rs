@@ -51,9 +51,11 @@ pub use diagnostics::{
 };
 pub use play::{Latency, LatencyReport, PlayOptions, PlaySummary, play};
 
+use crate::bag::mcap_time;
 use crate::config::{Config, SourceIndex};
 use crate::detection::Source;
 use crate::estimator::{Counters, Verdict};
+use crate::live_view::LiveView;
 use crate::msgs::diagnostic_msgs::DiagnosticArray;
 use crate::msgs::geometry_msgs::{Quaternion, Transform, TransformStamped, Vector3};
 use crate::msgs::nav_msgs::Odometry;
@@ -123,6 +125,9 @@ pub enum NodeError {
     /// Reading the bag to play failed.
     #[error(transparent)]
     Replay(#[from] crate::replay::ReplayError),
+    /// The Foxglove live view could not start.
+    #[error(transparent)]
+    LiveView(#[from] crate::live_view::LiveViewError),
 }
 
 /// Where the node runs: DDS domain and interfaces. [`Placement::from_env`] reads them as ROS 2
@@ -133,6 +138,8 @@ pub struct Placement {
     pub domain: u16,
     /// Addresses of the interfaces DDS may use; `None` = all.
     pub interfaces: Option<Vec<std::net::IpAddr>>,
+    /// Where to serve the Foxglove live view as well (`--foxglove HOST:PORT`); `None`: nowhere.
+    pub live_view: Option<String>,
 }
 
 impl Placement {
@@ -147,6 +154,7 @@ impl Placement {
                 var("ROS_LOCALHOST_ONLY").as_deref(),
                 var("ROS_AUTOMATIC_DISCOVERY_RANGE").as_deref(),
             ),
+            live_view: None,
         })
     }
 
@@ -364,7 +372,20 @@ fn start_here(config: &Config, placement: &Placement) -> Result<NodeHandle, Node
     if let Some(msg) = &table_pose {
         pipeline.on_static_transforms(msg);
     }
+    let live_view = match &placement.live_view {
+        Some(address) => {
+            let view = LiveView::start(address)?;
+            info!(
+                "Foxglove live view on ws://{}:{} (in Foxglove: Open connection)",
+                address.rsplit_once(':').map_or("", |(host, _)| host),
+                view.port()
+            );
+            Some((view, topics.clone()))
+        }
+        None => None,
+    };
     let estimator = EstimatorThread {
+        live_view,
         pipeline,
         tf_static,
         _tf_publisher: tf_publisher,
@@ -558,6 +579,8 @@ struct EstimatorThread {
     tf_static: Subscription<TFMessage>,
     /// The writer of the table's pose (kept: the transform is transient local).
     _tf_publisher: Option<Publisher<TFMessage>>,
+    /// The Foxglove live view, and the topics it shows the detections and outputs on.
+    live_view: Option<(LiveView, crate::config::TopicsParams)>,
 }
 
 /// The table's pose in `frames.table_parent` as a `/tf_static` message, if one is configured.
@@ -819,6 +842,21 @@ impl EstimatorThread {
         timings.total_ns += ns as f64;
         timings.max_ns = timings.max_ns.max(ns);
         timings.count += 1;
+        if let Some((view, topics)) = &mut self.live_view {
+            let now = mcap_time(self.clock.now_ns());
+            view.log_message(&topics.detections, DETECTION_TYPE, now, &detection);
+            let p = &step.published;
+            view.log_optional(&topics.state, STATE_TYPE, now, p.state.as_ref());
+            view.log_optional(&topics.intercept, INTERCEPT_TYPE, now, p.intercept.as_ref());
+            view.log_optional(
+                &topics.trajectory,
+                TRAJECTORY_TYPE,
+                now,
+                p.trajectory.as_ref(),
+            );
+            view.log_optional(&topics.markers, MARKERS_TYPE, now, p.markers.as_ref());
+            view.log_optional(&topics.odometry, ODOMETRY_TYPE, now, p.odometry.as_ref());
+        }
         self.publish(step.published);
         timings.in_node.record(nanos(taken_at.elapsed()));
     }

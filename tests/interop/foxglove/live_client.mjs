@@ -1,0 +1,114 @@
+// Watches ttball's live view with Foxglove's own WebSocket client (@foxglove/ws-protocol, the
+// protocol the Foxglove app speaks), as the app would: connect, subscribe to every advertised
+// channel, decode each message from the channel's ros2msg schema (@foxglove/rosmsg,
+// @foxglove/rosmsg2-serialization).
+//
+// Usage: node live_client.mjs ws://HOST:PORT SECONDS REPORT.json
+//
+// Connects (retrying for 30 s until the server is up), then listens for SECONDS after the first message
+// or until the server closes. REPORT.json: the server's name, every channel advertised (topic,
+// encoding, schema name and encoding), per topic the messages received and decoded (with the
+// first decoded message and its log time), and every problem (a message that does not decode,
+// or leaves bytes over).
+
+import { writeFile } from "node:fs/promises";
+import wsProtocol from "@foxglove/ws-protocol";
+import { parse } from "@foxglove/rosmsg";
+import { MessageReader } from "@foxglove/rosmsg2-serialization";
+import WebSocket from "ws";
+
+const { FoxgloveClient } = wsProtocol;
+// The protocol's v1 under the names Foxglove's SDK servers accept (`foxglove.sdk.v1`: schemas
+// inline in the advertisement, as ws-protocol's client reads them) and its original name.
+const SUBPROTOCOLS = ["foxglove.sdk.v1", FoxgloveClient.SUPPORTED_SUBPROTOCOL];
+
+const [url, seconds, reportPath] = process.argv.slice(2);
+const report = { server: null, channels: [], topics: {}, problems: [] };
+const channels = new Map();
+
+const plain = (value) => {
+  if (typeof value === "bigint") return Number(value);
+  if (ArrayBuffer.isView(value)) return Array.from(value, plain);
+  if (Array.isArray(value)) return value.map(plain);
+  if (value && typeof value === "object") {
+    return Object.fromEntries(Object.entries(value).map(([k, v]) => [k, plain(v)]));
+  }
+  return value;
+};
+
+// The server may not be up yet: a client per attempt, every handler in place before its socket
+// opens (the server's first messages come with the handshake).
+async function connect(setup) {
+  for (let attempt = 0; attempt < 300; attempt++) {
+    const client = new FoxgloveClient({ ws: new WebSocket(url, SUBPROTOCOLS) });
+    setup(client);
+    const opened = await new Promise((resolve) => {
+      client.on("open", () => resolve(true));
+      client.on("error", () => resolve(false));
+    });
+    if (opened) return client;
+    client.close();
+    await new Promise((r) => setTimeout(r, 100));
+  }
+  throw new Error(`cannot connect to ${url}`);
+}
+
+let deadline = null;
+let finish;
+const done = new Promise((resolve) => {
+  finish = resolve;
+  setInterval(() => {
+    if (deadline && Date.now() > deadline) resolve();
+  }, 50);
+});
+let active = null;
+const client = await connect((client) => {
+  // The server closing the connection ends the watch (a failed attempt's close does not).
+  client.on("close", () => client === active && finish());
+  client.on("serverInfo", (info) => {
+    report.server = { name: info.name, capabilities: info.capabilities };
+  });
+  client.on("advertise", (advertised) => {
+    for (const channel of advertised) {
+      report.channels.push({
+        topic: channel.topic,
+        encoding: channel.encoding,
+        schemaName: channel.schemaName,
+        schemaEncoding: channel.schemaEncoding,
+      });
+      let reader = null;
+      try {
+        reader = new MessageReader(parse(channel.schema, { ros2: true }));
+      } catch (e) {
+        report.problems.push(`${channel.topic}: schema does not parse: ${e}`);
+      }
+      const subscription = client.subscribe(channel.id);
+      channels.set(subscription, { topic: channel.topic, reader });
+    }
+  });
+  client.on("message", ({ subscriptionId, timestamp, data }) => {
+    const channel = channels.get(subscriptionId);
+    if (!channel) return;
+    deadline ??= Date.now() + Number(seconds) * 1000;
+    const topic = (report.topics[channel.topic] ??= { received: 0, decoded: 0 });
+    topic.received++;
+    try {
+      const message = channel.reader.readMessage(data);
+      if (channel.reader.lastReadHadTrailingBytes()) {
+        report.problems.push(`${channel.topic}: trailing bytes`);
+      }
+      topic.decoded++;
+      if (!topic.first) {
+        topic.first = plain(message);
+        topic.first_log_time = timestamp.toString();
+      }
+    } catch (e) {
+      report.problems.push(`${channel.topic}: ${e}`);
+    }
+  });
+});
+active = client;
+await done;
+await writeFile(reportPath, JSON.stringify(report, null, 1));
+client.close();
+process.exit(0);
