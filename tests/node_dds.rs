@@ -166,6 +166,32 @@ fn bag_detections(bag: &Path) -> Vec<(u64, Vec<u8>)> {
         .collect()
 }
 
+/// The rally ball `ttball predict` starts from: position, velocity, spin (for
+/// `~/predict_trajectory`).
+const RALLY_BALL: [f64; 9] = [
+    1.0178, -0.0184, 0.4448, -5.4122, -0.1333, 1.5129, 7.051, -40.643, -3.915,
+];
+
+/// A ball at the hitting plane (for `~/plan_return`, then `~/predict_rebound`).
+const INCOMING: [f64; 9] = [-1.6, 0.1, 0.25, -5.0, 0.4, -1.0, 20.0, -150.0, 30.0];
+
+/// `~/plan_return` for [`INCOMING`] to land at (0.9, 0.3) with some topspin.
+fn plan_request() -> PlanReturnRequest {
+    let mut request = PlanReturnRequest {
+        track_id: 0,
+        target: Point {
+            x: 0.9,
+            y: 0.3,
+            z: 0.0,
+        },
+        impact_offset: 0.05,
+        brush_speed: 1.0,
+        ..PlanReturnRequest::default()
+    };
+    set_state(&mut request.ball, INCOMING);
+    request
+}
+
 /// Ball centre, velocity and spin as a `BallState` message's fields.
 fn set_state(msg: &mut BallState, values: [f64; 9]) {
     let [x, y, z, vx, vy, vz, wx, wy, wz] = values;
@@ -238,13 +264,9 @@ fn node_and_play_interoperate_with_cyclone_dds() {
     else {
         return;
     };
-    // The rally ball `ttball predict` starts from, for the service call.
-    let initial = [
-        1.0178, -0.0184, 0.4448, -5.4122, -0.1333, 1.5129, 7.051, -40.643, -3.915,
-    ];
-    // A ball at the hitting plane, the racket command that returns it to a target (planned in
-    // process, then asked of the node), and that command for `~/predict_rebound`.
-    let incoming = [-1.6, 0.1, 0.25, -5.0, 0.4, -1.0, 20.0, -150.0, 30.0];
+    let (initial, incoming) = (RALLY_BALL, INCOMING);
+    // The racket command that returns the incoming ball to a target (planned in process, then
+    // asked of the node), and that command for `~/predict_rebound`.
     let detections = bag_detections(&bag);
     // The node answers its services with the physics it learned from the bag: so does the
     // pipeline that took the same detections.
@@ -252,18 +274,7 @@ fn node_and_play_interoperate_with_cyclone_dds() {
     for (_, data) in &detections {
         pipeline.on_detection(&decode(data).unwrap());
     }
-    let mut plan_request = PlanReturnRequest {
-        track_id: 0,
-        target: Point {
-            x: 0.9,
-            y: 0.3,
-            z: 0.0,
-        },
-        impact_offset: 0.05,
-        brush_speed: 1.0,
-        ..PlanReturnRequest::default()
-    };
-    set_state(&mut plan_request.ball, incoming);
+    let mut plan_request = plan_request();
     let plan = pipeline.plan_return(&plan_request);
     assert!(plan.success, "{}", plan.message);
     let (v, n) = (plan.racket_velocity, plan.racket_normal);
@@ -1070,28 +1081,9 @@ fn the_node_talks_to_fast_dds_as_rmw_fastrtps_does() {
         ..PredictTrajectoryRequest::default()
     };
     predict.initial.header.stamp = stamp;
-    set_state(
-        &mut predict.initial,
-        [
-            1.0178, -0.0184, 0.4448, -5.4122, -0.1333, 1.5129, 7.051, -40.643, -3.915,
-        ],
-    );
-    let mut plan = PlanReturnRequest {
-        track_id: 0,
-        target: Point {
-            x: 0.9,
-            y: 0.3,
-            z: 0.0,
-        },
-        impact_offset: 0.05,
-        brush_speed: 1.0,
-        ..PlanReturnRequest::default()
-    };
+    set_state(&mut predict.initial, RALLY_BALL);
+    let mut plan = plan_request();
     plan.ball.header.stamp = stamp;
-    set_state(
-        &mut plan.ball,
-        [-1.6, 0.1, 0.25, -5.0, 0.4, -1.0, 20.0, -150.0, 30.0],
-    );
     let planned = pipeline.plan_return(&plan);
     assert!(planned.success, "{}", planned.message);
     let rebound = PredictReboundRequest {
