@@ -1041,15 +1041,19 @@ fn to_hex(bytes: &[u8]) -> String {
 /// service framing (`enhanced`): a C++ peer on Debian's Fast DDS, with types from fastddsgen
 /// for the IDL of `msgs/`, publishes the bag's detections and records `/ball/state` and
 /// `/ball/intercept`, then calls `~/predict_trajectory`, `~/predict_rebound`, `~/plan_return`,
-/// `~/list_parameters` and `~/get_parameters` as rmw_fastrtps does (the reply reader's GUID in
-/// the request's related sample identity, the reply matched by the one the server sets).
+/// `~/list_parameters`, `~/get_parameters`, `~/set_parameters` (a live key taken, a read-only
+/// one refused), `~/get_parameters` again and `~/reset` as rmw_fastrtps does (the reply reader's
+/// GUID in the request's related sample identity, the reply matched by the one the server sets).
 /// Every detection arrives; the states and interceptions equal the replay's bit for bit; every
-/// reply equals the in-process answer, bit for bit.
+/// reply equals the in-process answer, bit for bit (the reset's says it dropped the tracks).
 #[test]
 fn the_node_talks_to_fast_dds_as_rmw_fastrtps_does() {
+    use ros2_client::parameters::raw::{Parameter, ParameterValue};
     use ros2_client::rcl_interfaces::{
         GetParametersRequest, GetParametersResponse, ListParametersRequest, ListParametersResponse,
+        SetParametersRequest, SetParametersResponse,
     };
+    use ttball::msgs::std_srvs::{TriggerRequest, TriggerResponse};
     let Some(peer) = fastdds_peer() else {
         return;
     };
@@ -1107,7 +1111,40 @@ fn the_node_talks_to_fast_dds_as_rmw_fastrtps_does() {
     let get = GetParametersRequest {
         names: names.clone(),
     };
-    let parameters = ttball::node::parameters::Parameters::new(&config);
+    let mut parameters = ttball::node::parameters::Parameters::new(&config);
+    // A live key taken, a read-only one refused: the same results, and the value read back.
+    let double = |value: f64| ParameterValue {
+        ptype: 3,
+        boolean_value: false,
+        int_value: 0,
+        double_value: value,
+        string_value: String::new(),
+        byte_array: vec![],
+        bool_array: vec![],
+        int_array: vec![],
+        double_array: vec![],
+        string_array: vec![],
+    };
+    let set = SetParametersRequest {
+        parameter: vec![
+            Parameter {
+                name: "intercept.plane_x".to_owned(),
+                value: double(-1.5),
+            },
+            Parameter {
+                name: "table.restitution".to_owned(),
+                value: double(0.8),
+            },
+        ],
+    };
+    let got_before = GetParametersResponse {
+        values: parameters.get(&names),
+    };
+    let (set_results, change) = parameters.set(&set.parameter);
+    assert!(change.is_some() && set_results[0].successful && !set_results[1].successful);
+    let got_after = GetParametersResponse {
+        values: parameters.get(&names),
+    };
     let calls = [
         (
             "/ttball/predict_trajectory",
@@ -1139,15 +1176,32 @@ fn the_node_talks_to_fast_dds_as_rmw_fastrtps_does() {
             "/ttball/get_parameters",
             "GetParameters",
             cdr(&get),
-            cdr(&GetParametersResponse {
-                values: parameters.get(&names),
+            cdr(&got_before),
+        ),
+        (
+            "/ttball/set_parameters",
+            "SetParameters",
+            cdr(&set),
+            cdr(&SetParametersResponse {
+                results: set_results,
             }),
         ),
+        (
+            "/ttball/get_parameters",
+            "GetParameters",
+            cdr(&get),
+            cdr(&got_after),
+        ),
     ];
-    let call_lines: String = calls
+    let mut call_lines: String = calls
         .iter()
         .map(|(service, kind, request, _)| format!("{service} {kind} {}\n", to_hex(request)))
         .collect();
+    // Last, `~/reset` (std_srvs/Trigger).
+    call_lines += &format!(
+        "/ttball/reset Trigger {}\n",
+        to_hex(&cdr(&TriggerRequest::default()))
+    );
     std::fs::write(dir.join("calls.txt"), call_lines).unwrap();
 
     let script = format!(
@@ -1225,7 +1279,13 @@ echo $? > node.rc
             (service.to_owned(), hex(payload))
         })
         .collect();
-    assert_eq!(replies.len(), calls.len(), "{context}");
+    assert_eq!(replies.len(), calls.len() + 1, "{context}");
+    let (reset_service, reset) = &replies[calls.len()];
+    let reset: TriggerResponse = decode(reset).unwrap();
+    assert!(
+        reset_service == "/ttball/reset" && reset.success && reset.message.contains("dropped"),
+        "{reset:?}"
+    );
     for ((service, reply), (expected_service, kind, _, expected)) in replies.iter().zip(&calls) {
         assert_eq!(service, expected_service);
         // Fast CDR may pad the end of a payload to 4 bytes: equal up to that.

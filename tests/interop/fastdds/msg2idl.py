@@ -1,8 +1,9 @@
 """Write the OMG IDL of ttball's ROS 2 interfaces (msgs/msg/*.msg, msgs/srv/*.srv) as ROS 2's
 rosidl writes it for DDS, for fastddsgen: each type `pkg/Type` becomes `pkg::msg::dds_::Type_`,
 each service's halves `pkg::srv::dds_::Service_Request_` and `..._Response_`. The standard types
-they use (builtin_interfaces, std_msgs, geometry_msgs) and the rcl_interfaces types of the
-parameter services the Fast DDS peer calls are written from their ROS 2 definitions below.
+they use (builtin_interfaces, std_msgs, geometry_msgs), and the rcl_interfaces and std_srvs
+types of the parameter and reset services the Fast DDS peer calls, are written from their ROS 2
+definitions below.
 
 Usage: msg2idl.py MSGS_DIR > ttball.idl
 """
@@ -43,6 +44,12 @@ STANDARD = {
     ("rcl_interfaces", "srv", "ListParameters_Response"): "rcl_interfaces/ListParametersResult result",
     ("rcl_interfaces", "srv", "GetParameters_Request"): "string[] names",
     ("rcl_interfaces", "srv", "GetParameters_Response"): "rcl_interfaces/ParameterValue[] values",
+    ("rcl_interfaces", "msg", "Parameter"): "string name\nrcl_interfaces/ParameterValue value",
+    ("rcl_interfaces", "msg", "SetParametersResult"): "bool successful\nstring reason",
+    ("rcl_interfaces", "srv", "SetParameters_Request"): "rcl_interfaces/Parameter[] parameters",
+    ("rcl_interfaces", "srv", "SetParameters_Response"): "rcl_interfaces/SetParametersResult[] results",
+    ("std_srvs", "srv", "Trigger_Request"): "",
+    ("std_srvs", "srv", "Trigger_Response"): "bool success\nstring message",
 }
 
 

@@ -12,7 +12,8 @@
 // hex per line, published on <ns>/ball/detections at HZ once the node is matched. The states and
 // interceptions the node publishes are written as hex payloads to DIR/states.hex and
 // DIR/intercepts.hex. CALLS.txt: one call per line, `SERVICE TYPE REQUEST_HEX` (TYPE one of
-// PredictTrajectory, PredictRebound, PlanReturn, ListParameters, GetParameters); each reply is
+// PredictTrajectory, PredictRebound, PlanReturn, ListParameters, GetParameters, SetParameters,
+// Trigger), made in order; each reply is
 // written to DIR/replies.txt as `SERVICE REPLY_HEX`. DIR/summary.txt says what happened.
 // Participants use UDPv4 on 127.0.0.1 only.
 
@@ -325,6 +326,15 @@ int main(int argc, char** argv) {
         } else if (type == "GetParameters") {
             reply = call<rcl::GetParameters_Request_, rcl::GetParameters_Request_PubSubType,
                          rcl::GetParameters_Response_, rcl::GetParameters_Response_PubSubType>(
+                peer, service, hex, why);
+        } else if (type == "SetParameters") {
+            reply = call<rcl::SetParameters_Request_, rcl::SetParameters_Request_PubSubType,
+                         rcl::SetParameters_Response_, rcl::SetParameters_Response_PubSubType>(
+                peer, service, hex, why);
+        } else if (type == "Trigger") {
+            namespace std_srvs = std_srvs::srv::dds_;
+            reply = call<std_srvs::Trigger_Request_, std_srvs::Trigger_Request_PubSubType,
+                         std_srvs::Trigger_Response_, std_srvs::Trigger_Response_PubSubType>(
                 peer, service, hex, why);
         } else {
             why = "unknown service type " + type;
