@@ -637,3 +637,55 @@ fn landing_covariance_matches_monte_carlo() {
         );
     }
 }
+
+/// The rubber's tangential restitution e_t (Garwin 1969, Cross 2002): where the rubber grips
+/// the ball, the contact point leaves with -e_t times its incoming slip (0 rolls, as the seed's
+/// model); the angular momentum about the contact point is conserved whatever e_t (the contact
+/// force acts there); and the friction cap still holds a ball that slides.
+#[test]
+fn tangential_restitution_reverses_the_contact_point_where_the_rubber_grips() {
+    let n = Vector3::x();
+    let ball = BallState::new(
+        Vector3::new(-1.6, 0.0, 0.2),
+        Vector3::new(-8.0, 0.0, 1.5),
+        Vector3::new(0.0, -60.0, 40.0),
+    );
+    let contact_slip =
+        |b: &BallState, r: f64| b.velocity - n * b.velocity.dot(&n) - r * b.spin.cross(&n);
+    for e_t in [0.0, 0.3, 0.7, -0.5] {
+        let mut config = Config::default();
+        config.racket.rubber_tangential_restitution = e_t;
+        let r = config.ball.radius;
+        let model = RacketModel::new(&config);
+        let hit = model.hit(&ball, &racket_at_rest(n)).expect("hit");
+        assert_eq!(hit.regime, BounceRegime::Rolling, "e_t {e_t}");
+        let (before, after) = (contact_slip(&ball, r), contact_slip(&hit.ball, r));
+        assert!(
+            (after + e_t * before).norm() < 1e-12 * before.norm().max(1.0),
+            "e_t {e_t}: slip {before} -> {after}"
+        );
+        // Angular momentum about the contact point (-r n from the centre), per unit mass: a
+        // thin shell's spin term is 2/3 r^2 w.
+        let about_contact =
+            |b: &BallState| (-r * n).cross(&(-b.velocity)) + 2.0 / 3.0 * r * r * b.spin;
+        let (l0, l1) = (about_contact(&ball), about_contact(&hit.ball));
+        let tangential = |l: Vector3<f64>| l - n * l.dot(&n);
+        assert!(
+            (tangential(l1) - tangential(l0)).norm() < 1e-12,
+            "e_t {e_t}: {l0} -> {l1}"
+        );
+    }
+    // Little friction: the ball slides, the cap is the Coulomb impulse whatever e_t.
+    let mut config = Config::default();
+    config.racket.rubber_friction = 0.01;
+    config.racket.rubber_tangential_restitution = 0.7;
+    let sliding = RacketModel::new(&config)
+        .hit(&ball, &racket_at_rest(n))
+        .expect("hit");
+    config.racket.rubber_tangential_restitution = 0.0;
+    let seed = RacketModel::new(&config)
+        .hit(&ball, &racket_at_rest(n))
+        .expect("hit");
+    assert_eq!(sliding.regime, BounceRegime::Sliding);
+    assert_eq!(sliding.ball, seed.ball);
+}

@@ -183,6 +183,12 @@ pub struct RacketParams {
     /// Coulomb friction coefficient between ball and rubber [-]: the tangential impulse is at most
     /// this times the normal impulse (physics.md "Racket impact"; source in config/ttball.yaml).
     pub rubber_friction: f64,
+    /// Tangential coefficient of restitution of ball on rubber, e_t [-], in [-1, 1]: where the
+    /// rubber grips the ball, the contact point's tangential velocity relative to the face
+    /// leaves reversed to -e_t times what it was (Garwin 1969; Cross 2002). 0: the ball leaves
+    /// rolling (the seed's model); > 0: a tangentially elastic rubber returns spin beyond
+    /// rolling; Coulomb friction (`rubber_friction`) still caps the impulse.
+    pub rubber_tangential_restitution: f64,
     /// Restoring characteristic of the ball-rubber system, F = f(K) = c0 + c1 K + c2 K^2 + ...
     /// with F [N] and K = dF/dX [N/m], lowest order first (seed 000 eq. (1) is this curve in kgf
     /// and kgf/mm: multiply c_i by 9.80665 / 9806.65^i). Default and source in
@@ -210,6 +216,7 @@ impl Default for RacketParams {
             face_end_from_grip_end: 0.279,
             rubber_restitution: vec![0.77, -0.0123],
             rubber_friction: RUBBER_FRICTION,
+            rubber_tangential_restitution: 0.0,
             restoring_force_vs_stiffness: vec![0.0, 0.0, 0.0, HERTZ_RESTORING_CUBIC],
             vibration_mode_frequencies: Vec::new(),
             vibration_mode_masses: Vec::new(),

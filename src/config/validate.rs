@@ -522,6 +522,12 @@ impl Config {
             |v| (0.0..=5.0).contains(&v),
             "between 0 and 5",
         );
+        c.real(
+            "racket.rubber_tangential_restitution",
+            r.rubber_tangential_restitution,
+            |v| (-1.0..=1.0).contains(&v),
+            "between -1 and 1",
+        );
         c.polynomial(
             "racket.restoring_force_vs_stiffness",
             &r.restoring_force_vs_stiffness,

@@ -17,8 +17,10 @@
 //! Contact time, forces and deformation come from [`super::contact`]. Tangentially, the
 //! shell-friction impulse of the table bounce ([`super::bounce`]) in the face's plane with the
 //! rubber's friction coefficient: slip u = v_t - V_R,t - r (w x n), Coulomb impulse mu m (1 + e) V
-//! against it, capped where the ball leaves rolling (alpha = 2/5); the racket's tangential
-//! response is neglected (the impulse is a few per cent of its momentum).
+//! against it, capped where the rubber grips the ball: there the contact point leaves with
+//! -e_t u (the tangential restitution of Garwin 1969 and Cross 2002; e_t = 0 rolls, the seed's
+//! model), an impulse of (1 + e_t) 2/5 m u for a thin shell (I = 2/3 m r^2). The racket's
+//! tangential response is neglected (the impulse is a few per cent of its momentum).
 //!
 //! Force on the grip (the robot's wrist), seed 001 eq. 10-14: S_1 = chi S_0 with
 //! chi = (M_R a b / J - 1) / (1 + (M_R / M_H)(1 - M_R b^2 / J)), a the impact point and b the
@@ -89,7 +91,8 @@ pub struct Hit {
     pub racket_velocity: Vector3<f64>,
     /// The normal impact.
     pub normal: NormalImpact,
-    /// Whether the ball slid on the rubber throughout or left it rolling.
+    /// Whether the ball slid on the rubber throughout, or the rubber gripped it (`Rolling`: it
+    /// leaves rolling, or with its contact point's slip reversed by `rubber_tangential_restitution`).
     pub regime: BounceRegime,
     /// The load on the grip.
     pub wrist: WristLoad,
@@ -151,6 +154,7 @@ pub struct RacketModel {
     face_end: f64,
     rubber_restitution: Polynomial,
     friction: f64,
+    tangential_restitution: f64,
     characteristic: RestoringCharacteristic,
     modes: Vec<VibrationMode>,
 }
@@ -171,6 +175,7 @@ impl RacketModel {
             face_end: r.face_end_from_grip_end,
             rubber_restitution: Polynomial::new(&r.rubber_restitution),
             friction: r.rubber_friction,
+            tangential_restitution: r.rubber_tangential_restitution,
             characteristic: RestoringCharacteristic::new(&r.restoring_force_vs_stiffness),
             modes: r
                 .vibration_mode_frequencies
@@ -337,8 +342,10 @@ impl RacketModel {
         } else {
             f64::INFINITY
         };
-        let (regime, alpha) = if sliding_alpha >= ROLLING_ALPHA {
-            (BounceRegime::Rolling, ROLLING_ALPHA)
+        // Where the rubber grips: the contact point's slip reversed to -e_t u.
+        let gripping_alpha = (1.0 + self.tangential_restitution) * ROLLING_ALPHA;
+        let (regime, alpha) = if sliding_alpha >= gripping_alpha {
+            (BounceRegime::Rolling, gripping_alpha)
         } else {
             (BounceRegime::Sliding, sliding_alpha)
         };
