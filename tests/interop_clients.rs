@@ -472,11 +472,7 @@ fn the_node_is_watched_live_by_foxglove_s_websocket_client() {
     let Some(parsers) = foxglove_parsers() else {
         return;
     };
-    let netns = Command::new("unshare")
-        .args(["-n", "true"])
-        .status()
-        .is_ok_and(|s| s.success());
-    if !netns {
+    if !common::can_isolate_network() {
         assert!(
             std::env::var("CI").as_deref() != Ok("true"),
             "CI must be able to make a loopback-only network namespace"

@@ -81,11 +81,7 @@ fn prerequisites() -> Option<PathBuf> {
     if !has_cyclone {
         return skip("TTBALL_PYTHON has no cyclonedds (pip install cyclonedds mcap)");
     }
-    let netns = Command::new("unshare")
-        .args(["-n", "true"])
-        .status()
-        .is_ok_and(|s| s.success());
-    if !netns {
+    if !common::can_isolate_network() {
         return skip("cannot make a loopback-only network namespace (`unshare -n` failed)");
     }
     Some(python)
@@ -1023,11 +1019,7 @@ fn fastdds_peer() -> Option<PathBuf> {
             "set TTBALL_FASTDDS_PEER to the peer tests/interop/fastdds/build.sh builds (see .ci/run)",
         );
     };
-    let netns = Command::new("unshare")
-        .args(["-n", "true"])
-        .status()
-        .is_ok_and(|s| s.success());
-    if !netns {
+    if !common::can_isolate_network() {
         return skip("cannot make a loopback-only network namespace (`unshare -n` failed)");
     }
     Some(peer)

@@ -30,6 +30,15 @@ pub fn ok(args: &[&str]) -> String {
     String::from_utf8_lossy(&out.stdout).into_owned()
 }
 
+/// Whether this process may make a network namespace (`unshare -n`: root, or unprivileged user
+/// namespaces), which [`run_on_loopback_only`] needs.
+pub fn can_isolate_network() -> bool {
+    Command::new("unshare")
+        .args(["-n", "true"])
+        .status()
+        .is_ok_and(|s| s.success())
+}
+
 /// Runs a bash `script` in a new network namespace where only loopback is up (with multicast,
 /// for DDS discovery), so nothing it sends leaves the machine; returns its exit status. Fails when
 /// the namespace cannot be set up.

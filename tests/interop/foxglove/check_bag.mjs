@@ -17,6 +17,7 @@
 // Prints what it checked; exit code 0 when everything matches, 1 otherwise.
 
 import { readFile } from "node:fs/promises";
+import { plain } from "./plain.mjs";
 import { McapIndexedReader, McapStreamReader } from "@mcap/core";
 import { loadDecompressHandlers } from "@mcap/support";
 import { parse } from "@foxglove/rosmsg";
@@ -33,16 +34,6 @@ const expected = (await readFile(dumpPath, "utf8"))
 const decompressHandlers = await loadDecompressHandlers();
 const problems = [];
 
-// A decoded value as plain JSON-like data: typed arrays as arrays, bigints as numbers.
-function plain(value) {
-  if (typeof value === "bigint") return Number(value);
-  if (ArrayBuffer.isView(value)) return Array.from(value, plain);
-  if (Array.isArray(value)) return value.map(plain);
-  if (value && typeof value === "object") {
-    return Object.fromEntries(Object.entries(value).map(([k, v]) => [k, plain(v)]));
-  }
-  return value;
-}
 
 function compare(ours, theirs, path) {
   if (problems.length > 20) return;

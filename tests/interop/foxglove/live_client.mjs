@@ -12,6 +12,7 @@
 // or leaves bytes over).
 
 import { writeFile } from "node:fs/promises";
+import { plain } from "./plain.mjs";
 import wsProtocol from "@foxglove/ws-protocol";
 import { parse } from "@foxglove/rosmsg";
 import { MessageReader } from "@foxglove/rosmsg2-serialization";
@@ -25,16 +26,6 @@ const SUBPROTOCOLS = ["foxglove.sdk.v1", FoxgloveClient.SUPPORTED_SUBPROTOCOL];
 const [url, seconds, reportPath] = process.argv.slice(2);
 const report = { server: null, channels: [], topics: {}, problems: [] };
 const channels = new Map();
-
-const plain = (value) => {
-  if (typeof value === "bigint") return Number(value);
-  if (ArrayBuffer.isView(value)) return Array.from(value, plain);
-  if (Array.isArray(value)) return value.map(plain);
-  if (value && typeof value === "object") {
-    return Object.fromEntries(Object.entries(value).map(([k, v]) => [k, plain(v)]));
-  }
-  return value;
-};
 
 // The server may not be up yet: a client per attempt, every handler in place before its socket
 // opens (the server's first messages come with the handshake).
