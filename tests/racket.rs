@@ -1,5 +1,11 @@
 //! The racket impact model against the numbers of its sources (Kawazoe & Suzuki, seed 000;
-//! Kawazoe et al., seed 001; physics.md "Racket impact") and against its invariants.
+//! Kawazoe et al., seed 001; physics.md "Racket impact") and against its invariants, and on
+//! real rebounds (tt_rackets).
+#![allow(
+    clippy::unwrap_used,
+    clippy::expect_used,
+    reason = "test helpers outside #[test] functions: fail loudly"
+)]
 
 use approx::assert_relative_eq;
 use nalgebra::{Vector2, Vector3};
