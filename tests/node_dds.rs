@@ -315,12 +315,7 @@ wait $listener
     // The node stopped cleanly on SIGTERM and said what it did.
     assert_eq!(read("node.rc").trim(), "0", "node: {}", read("node.err"));
     let node_out = read("node.out");
-    let received: usize = node_out
-        .split("detections received ")
-        .nth(1)
-        .and_then(|rest| rest.split(',').next())
-        .and_then(|n| n.parse().ok())
-        .unwrap_or_else(|| panic!("no summary from the node: {node_out}"));
+    let received = detections_received(&node_out);
 
     // The replay of the same bag: what the node must have published.
     let replayed = dir.join("replay.mcap");
@@ -546,6 +541,21 @@ fn replayed_outputs(dir: &Path, bag: &str) -> (Vec<BallState>, Vec<InterceptPred
     )
 }
 
+/// How many detections the node's stop summary says it received; the summary must be there.
+fn detections_received(node_out: &str) -> usize {
+    node_out
+        .split("detections received ")
+        .nth(1)
+        .and_then(|rest| rest.split(',').next())
+        .and_then(|n| n.parse().ok())
+        .unwrap_or_else(|| panic!("no summary from the node: {node_out}"))
+}
+
+/// Each CDR payload decoded as a `T`.
+fn decode_each<T: DeserializeOwned>(payloads: &[Vec<u8>]) -> Vec<T> {
+    payloads.iter().map(|b| decode(b).unwrap()).collect()
+}
+
 /// The number after `label` in the node's stop summary (0 when absent).
 fn summary_count(summary: &str, label: &str) -> u64 {
     summary
@@ -640,14 +650,8 @@ echo $? > node.rc
             .map(|r| cdr_of(&r))
             .collect()
     };
-    let states: Vec<BallState> = decoded("states")
-        .iter()
-        .map(|b| decode(b).unwrap())
-        .collect();
-    let intercepts: Vec<InterceptPrediction> = decoded("intercepts")
-        .iter()
-        .map(|b| decode(b).unwrap())
-        .collect();
+    let states: Vec<BallState> = decode_each(&decoded("states"));
+    let intercepts: Vec<InterceptPrediction> = decode_each(&decoded("intercepts"));
     let (replay_states, replay_intercepts) = replayed_outputs(&dir, BAG);
     // Nothing lost on the wire (as many as the replay): equal one for one; else a common prefix.
     let whole = states.len() == replay_states.len();
@@ -1232,21 +1236,10 @@ echo $? > node.rc
 
     // Every detection reached the node; the outputs are the replay's, bit for bit.
     let node_out = read("node.out");
-    let received: usize = node_out
-        .split("detections received ")
-        .nth(1)
-        .and_then(|rest| rest.split(',').next())
-        .and_then(|n| n.parse().ok())
-        .unwrap_or_else(|| panic!("no summary from the node: {node_out}"));
+    let received = detections_received(&node_out);
     let decoded = |name: &str| -> Vec<Vec<u8>> { read(name).lines().map(hex).collect() };
-    let states: Vec<BallState> = decoded("states.hex")
-        .iter()
-        .map(|b| decode(b).unwrap())
-        .collect();
-    let intercepts: Vec<InterceptPrediction> = decoded("intercepts.hex")
-        .iter()
-        .map(|b| decode(b).unwrap())
-        .collect();
+    let states: Vec<BallState> = decode_each(&decoded("states.hex"));
+    let intercepts: Vec<InterceptPrediction> = decode_each(&decoded("intercepts.hex"));
     let (replay_states, replay_intercepts) = replayed_outputs(&dir, BAG);
     eprintln!(
         "Fast DDS: {received} of {} detections arrived; {} states, {} intercepts",
