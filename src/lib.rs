@@ -7,6 +7,9 @@
 //! - [`batch`]: the batch (maximum a posteriori, robust) fit of one whole flight: the offline
 //!   smoother and the base of calibration.
 //! - [`calibrate`]: the aero and bounce coefficients fitted to many recorded flights at once.
+//! - [`rebound_calibration`]: the racket's rubber constants fitted to recorded hits, with
+//!   standard errors and k-fold cross-validation.
+//! - [`least_squares`]: a small dense Levenberg-Marquardt with central-difference Jacobians.
 //! - [`smooth`]: a recording cut into flights by the estimator's tracks, each fitted whole: the
 //!   smoothed state at every detection.
 //! - [`eval`]: accuracy of the estimator on a simulated session against its truth.
@@ -41,6 +44,7 @@ pub mod estimator;
 pub mod eval;
 pub mod frames;
 pub mod intercept;
+pub mod least_squares;
 #[cfg(feature = "live-view")]
 pub mod live_view;
 #[cfg(feature = "interface")]
@@ -53,6 +57,7 @@ pub mod pipeline;
 #[cfg(feature = "plot")]
 pub mod plot;
 pub mod real;
+pub mod rebound_calibration;
 #[cfg(feature = "bag")]
 pub mod record;
 #[cfg(feature = "bag")]

@@ -20,6 +20,14 @@ use super::{BadUsage, ConfigArgs, write_stdout};
 /// A group of constants to fit.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
 pub enum Group {
+    /// With --rebound: the rubber's restitution polynomial e_RB(V) (racket.rubber_restitution).
+    RubberRestitution,
+    /// With --rebound: the ball-rubber Coulomb friction (racket.rubber_friction).
+    RubberFriction,
+    /// With --rebound: the tangential restitution e_t (racket.rubber_tangential_restitution).
+    RubberTangential,
+    /// With --rebound: the torsional restitution e_z (racket.rubber_torsional_restitution).
+    RubberTorsional,
     /// The C_D(Sp) and C_M(Sp) polynomial coefficients (aero.drag/magnus_coefficients).
     Aero,
     /// The scale factors on the configured C_D(Sp) and C_M(Sp) (aero.drag_scale,
@@ -36,15 +44,31 @@ pub enum Group {
 pub struct CalibrateArgs {
     /// Bags of recorded flights (MCAP files or rosbag2 directories); their detections are cut
     /// into flights by the estimator's tracks.
-    #[arg(required = true, value_name = "BAG")]
+    #[arg(required_unless_present = "rebound", conflicts_with = "rebound", value_name = "BAG")]
     pub inputs: Vec<PathBuf>,
+
+    /// Calibrate the racket's rubber instead, from recorded hits: a CSV file with the ball's
+    /// velocity and spin before and after each hit (the tt_rackets columns v_in_*,
+    /// spin_before_*, v_out_*, spin_after_*; optionally racket_velocity_*, racket_normal_*,
+    /// impact_offset; README "Calibrating the racket"). Repeatable: the files are fitted
+    /// together and their errors reported one by one.
+    #[arg(long, value_name = "HITS.csv")]
+    pub rebound: Vec<PathBuf>,
+
+    /// With --rebound: order of the fitted restitution polynomial e_RB(V) (0-3).
+    #[arg(long, value_name = "N", default_value_t = 1, requires = "rebound")]
+    pub restitution_order: usize,
+
+    /// With --rebound: folds of the cross-validation (hit i is held out in fold i mod k; 0: none).
+    #[arg(long, value_name = "K", default_value_t = 5, requires = "rebound")]
+    pub folds: usize,
 
     /// The configuration snippet to write (a ROS 2 parameters file: pass it to --config).
     #[arg(long, short, value_name = "FILE.yaml")]
     pub output: PathBuf,
 
-    /// What to fit, comma separated.
-    #[arg(long, value_enum, value_delimiter = ',', default_value = "aero,bounce")]
+    /// What to fit, comma separated [default: aero,bounce; with --rebound: every rubber-* group].
+    #[arg(long, value_enum, value_delimiter = ',')]
     pub fit: Vec<Group>,
 
     /// Order of the C_D polynomial (0-3) [default: chosen by AIC].
@@ -61,7 +85,8 @@ pub struct CalibrateArgs {
     pub holdout: bool,
 
     /// Draw the fitted C_D(Sp), C_M(Sp) against the starting ones and the residual of every
-    /// flight (SVG or PNG by the file name).
+    /// flight; with --rebound, predicted against measured outgoing velocity and spin of every
+    /// hit (SVG or PNG by the file name).
     #[arg(long, value_name = "FILE.svg|FILE.png")]
     pub plot: Option<PathBuf>,
 
@@ -92,11 +117,37 @@ impl CalibrateArgs {
                 plot.display()
             )));
         }
+        let rubber_groups = [
+            Group::RubberRestitution,
+            Group::RubberFriction,
+            Group::RubberTangential,
+            Group::RubberTorsional,
+        ];
+        if !self.rebound.is_empty() {
+            if let Some(g) = self.fit.iter().find(|g| !rubber_groups.contains(g)) {
+                bail!(BadUsage(format!(
+                    "--fit {}: with --rebound only the rubber-* groups can be fitted",
+                    g.to_possible_value().map_or_else(String::new, |v| v.get_name().to_owned())
+                )));
+            }
+            return super::calibrate_rubber::run(&self, &config);
+        }
+        if let Some(g) = self.fit.iter().find(|g| rubber_groups.contains(g)) {
+            bail!(BadUsage(format!(
+                "--fit {}: the rubber is calibrated from recorded hits: give them with --rebound HITS.csv",
+                g.to_possible_value().map_or_else(String::new, |v| v.get_name().to_owned())
+            )));
+        }
+        let fit = if self.fit.is_empty() {
+            vec![Group::Aero, Group::Bounce]
+        } else {
+            self.fit.clone()
+        };
         let options = Options {
-            aero: self.fit.contains(&Group::Aero),
-            scales: self.fit.contains(&Group::Scales),
-            bounce: self.fit.contains(&Group::Bounce),
-            density: self.fit.contains(&Group::Density),
+            aero: fit.contains(&Group::Aero),
+            scales: fit.contains(&Group::Scales),
+            bounce: fit.contains(&Group::Bounce),
+            density: fit.contains(&Group::Density),
             drag_order: self.drag_order,
             magnus_order: self.magnus_order,
         };

@@ -2,6 +2,7 @@
 //! shared between commands ([`ConfigArgs`]). Commands are thin adapters around the library.
 
 pub mod calibrate;
+mod calibrate_rubber;
 pub mod config_cmd;
 pub mod dump;
 pub mod evaluate;
@@ -26,7 +27,7 @@ use anyhow::Context;
 use clap::{Args, Parser, Subcommand};
 use indicatif::{ProgressBar, ProgressStyle};
 use ttball::config::Config;
-use ttball::config::yaml::{self, LoadError};
+use ttball::config::yaml::{self, Layer, LoadError};
 
 /// Exit code of a command whose configuration is invalid (and of `config check` on a bad file).
 pub const EXIT_BAD_CONFIG: u8 = 2;
@@ -93,19 +94,23 @@ pub enum Command {
         ttball replay my_rally.mcap -o out.mcap -p topics.detections:=/vision/ball -p intercept.plane_x:=-1.45")]
     Replay(replay::ReplayArgs),
 
-    /// Calibrate the aero and bounce coefficients from recorded flights.
+    /// Calibrate the aero and bounce coefficients from recorded flights, or the racket's rubber
+    /// from recorded hits.
     ///
     /// Cuts the bags' detections into flights with the estimator's tracks and fits, over all
     /// flights together, the C_D(Sp) and C_M(Sp) polynomial coefficients (orders chosen by AIC
     /// unless given), the table's restitution and friction, or the air density, with every
     /// flight's state (position, velocity, spin) as a nuisance parameter; measured spins are
-    /// used where the bags have them. Writes a configuration snippet (pass it to --config) with
-    /// standard errors, and optionally a chart and JSON.
+    /// used where the bags have them. With --rebound HITS.csv, fits the rubber's restitution
+    /// polynomial, friction, tangential and torsional restitution to the measured outgoing
+    /// velocity and spin of recorded hits, k-fold cross-validated. Writes a configuration
+    /// snippet (pass it to --config) with standard errors, and optionally a chart and JSON.
     #[command(after_help = "Examples:\n  \
         ttball calibrate my_rallies/*.mcap --output calibrated.yaml --plot calibration.png\n  \
         ttball calibrate bags/real_launcher.mcap -o launcher.yaml --holdout\n  \
         ttball calibrate rally.mcap -o table.yaml --fit bounce\n  \
-        ttball calibrate rally.mcap -o aero.yaml --fit aero --drag-order 2 --magnus-order 4\n\n\
+        ttball calibrate rally.mcap -o aero.yaml --fit aero --drag-order 2 --magnus-order 4\n  \
+        ttball calibrate --rebound tests/data/tt_rackets/test/racket_01.csv -o rubber.yaml --plot rubber.svg\n\n\
         Progress goes to stderr: every iteration on a terminal or with TTBALL_VERBOSE=1, the\n\
         stages otherwise.")]
     Calibrate(calibrate::CalibrateArgs),
@@ -233,8 +238,10 @@ impl Command {
 pub struct ConfigArgs {
     /// ROS 2 parameters file with the configuration (`ttball: ros__parameters: ...`); it may set
     /// any subset of the parameters, the others keep their defaults (config/ttball.yaml).
+    /// Repeatable, like ROS 2's --params-file: each file overrides the ones before it (e.g. your
+    /// robot's file, then a preset from config/presets/).
     #[arg(long, value_name = "FILE")]
-    pub config: Option<PathBuf>,
+    pub config: Vec<PathBuf>,
 
     /// Parameter overrides.
     #[command(flatten)]
@@ -244,7 +251,17 @@ pub struct ConfigArgs {
 impl ConfigArgs {
     /// The loaded and validated configuration: defaults, then `--config`, then each `-p`.
     pub fn load(&self) -> Result<Config, LoadError> {
-        yaml::load(self.config.as_deref(), &self.overrides.params)
+        yaml::load_layers(&self.layers(), None)
+    }
+
+    /// The files, then the overrides, as configuration layers in the order they apply.
+    pub fn layers(&self) -> Vec<Layer> {
+        self.config
+            .iter()
+            .cloned()
+            .map(Layer::File)
+            .chain(self.overrides.params.iter().cloned().map(Layer::Param))
+            .collect()
     }
 }
 

@@ -161,15 +161,7 @@ impl NodeArgs {
         let ros = parse_ros_args(self.ros_args.as_deref().unwrap_or_default())?;
         super::init_logging(ros.log_level.as_deref());
         // ttball's own --config and -p first, then --ros-args' files and -p in their order.
-        let layers: Vec<Layer> = (self.config.config.clone().map(Layer::File).into_iter())
-            .chain(
-                self.config
-                    .overrides
-                    .params
-                    .iter()
-                    .cloned()
-                    .map(Layer::Param),
-            )
+        let layers: Vec<Layer> = (self.config.layers().into_iter())
             .chain(ros.layers.iter().cloned())
             .collect();
         let mut config = yaml::load_layers(&layers, remapped_node_fqn(&ros.remaps).as_deref())?;

@@ -189,6 +189,12 @@ pub struct RacketParams {
     /// rolling (the seed's model); > 0: a tangentially elastic rubber returns spin beyond
     /// rolling; Coulomb friction (`rubber_friction`) still caps the impulse.
     pub rubber_tangential_restitution: f64,
+    /// Torsional coefficient of restitution of ball on rubber, e_z [-], in [-1, 1]: the ball's
+    /// spin about the face normal leaves as e_z times what it was (the contact patch's twist:
+    /// 1 keeps it, the seed's model, which has no torque about the normal; 0 stops it; < 0 a
+    /// rubber that grips the patch and twists back). An empirical coefficient of ttball's,
+    /// calibrated on recorded hits (`ttball calibrate --rebound`; docs/models.md).
+    pub rubber_torsional_restitution: f64,
     /// Restoring characteristic of the ball-rubber system, F = f(K) = c0 + c1 K + c2 K^2 + ...
     /// with F [N] and K = dF/dX [N/m], lowest order first (seed 000 eq. (1) is this curve in kgf
     /// and kgf/mm: multiply c_i by 9.80665 / 9806.65^i). Default and source in
@@ -217,6 +223,7 @@ impl Default for RacketParams {
             rubber_restitution: vec![0.77, -0.0123],
             rubber_friction: RUBBER_FRICTION,
             rubber_tangential_restitution: 0.0,
+            rubber_torsional_restitution: 1.0,
             restoring_force_vs_stiffness: vec![0.0, 0.0, 0.0, HERTZ_RESTORING_CUBIC],
             vibration_mode_frequencies: Vec::new(),
             vibration_mode_masses: Vec::new(),

@@ -528,6 +528,12 @@ impl Config {
             |v| (-1.0..=1.0).contains(&v),
             "between -1 and 1",
         );
+        c.real(
+            "racket.rubber_torsional_restitution",
+            r.rubber_torsional_restitution,
+            |v| (-1.0..=1.0).contains(&v),
+            "between -1 and 1",
+        );
         c.polynomial(
             "racket.restoring_force_vs_stiffness",
             &r.restoring_force_vs_stiffness,

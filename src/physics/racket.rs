@@ -19,7 +19,9 @@
 //! rubber's friction coefficient: slip u = v_t - V_R,t - r (w x n), Coulomb impulse mu m (1 + e) V
 //! against it, capped where the rubber grips the ball: there the contact point leaves with
 //! -e_t u (the tangential restitution of Garwin 1969 and Cross 2002; e_t = 0 rolls, the seed's
-//! model), an impulse of (1 + e_t) 2/5 m u for a thin shell (I = 2/3 m r^2). The racket's
+//! model), an impulse of (1 + e_t) 2/5 m u for a thin shell (I = 2/3 m r^2). About the normal,
+//! the spin leaves as e_z times what came in (`rubber_torsional_restitution`; 1 keeps it, the
+//! seed's model; ttball's empirical coefficient, calibrated on recorded hits). The racket's
 //! tangential response is neglected (the impulse is a few per cent of its momentum).
 //!
 //! Force on the grip (the robot's wrist), seed 001 eq. 10-14: S_1 = chi S_0 with
@@ -155,6 +157,7 @@ pub struct RacketModel {
     rubber_restitution: Polynomial,
     friction: f64,
     tangential_restitution: f64,
+    torsional_restitution: f64,
     characteristic: RestoringCharacteristic,
     modes: Vec<VibrationMode>,
 }
@@ -176,6 +179,7 @@ impl RacketModel {
             rubber_restitution: Polynomial::new(&r.rubber_restitution),
             friction: r.rubber_friction,
             tangential_restitution: r.rubber_tangential_restitution,
+            torsional_restitution: r.rubber_torsional_restitution,
             characteristic: RestoringCharacteristic::new(&r.restoring_force_vs_stiffness),
             modes: r
                 .vibration_mode_frequencies
@@ -302,6 +306,42 @@ impl RacketModel {
 
     /// The ball and racket just after `racket` hits `ball`.
     pub fn hit(&self, ball: &BallState, racket: &RacketState) -> Result<Hit, ImpactError> {
+        let (n, speed) = self.approach(ball, racket)?;
+        let normal = self.normal_impact(speed, racket.impact_offset)?;
+        let (outgoing, regime, normal_change) =
+            self.outgoing(ball, racket, &n, speed, normal.rebound_power_coefficient);
+        let racket_velocity =
+            racket.velocity - n * (self.ball_mass / normal.reduced_mass * normal_change);
+        Ok(Hit {
+            ball: outgoing,
+            racket_velocity,
+            normal,
+            regime,
+            wrist: self.wrist_load(racket.impact_offset, normal.contact.peak_force),
+        })
+    }
+
+    /// The ball just after `racket` hits `ball`, as [`Self::hit`] finds it, without the contact's
+    /// time, force and the wrist's load where no vibration mode needs them (calibration evaluates
+    /// thousands of hits).
+    pub fn rebound(&self, ball: &BallState, racket: &RacketState) -> Result<BallState, ImpactError> {
+        let (n, speed) = self.approach(ball, racket)?;
+        let e = if self.modes.is_empty() {
+            let mass_ratio = self.ball_mass / self.reduced_mass(racket.impact_offset);
+            rebound_power_coefficient(self.rubber_restitution(speed), mass_ratio)
+        } else {
+            self.normal_impact(speed, racket.impact_offset)?
+                .rebound_power_coefficient
+        };
+        Ok(self.outgoing(ball, racket, &n, speed, e).0)
+    }
+
+    /// Checks a hit's inputs: the face's unit normal and the ball's normal approach speed.
+    fn approach(
+        &self,
+        ball: &BallState,
+        racket: &RacketState,
+    ) -> Result<(Vector3<f64>, f64), ImpactError> {
         if !ball.is_finite() {
             return Err(ImpactError::NotFinite { what: "ball state" });
         }
@@ -322,20 +362,31 @@ impl RacketModel {
         }
         self.check_on_face(racket.impact_offset)?;
         let n = racket.normal / length;
-        let relative = ball.velocity - racket.velocity;
-        let relative_normal_speed = relative.dot(&n);
+        let relative_normal_speed = (ball.velocity - racket.velocity).dot(&n);
         if relative_normal_speed >= 0.0 {
             return Err(ImpactError::NotApproaching {
                 relative_normal_speed,
             });
         }
-        let speed = -relative_normal_speed;
-        let normal = self.normal_impact(speed, racket.impact_offset)?;
-        // Normal velocity change of the ball: the impulse per unit ball mass.
-        let normal_change = (1.0 + normal.rebound_power_coefficient) * speed;
+        Ok((n, -relative_normal_speed))
+    }
 
+    /// The ball after an impact at normal speed `speed` with rebound power coefficient `e` on
+    /// the face of normal `n`: the outgoing state, the tangential regime and the normal velocity
+    /// change.
+    fn outgoing(
+        &self,
+        ball: &BallState,
+        racket: &RacketState,
+        n: &Vector3<f64>,
+        speed: f64,
+        e: f64,
+    ) -> (BallState, BounceRegime, f64) {
+        // Normal velocity change of the ball: the impulse per unit ball mass.
+        let normal_change = (1.0 + e) * speed;
         let r = self.ball_radius;
-        let slip = relative - n * relative_normal_speed - r * ball.spin.cross(&n);
+        let relative = ball.velocity - racket.velocity;
+        let slip = relative + n * speed - r * ball.spin.cross(n);
         let slip_speed = slip.norm();
         let sliding_alpha = if slip_speed > 0.0 {
             self.friction * normal_change / slip_speed
@@ -351,16 +402,13 @@ impl RacketModel {
         };
         let tangential_change = -alpha * slip;
         let velocity = ball.velocity + n * normal_change + tangential_change;
-        let spin = ball.spin - 1.5 / r * n.cross(&tangential_change);
-        let racket_velocity =
-            racket.velocity - n * (self.ball_mass / normal.reduced_mass * normal_change);
-        Ok(Hit {
-            ball: BallState::new(ball.position, velocity, spin),
-            racket_velocity,
-            normal,
-            regime,
-            wrist: self.wrist_load(racket.impact_offset, normal.contact.peak_force),
-        })
+        // The tangential impulse turns the spin in the face's plane only; about the normal the
+        // contact patch's twist leaves e_z times what came in.
+        let mut spin = ball.spin - 1.5 / r * n.cross(&tangential_change);
+        if self.torsional_restitution != 1.0 {
+            spin += n * ((self.torsional_restitution - 1.0) * ball.spin.dot(n));
+        }
+        (BallState::new(ball.position, velocity, spin), regime, normal_change)
     }
 }
 

@@ -12,6 +12,7 @@ mod calibration;
 mod data;
 mod rebound;
 mod render;
+mod rubber;
 
 use std::sync::OnceLock;
 
@@ -225,6 +226,30 @@ pub fn render_calibration_png(
     encode_png((options.width, options.height), |root| {
         calibration::draw(root, calibration, start)
     })
+}
+
+/// The rubber calibration's chart (predicted against measured outgoing velocity and spin, by
+/// the starting and the calibrated configuration) as an SVG document or a PNG image (`png`).
+pub fn render_rubber_calibration(
+    calibration: &crate::rebound_calibration::RubberCalibration,
+    options: &ChartOptions,
+    png: bool,
+) -> Result<Vec<u8>, PlotError> {
+    check_size(options.width, options.height)?;
+    register_fonts()?;
+    if png {
+        return encode_png((options.width, options.height), |root| {
+            rubber::draw(root, calibration)
+        });
+    }
+    let mut svg = String::new();
+    {
+        let root =
+            SVGBackend::with_string(&mut svg, (options.width, options.height)).into_drawing_area();
+        rubber::draw(&root, calibration)?;
+        root.present()?;
+    }
+    Ok(svg.into_bytes())
 }
 
 /// Draws on an RGB bitmap of `size` and encodes it as PNG.
