@@ -758,7 +758,9 @@ pub fn calibrate_rubber(
         hits: &set.hits,
         axes,
     };
-    let fit = problem.clone().fit()?;
+    let mut fit = problem.clone().fit()?;
+    fit.config.racket.rubber_covariance = full_covariance(&fit);
+    fit.config.racket.rebound_scatter = vec![fit.noise.0, fit.noise.1];
     fit.config
         .validate()
         .map_err(|e| RubberCalibrationError::Invalid(e.to_string()))?;
@@ -872,6 +874,26 @@ pub fn calibrate_rubber(
         predictions,
         iterations,
     })
+}
+
+/// The fit's covariance spread over all the rubber's constants in the order of
+/// `racket.rubber_covariance` (0 for those not fitted or not determined).
+fn full_covariance(fit: &Fit) -> Vec<f64> {
+    let n = fit.config.racket.rubber_restitution.len();
+    let size = n + 3;
+    let index = |p: &RubberParameter| match p {
+        RubberParameter::Restitution(k) => *k,
+        RubberParameter::Friction => n,
+        RubberParameter::TangentialRestitution => n + 1,
+        RubberParameter::TorsionalRestitution => n + 2,
+    };
+    let mut out = vec![0.0; size * size];
+    for (a, pa) in fit.parameters.iter().enumerate() {
+        for (b, pb) in fit.parameters.iter().enumerate() {
+            out[index(pa) * size + index(pb)] = fit.minimum.covariance[(a, b)];
+        }
+    }
+    out
 }
 
 /// Counts of rejected lines by reason (the reason's text before its first ':').

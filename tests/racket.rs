@@ -644,6 +644,94 @@ fn landing_covariance_matches_monte_carlo() {
     }
 }
 
+/// With a calibrated rubber (the inverted offensive preset: its constants' covariance and the
+/// scatter of single hits about the model), the landing covariance of a planned return includes
+/// both, even for a ball known exactly, and matches a Monte Carlo over them (2000 samples of the
+/// rubber's constants from their covariance and of the outgoing velocity and spin's scatter;
+/// standard deviations within 10 %). The scatter of single hits dominates: 0.23 m/s and
+/// 14 rad/s per component move the landing by 18 cm (x) and 10 cm (y) on this drive, the
+/// constants' uncertainty by 4 mm. The scatter includes the recording's measurement noise, so
+/// this is an upper bound.
+#[test]
+fn landing_covariance_includes_the_calibrated_rubbers_uncertainty() {
+    use nalgebra::{DMatrix, DVector};
+    use ttball::physics::state::StateMatrix;
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("config/presets/rubber_inverted_offensive.yaml");
+    let config = ttball::config::yaml::load(Some(&path), &[] as &[String]).unwrap();
+    let r = &config.racket;
+    assert!(!r.rubber_covariance.is_empty() && r.rebound_scatter[0] > 0.0);
+    let stroke = Stroke::new(&config);
+    let ball = incoming();
+    let plan = stroke
+        .plan(&ball, &aim((0.9, 0.2), ReturnCondition::NetClearance(0.2)))
+        .expect("plan");
+    let linear = stroke
+        .landing_covariance(&ball, &StateMatrix::zeros(), &plan.racket)
+        .expect("covariance");
+    // The constants alone, for scale.
+    let mut exact_scatter = config.clone();
+    exact_scatter.racket.rebound_scatter = vec![0.0, 0.0];
+    let constants_only = Stroke::new(&exact_scatter)
+        .landing_covariance(&ball, &StateMatrix::zeros(), &plan.racket)
+        .expect("covariance");
+    eprintln!(
+        "landing sigma x, y [mm]: constants {:.1} {:.1}, all {:.1} {:.1}",
+        constants_only[(0, 0)].sqrt() * 1e3,
+        constants_only[(1, 1)].sqrt() * 1e3,
+        linear[(0, 0)].sqrt() * 1e3,
+        linear[(1, 1)].sqrt() * 1e3
+    );
+    assert!(constants_only[(0, 0)] > 0.0 && linear[(0, 0)] > 4.0 * constants_only[(0, 0)]);
+
+    let theta = stroke.racket().rubber_parameters();
+    let n = theta.len();
+    let root = DMatrix::from_row_slice(n, n, &r.rubber_covariance)
+        .cholesky()
+        .expect("a positive definite covariance")
+        .l();
+    let mut state = 0x2545_f491_4f6c_dd1du64;
+    let mut gaussian = || {
+        let mut uniform = || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            ((state >> 11) as f64 + 0.5) / (1u64 << 53) as f64
+        };
+        let (u1, u2) = (uniform(), uniform());
+        (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()
+    };
+    let (sv, sw) = (r.rebound_scatter[0], r.rebound_scatter[1]);
+    let mut samples = Vec::new();
+    while samples.len() < 2000 {
+        let z = DVector::from_fn(n, |_, _| gaussian());
+        let sampled = DVector::from_vec(theta.clone()) + &root * z;
+        let mut c = exact_scatter.clone();
+        c.racket.rubber_restitution = sampled.as_slice()[..n - 3].to_vec();
+        c.racket.rubber_friction = sampled[n - 3];
+        c.racket.rubber_tangential_restitution = sampled[n - 2];
+        c.racket.rubber_torsional_restitution = sampled[n - 1];
+        let model = RacketModel::new(&c);
+        let mut after = model.hit(&ball, &plan.racket).expect("hit").ball;
+        after.velocity += Vector3::new(gaussian(), gaussian(), gaussian()) * sv;
+        after.spin += Vector3::new(gaussian(), gaussian(), gaussian()) * sw;
+        if let Some((t, landing)) = stroke.return_flight(&after).landing {
+            samples.push([landing.position.x, landing.position.y, t]);
+        }
+    }
+    for k in 0..3 {
+        let mean = samples.iter().map(|s| s[k]).sum::<f64>() / samples.len() as f64;
+        let var =
+            samples.iter().map(|s| (s[k] - mean).powi(2)).sum::<f64>() / (samples.len() - 1) as f64;
+        let (sampled, predicted) = (var.sqrt(), linear[(k, k)].sqrt());
+        eprintln!("landing component {k}: Monte Carlo sigma {sampled:.5}, linear {predicted:.5}");
+        assert!(
+            (sampled / predicted - 1.0).abs() < 0.1,
+            "component {k}: Monte Carlo {sampled}, linear {predicted}"
+        );
+    }
+}
+
 /// The rubber's tangential restitution e_t (Garwin 1969, Cross 2002): where the rubber grips
 /// the ball, the contact point leaves with -e_t times its incoming slip (0 rolls, as the seed's
 /// model); the angular momentum about the contact point is conserved whatever e_t (the contact

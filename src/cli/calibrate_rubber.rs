@@ -159,6 +159,12 @@ fn snippet(c: &RubberCalibration, inputs: &[String]) -> String {
             .collect::<Vec<_>>()
             .join(", ")
     };
+    out.push_str(
+        "# rubber_covariance: the fit's covariance over (rubber_restitution's coefficients,\n\
+         # rubber_friction, rubber_tangential_restitution, rubber_torsional_restitution), row by\n\
+         # row; rebound_scatter: the residual scatter per component (velocity m/s, spin rad/s).\n\
+         # The landing covariance of a planned return includes both.\n",
+    );
     out.push_str("ttball:\n  ros__parameters:\n    racket:\n");
     let _ = writeln!(
         out,
@@ -168,6 +174,24 @@ fn snippet(c: &RubberCalibration, inputs: &[String]) -> String {
         r.rubber_friction,
         r.rubber_tangential_restitution,
         r.rubber_torsional_restitution
+    );
+    let size = r.rubber_restitution.len() + 3;
+    let rows: Vec<String> = r
+        .rubber_covariance
+        .chunks(size)
+        .map(|row| {
+            row.iter()
+                .map(|v| format!("{v:.6e}"))
+                .collect::<Vec<_>>()
+                .join(", ")
+        })
+        .collect();
+    let _ = writeln!(
+        out,
+        "      rubber_covariance: [\n        {}]\n      rebound_scatter: [{:.6}, {:.6}]",
+        rows.join(",\n        "),
+        c.noise.0,
+        c.noise.1
     );
     out
 }

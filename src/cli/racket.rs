@@ -120,7 +120,9 @@ pub struct AimArgs {
 
     /// Uncertainty of the ball at impact, per-axis standard deviations of its position [m],
     /// velocity [m/s] and spin [rad/s] (e.g. the interception's): also prints the landing's
-    /// uncertainty, carried through the hit and the flight.
+    /// uncertainty, carried through the hit and the flight (with the rubber's own, when the
+    /// configuration has racket.rubber_covariance or racket.rebound_scatter, as the calibrated
+    /// presets do; then it is printed even without --sigma).
     #[arg(long, value_name = "P,V,W", value_parser = parse_vector)]
     pub sigma: Option<Vector3<f64>>,
 
@@ -190,10 +192,13 @@ impl AimArgs {
         let plan = stroke
             .plan(&ball, &aim)
             .map_err(|e| BadUsage(e.to_string()))?;
-        let landing_covariance = self.sigma.and_then(|sigma| {
-            let variances = StateVector::from_fn(|k, _| sigma[k / 3].powi(2));
-            stroke.landing_covariance(&ball, &StateMatrix::from_diagonal(&variances), &plan.racket)
-        });
+        let landing_covariance = (self.sigma.is_some() || stroke.racket().is_uncertain())
+            .then(|| {
+                let sigma = self.sigma.unwrap_or_default();
+                let variances = StateVector::from_fn(|k, _| sigma[k / 3].powi(2));
+                stroke.landing_covariance(&ball, &StateMatrix::from_diagonal(&variances), &plan.racket)
+            })
+            .flatten();
         if self.common.json {
             let value = serde_json::json!({
                 "racket": racket_json(&plan.racket),

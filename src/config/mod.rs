@@ -195,6 +195,15 @@ pub struct RacketParams {
     /// rubber that grips the patch and twists back). An empirical coefficient of ttball's,
     /// calibrated on recorded hits (`ttball calibrate --rebound`; docs/models.md).
     pub rubber_torsional_restitution: f64,
+    /// Covariance of the rubber's calibrated constants, row-major over (rubber_restitution[0..n],
+    /// rubber_friction, rubber_tangential_restitution, rubber_torsional_restitution), (n + 3)^2
+    /// values; empty (default): known exactly. `ttball calibrate --rebound` writes it; the
+    /// landing covariance of a planned return includes it.
+    pub rubber_covariance: Vec<f64>,
+    /// Scatter of single hits about the model, per component of the outgoing velocity [m/s] and
+    /// spin [rad/s] (what the calibration leaves unexplained: rubber, ball and measurement); the
+    /// landing covariance of a planned return includes it. Default [0, 0].
+    pub rebound_scatter: Vec<f64>,
     /// Restoring characteristic of the ball-rubber system, F = f(K) = c0 + c1 K + c2 K^2 + ...
     /// with F [N] and K = dF/dX [N/m], lowest order first (seed 000 eq. (1) is this curve in kgf
     /// and kgf/mm: multiply c_i by 9.80665 / 9806.65^i). Default and source in
@@ -224,6 +233,8 @@ impl Default for RacketParams {
             rubber_friction: RUBBER_FRICTION,
             rubber_tangential_restitution: 0.0,
             rubber_torsional_restitution: 1.0,
+            rubber_covariance: Vec::new(),
+            rebound_scatter: vec![0.0, 0.0],
             restoring_force_vs_stiffness: vec![0.0, 0.0, 0.0, HERTZ_RESTORING_CUBIC],
             vibration_mode_frequencies: Vec::new(),
             vibration_mode_masses: Vec::new(),

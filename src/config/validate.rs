@@ -96,6 +96,14 @@ pub enum Violation {
         /// Dotted key of the earlier source's id.
         other_key: String,
     },
+    /// A list does not have the shape its key needs.
+    #[error("`{key}` {reason}")]
+    Malformed {
+        /// Dotted key of the list.
+        key: String,
+        /// What is wrong, and what to give.
+        reason: String,
+    },
     /// Two lists that pair up element by element have different lengths.
     #[error(
         "`{key}` has {len} elements but `{other_key}` has {other_len}: give one per element of `{other_key}`"
@@ -124,7 +132,8 @@ impl Violation {
             | Self::Exceeds { key, .. }
             | Self::TooLong { key, .. }
             | Self::SharedId { key, .. }
-            | Self::LengthMismatch { key, .. } => key,
+            | Self::LengthMismatch { key, .. }
+            | Self::Malformed { key, .. } => key,
         }
     }
 }
@@ -184,6 +193,13 @@ impl Checker {
                 allowed,
             });
         }
+    }
+
+    fn fail(&mut self, key: &str, reason: String) {
+        self.violations.push(Violation::Malformed {
+            key: key.to_owned(),
+            reason,
+        });
     }
 
     fn positive(&mut self, key: &str, value: f64) {
@@ -534,6 +550,49 @@ impl Config {
             |v| (-1.0..=1.0).contains(&v),
             "between -1 and 1",
         );
+        let rubber = r.rubber_restitution.len() + 3;
+        c.rule(
+            "racket.rubber_covariance",
+            "empty, or a symmetric (n + 3) x (n + 3) covariance row by row, n the restitution coefficients",
+        );
+        c.rule("racket.rebound_scatter", "[velocity m/s, spin rad/s], both 0 or greater");
+        if !(r.rubber_covariance.is_empty() || r.rubber_covariance.len() == rubber * rubber) {
+            c.fail(
+                "racket.rubber_covariance",
+                format!(
+                    "has {} values: give none, or the {rubber} x {rubber} = {} of a covariance over rubber_restitution's {} coefficients, rubber_friction, rubber_tangential_restitution and rubber_torsional_restitution, row by row",
+                    r.rubber_covariance.len(),
+                    rubber * rubber,
+                    r.rubber_restitution.len()
+                ),
+            );
+        } else if !r.rubber_covariance.is_empty() {
+            let at = |i: usize, j: usize| r.rubber_covariance[i * rubber + j];
+            let symmetric = (0..rubber).all(|i| {
+                at(i, i) >= 0.0
+                    && (0..rubber).all(|j| {
+                        at(i, j).is_finite()
+                            && (at(i, j) - at(j, i)).abs() <= 1e-9 * (at(i, i) * at(j, j)).sqrt().max(1e-300)
+                    })
+            });
+            if !symmetric {
+                c.fail(
+                    "racket.rubber_covariance",
+                    "is not a covariance: give finite values, a symmetric matrix, non-negative variances on its diagonal".to_owned(),
+                );
+            }
+        }
+        if r.rebound_scatter.len() != 2
+            || r.rebound_scatter.iter().any(|v| !(v.is_finite() && *v >= 0.0))
+        {
+            c.fail(
+                "racket.rebound_scatter",
+                format!(
+                    "is {:?}: give [velocity m/s, spin rad/s], both finite and >= 0",
+                    r.rebound_scatter
+                ),
+            );
+        }
         c.polynomial(
             "racket.restoring_force_vs_stiffness",
             &r.restoring_force_vs_stiffness,

@@ -158,6 +158,8 @@ pub struct RacketModel {
     friction: f64,
     tangential_restitution: f64,
     torsional_restitution: f64,
+    rubber_covariance: Vec<f64>,
+    rebound_scatter: (f64, f64),
     characteristic: RestoringCharacteristic,
     modes: Vec<VibrationMode>,
 }
@@ -180,6 +182,11 @@ impl RacketModel {
             friction: r.rubber_friction,
             tangential_restitution: r.rubber_tangential_restitution,
             torsional_restitution: r.rubber_torsional_restitution,
+            rubber_covariance: r.rubber_covariance.clone(),
+            rebound_scatter: (
+                r.rebound_scatter.first().copied().unwrap_or(0.0),
+                r.rebound_scatter.get(1).copied().unwrap_or(0.0),
+            ),
             characteristic: RestoringCharacteristic::new(&r.restoring_force_vs_stiffness),
             modes: r
                 .vibration_mode_frequencies
@@ -199,6 +206,53 @@ impl RacketModel {
             arm_mass,
             ..self.clone()
         }
+    }
+
+    /// The rubber's constants in the order of `racket.rubber_covariance`: the restitution
+    /// polynomial's coefficients, friction, tangential and torsional restitution.
+    pub fn rubber_parameters(&self) -> Vec<f64> {
+        let mut out = self.rubber_restitution.coefficients().to_vec();
+        out.extend([
+            self.friction,
+            self.tangential_restitution,
+            self.torsional_restitution,
+        ]);
+        out
+    }
+
+    /// The same model with the rubber's constants `parameters`, in the order of
+    /// [`Self::rubber_parameters`]; None when it has another length.
+    pub fn with_rubber_parameters(&self, parameters: &[f64]) -> Option<Self> {
+        let n = parameters.len().checked_sub(3)?;
+        if n != self.rubber_restitution.coefficients().len() {
+            return None;
+        }
+        Some(Self {
+            rubber_restitution: Polynomial::new(&parameters[..n]),
+            friction: parameters[n],
+            tangential_restitution: parameters[n + 1],
+            torsional_restitution: parameters[n + 2],
+            ..self.clone()
+        })
+    }
+
+    /// Covariance of the rubber's constants (row-major over [`Self::rubber_parameters`]); empty
+    /// when they are known exactly.
+    pub fn rubber_covariance(&self) -> &[f64] {
+        &self.rubber_covariance
+    }
+
+    /// Scatter of single hits about the model per component: outgoing velocity [m/s], spin
+    /// [rad/s].
+    pub fn rebound_scatter(&self) -> (f64, f64) {
+        self.rebound_scatter
+    }
+
+    /// Whether the rubber's constants or single hits carry uncertainty.
+    pub fn is_uncertain(&self) -> bool {
+        self.rubber_covariance.iter().any(|v| *v != 0.0)
+            || self.rebound_scatter.0 > 0.0
+            || self.rebound_scatter.1 > 0.0
     }
 
     /// The ball's mass [kg].
