@@ -205,8 +205,7 @@ mod tests {
             reported += m.std_errors()[1] / 50.0;
         }
         let mean = estimates.iter().sum::<f64>() / 50.0;
-        let scatter =
-            (estimates.iter().map(|e| (e - mean).powi(2)).sum::<f64>() / 49.0).sqrt();
+        let scatter = (estimates.iter().map(|e| (e - mean).powi(2)).sum::<f64>() / 49.0).sqrt();
         assert!((mean - truth.1).abs() < 0.01, "mean {mean}");
         assert!(
             reported > 0.5 * scatter && reported < 2.0 * scatter,

@@ -340,13 +340,12 @@ impl Pipeline {
             brush_speed: request.brush_speed,
         };
         let plan = stroke.plan(&ball, &aim).map_err(|e| e.to_string())?;
-        let landing_covariance = if covariance.iter().all(|v| *v == 0.0)
-            && !stroke.racket().is_uncertain()
-        {
-            None
-        } else {
-            stroke.landing_covariance(&ball, &covariance, &plan.racket)
-        };
+        let landing_covariance =
+            if covariance.iter().all(|v| *v == 0.0) && !stroke.racket().is_uncertain() {
+                None
+            } else {
+                stroke.landing_covariance(&ball, &covariance, &plan.racket)
+            };
         Ok(plan_response(impact_stamp, &plan, &landing_covariance))
     }
 

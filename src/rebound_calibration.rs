@@ -140,7 +140,10 @@ impl HitSet {
                 .iter()
                 .map(|a| find(&format!("{prefix}_{a}")))
                 .collect();
-            match (found.iter().position(Option::is_some), found.iter().position(Option::is_none)) {
+            match (
+                found.iter().position(Option::is_some),
+                found.iter().position(Option::is_none),
+            ) {
                 (None, _) => Ok(None),
                 (Some(_), None) => Ok(Some([0, 1, 2].map(|k| found[k].unwrap_or(0)))),
                 (Some(g), Some(m)) => Err(HitsError::PartialVector {
@@ -184,10 +187,16 @@ impl HitSet {
                     .parse::<f64>()
                     .ok()
                     .filter(|v| v.is_finite())
-                    .ok_or_else(|| format!("{} is not a finite number: {:?}", columns[i], fields[i]))
+                    .ok_or_else(|| {
+                        format!("{} is not a finite number: {:?}", columns[i], fields[i])
+                    })
             };
             let vector = |c: [usize; 3]| -> Result<Vector3<f64>, String> {
-                Ok(Vector3::new(number_at(c[0])?, number_at(c[1])?, number_at(c[2])?))
+                Ok(Vector3::new(
+                    number_at(c[0])?,
+                    number_at(c[1])?,
+                    number_at(c[2])?,
+                ))
             };
             let parsed = (|| -> Result<RecordedHit, String> {
                 let racket = RacketState {
@@ -662,8 +671,9 @@ impl Problem<'_> {
             }
         }
         match parameter {
-            RubberParameter::Friction => median(&mut ratios)
-                .map_or(parameter.get(&self.start), |m| m.clamp(0.05, 4.0)),
+            RubberParameter::Friction => {
+                median(&mut ratios).map_or(parameter.get(&self.start), |m| m.clamp(0.05, 4.0))
+            }
             RubberParameter::TangentialRestitution => {
                 median(&mut reversals).unwrap_or(parameter.get(&self.start))
             }
@@ -672,7 +682,11 @@ impl Problem<'_> {
     }
 
     /// Squared errors of `model` over `hits`.
-    fn errors<'h>(&self, model: &RacketModel, hits: impl Iterator<Item = &'h RecordedHit>) -> ErrorSums {
+    fn errors<'h>(
+        &self,
+        model: &RacketModel,
+        hits: impl Iterator<Item = &'h RecordedHit>,
+    ) -> ErrorSums {
         let mut sums = ErrorSums::default();
         for hit in hits {
             if let Ok((v, w)) = predict(model, hit) {
@@ -782,7 +796,12 @@ pub fn calibrate_rubber(
             fold_values[k].push(p.get(&fold_fit.config));
         }
         let model = RacketModel::new(&fold_fit.config);
-        for (i, hit) in set.hits.iter().enumerate().filter(|(i, _)| i % options.folds == fold) {
+        for (i, hit) in set
+            .hits
+            .iter()
+            .enumerate()
+            .filter(|(i, _)| i % options.folds == fold)
+        {
             held_out[i] = predict(&model, hit).ok();
         }
     }

@@ -14,7 +14,7 @@
 //!   net as transparent so that every candidate has a landing point; the solution is then flown
 //!   again through the real table and net.
 
-use nalgebra::{DMatrix, DVector, Matrix3, Vector2, Vector3};
+use nalgebra::{Matrix3, SMatrix, Vector2, Vector3};
 use thiserror::Error;
 
 use crate::config::Config;
@@ -23,7 +23,7 @@ use crate::physics::propagate::{
     Cursor, Event, EventKind, Flow, Observer, Outcome, Propagator, Watch,
 };
 use crate::physics::racket::{Hit, ImpactError, RacketModel, RacketState};
-use crate::physics::state::{BallState, SPIN, StateMatrix, StateVector, VELOCITY};
+use crate::physics::state::{BallState, SPIN, StateMatrix, StateVector};
 
 /// Landing distance to the target at which the plan is converged [m].
 pub const LANDING_TOLERANCE: f64 = 1e-6;
@@ -526,64 +526,41 @@ impl Stroke {
     }
 
     /// First-order covariance of the landing of the return, over (x [m], y [m], flight time
-    /// [s]), from the covariance `covariance` of the ball state just before `racket` hits it,
-    /// the covariance of the rubber's calibrated constants and the scatter of single hits about
-    /// the model (`racket.rubber_covariance`, `racket.rebound_scatter`): the sum of J P J^T over
-    /// the three, each J = d(landing)/d(that input) by central differences through the hit and
-    /// the return flight (over the unbounded table, as the planner). `None` when a neighbouring
-    /// input cannot be hit or does not land within the horizon.
+    /// [s]), from the covariance `covariance` of the ball state just before `racket` hits it:
+    /// the ball's covariance just after the hit ([`RacketModel::rebound_covariance`]: the
+    /// incoming ball's, the rubber's calibrated uncertainty and the scatter of single hits)
+    /// carried through the return flight, J C J^T with J = d(landing)/d(ball after the hit) by
+    /// central differences (over the unbounded table, as the planner). `None` when a
+    /// neighbouring state cannot be hit or does not land within the horizon.
     pub fn landing_covariance(
         &self,
         ball: &BallState,
         covariance: &StateMatrix,
         racket: &RacketState,
     ) -> Option<Matrix3<f64>> {
-        let event = |observer: FirstBounce| {
+        let after = self.racket.hit(ball, racket).ok()?.ball;
+        let after_covariance = self.racket.rebound_covariance(ball, covariance, racket)?;
+        let landing = |x: &StateVector| {
+            let (_, observer) = self.first_bounce(
+                &self.solver_propagator,
+                UNBOUNDED_WATCH,
+                &BallState::from_vector(x),
+            );
             observer
                 .landing
                 .map(|e| Vector3::new(e.before[0], e.before[1], e.t))
         };
-        // 1 um, 1 um/s, 1 mrad/s: the hit and flight are smooth far beyond these.
-        let state_step = |k: usize| if k < SPIN { 1e-6 } else { 1e-3 };
-        let state = |x: &DVector<f64>| BallState::from_vector(&StateVector::from_column_slice(x.as_slice()));
-        let x0 = DVector::from_column_slice(ball.to_vector().as_slice());
-        let by_ball = central_jacobian(&x0, state_step, |x| {
-            event(self.unbounded_flight(&state(x), racket)?)
-        })?;
-        let p = DMatrix::from_column_slice(9, 9, covariance.as_slice());
-        let mut landing = &by_ball * p * by_ball.transpose();
-
-        let rubber = self.racket.rubber_covariance();
-        if rubber.iter().any(|v| *v != 0.0) {
-            let theta = DVector::from_vec(self.racket.rubber_parameters());
-            let n = theta.len();
-            let sigma = DMatrix::from_row_slice(n, n, rubber);
-            let by_rubber = central_jacobian(&theta, |_| 1e-6, |t| {
-                let model = self.racket.with_rubber_parameters(t.as_slice())?;
-                let hit = model.hit(ball, racket).ok()?;
-                event(self.first_bounce(&self.solver_propagator, UNBOUNDED_WATCH, &hit.ball).1)
-            })?;
-            landing += &by_rubber * sigma * by_rubber.transpose();
+        let x0 = after.to_vector();
+        let mut jacobian = SMatrix::<f64, 3, 9>::zeros();
+        for k in 0..9 {
+            // 1 um, 1 um/s, 1 mrad/s: the flight is smooth far beyond these.
+            let h = if k < SPIN { 1e-6 } else { 1e-3 };
+            let (mut plus, mut minus) = (x0, x0);
+            plus[k] += h;
+            minus[k] -= h;
+            jacobian.set_column(k, &((landing(&plus)? - landing(&minus)?) / (2.0 * h)));
         }
-
-        let (velocity_sigma, spin_sigma) = self.racket.rebound_scatter();
-        if velocity_sigma > 0.0 || spin_sigma > 0.0 {
-            let after = self.racket.hit(ball, racket).ok()?.ball;
-            let x = DVector::from_column_slice(after.to_vector().as_slice());
-            let by_outgoing = central_jacobian(&x, state_step, |x| {
-                event(
-                    self.first_bounce(&self.solver_propagator, UNBOUNDED_WATCH, &state(x))
-                        .1,
-                )
-            })?;
-            let variances = DVector::from_fn(9, |k, _| match k {
-                k if k < VELOCITY => 0.0,
-                k if k < SPIN => velocity_sigma * velocity_sigma,
-                _ => spin_sigma * spin_sigma,
-            });
-            landing += &by_outgoing * DMatrix::from_diagonal(&variances) * by_outgoing.transpose();
-        }
-        let landing = Matrix3::from_iterator(landing.iter().copied());
+        let landing = jacobian * after_covariance * jacobian.transpose();
         Some((landing + landing.transpose()) * 0.5)
     }
 
@@ -656,25 +633,6 @@ fn central_differences(
         let plus = f(&command.moved(&delta))?;
         let minus = f(&command.moved(&(-delta)))?;
         jacobian.set_column(k, &((plus - minus) / (2.0 * h)));
-    }
-    Some(jacobian)
-}
-
-/// The 3 x n Jacobian of `f` at `x` by central differences, `step(k)` in input k; None when a
-/// neighbour cannot be evaluated.
-fn central_jacobian(
-    x: &DVector<f64>,
-    step: impl Fn(usize) -> f64,
-    f: impl Fn(&DVector<f64>) -> Option<Vector3<f64>>,
-) -> Option<DMatrix<f64>> {
-    let mut jacobian = DMatrix::zeros(3, x.len());
-    for k in 0..x.len() {
-        let h = step(k);
-        let mut plus = x.clone();
-        plus[k] += h;
-        let mut minus = x.clone();
-        minus[k] -= h;
-        jacobian.set_column(k, &((f(&plus)? - f(&minus)?) / (2.0 * h)));
     }
     Some(jacobian)
 }

@@ -36,7 +36,12 @@ fn hits(rackets: &[&str]) -> HitSet {
 }
 
 fn calibrated(rackets: &[&str]) -> RubberCalibration {
-    calibrate_rubber(&Config::default(), &hits(rackets), &RubberOptions::default()).unwrap()
+    calibrate_rubber(
+        &Config::default(),
+        &hits(rackets),
+        &RubberOptions::default(),
+    )
+    .unwrap()
 }
 
 /// Held-out (velocity RMS, spin RMS) of `racket` in a cross-validated calibration.
@@ -71,7 +76,10 @@ fn calibrated_inverted_rubbers_predict_held_out_hits() {
             start.velocity_rms, start.spin_rms
         );
         assert!(v <= 0.35, "racket {racket}: velocity {v}");
-        assert!(w <= if racket == "09" { 26.0 } else { 25.0 }, "racket {racket}: spin {w}");
+        assert!(
+            w <= if racket == "09" { 26.0 } else { 25.0 },
+            "racket {racket}: spin {w}"
+        );
         assert!(start.velocity_rms > 1.4 && start.spin_rms > 110.0);
         let hits = c.predictions.len() as f64;
         v2 += v * v * hits;
@@ -94,8 +102,14 @@ fn a_preset_per_rubber_class_is_within_1_3x_of_per_racket_calibration() {
             let own = held_out(&calibrated(&[racket]), racket);
             let shared = held_out(&pooled, racket);
             let ratio = (shared.0 / own.0, shared.1 / own.1);
-            println!("{class} on {racket}: velocity x{:.2}, spin x{:.2}", ratio.0, ratio.1);
-            assert!(ratio.0 <= 1.3 && ratio.1 <= 1.3, "{class} on {racket}: {ratio:?}");
+            println!(
+                "{class} on {racket}: velocity x{:.2}, spin x{:.2}",
+                ratio.0, ratio.1
+            );
+            assert!(
+                ratio.0 <= 1.3 && ratio.1 <= 1.3,
+                "{class} on {racket}: {ratio:?}"
+            );
         }
     }
 }
@@ -125,11 +139,17 @@ fn the_rubber_presets_are_what_calibration_gives() {
         }
         assert!(close(p.rubber_friction, f.rubber_friction), "{class}");
         assert!(
-            close(p.rubber_tangential_restitution, f.rubber_tangential_restitution),
+            close(
+                p.rubber_tangential_restitution,
+                f.rubber_tangential_restitution
+            ),
             "{class}"
         );
         assert!(
-            close(p.rubber_torsional_restitution, f.rubber_torsional_restitution),
+            close(
+                p.rubber_torsional_restitution,
+                f.rubber_torsional_restitution
+            ),
             "{class}"
         );
     }
@@ -177,7 +197,10 @@ fn long_pips_keep_the_spin_as_measured() {
     let (agree, predicted, measured) = score(&load("long_pips"));
     println!("long pips: sign {agree:.2}, ratio {predicted:.2} vs {measured:.2}");
     assert!(agree > 0.95, "{agree}");
-    assert!((predicted - measured).abs() < 0.1, "{predicted} vs {measured}");
+    assert!(
+        (predicted - measured).abs() < 0.1,
+        "{predicted} vs {measured}"
+    );
     let (agree, predicted, _) = score(&load("inverted_offensive"));
     println!("inverted preset on long pips: sign {agree:.2}, ratio {predicted:.2}");
     assert!(agree < 0.7 && predicted < 0.2);
@@ -197,7 +220,9 @@ fn a_known_rubber_is_recovered_from_simulated_hits() {
     // Deterministic pseudo-random numbers in [-1, 1].
     let mut seed = 12345u64;
     let mut next = move || {
-        seed = seed.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+        seed = seed
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
         ((seed >> 11) as f64 / (1u64 << 53) as f64) * 2.0 - 1.0
     };
     let mut csv = String::from(
@@ -238,10 +263,19 @@ fn a_known_rubber_is_recovered_from_simulated_hits() {
     for (p, t) in c.parameters.iter().zip(expected) {
         let sigma = p.std_error.unwrap();
         println!("{} = {:.4} +- {:.4} (truth {t})", p.name, p.value, sigma);
-        assert!((p.value - t).abs() < 3.0 * sigma, "{}: {} vs {t}", p.name, p.value);
+        assert!(
+            (p.value - t).abs() < 3.0 * sigma,
+            "{}: {} vs {t}",
+            p.name,
+            p.value
+        );
         assert!(sigma < 0.1 * t.abs().max(0.2), "{}: sigma {sigma}", p.name);
     }
-    assert!((c.noise.0 - 0.098).abs() < 0.015, "velocity noise {}", c.noise.0);
+    assert!(
+        (c.noise.0 - 0.098).abs() < 0.015,
+        "velocity noise {}",
+        c.noise.0
+    );
     assert!((c.noise.1 - 8.1).abs() < 1.0, "spin noise {}", c.noise.1);
 }
 
@@ -271,19 +305,31 @@ fn bad_hit_files_say_what_is_wrong() {
     assert_eq!(set.add_csv("d.csv", &text).unwrap(), 1);
     let lines: Vec<usize> = set.rejected.iter().map(|r| r.line).collect();
     assert_eq!(lines, [3, 4, 6]);
-    assert!(set.rejected[0].reason.contains("spin_before_y"), "{:?}", set.rejected);
-    assert!(set.rejected[1].reason.contains("3 fields"), "{:?}", set.rejected);
+    assert!(
+        set.rejected[0].reason.contains("spin_before_y"),
+        "{:?}",
+        set.rejected
+    );
+    assert!(
+        set.rejected[1].reason.contains("3 fields"),
+        "{:?}",
+        set.rejected
+    );
 
     let mut leaving = HitSet::default();
     leaving
         .add_csv("e.csv", &format!("{header}\n1,0,5,0,0,0,1,0,4,0,0,0\n1,0,-5,0,0,0,1,0,4,0,0,0\n1,0,-6,0,0,0,1,0,4,0,0,0\n1,0,-7,0,0,0,1,0,5,0,0,0\n1,0,-8,0,0,0,1,0,5,0,0,0\n1,0,-9,0,0,0,1,0,6,0,0,0\n"))
         .unwrap();
-    let err = calibrate_rubber(&Config::default(), &leaving, &RubberOptions::default()).unwrap_err();
+    let err =
+        calibrate_rubber(&Config::default(), &leaving, &RubberOptions::default()).unwrap_err();
     assert!(
         matches!(err, RubberCalibrationError::Unpredictable { index: 0, .. }),
         "{err}"
     );
-    assert!(err.to_string().contains("normal pointing toward the ball"), "{err}");
+    assert!(
+        err.to_string().contains("normal pointing toward the ball"),
+        "{err}"
+    );
 }
 
 /// `ttball calibrate --rebound` writes a snippet that loads as a configuration and predicts like
@@ -304,9 +350,16 @@ fn the_command_line_calibrates_a_rubber() {
         .output()
         .unwrap();
     let stdout = String::from_utf8_lossy(&out.stdout);
-    assert!(out.status.success(), "{stdout}\n{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "{stdout}\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     assert!(stdout.contains("held out"), "{stdout}");
-    assert!(stdout.contains("racket.rubber_torsional_restitution"), "{stdout}");
+    assert!(
+        stdout.contains("racket.rubber_torsional_restitution"),
+        "{stdout}"
+    );
     let loaded = ttball::config::yaml::load(Some(&snippet), &[] as &[String]).unwrap();
     let library = calibrated(&["02"]);
     assert!(
@@ -329,7 +382,13 @@ fn the_command_line_calibrates_a_rubber() {
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("only the rubber-* groups"));
     let out = Command::new(env!("CARGO_BIN_EXE_ttball"))
-        .args(["calibrate", "--fit", "rubber-friction", "bags/real_launcher.mcap", "-o"])
+        .args([
+            "calibrate",
+            "--fit",
+            "rubber-friction",
+            "bags/real_launcher.mcap",
+            "-o",
+        ])
         .arg(&snippet)
         .current_dir(env!("CARGO_MANIFEST_DIR"))
         .output()

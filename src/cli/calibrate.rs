@@ -44,7 +44,11 @@ pub enum Group {
 pub struct CalibrateArgs {
     /// Bags of recorded flights (MCAP files or rosbag2 directories); their detections are cut
     /// into flights by the estimator's tracks.
-    #[arg(required_unless_present = "rebound", conflicts_with = "rebound", value_name = "BAG")]
+    #[arg(
+        required_unless_present = "rebound",
+        conflicts_with = "rebound",
+        value_name = "BAG"
+    )]
     pub inputs: Vec<PathBuf>,
 
     /// Calibrate the racket's rubber instead, from recorded hits: a CSV file with the ball's
@@ -127,7 +131,8 @@ impl CalibrateArgs {
             if let Some(g) = self.fit.iter().find(|g| !rubber_groups.contains(g)) {
                 bail!(BadUsage(format!(
                     "--fit {}: with --rebound only the rubber-* groups can be fitted",
-                    g.to_possible_value().map_or_else(String::new, |v| v.get_name().to_owned())
+                    g.to_possible_value()
+                        .map_or_else(String::new, |v| v.get_name().to_owned())
                 )));
             }
             return super::calibrate_rubber::run(&self, &config);
@@ -135,7 +140,8 @@ impl CalibrateArgs {
         if let Some(g) = self.fit.iter().find(|g| rubber_groups.contains(g)) {
             bail!(BadUsage(format!(
                 "--fit {}: the rubber is calibrated from recorded hits: give them with --rebound HITS.csv",
-                g.to_possible_value().map_or_else(String::new, |v| v.get_name().to_owned())
+                g.to_possible_value()
+                    .map_or_else(String::new, |v| v.get_name().to_owned())
             )));
         }
         let fit = if self.fit.is_empty() {

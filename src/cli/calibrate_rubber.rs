@@ -222,18 +222,15 @@ fn report(c: &RubberCalibration, output: &std::path::Path) -> String {
              when every hit grips, so it is only known to exceed what the grip needs)\n",
         );
     }
-    out.push_str("RMS error of the outgoing velocity and spin, starting configuration -> calibrated:\n");
+    out.push_str(
+        "RMS error of the outgoing velocity and spin, starting configuration -> calibrated:\n",
+    );
     for e in &c.fit {
         let _ = writeln!(out, "  fitted    {:<40} {}", e.group, errors_line(e));
     }
     if let Some(cv) = &c.cross_validation {
         for e in cv.groups.iter().chain([&cv.overall]) {
-            let _ = writeln!(
-                out,
-                "  held out  {:<40} {}",
-                e.group,
-                errors_line(e)
-            );
+            let _ = writeln!(out, "  held out  {:<40} {}", e.group, errors_line(e));
         }
     }
     let _ = writeln!(

@@ -196,7 +196,11 @@ impl AimArgs {
             .then(|| {
                 let sigma = self.sigma.unwrap_or_default();
                 let variances = StateVector::from_fn(|k, _| sigma[k / 3].powi(2));
-                stroke.landing_covariance(&ball, &StateMatrix::from_diagonal(&variances), &plan.racket)
+                stroke.landing_covariance(
+                    &ball,
+                    &StateMatrix::from_diagonal(&variances),
+                    &plan.racket,
+                )
             })
             .flatten();
         if self.common.json {

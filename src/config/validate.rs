@@ -555,7 +555,10 @@ impl Config {
             "racket.rubber_covariance",
             "empty, or a symmetric (n + 3) x (n + 3) covariance row by row, n the restitution coefficients",
         );
-        c.rule("racket.rebound_scatter", "[velocity m/s, spin rad/s], both 0 or greater");
+        c.rule(
+            "racket.rebound_scatter",
+            "[velocity m/s, spin rad/s], both 0 or greater",
+        );
         if !(r.rubber_covariance.is_empty() || r.rubber_covariance.len() == rubber * rubber) {
             c.fail(
                 "racket.rubber_covariance",
@@ -572,7 +575,8 @@ impl Config {
                 at(i, i) >= 0.0
                     && (0..rubber).all(|j| {
                         at(i, j).is_finite()
-                            && (at(i, j) - at(j, i)).abs() <= 1e-9 * (at(i, i) * at(j, j)).sqrt().max(1e-300)
+                            && (at(i, j) - at(j, i)).abs()
+                                <= 1e-9 * (at(i, i) * at(j, j)).sqrt().max(1e-300)
                     })
             });
             if !symmetric {
@@ -583,7 +587,9 @@ impl Config {
             }
         }
         if r.rebound_scatter.len() != 2
-            || r.rebound_scatter.iter().any(|v| !(v.is_finite() && *v >= 0.0))
+            || r.rebound_scatter
+                .iter()
+                .any(|v| !(v.is_finite() && *v >= 0.0))
         {
             c.fail(
                 "racket.rebound_scatter",

@@ -35,6 +35,7 @@ use crate::ekf::{
     ParamCovariance, ProcessNoise, UpdateError, position_H, position_spin_H,
 };
 use crate::intercept::{Intercept, InterceptQuery, InterceptTracker};
+use crate::physics::racket::{RacketModel, RacketState};
 use crate::physics::{
     BallState, FlightModel, PARAMS, ParamVector, PhysicsParams, PredictOptions, Propagator,
     StateMatrix, Trajectory, predict,
@@ -160,6 +161,12 @@ pub struct Counters {
     /// Detections that claimed a spin of exactly zero (a detector's placeholder, not a
     /// measurement): their spin was ignored, the detection judged as a position alone.
     pub zero_spin_ignored: u64,
+    /// Tracks started at their first detection from the predicted rebound of an announced
+    /// robot hit ([`Estimator::expect_hit`]).
+    pub seeded_by_hit: u64,
+    /// Announced robot hits that seeded no track: no live track to hit, the track already
+    /// past the hit, the hit impossible, or the first detection after it far from the rebound.
+    pub hits_not_seeded: u64,
 }
 
 impl Counters {
@@ -582,6 +589,21 @@ pub struct Estimator {
     sensitivity: Option<Box<NoiseSensitivity>>,
     /// What the estimator knows of the physical parameters between tracks.
     learned: Learned,
+    /// The racket-impact model, for the robot's announced hits.
+    racket: RacketModel,
+    /// The robot's next hit, announced ([`Self::expect_hit`]).
+    expected_hit: Option<RobotHit>,
+}
+
+/// The robot's own hit, announced to the estimator: when and with what racket state it meets
+/// the ball (the answer of `plan_return`, or the robot controller's command), so that the return
+/// flight is tracked from its first detection.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RobotHit {
+    /// Stamp of the impact [ns].
+    pub stamp: i64,
+    /// The racket at the impact, in the table frame.
+    pub racket: RacketState,
 }
 
 /// What the estimator has learned of one source's noise ([`Estimator::learned_noise`]).
@@ -757,6 +779,8 @@ impl Estimator {
                 settings.param_dispersion,
                 config.adaptation.learn_dispersion,
             ),
+            racket: RacketModel::new(config),
+            expected_hit: None,
             propagator,
             settings,
         }
@@ -814,6 +838,20 @@ impl Estimator {
             self.history_capacity = history_capacity;
             self.spare_history = VecDeque::with_capacity(history_capacity);
         }
+        self.racket = RacketModel::new(config);
+    }
+
+    /// Announces the robot's next hit: the first detection after `hit.stamp` that the predicted
+    /// rebound explains (the live track's ball carried to the impact, hit by `hit.racket`, with
+    /// the covariance of both and of the rubber, [`RacketModel::rebound_covariance`]) starts the
+    /// return's track at once, instead of after the initialiser's detections. A later
+    /// announcement replaces an earlier one; one that seeds nothing is counted
+    /// ([`Counters::hits_not_seeded`]) and the detections go their usual way.
+    pub fn expect_hit(&mut self, hit: RobotHit) {
+        if self.expected_hit.is_some() {
+            self.counters.hits_not_seeded += 1;
+        }
+        self.expected_hit = Some(hit);
     }
 
     /// Drops the tracks and what was learned (physics, noise), as a new estimator of `config`
@@ -1171,6 +1209,15 @@ impl Estimator {
     }
 
     fn process(&mut self, d: &Detection, m: Measurement) -> Verdict {
+        if let Some(hit) = self.expected_hit
+            && d.stamp > hit.stamp
+        {
+            self.expected_hit = None;
+            if let Some(verdict) = self.start_from_hit(&hit, d, m) {
+                return verdict;
+            }
+            self.counters.hits_not_seeded += 1;
+        }
         let Some(track) = &self.track else {
             return self.initialise(d);
         };
@@ -1684,6 +1731,61 @@ impl Estimator {
         });
         self.pending.clear();
         true
+    }
+
+    /// Starts the return's track at `d`, the first detection after the announced `hit`, from the
+    /// predicted rebound of the live track's ball; None (nothing changed) when there is no live
+    /// track before the hit, the hit is impossible or `d` is gated against the rebound.
+    fn start_from_hit(&mut self, hit: &RobotHit, d: &Detection, m: Measurement) -> Option<Verdict> {
+        let track = self.track.as_ref()?;
+        if track.now.stamp > hit.stamp {
+            return None;
+        }
+        let mut incoming = track.now;
+        self.advance(&mut incoming, hit.stamp);
+        let ball = BallState::from_vector(&incoming.ekf.x);
+        let after = self.racket.hit(&ball, &hit.racket).ok()?.ball;
+        let covariance =
+            self.racket
+                .rebound_covariance(&ball, &incoming.ekf.state_covariance(), &hit.racket)?;
+        let param_prior = self.learned.track_prior(hit.stamp);
+        let (theta, p_theta) = param_prior;
+        let seed = Snapshot {
+            ekf: Ekf::new(after.to_vector(), covariance, theta, p_theta),
+            stamp: hit.stamp,
+            bounces: 0,
+            robot_half_bounces: 0,
+            last_fused: hit.stamp,
+            nis: 0.0,
+        };
+        let mut snapshot = seed;
+        let nis = self.fuse(&mut snapshot, d, &m, None).ok()?;
+        self.learn_noise(d);
+        self.end_track();
+        let id = self.next_track_id;
+        self.next_track_id = self.next_track_id.wrapping_add(1).max(1);
+        self.counters.tracks += 1;
+        self.counters.seeded_by_hit += 1;
+        if let Some(s) = self.sensitivity.as_deref_mut() {
+            *s = [StateMatrix::zeros(); NOISE_SCALES];
+        }
+        let mut history = std::mem::take(&mut self.spare_history);
+        history.push_back(Entry {
+            detection: *d,
+            measurement: m,
+            after: snapshot,
+        });
+        self.track = Some(Track {
+            id,
+            now: snapshot,
+            base: seed,
+            history,
+            consecutive_rejections: 0,
+            param_prior,
+            started: d.stamp,
+        });
+        self.rejected_run.clear();
+        Some(Verdict::Fused { nis })
     }
 
     /// Whether a track starting at `stamp` in state `x`, fitted to detections from

@@ -37,7 +37,7 @@ use super::aero::Polynomial;
 use super::bounce::{BounceRegime, ROLLING_ALPHA};
 use super::contact::vibration_energy;
 use super::contact::{Contact, ContactError, RestoringCharacteristic, VibrationMode};
-use super::state::BallState;
+use super::state::{BallState, SPIN, StateMatrix, StateVector, VELOCITY};
 use crate::config::Config;
 
 /// How far the face normal's length may be from 1 before a hit is refused.
@@ -378,7 +378,11 @@ impl RacketModel {
     /// The ball just after `racket` hits `ball`, as [`Self::hit`] finds it, without the contact's
     /// time, force and the wrist's load where no vibration mode needs them (calibration evaluates
     /// thousands of hits).
-    pub fn rebound(&self, ball: &BallState, racket: &RacketState) -> Result<BallState, ImpactError> {
+    pub fn rebound(
+        &self,
+        ball: &BallState,
+        racket: &RacketState,
+    ) -> Result<BallState, ImpactError> {
         let (n, speed) = self.approach(ball, racket)?;
         let e = if self.modes.is_empty() {
             let mass_ratio = self.ball_mass / self.reduced_mass(racket.impact_offset);
@@ -388,6 +392,64 @@ impl RacketModel {
                 .rebound_power_coefficient
         };
         Ok(self.outgoing(ball, racket, &n, speed, e).0)
+    }
+
+    /// First-order covariance of the ball just after `racket` hits `ball`, whose state has the
+    /// covariance `covariance`: J P J^T with J = d(after)/d(before) by central differences, plus
+    /// the rubber's calibrated uncertainty (`racket.rubber_covariance`, carried the same way) and
+    /// the scatter of single hits about the model (`racket.rebound_scatter`). None when a
+    /// neighbouring state cannot be hit.
+    pub fn rebound_covariance(
+        &self,
+        ball: &BallState,
+        covariance: &StateMatrix,
+        racket: &RacketState,
+    ) -> Option<StateMatrix> {
+        let after = |model: &Self, x: &StateVector| {
+            model
+                .rebound(&BallState::from_vector(x), racket)
+                .ok()
+                .map(|b| b.to_vector())
+        };
+        let x0 = ball.to_vector();
+        let mut by_ball = StateMatrix::zeros();
+        for k in 0..9 {
+            // 1 um, 1 um/s, 1 mrad/s: the hit is smooth far beyond these (but at the switch
+            // between sliding and gripping).
+            let h = if k < SPIN { 1e-6 } else { 1e-3 };
+            let (mut plus, mut minus) = (x0, x0);
+            plus[k] += h;
+            minus[k] -= h;
+            by_ball.set_column(
+                k,
+                &((after(self, &plus)? - after(self, &minus)?) / (2.0 * h)),
+            );
+        }
+        let mut out = by_ball * covariance * by_ball.transpose();
+        if self.rubber_covariance.iter().any(|v| *v != 0.0) {
+            let theta = self.rubber_parameters();
+            let n = theta.len();
+            let mut by_rubber = nalgebra::DMatrix::zeros(9, n);
+            for k in 0..n {
+                let h = 1e-6;
+                let (mut plus, mut minus) = (theta.clone(), theta.clone());
+                plus[k] += h;
+                minus[k] -= h;
+                let column = (after(&self.with_rubber_parameters(&plus)?, &x0)?
+                    - after(&self.with_rubber_parameters(&minus)?, &x0)?)
+                    / (2.0 * h);
+                by_rubber.set_column(k, &column);
+            }
+            let sigma = nalgebra::DMatrix::from_row_slice(n, n, &self.rubber_covariance);
+            let added = &by_rubber * sigma * by_rubber.transpose();
+            out += StateMatrix::from_iterator(added.iter().copied());
+        }
+        let (velocity, spin) = self.rebound_scatter;
+        for k in 0..3 {
+            out[(VELOCITY + k, VELOCITY + k)] += velocity * velocity;
+            out[(SPIN + k, SPIN + k)] += spin * spin;
+        }
+        Some((out + out.transpose()) * 0.5)
     }
 
     /// Checks a hit's inputs: the face's unit normal and the ball's normal approach speed.
@@ -462,7 +524,11 @@ impl RacketModel {
         if self.torsional_restitution != 1.0 {
             spin += n * ((self.torsional_restitution - 1.0) * ball.spin.dot(n));
         }
-        (BallState::new(ball.position, velocity, spin), regime, normal_change)
+        (
+            BallState::new(ball.position, velocity, spin),
+            regime,
+            normal_change,
+        )
     }
 }
 

@@ -53,16 +53,21 @@ pub(crate) fn draw<DB: DrawingBackend>(
     let columns = panels.len().div_ceil(2);
     let areas = root.split_evenly((2, columns));
     let value = |p: &Panel, pair: &(nalgebra::Vector3<f64>, nalgebra::Vector3<f64>)| {
-        if p.spin { pair.1[p.axis] } else { pair.0[p.axis] }
+        if p.spin {
+            pair.1[p.axis]
+        } else {
+            pair.0[p.axis]
+        }
     };
     for (panel, area) in panels.iter().zip(areas.iter()) {
-        let points = |pick: fn(&HitPrediction) -> &(nalgebra::Vector3<f64>, nalgebra::Vector3<f64>)| {
-            calibration
-                .predictions
-                .iter()
-                .map(|h| (value(panel, &h.measured), value(panel, pick(h))))
-                .collect::<Vec<_>>()
-        };
+        let points =
+            |pick: fn(&HitPrediction) -> &(nalgebra::Vector3<f64>, nalgebra::Vector3<f64>)| {
+                calibration
+                    .predictions
+                    .iter()
+                    .map(|h| (value(panel, &h.measured), value(panel, pick(h))))
+                    .collect::<Vec<_>>()
+            };
         let start = points(|h| &h.start);
         let fitted = points(|h| &h.calibrated);
         let (lo, hi) = start
