@@ -1,6 +1,6 @@
 //! The rubber calibrated from recorded hits: the racket model's rubber constants (the restitution
 //! polynomial e_RB(V), Coulomb friction mu, tangential restitution e_t, torsional restitution e_z;
-//! [`crate::physics::racket`], docs/models.md "Racket impact") that best predict the measured
+//! [`crate::physics::racket`], README "The racket") that best predict the measured
 //! outgoing velocity and spin of many hits, with standard errors and k-fold cross-validation.
 //!
 //! The cost is the sum of squares of the hits' residuals, velocity in m/s over sigma_v and spin

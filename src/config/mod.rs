@@ -193,7 +193,7 @@ pub struct RacketParams {
     /// spin about the face normal leaves as e_z times what it was (the contact patch's twist:
     /// 1 keeps it, the seed's model, which has no torque about the normal; 0 stops it; < 0 a
     /// rubber that grips the patch and twists back). An empirical coefficient of ttball's,
-    /// calibrated on recorded hits (`ttball calibrate --rebound`; docs/models.md).
+    /// calibrated on recorded hits (`ttball calibrate --rebound`; README "The racket").
     pub rubber_torsional_restitution: f64,
     /// Covariance of the rubber's calibrated constants, row-major over (rubber_restitution[0..n],
     /// rubber_friction, rubber_tangential_restitution, rubber_torsional_restitution), (n + 3)^2
