@@ -610,19 +610,12 @@ fn landing_covariance_matches_monte_carlo() {
     let linear = stroke
         .landing_covariance(&ball, &covariance, &plan.racket)
         .expect("covariance");
-    let mut state = 0x9e37_79b9_7f4a_7c15u64;
-    let mut uniform = || {
-        state ^= state << 13;
-        state ^= state >> 7;
-        state ^= state << 17;
-        ((state >> 11) as f64 + 0.5) / (1u64 << 53) as f64
-    };
+    let mut gaussian = gaussians(0x9e37_79b9_7f4a_7c15);
     let mut samples = Vec::new();
     while samples.len() < 2000 {
         let mut x = ball.to_vector();
         for (k, s) in sigmas.iter().enumerate() {
-            let (u1, u2) = (uniform(), uniform());
-            x[k] += s * (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos();
+            x[k] += s * gaussian();
         }
         let rebound = stroke
             .rebound(&BallState::from_vector(&x), &plan.racket)
@@ -631,6 +624,27 @@ fn landing_covariance_matches_monte_carlo() {
             samples.push([landing.position.x, landing.position.y, t]);
         }
     }
+    assert_spread_matches(&samples, &linear);
+}
+
+/// Standard normal numbers from `seed` (xorshift64 and Box-Muller): deterministic.
+fn gaussians(seed: u64) -> impl FnMut() -> f64 {
+    let mut state = seed;
+    move || {
+        let mut uniform = || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            ((state >> 11) as f64 + 0.5) / (1u64 << 53) as f64
+        };
+        let (u1, u2) = (uniform(), uniform());
+        (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()
+    }
+}
+
+/// The landings' sampled standard deviations (x, y, flight time) are the first-order
+/// covariance's within 10 %.
+fn assert_spread_matches(samples: &[[f64; 3]], linear: &nalgebra::Matrix3<f64>) {
     for k in 0..3 {
         let mean = samples.iter().map(|s| s[k]).sum::<f64>() / samples.len() as f64;
         let var =
@@ -690,17 +704,7 @@ fn landing_covariance_includes_the_calibrated_rubbers_uncertainty() {
         .cholesky()
         .expect("a positive definite covariance")
         .l();
-    let mut state = 0x2545_f491_4f6c_dd1du64;
-    let mut gaussian = || {
-        let mut uniform = || {
-            state ^= state << 13;
-            state ^= state >> 7;
-            state ^= state << 17;
-            ((state >> 11) as f64 + 0.5) / (1u64 << 53) as f64
-        };
-        let (u1, u2) = (uniform(), uniform());
-        (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()
-    };
+    let mut gaussian = gaussians(0x2545_f491_4f6c_dd1d);
     let (sv, sw) = (r.rebound_scatter[0], r.rebound_scatter[1]);
     let mut samples = Vec::new();
     while samples.len() < 2000 {
@@ -719,17 +723,7 @@ fn landing_covariance_includes_the_calibrated_rubbers_uncertainty() {
             samples.push([landing.position.x, landing.position.y, t]);
         }
     }
-    for k in 0..3 {
-        let mean = samples.iter().map(|s| s[k]).sum::<f64>() / samples.len() as f64;
-        let var =
-            samples.iter().map(|s| (s[k] - mean).powi(2)).sum::<f64>() / (samples.len() - 1) as f64;
-        let (sampled, predicted) = (var.sqrt(), linear[(k, k)].sqrt());
-        eprintln!("landing component {k}: Monte Carlo sigma {sampled:.5}, linear {predicted:.5}");
-        assert!(
-            (sampled / predicted - 1.0).abs() < 0.1,
-            "component {k}: Monte Carlo {sampled}, linear {predicted}"
-        );
-    }
+    assert_spread_matches(&samples, &linear);
 }
 
 /// The rubber's tangential restitution e_t (Garwin 1969, Cross 2002): where the rubber grips
@@ -891,17 +885,7 @@ fn simulated_return(announce: bool, seed: u64) -> (Vec<ReturnError>, ttball::est
     truth_config.racket.rubber_restitution[0] += 0.02;
     truth_config.racket.rubber_tangential_restitution += 0.03;
     let truth = Estimator::new(&Config::default());
-    let mut state = seed;
-    let mut gaussian = move || {
-        let mut uniform = || {
-            state ^= state << 13;
-            state ^= state >> 7;
-            state ^= state << 17;
-            ((state >> 11) as f64 + 0.5) / (1u64 << 53) as f64
-        };
-        let (u1, u2) = (uniform(), uniform());
-        (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()
-    };
+    let mut gaussian = gaussians(seed);
     // The incoming ball just after its bounce on the robot's half, to the hitting plane.
     let start = BallState::new(
         Vector3::new(-0.7, 0.05 + 0.1 * gaussian(), 0.03),
