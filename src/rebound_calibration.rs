@@ -238,7 +238,7 @@ impl HitSet {
         })
     }
 
-    /// The hits in `indices`, with the groups and axes of the whole set.
+    /// The hits whose index `keep` accepts.
     fn subset(&self, keep: impl Fn(usize) -> bool) -> Vec<RecordedHit> {
         self.hits
             .iter()
