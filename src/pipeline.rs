@@ -13,13 +13,13 @@ use crate::frames::{FrameError, Frames};
 use crate::msgs::builtin_interfaces::Time;
 use crate::msgs::convert::{
     ConvertError, add_static_transforms, detection_from_msg_in, intercept_msg, markers,
-    odometry_msg, offset, plan_response, rebound_request, rebound_response, state_from_msg,
-    state_msg, trajectory_msg,
+    odometry_msg, offset, plan_response, rebound_request, rebound_response, robot_hit_from_msg_in,
+    state_from_msg, state_msg, trajectory_msg,
 };
 use crate::msgs::nav_msgs::Odometry;
 use crate::msgs::tf2_msgs::TFMessage;
 use crate::msgs::ttball_msgs::msg::{
-    BallDetection, BallState, InterceptPrediction, PredictedTrajectory,
+    BallDetection, BallState, InterceptPrediction, PredictedTrajectory, RobotHit,
 };
 use crate::msgs::ttball_msgs::srv::{
     PlanReturnRequest, PlanReturnResponse, PredictReboundRequest, PredictReboundResponse,
@@ -129,6 +129,16 @@ impl Pipeline {
     /// What happened to the detections so far.
     pub fn counters(&self) -> Counters {
         self.estimator.counters()
+    }
+
+    /// Handles one announced robot hit (`topics.robot_hits`): the first detection after its
+    /// impact that the predicted rebound explains starts the return's track
+    /// ([`Estimator::expect_hit`]). A message in an unknown frame or with a face normal that is
+    /// not a unit vector is refused with why.
+    pub fn on_robot_hit(&mut self, msg: &RobotHit) -> Result<(), ConvertError> {
+        let hit = robot_hit_from_msg_in(msg, &self.frames)?;
+        self.estimator.expect_hit(hit);
+        Ok(())
     }
 
     /// Handles one detection message, in arrival order.

@@ -29,13 +29,15 @@ use crate::msgs::convert::{
 };
 use crate::msgs::definitions;
 use crate::msgs::tf2_msgs::TFMessage;
-use crate::msgs::ttball_msgs::msg::{BallDetection, BallState, InterceptPrediction};
+use crate::msgs::ttball_msgs::msg::{BallDetection, BallState, InterceptPrediction, RobotHit};
 use crate::pipeline::Pipeline;
 use crate::smooth::{SmoothedState, Smoothing, smooth};
 use crate::stats::DurationHistogram;
 
 /// The static transforms' topic (tf2), read by the node and, when a bag has it, by the replay.
 pub const TF_STATIC_TOPIC: &str = "/tf_static";
+/// ROS 2 type of the robot's announced hits (`topics.robot_hits`).
+pub const ROBOT_HIT_TYPE: &str = "ttball_msgs/msg/RobotHit";
 /// ROS 2 type of `/tf_static`.
 pub const TF_MESSAGE_TYPE: &str = "tf2_msgs/msg/TFMessage";
 /// The type of the optional odometry output (`topics.odometry`).
@@ -112,6 +114,9 @@ pub struct ReplaySummary {
     pub detections: u64,
     /// Detection messages whose payload could not be decoded (skipped).
     pub undecodable: u64,
+    /// Robot-hit messages (`topics.robot_hits`) refused: undecodable, in an unknown frame or
+    /// with a face normal that is not a unit vector.
+    pub robot_hits_refused: u64,
     /// What the estimator did with the decoded ones.
     pub counters: Counters,
     /// How many interceptions were predicted in full and how many moved from the last full one.
@@ -332,11 +337,14 @@ pub fn replay_observed(
     let mut messages = 0usize;
     let mut detections = 0u64;
     let mut undecodable = 0u64;
+    let mut robot_hits_refused = 0u64;
     let mut written = 0u64;
     let mut times = DurationHistogram::new();
     let mut first_last: Option<(u64, u64)> = None;
     let mut interrupted = false;
     let mut tf_static_on: Option<usize> = None;
+    let mut robot_hits_on: Option<usize> = None;
+    let robot_hits_topic = config.resolved_topics().robot_hits;
     let result = (|| -> Result<(), ReplayError> {
         while let Some(m) = reader.next_message() {
             if cancel.load(Ordering::Relaxed) {
@@ -360,6 +368,23 @@ pub fn replay_observed(
             if Some(m.channel) == tf_static_on {
                 if let Ok(msg) = decode::<TFMessage>(&m.data) {
                     pipeline.on_static_transforms(&msg);
+                }
+                continue;
+            }
+            // The robot's announced hits seed the return's track, as in the node.
+            if robot_hits_on.is_none() {
+                robot_hits_on = reader
+                    .channel(&robot_hits_topic)
+                    .filter(|&c| reader.channels()[c].schema_name == ROBOT_HIT_TYPE);
+            }
+            if Some(m.channel) == robot_hits_on {
+                match decode::<RobotHit>(&m.data) {
+                    Ok(msg) => {
+                        if pipeline.on_robot_hit(&msg).is_err() {
+                            robot_hits_refused += 1;
+                        }
+                    }
+                    Err(_) => robot_hits_refused += 1,
                 }
                 continue;
             }
@@ -433,6 +458,7 @@ pub fn replay_observed(
         messages,
         detections,
         undecodable,
+        robot_hits_refused,
         counters,
         intercepts: pipeline.estimator().intercept_counts(),
         learned: pipeline.estimator().learned_params(),

@@ -24,7 +24,7 @@ use ttball::msgs::builtin_interfaces::Time;
 use ttball::msgs::geometry_msgs::{Point, Vector3};
 use ttball::msgs::std_msgs::Header;
 use ttball::msgs::ttball_msgs::msg::{
-    BallDetection, BallState, InterceptPrediction, PredictedTrajectory,
+    BallDetection, BallState, InterceptPrediction, PredictedTrajectory, RobotHit,
 };
 use ttball::msgs::ttball_msgs::srv::{
     PlanReturnRequest, PlanReturnResponse, PredictReboundRequest, PredictReboundResponse,
@@ -396,6 +396,7 @@ fn rust_mirrors() -> (BTreeMap<String, String>, Registry) {
         "PredictedTrajectory",
         trace::<PredictedTrajectory>(&mut tracer),
     );
+    add("RobotHit", trace::<RobotHit>(&mut tracer));
     add(
         "PredictTrajectoryRequest",
         trace::<PredictTrajectoryRequest>(&mut tracer),
@@ -576,6 +577,7 @@ fn every_interface_file_matches_its_rust_mirror() {
             "ttball_msgs/BallState",
             "ttball_msgs/InterceptPrediction",
             "ttball_msgs/PredictedTrajectory",
+            "ttball_msgs/RobotHit",
             "ttball_msgs/PlanReturnRequest",
             "ttball_msgs/PlanReturnResponse",
             "ttball_msgs/PredictReboundRequest",

@@ -869,13 +869,21 @@ fn tangential_restitution_returns_the_spin_real_inverted_rubbers_return() {
 /// the estimate after that detection, None before the return has a track.
 type ReturnError = (f64, Option<(f64, f64)>);
 
-/// One simulated return: the estimator tracks a ball to the robot, the robot hits it with the
-/// planned stroke of a rubber slightly livelier than the configured preset (and a hit's own
-/// scatter), and the return flies to the opponent's half, seen by the 150 fps camera. Returns,
-/// per detection of the return flight, (seconds since the first one, landing error [m], velocity
-/// error [m/s]) of the estimate after it, or None before a track of the return exists; and the
-/// estimator's counters.
-fn simulated_return(announce: bool, seed: u64) -> (Vec<ReturnError>, ttball::estimator::Counters) {
+/// A simulated return: the estimator's configuration (the inverted offensive preset), the
+/// robot's hit as announced, the 150 fps camera's detections of the incoming ball up to the hit
+/// and of the return after it (with the return's true state), and where the return lands.
+struct ReturnScenario {
+    config: Config,
+    hit: ttball::estimator::RobotHit,
+    incoming: Vec<ttball::detection::Detection>,
+    back: Vec<(ttball::detection::Detection, BallState)>,
+    landing: Vector3<f64>,
+}
+
+/// The ball flies to the robot, the robot hits it with the planned stroke of a rubber slightly
+/// livelier than the configured preset (and a hit's own scatter), and the return flies to the
+/// opponent's half.
+fn return_scenario(seed: u64) -> ReturnScenario {
     use ttball::detection::{Detection, Source};
     use ttball::estimator::{Estimator, RobotHit};
     let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
@@ -915,13 +923,6 @@ fn simulated_return(announce: bool, seed: u64) -> (Vec<ReturnError>, ttball::est
     let back = truth.predict_flight(&after, 1e-4, 1.0);
     let landing = back.bounces().next().unwrap().before;
     let frame = 1e9 / 150.0;
-    let mut estimator = Estimator::new(&config);
-    if announce {
-        estimator.expect_hit(RobotHit {
-            stamp: hit_stamp,
-            racket: plan.racket,
-        });
-    }
     let detect = |stamp: i64, position: Vector3<f64>| Detection {
         stamp,
         source: Source::WIDE_150FPS,
@@ -932,7 +933,16 @@ fn simulated_return(announce: bool, seed: u64) -> (Vec<ReturnError>, ttball::est
         confidence: 1.0,
     };
     let mut k = 0;
-    let mut incoming_track = None;
+    let mut scenario = ReturnScenario {
+        config,
+        hit: RobotHit {
+            stamp: hit_stamp,
+            racket: plan.racket,
+        },
+        incoming: Vec::new(),
+        back: Vec::new(),
+        landing: Vector3::new(landing[0], landing[1], landing[2]),
+    };
     loop {
         let stamp = (f64::from(k) * frame).round() as i64;
         k += 1;
@@ -942,11 +952,10 @@ fn simulated_return(announce: bool, seed: u64) -> (Vec<ReturnError>, ttball::est
         let s = incoming.samples
             [((stamp as f64 * 1e-5).round() as usize).min(incoming.samples.len() - 1)];
         let noise = Vector3::new(gaussian(), gaussian(), gaussian()) * 0.002;
-        estimator.handle(&detect(stamp, s.state.position + noise));
-        incoming_track = estimator.estimate().map(|e| e.track_id);
+        scenario
+            .incoming
+            .push(detect(stamp, s.state.position + noise));
     }
-    let mut out = Vec::new();
-    let mut first = None;
     loop {
         let stamp = (f64::from(k) * frame).round() as i64;
         k += 1;
@@ -958,22 +967,127 @@ fn simulated_return(announce: bool, seed: u64) -> (Vec<ReturnError>, ttball::est
             break;
         }
         let noise = Vector3::new(gaussian(), gaussian(), gaussian()) * 0.002;
-        estimator.handle(&detect(stamp, s.state.position + noise));
-        let since = (stamp - *first.get_or_insert(stamp)) as f64 * 1e-9;
+        scenario
+            .back
+            .push((detect(stamp, s.state.position + noise), s.state));
+    }
+    scenario
+}
+
+/// The estimator on a simulated return ([`return_scenario`]), the hit announced or not. Returns,
+/// per detection of the return flight, (seconds since the first one, landing error [m], velocity
+/// error [m/s]) of the estimate after it, or None before a track of the return exists; and the
+/// estimator's counters.
+fn simulated_return(announce: bool, seed: u64) -> (Vec<ReturnError>, ttball::estimator::Counters) {
+    use ttball::estimator::Estimator;
+    let scenario = return_scenario(seed);
+    let mut estimator = Estimator::new(&scenario.config);
+    if announce {
+        estimator.expect_hit(scenario.hit);
+    }
+    let mut incoming_track = None;
+    for d in &scenario.incoming {
+        estimator.handle(d);
+        incoming_track = estimator.estimate().map(|e| e.track_id);
+    }
+    let landing = scenario.landing;
+    let first = scenario.back.first().map_or(0, |(d, _)| d.stamp);
+    let mut out = Vec::new();
+    for (d, truth) in &scenario.back {
+        estimator.handle(d);
+        let since = (d.stamp - first) as f64 * 1e-9;
         let error = estimator
             .estimate()
-            .filter(|e| Some(e.track_id) != incoming_track && e.stamp == stamp)
+            .filter(|e| Some(e.track_id) != incoming_track && e.stamp == d.stamp)
             .and_then(|e| {
                 let predicted = estimator.predict_flight(&e.state, 0.01, 1.0);
                 let bounce = predicted.bounces().next()?.before;
                 Some((
                     ((bounce[0] - landing[0]).powi(2) + (bounce[1] - landing[1]).powi(2)).sqrt(),
-                    (e.state.velocity - s.state.velocity).norm(),
+                    (e.state.velocity - truth.velocity).norm(),
                 ))
             });
         out.push((since, error));
     }
     (out, estimator.counters())
+}
+
+/// The same through a bag and the node's code path (`ttball replay`): the robot's hit recorded
+/// on `topics.robot_hits` as a `ttball_msgs/RobotHit` seeds the return's track at its first
+/// detection; a hit whose face normal is not a unit vector is refused and counted.
+#[test]
+fn a_recorded_robot_hit_seeds_the_return_in_the_replay() {
+    use ttball::bag::BagWriter;
+    use ttball::msgs::convert::detection_to_msg;
+    use ttball::msgs::geometry_msgs::Vector3 as RosVector3;
+    use ttball::msgs::ttball_msgs::msg::RobotHit as RobotHitMsg;
+    use ttball::replay::{DETECTION_TYPE, ROBOT_HIT_TYPE};
+    let scenario = return_scenario(0x9e37_79b9);
+    let dir = std::path::Path::new(env!("CARGO_TARGET_TMPDIR"))
+        .join(format!("robot-hit-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let (input, output) = (dir.join("in.mcap"), dir.join("out.mcap"));
+    let topics = scenario.config.resolved_topics();
+    let ros = |v: &Vector3<f64>| RosVector3 {
+        x: v.x,
+        y: v.y,
+        z: v.z,
+    };
+    let hit_msg = |normal: Vector3<f64>| RobotHitMsg {
+        header: ttball::msgs::std_msgs::Header {
+            stamp: ttball::msgs::builtin_interfaces::Time::from_nanos(scenario.hit.stamp),
+            frame_id: "table".into(),
+        },
+        racket_velocity: ros(&scenario.hit.racket.velocity),
+        racket_normal: ros(&normal),
+        impact_offset: scenario.hit.racket.impact_offset,
+    };
+    let mut w = BagWriter::create(&input).unwrap();
+    let detections = w.channel(&topics.detections, DETECTION_TYPE).unwrap();
+    let hits = w.channel(&topics.robot_hits, ROBOT_HIT_TYPE).unwrap();
+    let log = |stamp: i64| u64::try_from(stamp + 1_000_000_000).unwrap();
+    // A bad announcement first (refused), then the plan's, a frame before the hit.
+    w.write(
+        hits,
+        ROBOT_HIT_TYPE,
+        log(0),
+        &hit_msg(scenario.hit.racket.normal * 2.0),
+    )
+    .unwrap();
+    for d in &scenario.incoming {
+        w.write(
+            detections,
+            DETECTION_TYPE,
+            log(d.stamp),
+            &detection_to_msg(d),
+        )
+        .unwrap();
+    }
+    w.write(
+        hits,
+        ROBOT_HIT_TYPE,
+        log(scenario.hit.stamp),
+        &hit_msg(scenario.hit.racket.normal),
+    )
+    .unwrap();
+    for (d, _) in &scenario.back {
+        w.write(
+            detections,
+            DETECTION_TYPE,
+            log(d.stamp),
+            &detection_to_msg(d),
+        )
+        .unwrap();
+    }
+    w.finish().unwrap();
+    let cancel = std::sync::atomic::AtomicBool::new(false);
+    let summary =
+        ttball::replay::replay(&input, &output, &scenario.config, &mut |_, _| {}, &cancel).unwrap();
+    assert_eq!(summary.robot_hits_refused, 1);
+    assert_eq!(summary.counters.seeded_by_hit, 1);
+    assert_eq!(summary.counters.hits_not_seeded, 0);
+    assert_eq!(summary.counters.tracks, 2, "{:?}", summary.counters);
+    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 /// The return's track after an announced robot hit ([`Estimator::expect_hit`]) starts at its

@@ -178,7 +178,8 @@ pub enum Command {
     /// Run the live ROS 2 node: detections in, state, intercept, trajectory, markers out.
     ///
     /// A ROS 2 node (ros2-client on RustDDS; no ROS 2 installation needed) on the domain from
-    /// ROS_DOMAIN_ID. Subscribes topics.detections (ttball_msgs/msg/BallDetection, best effort);
+    /// ROS_DOMAIN_ID. Subscribes topics.detections (ttball_msgs/msg/BallDetection, best effort)
+    /// and topics.robot_hits (ttball_msgs/msg/RobotHit: the robot's own hits, announced);
     /// publishes /ball/state, /ball/intercept, /ball/trajectory, /ball/markers and /diagnostics
     /// (reliable) and serves ~/predict_trajectory, ~/predict_rebound and ~/plan_return. Every
     /// detection runs through exactly the code `ttball replay` runs. Stops cleanly on Ctrl-C or SIGTERM and prints what it did.

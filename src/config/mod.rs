@@ -812,6 +812,9 @@ pub struct TopicsParams {
     /// Output (optional): the state as `nav_msgs/Odometry` (pose = position, twist = velocity
     /// and spin, with their covariances), for tools that draw covariances natively; empty: off.
     pub odometry: String,
+    /// Input: the robot's own hits announced (`ttball_msgs/RobotHit`), so the return is tracked
+    /// from its first detection.
+    pub robot_hits: String,
 }
 
 impl Default for TopicsParams {
@@ -826,6 +829,7 @@ impl Default for TopicsParams {
             truth: "ball/truth".to_owned(),
             smoothed: "ball/smoothed".to_owned(),
             odometry: String::new(),
+            robot_hits: "robot/hits".to_owned(),
         }
     }
 }
@@ -944,6 +948,7 @@ impl Config {
             } else {
                 resolve(&t.odometry)
             },
+            robot_hits: resolve(&t.robot_hits),
         }
     }
 

@@ -918,6 +918,7 @@ impl Config {
             ("topics.diagnostics", &tp.diagnostics),
             ("topics.truth", &tp.truth),
             ("topics.smoothed", &tp.smoothed),
+            ("topics.robot_hits", &tp.robot_hits),
         ] {
             c.name(key, value, "topic name", super::names::name_problem(value));
         }

@@ -8,7 +8,9 @@ use nalgebra::{Matrix3, Vector3};
 use super::builtin_interfaces::{Duration, Time};
 use super::geometry_msgs::{Point, Pose, Quaternion, Vector3 as RosVector3};
 use super::std_msgs::{ColorRGBA, Header};
-use super::ttball_msgs::msg::{BallDetection, BallState, InterceptPrediction, PredictedTrajectory};
+use super::ttball_msgs::msg::{
+    BallDetection, BallState, InterceptPrediction, PredictedTrajectory, RobotHit,
+};
 use super::ttball_msgs::srv::{PlanReturnResponse, PredictReboundRequest, PredictReboundResponse};
 use super::visualization_msgs::{Marker, MarkerArray};
 use crate::detection::{Detection, Source, seconds_to_ns};
@@ -21,7 +23,7 @@ use crate::stroke::{Plan, Rebound, ReturnOutcome};
 pub const TABLE_FRAME: &str = "table";
 
 /// A message that cannot become a core value.
-#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum ConvertError {
     /// The detection is not in the table frame, nor in a frame connected to it.
     #[error(
@@ -32,6 +34,14 @@ pub enum ConvertError {
         frame: String,
         /// The table frame's name.
         table: String,
+    },
+    /// A robot hit's racket normal is not a unit vector (or not finite).
+    #[error(
+        "racket_normal has length {length:.6}: give the unit normal of the hitting face, pointing toward the ball"
+    )]
+    NotUnitNormal {
+        /// Its length.
+        length: f64,
     },
 }
 
@@ -120,6 +130,41 @@ pub fn detection_from_msg_in(
         spin: d.spin.map(|w| t.vector(&w)),
         spin_covariance: d.spin_covariance.map(|c| t.covariance(&c)),
         ..d
+    })
+}
+
+/// A `RobotHit` message, brought into the table frame like a detection: the announced hit.
+pub fn robot_hit_from_msg_in(
+    msg: &RobotHit,
+    frames: &crate::frames::Frames,
+) -> Result<crate::estimator::RobotHit, ConvertError> {
+    let (velocity, normal) = (
+        from_vector(&msg.racket_velocity),
+        from_vector(&msg.racket_normal),
+    );
+    let (velocity, normal) = if msg.header.frame_id == frames.fixed() {
+        (velocity, normal)
+    } else {
+        let Some(t) = frames.to_fixed(&msg.header.frame_id) else {
+            return Err(ConvertError::UnknownFrame {
+                frame: msg.header.frame_id.to_string(),
+                table: frames.fixed().to_owned(),
+            });
+        };
+        (t.vector(&velocity), t.vector(&normal))
+    };
+    let length = normal.norm();
+    let finite = velocity.iter().all(|v| v.is_finite()) && msg.impact_offset.is_finite();
+    if !((length - 1.0).abs() <= physics::racket::NORMAL_TOLERANCE && finite) {
+        return Err(ConvertError::NotUnitNormal { length });
+    }
+    Ok(crate::estimator::RobotHit {
+        stamp: msg.header.stamp.to_nanos(),
+        racket: RacketState {
+            velocity,
+            normal: normal / length,
+            impact_offset: msg.impact_offset,
+        },
     })
 }
 

@@ -23,6 +23,10 @@ const DEFINITIONS: &[(&str, &str)] = &[
         "ttball_msgs/PredictedTrajectory",
         include_str!("../../msgs/msg/PredictedTrajectory.msg"),
     ),
+    (
+        "ttball_msgs/RobotHit",
+        include_str!("../../msgs/msg/RobotHit.msg"),
+    ),
     ("builtin_interfaces/Time", "int32 sec\nuint32 nanosec\n"),
     ("builtin_interfaces/Duration", "int32 sec\nuint32 nanosec\n"),
     (

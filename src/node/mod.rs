@@ -63,11 +63,13 @@ use crate::msgs::rosgraph_msgs::Clock;
 use crate::msgs::std_msgs::Header;
 use crate::msgs::tf2_msgs::TFMessage;
 use crate::msgs::ttball_msgs::msg::{
-    BallDetection, BallState, InterceptPrediction, PredictedTrajectory,
+    BallDetection, BallState, InterceptPrediction, PredictedTrajectory, RobotHit,
 };
 use crate::msgs::visualization_msgs::MarkerArray;
 use crate::pipeline::{Pipeline, Published};
-use crate::replay::{DETECTION_TYPE, INTERCEPT_TYPE, MARKERS_TYPE, STATE_TYPE, TRAJECTORY_TYPE};
+use crate::replay::{
+    DETECTION_TYPE, INTERCEPT_TYPE, MARKERS_TYPE, ROBOT_HIT_TYPE, STATE_TYPE, TRAJECTORY_TYPE,
+};
 use crate::replay::{ODOMETRY_TYPE, TF_MESSAGE_TYPE, TF_STATIC_TOPIC};
 use crate::stats::{DurationHistogram, DurationSummary};
 use intake::{DetectionQueue, Queued, SequenceGaps};
@@ -78,6 +80,7 @@ use services::{Effect, Reply, Servers, Service};
 impl ros2_client::Message for BallDetection {}
 impl ros2_client::Message for Clock {}
 impl ros2_client::Message for TFMessage {}
+impl ros2_client::Message for RobotHit {}
 
 /// ROS 2 type of `/diagnostics`.
 pub const DIAGNOSTICS_TYPE: &str = "diagnostic_msgs/msg/DiagnosticArray";
@@ -340,6 +343,16 @@ fn start_here(config: &Config, placement: &Placement) -> Result<NodeHandle, Node
     let tf_static: Subscription<TFMessage> = node
         .create_subscription(&tf_topic, None)
         .map_err(dds::error)?;
+    let robot_hits_topic = node
+        .create_topic(
+            &dds::name(&config.resolved_topics().robot_hits)?,
+            dds::message_type(ROBOT_HIT_TYPE),
+            &dds::reliable(10),
+        )
+        .map_err(dds::error)?;
+    let robot_hits: Subscription<RobotHit> = node
+        .create_subscription(&robot_hits_topic, None)
+        .map_err(dds::error)?;
     let table_pose = table_transform(config, wall_clock_ns());
     let tf_publisher = match &table_pose {
         Some(msg) => {
@@ -388,6 +401,7 @@ fn start_here(config: &Config, placement: &Placement) -> Result<NodeHandle, Node
         live_view,
         pipeline,
         tf_static,
+        robot_hits,
         _tf_publisher: tf_publisher,
         clock: NodeClock {
             subscription: clock,
@@ -577,6 +591,8 @@ struct EstimatorThread {
     started: Instant,
     /// `/tf_static`, taken between detections.
     tf_static: Subscription<TFMessage>,
+    /// The robot's announced hits (`topics.robot_hits`), taken between detections.
+    robot_hits: Subscription<RobotHit>,
     /// The writer of the table's pose (kept: the transform is transient local).
     _tf_publisher: Option<Publisher<TFMessage>>,
     /// The Foxglove live view, and the topics it shows the detections and outputs on.
@@ -680,6 +696,7 @@ impl EstimatorThread {
         wake_on.recv(&ticker);
         loop {
             self.take_static_transforms();
+            self.take_robot_hits();
             self.take_from_dds(detections.as_mut(), &mut context, &mut queue, &mut gaps);
             if let Some(queued) = queue.pop() {
                 self.process(queued, &mut timings);
@@ -804,6 +821,15 @@ impl EstimatorThread {
                         );
                     }
                 }
+            }
+        }
+    }
+
+    /// Takes the robot's announced hits: each seeds the return's track at its first detection.
+    fn take_robot_hits(&mut self) {
+        while let Ok(Some((msg, _))) = self.robot_hits.take() {
+            if let Err(e) = self.pipeline.on_robot_hit(&msg) {
+                warn!("{ROBOT_HIT_TYPE}: {e} (ignored)");
             }
         }
     }

@@ -176,3 +176,17 @@ pub struct PredictedTrajectory {
     /// Angular velocity at each sample [rad/s].
     pub spins: Vec<Vector3>,
 }
+
+/// `ttball_msgs/msg/RobotHit`: the robot's own hit, announced (estimator input): the racket's
+/// state at the impact, so that the return's track starts from the predicted rebound.
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+pub struct RobotHit {
+    /// `stamp` = the impact time, `frame_id` = the table frame or one `/tf_static` connects to it.
+    pub header: Header,
+    /// Velocity of the racket's impact point at impact [m/s].
+    pub racket_velocity: Vector3,
+    /// Unit normal of the hitting face, pointing toward the ball.
+    pub racket_normal: Vector3,
+    /// Impact point from the racket's centre of gravity along its long axis, toward the tip [m].
+    pub impact_offset: f64,
+}
