@@ -253,6 +253,13 @@ pub fn summary_text(s: &ReplaySummary) -> String {
             String::new()
         }
     );
+    if c.seeded_by_hit + c.hits_not_seeded + s.robot_hits_refused > 0 {
+        let _ = writeln!(
+            out,
+            "  robot hits: {} seeded the return's track, {} seeded none, {} refused",
+            c.seeded_by_hit, c.hits_not_seeded, s.robot_hits_refused
+        );
+    }
     let reasons: Vec<String> = c.rejections();
     if !reasons.is_empty() {
         let _ = writeln!(out, "  rejected by reason: {}", reasons.join(", "));
@@ -432,6 +439,9 @@ fn summary_json(s: &ReplaySummary) -> serde_json::Value {
         "learned_noise": noise_json(&s.learned_noise),
         "learned_model_noise": model_noise_json(&s.learned_model_noise),
         "zero_spin_ignored": c.zero_spin_ignored,
+        "seeded_by_hit": c.seeded_by_hit,
+        "hits_not_seeded": c.hits_not_seeded,
+        "robot_hits_refused": s.robot_hits_refused,
         "processing_mean_ns": s.processing_mean_ns,
         "processing_p99_ns": s.processing_p99_ns,
         "recorded_seconds": s.recorded_seconds,

@@ -178,6 +178,14 @@ pub fn diagnostics_msg(snapshot: &Snapshot<'_>, window: &mut Window) -> Diagnost
         ),
         kv("late detections fused by rollback", c.rollbacks.to_string()),
         kv("all-zero spins ignored", c.zero_spin_ignored.to_string()),
+        kv(
+            "tracks seeded by the robot's announced hits",
+            c.seeded_by_hit.to_string(),
+        ),
+        kv(
+            "announced hits that seeded no track",
+            c.hits_not_seeded.to_string(),
+        ),
         kv("publish errors", t.publish_errors.to_string()),
         kv("service requests", t.service_requests.to_string()),
         kv(
