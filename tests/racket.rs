@@ -1165,3 +1165,41 @@ fn the_return_after_an_announced_hit_is_tracked_from_its_first_detection() {
     // At 50 ms the announced track predicts the landing better than the unannounced one.
     assert!(landing[2][landing[2].len() / 2] < unannounced.1[2][unannounced.1[2].len() / 2]);
 }
+
+/// A stray detection just after the announced hit does not cost the seed: the predicted rebound
+/// waits for the detection it explains (within `tracking.timeout` of the impact); an announced
+/// hit whose return never shows is counted as having seeded nothing.
+#[test]
+fn an_announced_hit_waits_past_a_stray_detection_and_times_out_without_a_return() {
+    use ttball::estimator::Estimator;
+    let scenario = return_scenario(0x9e37_79b9 + 3);
+    let run = |stray: bool, back: bool| {
+        let mut estimator = Estimator::new(&scenario.config);
+        estimator.expect_hit(scenario.hit);
+        for d in &scenario.incoming {
+            estimator.handle(d);
+        }
+        if stray {
+            let mut d = scenario.back[0].0;
+            d.stamp = scenario.hit.stamp + 1_000_000;
+            d.position = Vector3::new(0.5, -0.6, 0.9);
+            estimator.handle(&d);
+        }
+        let returns: &[_] = if back { &scenario.back } else { &[] };
+        for (d, _) in returns {
+            estimator.handle(d);
+        }
+        // Detections of the next ball, long after the hit (two: a lone jump in time is held
+        // until the next confirms it).
+        for (k, d) in scenario.incoming[..2].iter().enumerate() {
+            let mut late = *d;
+            late.stamp = scenario.hit.stamp + 2_000_000_000 + k as i64 * 6_666_667;
+            estimator.handle(&late);
+        }
+        estimator.counters()
+    };
+    let counters = run(true, true);
+    assert_eq!((counters.seeded_by_hit, counters.hits_not_seeded), (1, 0));
+    let counters = run(false, false);
+    assert_eq!((counters.seeded_by_hit, counters.hits_not_seeded), (0, 1));
+}

@@ -591,8 +591,10 @@ pub struct Estimator {
     learned: Learned,
     /// The racket-impact model, for the robot's announced hits.
     racket: RacketModel,
-    /// The robot's next hit, announced ([`Self::expect_hit`]).
-    expected_hit: Option<RobotHit>,
+    /// The robot's next hit, announced ([`Self::expect_hit`]), and the rebound predicted from it
+    /// at the first detection after its impact (kept for the detections after it until one fits
+    /// or `tracking.timeout` has passed since the impact).
+    expected_hit: Option<(RobotHit, Option<Snapshot>)>,
 }
 
 /// The robot's own hit, announced to the estimator: when and with what racket state it meets
@@ -851,7 +853,7 @@ impl Estimator {
         if self.expected_hit.is_some() {
             self.counters.hits_not_seeded += 1;
         }
-        self.expected_hit = Some(hit);
+        self.expected_hit = Some((hit, None));
     }
 
     /// Drops the tracks and what was learned (physics, noise), as a new estimator of `config`
@@ -1209,14 +1211,17 @@ impl Estimator {
     }
 
     fn process(&mut self, d: &Detection, m: Measurement) -> Verdict {
-        if let Some(hit) = self.expected_hit
+        if let Some((hit, _)) = self.expected_hit
             && d.stamp > hit.stamp
         {
-            self.expected_hit = None;
             if let Some(verdict) = self.start_from_hit(&hit, d, m) {
+                self.expected_hit = None;
                 return verdict;
             }
-            self.counters.hits_not_seeded += 1;
+            if d.stamp - hit.stamp > self.settings.timeout {
+                self.expected_hit = None;
+                self.counters.hits_not_seeded += 1;
+            }
         }
         let Some(track) = &self.track else {
             return self.initialise(d);
@@ -1733,31 +1738,21 @@ impl Estimator {
         true
     }
 
-    /// Starts the return's track at `d`, the first detection after the announced `hit`, from the
-    /// predicted rebound of the live track's ball; None (nothing changed) when there is no live
-    /// track before the hit, the hit is impossible or `d` is gated against the rebound.
+    /// Starts the return's track at `d`, a detection after the announced `hit`, from the
+    /// predicted rebound of the live track's ball (predicted at the first detection after the
+    /// impact, then kept); None (nothing changed but the kept rebound) when there was no live
+    /// track before the impact, the hit is impossible or `d` is gated against the rebound.
     fn start_from_hit(&mut self, hit: &RobotHit, d: &Detection, m: Measurement) -> Option<Verdict> {
-        let track = self.track.as_ref()?;
-        if track.now.stamp > hit.stamp {
-            return None;
-        }
-        let mut incoming = track.now;
-        self.advance(&mut incoming, hit.stamp);
-        let ball = BallState::from_vector(&incoming.ekf.x);
-        let after = self.racket.hit(&ball, &hit.racket).ok()?.ball;
-        let covariance =
-            self.racket
-                .rebound_covariance(&ball, &incoming.ekf.state_covariance(), &hit.racket)?;
-        let param_prior = self.learned.track_prior(hit.stamp);
-        let (theta, p_theta) = param_prior;
-        let seed = Snapshot {
-            ekf: Ekf::new(after.to_vector(), covariance, theta, p_theta),
-            stamp: hit.stamp,
-            bounces: 0,
-            robot_half_bounces: 0,
-            last_fused: hit.stamp,
-            nis: 0.0,
+        let kept = self.expected_hit.and_then(|(_, seed)| seed);
+        let seed = match kept {
+            Some(seed) => seed,
+            None => {
+                let seed = self.rebound_seed(hit)?;
+                self.expected_hit = Some((*hit, Some(seed)));
+                seed
+            }
         };
+        let param_prior = self.learned.track_prior(hit.stamp);
         let mut snapshot = seed;
         let nis = self.fuse(&mut snapshot, d, &m, None).ok()?;
         self.learn_noise(d);
@@ -1786,6 +1781,31 @@ impl Estimator {
         });
         self.rejected_run.clear();
         Some(Verdict::Fused { nis })
+    }
+
+    /// The predicted rebound of the live track's ball at the announced `hit`, with its
+    /// covariance; None when there is no live track before the impact or the hit is impossible.
+    fn rebound_seed(&self, hit: &RobotHit) -> Option<Snapshot> {
+        let track = self.track.as_ref()?;
+        if track.now.stamp > hit.stamp {
+            return None;
+        }
+        let mut incoming = track.now;
+        self.advance(&mut incoming, hit.stamp);
+        let ball = BallState::from_vector(&incoming.ekf.x);
+        let after = self.racket.hit(&ball, &hit.racket).ok()?.ball;
+        let covariance =
+            self.racket
+                .rebound_covariance(&ball, &incoming.ekf.state_covariance(), &hit.racket)?;
+        let (theta, p_theta) = self.learned.track_prior(hit.stamp);
+        Some(Snapshot {
+            ekf: Ekf::new(after.to_vector(), covariance, theta, p_theta),
+            stamp: hit.stamp,
+            bounces: 0,
+            robot_half_bounces: 0,
+            last_fused: hit.stamp,
+            nis: 0.0,
+        })
     }
 
     /// Whether a track starting at `stamp` in state `x`, fitted to detections from
