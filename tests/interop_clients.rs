@@ -345,15 +345,6 @@ fn the_mcap_conformance_corpus_reads_as_its_json_lists() {
     assert!(messages > 400, "{messages}");
 }
 
-/// A free TCP port on 127.0.0.1 (bound, then released for the server to take).
-fn free_port() -> u16 {
-    std::net::TcpListener::bind("127.0.0.1:0")
-        .unwrap()
-        .local_addr()
-        .unwrap()
-        .port()
-}
-
 /// Foxglove's own WebSocket client (`live_client.mjs`, `@foxglove/ws-protocol`) watching
 /// `url` for `seconds` after the first message; its report.
 fn watch_live_view(parsers: &Path, url: &str, seconds: u32, report: &Path) -> Command {
@@ -414,28 +405,54 @@ fn a_replay_is_watched_live_by_foxglove_s_websocket_client() {
         return;
     };
     let d = common::scratch("live-replay");
-    let port = free_port();
     let output = d.join("out.mcap");
     let bag = common::root().join("bags/sim_rally_2cams.mcap");
-    let replay = Command::new(env!("CARGO_BIN_EXE_ttball"))
+    // Port 0: the replay binds a free port itself and says which (a port picked here and
+    // released could be taken by any other connection before the replay binds it).
+    let mut replay = Command::new(env!("CARGO_BIN_EXE_ttball"))
         .args(["replay", bag.to_str().unwrap(), "--output"])
         .arg(&output)
-        .args(["--foxglove", &format!("127.0.0.1:{port}")])
+        .args(["--foxglove", "127.0.0.1:0"])
         .args(["--rate", "8", "--foxglove-wait", "30"])
         .stderr(std::process::Stdio::piped())
         .spawn()
         .unwrap();
+    let stderr = replay.stderr.take().unwrap();
+    let (url_tx, url_rx) = std::sync::mpsc::channel();
+    let reader = std::thread::spawn(move || {
+        use std::io::BufRead;
+        let mut text = String::new();
+        for line in std::io::BufReader::new(stderr)
+            .lines()
+            .map_while(Result::ok)
+        {
+            if let Some(rest) = line.strip_prefix("Foxglove live view on ") {
+                let url = rest
+                    .split_whitespace()
+                    .next()
+                    .unwrap_or_default()
+                    .to_owned();
+                let _ = url_tx.send(url);
+            }
+            text += &line;
+            text.push('\n');
+        }
+        text
+    });
+    let url = url_rx
+        .recv_timeout(std::time::Duration::from_secs(60))
+        .unwrap_or_default();
     let report_path = d.join("view.json");
-    let client = watch_live_view(&parsers, &format!("ws://127.0.0.1:{port}"), 4, &report_path)
+    let client = watch_live_view(&parsers, &url, 4, &report_path)
         .output()
         .unwrap();
-    let replayed = replay.wait_with_output().unwrap();
+    let status = replay.wait().unwrap();
+    let replay_stderr = reader.join().unwrap();
     assert!(
-        client.status.success() && replayed.status.success(),
-        "client: {}{}\nreplay: {}",
+        url.starts_with("ws://127.0.0.1:") && client.status.success() && status.success(),
+        "url {url:?}\nclient: {}{}\nreplay: {replay_stderr}",
         String::from_utf8_lossy(&client.stdout),
         String::from_utf8_lossy(&client.stderr),
-        String::from_utf8_lossy(&replayed.stderr)
     );
     let report: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(&report_path).unwrap()).unwrap();
