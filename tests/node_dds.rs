@@ -294,6 +294,9 @@ echo $? > node.rc
 listener=$!
 "{ttball}" node > node_play.out 2> node_play.err &
 node=$!
+# play waits for its first subscriber, which may be the node: give the Cyclone listener time to
+# match too, or the detections before it does are lost to it (best effort).
+sleep 3
 "{ttball}" play "{bag}" --wait 30 --latency > play.out 2> play.err
 echo $? > play.rc
 kill -TERM $node

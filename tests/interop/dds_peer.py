@@ -52,7 +52,11 @@ from mcap.reader import make_reader
 LOOPBACK_URI = (
     '<CycloneDDS><Domain id="any"><General><Interfaces>'
     '<NetworkInterface address="127.0.0.1" multicast="true"/>'
-    "</Interfaces></General></Domain></CycloneDDS>"
+    "</Interfaces></General>"
+    # A receive buffer as large as the machine allows: a listener descheduled under load keeps
+    # the best-effort samples that arrive meanwhile instead of the socket dropping them.
+    '<Internal><SocketReceiveBufferSize min="default" max="4MB"/></Internal>'
+    "</Domain></CycloneDDS>"
 )
 
 
