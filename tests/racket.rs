@@ -1054,7 +1054,7 @@ fn a_recorded_robot_hit_seeds_the_return_in_the_replay() {
         &hit_msg(scenario.hit.racket.normal * 2.0),
     )
     .unwrap();
-    for d in &scenario.incoming {
+    let write_detection = |w: &mut BagWriter<_>, d: &ttball::detection::Detection| {
         w.write(
             detections,
             DETECTION_TYPE,
@@ -1062,6 +1062,9 @@ fn a_recorded_robot_hit_seeds_the_return_in_the_replay() {
             &detection_to_msg(d),
         )
         .unwrap();
+    };
+    for d in &scenario.incoming {
+        write_detection(&mut w, d);
     }
     w.write(
         hits,
@@ -1071,13 +1074,7 @@ fn a_recorded_robot_hit_seeds_the_return_in_the_replay() {
     )
     .unwrap();
     for (d, _) in &scenario.back {
-        w.write(
-            detections,
-            DETECTION_TYPE,
-            log(d.stamp),
-            &detection_to_msg(d),
-        )
-        .unwrap();
+        write_detection(&mut w, d);
     }
     w.finish().unwrap();
     let cancel = std::sync::atomic::AtomicBool::new(false);
