@@ -9,11 +9,11 @@ use std::hint::black_box;
 use criterion::{BatchSize, Criterion, criterion_group, criterion_main};
 use nalgebra::{Matrix3, Matrix6, SVector};
 use ttball::config::Config;
-use ttball::ekf::{Ekf, position_H, position_spin_H};
-use ttball::estimator::Estimator;
-use ttball::intercept::{InterceptQuery, predict_intercept};
+use ttball::eval::sim::{Cameras, SimOptions, simulate};
+use ttball::online::ekf::{Ekf, position_H, position_spin_H};
+use ttball::online::estimator::Estimator;
+use ttball::online::intercept::{InterceptQuery, predict_intercept};
 use ttball::physics::{BallState, Propagator, StateMatrix};
-use ttball::sim::{Cameras, SimOptions, simulate};
 
 fn incoming() -> BallState {
     BallState::new(

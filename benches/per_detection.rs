@@ -16,10 +16,10 @@ use std::hint::black_box;
 use std::time::Instant;
 
 use ttball::config::Config;
-use ttball::estimator::Estimator;
-use ttball::msgs::convert::detection_to_msg;
-use ttball::pipeline::Pipeline;
-use ttball::sim::{Cameras, SimOptions, simulate};
+use ttball::eval::sim::{Cameras, SimOptions, simulate};
+use ttball::online::estimator::Estimator;
+use ttball::ros::msgs::convert::detection_to_msg;
+use ttball::ros::pipeline::Pipeline;
 
 const RUNS: usize = 5;
 

@@ -7,8 +7,8 @@ use std::hint::black_box;
 use criterion::{Criterion, criterion_group, criterion_main};
 use nalgebra::{Vector2, Vector3};
 use ttball::config::Config;
+use ttball::online::stroke::{Aim, ReturnCondition, Stroke};
 use ttball::physics::{BallState, RacketModel, RacketState};
-use ttball::stroke::{Aim, ReturnCondition, Stroke};
 
 /// The real rally ball of `ttball predict` at the default hitting plane.
 fn incoming() -> BallState {

@@ -1,68 +1,55 @@
 //! ttball: a real-time table-tennis ball-state estimator for robots.
 //!
-//! The crate is a pure core (no I/O, no clock, no ROS or MCAP types) and thin adapters around it:
-//! - [`physics`]: flight (spin-parameter aerodynamic model), table bounce, event-aware propagation.
-//! - [`estimator`]: the one entry point, `Estimator::handle(detection)`: tracking, out-of-order
-//!   fusion, gating, initialisation, interception after every update.
-//! - [`batch`]: the batch (maximum a posteriori, robust) fit of one whole flight: the offline
-//!   smoother and the base of calibration.
-//! - [`calibrate`]: the aero and bounce coefficients fitted to many recorded flights at once.
-//! - [`rebound_calibration`]: the racket's rubber constants fitted to recorded hits, with
-//!   standard errors and k-fold cross-validation.
-//! - [`least_squares`]: a small dense Levenberg-Marquardt with central-difference Jacobians.
-//! - [`smooth`]: a recording cut into flights by the estimator's tracks, each fitted whole: the
-//!   smoothed state at every detection.
-//! - [`eval`]: accuracy of the estimator on a simulated session against its truth.
-//! - [`ekf`]: the extended Kalman filter over (position, velocity, spin).
-//! - [`intercept`]: the predicted crossing of the robot's hitting plane, with its covariance.
-//! - [`stroke`]: the robot's hit: the ball's rebound off the racket and its return flight, and
-//!   the racket command (velocity, face normal) that returns the ball to a target.
-//! - [`stats`]: chi-square quantiles for gates and consistency checks.
-//! - [`detection`]: one 3D ball detection, as the estimator takes it.
-//! - [`config`]: every physical constant and tuning value, with defaults and range checks.
-//! - [`sim`]: simulated camera detections of real and random shots, with the truth, from a seed.
-//! - `pipeline` (feature `interface`): the node minus its transport, one detection message in,
-//!   the messages to publish out; the ROS node and the MCAP replay both drive it.
-//! - `bag` (feature `bag`): ROS 2 MCAP bags as rosbag2 and Foxglove read and write them.
-//! - `record` (feature `bag`): simulated play written as a bag, with its truth.
-//! - `replay` (feature `bag`): an MCAP bag through the node's code path, into an output bag.
-//! - `plot` (feature `plot`): figures (SVG, PNG) of what the estimator saw on one track or time
-//!   window: detections, filtered track, predictions, truth; pure rendering, no file I/O.
-//! - `msgs` (feature `interface`): serde mirrors of the ROS 2 interfaces in `msgs/` (package
-//!   `ttball_msgs`) for ros2-client and MCAP, in wire (field) order.
+//! # Layers
 //!
-//! Units are SI everywhere (m, s, kg, rad/s) in the `table` frame described in the README.
+//! The crate is a pure core (no I/O, no clock, no ROS or MCAP types) and thin adapters around
+//! it, in folders that are layers, listed here from the bottom up. A layer uses only itself and the
+//! layers listed before it, never one listed after it (`tests/layers.rs` checks every `crate::`
+//! path of every source file against this list):
+//!
+//! 1. [`model`]: detections, time, frames, statistics, random numbers: the shared vocabulary.
+//! 2. [`config`]: every physical constant and tuning value, with defaults and range checks.
+//! 3. [`physics`]: flight (spin-parameter aerodynamic model), table bounce, racket impact,
+//!    event-aware propagation with the state-transition matrix.
+//! 4. [`online`]: what the node runs per detection: the estimator (`Estimator::handle`, the one
+//!    entry point), the EKF, the interception, the robot's stroke.
+//! 5. [`offline`]: whole recordings fitted at once: batch fit, smoothing, calibration of the
+//!    flight and of the rubber, least squares.
+//! 6. [`eval`]: the simulator with its truth, the real data sets, and the scoring of the
+//!    estimator against both.
+//! 7. `plot` (feature `plot`): figures (SVG, PNG) of what the estimator saw; pure rendering.
+//! 8. `ros` (feature `interface`): the ROS 2 interface types, their conversions, every type
+//!    name, and the pipeline: the node minus its transport, one message in, the messages to
+//!    publish out.
+//! 9. `bag` (feature `bag`): ROS 2 MCAP bags (read, write), the replay through the pipeline,
+//!    simulated play recorded as a bag, the Foxglove live view.
+//! 10. `node` (feature `node`): the live ROS 2 node on ros2-client, and `ttball play`.
+//!
+//! The command-line tool (`src/cli`, in the binary) sits on top of them all.
+//!
+//! Units are SI everywhere (m, s, kg, rad/s) in the `table` frame described in the README. The
+//! models and their sources are in `docs/models.md`.
+
+pub mod model;
+
+pub mod config;
+
+pub mod physics;
+
+pub mod online;
+
+pub mod offline;
+
+pub mod eval;
+
+#[cfg(feature = "plot")]
+pub mod plot;
+
+#[cfg(feature = "interface")]
+pub mod ros;
 
 #[cfg(feature = "bag")]
 pub mod bag;
-pub mod batch;
-pub mod calibrate;
-pub mod config;
-pub mod detection;
-pub mod ekf;
-pub mod estimator;
-pub mod eval;
-pub mod frames;
-pub mod intercept;
-pub mod least_squares;
-#[cfg(feature = "live-view")]
-pub mod live_view;
-#[cfg(feature = "interface")]
-pub mod msgs;
+
 #[cfg(feature = "node")]
 pub mod node;
-pub mod physics;
-#[cfg(feature = "interface")]
-pub mod pipeline;
-#[cfg(feature = "plot")]
-pub mod plot;
-pub mod real;
-pub mod rebound_calibration;
-#[cfg(feature = "bag")]
-pub mod record;
-#[cfg(feature = "bag")]
-pub mod replay;
-pub mod sim;
-pub mod smooth;
-pub mod stats;
-pub mod stroke;

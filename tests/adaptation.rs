@@ -109,7 +109,7 @@ fn the_adaptation_learns_what_the_configuration_has_wrong() {
 #[test]
 fn the_model_noise_and_the_dispersion_are_learned() {
     use ttball::eval::evaluate_learning;
-    use ttball::sim::{Cameras, SimOptions, simulate};
+    use ttball::eval::sim::{Cameras, SimOptions, simulate};
     let options = SimOptions {
         cameras: Cameras::WideAndHighSpeed,
         shots: 120,
@@ -152,7 +152,7 @@ fn the_model_noise_and_the_dispersion_are_learned() {
     );
     assert_eq!(
         unlearned.model_noise.scales,
-        ttball::ekf::NoiseScales::default()
+        ttball::online::ekf::NoiseScales::default()
     );
     let configured = [
         fixed.adaptation.drag_scale_flight_sigma,

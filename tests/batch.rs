@@ -3,12 +3,12 @@
 //! detection better than the filter did when that detection arrived.
 
 use nalgebra::Vector3;
-use ttball::batch::fit_flight;
 use ttball::config::Config;
-use ttball::estimator::Estimator;
+use ttball::eval::sim::{SimOptions, simulate};
+use ttball::offline::ballistic::fit_ballistic;
+use ttball::offline::batch::fit_flight;
+use ttball::online::estimator::Estimator;
 use ttball::physics::{BallState, Propagator};
-use ttball::real::fit::fit_ballistic;
-use ttball::sim::{SimOptions, simulate};
 
 #[test]
 fn the_batch_fit_beats_the_online_filter_on_simulated_flights() {
@@ -54,7 +54,7 @@ fn the_batch_fit_beats_the_online_filter_on_simulated_flights() {
             // Within 2 ms of the bounce a tenth of a millisecond in its time flips v_z: scored
             // apart, as `ttball evaluate` does.
             let near_bounce = (d.detection.stamp - shot.bounce.stamp).abs()
-                <= ttball::detection::seconds_to_ns(ttball::eval::BOUNCE_WINDOW);
+                <= ttball::model::detection::seconds_to_ns(ttball::eval::BOUNCE_WINDOW);
             if estimate.stamp != d.detection.stamp || d.outlier || near_bounce {
                 continue;
             }

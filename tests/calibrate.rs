@@ -12,11 +12,11 @@
 mod common;
 
 use common::{ok, run, scratch};
-use ttball::calibrate::{FlightInput, FlightLabel, Options, calibrate};
 use ttball::config::Config;
+use ttball::eval::sim::{Cameras, SimOptions, simulate};
+use ttball::offline::calibrate::{FlightInput, FlightLabel, Options, calibrate};
+use ttball::offline::smooth::split_flights;
 use ttball::physics::aero::Polynomial;
-use ttball::sim::{Cameras, SimOptions, simulate};
-use ttball::smooth::split_flights;
 
 /// The physics the simulated balls fly with.
 fn perturbed() -> Config {
@@ -225,7 +225,7 @@ fn calibrated_scales_and_table_agree_with_what_the_estimator_learns_online() {
         },
     )
     .expect("simulated");
-    let mut estimator = ttball::estimator::Estimator::new(&start);
+    let mut estimator = ttball::online::estimator::Estimator::new(&start);
     for sim in &session.stream {
         estimator.handle(&sim.detection);
     }

@@ -9,10 +9,10 @@
 
 use nalgebra::Vector3;
 use ttball::config::Config;
-use ttball::detection::{Detection, Source};
-use ttball::estimator::{Estimator, Rejection, TrackStatus, Verdict};
+use ttball::eval::sim::Rng;
+use ttball::model::detection::{Detection, Source};
+use ttball::online::estimator::{Estimator, Rejection, TrackStatus, Verdict};
 use ttball::physics::{BallState, PredictOptions, Propagator, predict};
-use ttball::sim::Rng;
 
 const EPOCH: i64 = 1_700_000_000_000_000_000;
 
@@ -611,7 +611,7 @@ fn flights_keep_a_confirmed_jump_and_drop_a_glitch() {
     detections.extend(second);
     let glitch = 100;
     detections[glitch].stamp += 500_000_000;
-    let (flights, counters) = ttball::smooth::split_flights(&wide_config(), &detections);
+    let (flights, counters) = ttball::offline::smooth::split_flights(&wide_config(), &detections);
     assert_eq!(flights.len(), 2, "{counters:?}");
     assert_eq!(counters.rejected(Rejection::StampJump), 1);
     assert!(flights.iter().all(|f| !f.members.contains(&glitch)));
@@ -626,7 +626,7 @@ fn flights_keep_a_confirmed_jump_and_drop_a_glitch() {
 /// are moved rather than predicted in full.
 #[test]
 fn the_kept_interception_agrees_with_the_full_prediction() {
-    use ttball::sim::{Cameras, SimOptions, simulate};
+    use ttball::eval::sim::{Cameras, SimOptions, simulate};
     let config = Config::default();
     let mut always = Config::default();
     always.intercept.refresh.max_age = 0.0;
@@ -733,7 +733,7 @@ fn a_frame_at_the_contact_gets_the_contacts_noise() {
 /// detections fall back to `unknown`'s noise and the estimates differ.
 #[test]
 fn cameras_configured_by_id_take_their_own_noise() {
-    use ttball::sim::{Cameras, SimOptions, simulate};
+    use ttball::eval::sim::{Cameras, SimOptions, simulate};
     let config = Config::default();
     let session = simulate(
         &config,

@@ -3,8 +3,8 @@
 #![allow(clippy::unwrap_used, reason = "test code: fail loudly")]
 
 use ttball::config::Config;
+use ttball::eval::sim::{Cameras, SimOptions, simulate};
 use ttball::eval::{EvalReport, evaluate};
-use ttball::sim::{Cameras, SimOptions, simulate};
 
 fn run(cameras: Cameras, shots: usize, seed: u64) -> EvalReport {
     let mut config = Config::default();

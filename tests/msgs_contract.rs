@@ -1,5 +1,5 @@
 //! Contract between the ROS 2 interface files in `msgs/` and their serde mirrors in
-//! `ttball::msgs`.
+//! `ttball::ros::msgs`.
 //!
 //! The test parses every `msgs/msg/*.msg` and `msgs/srv/*.srv` with a small parser for the ROS 2
 //! interface grammar, and gets the structure of the Rust side from the types' own serde
@@ -20,13 +20,13 @@ use std::path::{Path, PathBuf};
 use byteorder::LittleEndian;
 use serde::Deserialize;
 use serde_reflection::{ContainerFormat, Format, Registry, Tracer, TracerConfig};
-use ttball::msgs::builtin_interfaces::Time;
-use ttball::msgs::geometry_msgs::{Point, Vector3};
-use ttball::msgs::std_msgs::Header;
-use ttball::msgs::ttball_msgs::msg::{
+use ttball::ros::msgs::builtin_interfaces::Time;
+use ttball::ros::msgs::geometry_msgs::{Point, Vector3};
+use ttball::ros::msgs::std_msgs::Header;
+use ttball::ros::msgs::ttball_msgs::msg::{
     BallDetection, BallState, InterceptPrediction, PredictedTrajectory, RobotHit,
 };
-use ttball::msgs::ttball_msgs::srv::{
+use ttball::ros::msgs::ttball_msgs::srv::{
     PlanReturnRequest, PlanReturnResponse, PredictReboundRequest, PredictReboundResponse,
     PredictTrajectoryRequest, PredictTrajectoryResponse,
 };
@@ -1217,8 +1217,8 @@ fn every_mirror_round_trips_through_cdr() {
 /// definitions (as embedded in the MCAP schemas), field for field.
 #[test]
 fn diagnostic_msgs_mirror_matches_its_ros_definition() {
-    use ttball::msgs::definitions::definition;
-    use ttball::msgs::diagnostic_msgs::{DiagnosticArray, DiagnosticStatus};
+    use ttball::ros::msgs::definitions::definition;
+    use ttball::ros::msgs::diagnostic_msgs::{DiagnosticArray, DiagnosticStatus};
     let specs: Vec<MsgSpec> = ["DiagnosticArray", "DiagnosticStatus", "KeyValue"]
         .iter()
         .map(|name| {

@@ -8,8 +8,8 @@
 )]
 
 use ttball::config::Config;
-use ttball::estimator::Estimator;
-use ttball::sim::{Cameras, Session, SimOptions, simulate};
+use ttball::eval::sim::{Cameras, Session, SimOptions, simulate};
+use ttball::online::estimator::Estimator;
 
 /// Three shots seen by both cameras.
 fn session(config: &Config) -> Session {
@@ -55,8 +55,8 @@ fn handling_detections_allocates_nothing() {
 /// `/ball/trajectory` and markers, at most 50 times a second, do (their sample vectors).
 #[test]
 fn the_pipeline_allocates_nothing_per_detection_but_the_trajectory() {
-    use ttball::msgs::convert::detection_to_msg;
-    use ttball::pipeline::Pipeline;
+    use ttball::ros::msgs::convert::detection_to_msg;
+    use ttball::ros::pipeline::Pipeline;
 
     let config = Config::default();
     let session = session(&config);

@@ -47,14 +47,14 @@ use serde::de::DeserializeOwned;
 use serde_json::Value;
 use ttball::bag::{decode, read_bag_file};
 use ttball::config::Config;
-use ttball::msgs::builtin_interfaces::Time;
-use ttball::msgs::geometry_msgs::{Point, Vector3};
-use ttball::msgs::ttball_msgs::msg::{BallDetection, BallState, InterceptPrediction};
-use ttball::msgs::ttball_msgs::srv::{
+use ttball::ros::msgs::builtin_interfaces::Time;
+use ttball::ros::msgs::geometry_msgs::{Point, Vector3};
+use ttball::ros::msgs::ttball_msgs::msg::{BallDetection, BallState, InterceptPrediction};
+use ttball::ros::msgs::ttball_msgs::srv::{
     PlanReturnRequest, PlanReturnResponse, PredictReboundRequest, PredictReboundResponse,
     PredictTrajectoryRequest, PredictTrajectoryResponse,
 };
-use ttball::pipeline::Pipeline;
+use ttball::ros::pipeline::Pipeline;
 
 mod common;
 
@@ -1052,7 +1052,7 @@ fn the_node_talks_to_fast_dds_as_rmw_fastrtps_does() {
         GetParametersRequest, GetParametersResponse, ListParametersRequest, ListParametersResponse,
         SetParametersRequest, SetParametersResponse,
     };
-    use ttball::msgs::std_srvs::{TriggerRequest, TriggerResponse};
+    use ttball::ros::msgs::std_srvs::{TriggerRequest, TriggerResponse};
     let Some(peer) = fastdds_peer() else {
         return;
     };

@@ -1,15 +1,15 @@
-//! Physics core against physics.md's numbers and against invariants: Jacobians vs central finite
+//! Physics core against the values docs/models.md lists and against invariants: Jacobians vs central finite
 //! differences (relative 1e-6), exact event times, energy and slip at a bounce, RK4 order,
 //! spin effects on a flight, determinism.
 
 use nalgebra::{SMatrix, Vector3};
 use ttball::config::Config;
+use ttball::eval::sim::Rng;
 use ttball::physics::{
     BallState, BounceRegime, Cursor, EventKind, FlightModel, Flow, Observer, Outcome, PARAMS,
     ParamMatrix, PhysicsParams, PredictOptions, Propagator, StateMatrix, StateRow, StateVector,
     TableBounce, TrajectoryEnd, Watch, predict, propagate::Event,
 };
-use ttball::sim::Rng;
 
 /// A random vector with a magnitude uniform in [lo, hi] and a uniform direction.
 fn random_vector(rng: &mut Rng, lo: f64, hi: f64) -> Vector3<f64> {

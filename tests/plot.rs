@@ -13,11 +13,11 @@ use std::path::PathBuf;
 use std::sync::OnceLock;
 
 use ttball::config::Config;
-use ttball::estimator::Estimator;
+use ttball::eval::sim::{SimOptions, simulate};
+use ttball::online::estimator::Estimator;
 use ttball::plot::{
     PlotData, PlotError, PlotOptions, PlotTrajectory, PlotTruth, Selection, render_png, render_svg,
 };
-use ttball::sim::{SimOptions, simulate};
 
 /// A predicted flight is kept every this many detections.
 const TRAJECTORY_EVERY: usize = 25;

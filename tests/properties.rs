@@ -11,10 +11,10 @@ use nalgebra::{Matrix3, Vector3};
 use proptest::prelude::*;
 use ttball::bag::{BagReader, decode};
 use ttball::config::Config;
-use ttball::detection::Detection;
-use ttball::estimator::Estimator;
-use ttball::msgs::ttball_msgs::msg::{BallDetection, BallState, PredictedTrajectory};
-use ttball::sim::{SimOptions, simulate};
+use ttball::eval::sim::{SimOptions, simulate};
+use ttball::model::detection::Detection;
+use ttball::online::estimator::Estimator;
+use ttball::ros::msgs::ttball_msgs::msg::{BallDetection, BallState, PredictedTrajectory};
 
 /// A real stream (one simulated shot, both cameras) to corrupt.
 fn stream() -> &'static [Detection] {
@@ -49,7 +49,7 @@ fn small_bag() -> &'static [u8] {
         .unwrap();
         let path = std::path::Path::new(env!("CARGO_TARGET_TMPDIR"))
             .join(format!("props-{}.mcap", std::process::id()));
-        ttball::record::write_session(&session, &config, &path, true).unwrap();
+        ttball::bag::record::write_session(&session, &config, &path, true).unwrap();
         let bytes = std::fs::read(&path).unwrap();
         let _ = std::fs::remove_file(&path);
         bytes

@@ -1,5 +1,5 @@
-//! The racket impact model against the numbers of its sources (Kawazoe & Suzuki, seed 000;
-//! Kawazoe et al., seed 001; physics.md "Racket impact") and against its invariants, and on
+//! The racket impact model against the numbers of its sources (Kawazoe & Suzuki;
+//! Kawazoe et al. 2010; docs/models.md "Racket impact") and against its invariants, and on
 //! real rebounds (tt_rackets).
 #![allow(
     clippy::unwrap_used,
@@ -10,10 +10,10 @@
 use approx::assert_relative_eq;
 use nalgebra::{Vector2, Vector3};
 use ttball::config::Config;
+use ttball::online::stroke::{Aim, PlanError, ReturnCondition, ReturnOutcome, Stroke};
 use ttball::physics::bounce::BounceRegime;
 use ttball::physics::racket::{RacketModel, RacketState, rebound_power_coefficient};
 use ttball::physics::state::BallState;
-use ttball::stroke::{Aim, PlanError, ReturnCondition, ReturnOutcome, Stroke};
 
 /// The seed's own ball: 38 mm, 2.5 g.
 fn seed_config() -> Config {
@@ -39,7 +39,7 @@ fn reduced_mass_at_the_top_point_is_the_papers_78_1_g() {
     // At the centre of gravity a free racket's reduced mass is its whole mass.
     assert_relative_eq!(model.reduced_mass(0.0), 0.171, max_relative = 1e-12);
     // Holding the racket (1 kg at the grip) makes it larger everywhere on the face, much larger
-    // near the face centre, 18 mm above the centre of gravity (seed 000 Fig. 10 and 19); at the
+    // near the face centre, 18 mm above the centre of gravity (Kawazoe & Suzuki Fig. 10 and 19); at the
     // tip the racket turns about a point near the hand, where the arm's mass adds little.
     let held = RacketModel::new(&seed_config());
     let (min, max) = held.face_offsets();
@@ -85,7 +85,7 @@ fn e_falls_with_impact_speed() {
     }
 }
 
-/// Seed 000 Fig. 13: e falls with a smaller reduced mass, steeply below about 20 g and hardly
+/// Kawazoe & Suzuki Fig. 13: e falls with a smaller reduced mass, steeply below about 20 g and hardly
 /// above it.
 #[test]
 fn e_falls_with_smaller_reduced_mass_little_above_20_g() {
@@ -111,7 +111,7 @@ fn e_falls_with_smaller_reduced_mass_little_above_20_g() {
     }
 }
 
-/// Seed 000 Fig. 19: along the long axis, e peaks where the reduced mass is largest.
+/// Kawazoe & Suzuki Fig. 19: along the long axis, e peaks where the reduced mass is largest.
 #[test]
 fn e_peaks_where_the_reduced_mass_is_largest_along_the_long_axis() {
     for arm_mass in [0.0, 1.0] {
@@ -156,7 +156,7 @@ fn contact_lasts_about_a_millisecond_at_rally_speeds_and_shortens_with_speed() {
         );
         assert!(c.contact_time < last);
         last = c.contact_time;
-        // The impulse is the ball's momentum change (seed 000 eq. 8) and F_max = pi/2 F_mean.
+        // The impulse is the ball's momentum change (Kawazoe & Suzuki eq. 8) and F_max = pi/2 F_mean.
         let change = 0.0027 * (1.0 + impact.rebound_power_coefficient) * speed;
         assert_relative_eq!(c.impulse, change, max_relative = 1e-9);
         assert_relative_eq!(
@@ -274,7 +274,7 @@ fn an_elastic_frictionless_hit_keeps_the_energy() {
     assert_eq!(hit.ball.spin, ball.spin);
 }
 
-/// A racket at rest, face along +x: seed 000 eq. (12) for the normal velocity, and a rolling
+/// A racket at rest, face along +x: Kawazoe & Suzuki eq. (12) for the normal velocity, and a rolling
 /// impact leaves no slip at the contact point.
 #[test]
 fn a_racket_at_rest_rebounds_as_eq12_and_rolling_leaves_no_slip() {
@@ -307,7 +307,7 @@ fn a_racket_at_rest_rebounds_as_eq12_and_rolling_leaves_no_slip() {
     assert!(slip.norm() < 1e-12, "slip {slip}");
 }
 
-/// Seed 001: the grip force of eq. (14) and the grip's shock acceleration of eq. (42) are the
+/// Kawazoe et al. 2010: the grip force of eq. (14) and the grip's shock acceleration of eq. (42) are the
 /// same physics: M_H A = |chi| F. A free racket loads nothing.
 #[test]
 fn wrist_force_and_grip_acceleration_agree() {
@@ -329,7 +329,7 @@ fn wrist_force_and_grip_acceleration_agree() {
     assert_eq!(free.peak_force, 0.0);
 }
 
-/// The plate's vibration (seed 000 eq. 14-20): the energy left in the modes lowers the
+/// The plate's vibration (Kawazoe & Suzuki eq. 14-20): the energy left in the modes lowers the
 /// restitution as eq. (19) says, and a mode far above 1 / T_c takes almost nothing.
 #[test]
 fn vibration_loss_follows_eq19() {
@@ -874,9 +874,9 @@ type ReturnError = (f64, Option<(f64, f64)>);
 /// and of the return after it (with the return's true state), and where the return lands.
 struct ReturnScenario {
     config: Config,
-    hit: ttball::estimator::RobotHit,
-    incoming: Vec<ttball::detection::Detection>,
-    back: Vec<(ttball::detection::Detection, BallState)>,
+    hit: ttball::online::estimator::RobotHit,
+    incoming: Vec<ttball::model::detection::Detection>,
+    back: Vec<(ttball::model::detection::Detection, BallState)>,
     landing: Vector3<f64>,
 }
 
@@ -884,8 +884,8 @@ struct ReturnScenario {
 /// livelier than the configured preset (and a hit's own scatter), and the return flies to the
 /// opponent's half.
 fn return_scenario(seed: u64) -> ReturnScenario {
-    use ttball::detection::{Detection, Source};
-    use ttball::estimator::{Estimator, RobotHit};
+    use ttball::model::detection::{Detection, Source};
+    use ttball::online::estimator::{Estimator, RobotHit};
     let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
         .join("config/presets/rubber_inverted_offensive.yaml");
     let config = ttball::config::yaml::load(Some(&path), &[] as &[String]).unwrap();
@@ -978,8 +978,11 @@ fn return_scenario(seed: u64) -> ReturnScenario {
 /// per detection of the return flight, (seconds since the first one, landing error [m], velocity
 /// error [m/s]) of the estimate after it, or None before a track of the return exists; and the
 /// estimator's counters.
-fn simulated_return(announce: bool, seed: u64) -> (Vec<ReturnError>, ttball::estimator::Counters) {
-    use ttball::estimator::Estimator;
+fn simulated_return(
+    announce: bool,
+    seed: u64,
+) -> (Vec<ReturnError>, ttball::online::estimator::Counters) {
+    use ttball::online::estimator::Estimator;
     let scenario = return_scenario(seed);
     let mut estimator = Estimator::new(&scenario.config);
     if announce {
@@ -1018,10 +1021,10 @@ fn simulated_return(announce: bool, seed: u64) -> (Vec<ReturnError>, ttball::est
 #[test]
 fn a_recorded_robot_hit_seeds_the_return_in_the_replay() {
     use ttball::bag::BagWriter;
-    use ttball::msgs::convert::detection_to_msg;
-    use ttball::msgs::geometry_msgs::Vector3 as RosVector3;
-    use ttball::msgs::ttball_msgs::msg::RobotHit as RobotHitMsg;
-    use ttball::replay::{DETECTION_TYPE, ROBOT_HIT_TYPE};
+    use ttball::bag::replay::{DETECTION_TYPE, ROBOT_HIT_TYPE};
+    use ttball::ros::msgs::convert::detection_to_msg;
+    use ttball::ros::msgs::geometry_msgs::Vector3 as RosVector3;
+    use ttball::ros::msgs::ttball_msgs::msg::RobotHit as RobotHitMsg;
     let scenario = return_scenario(0x9e37_79b9);
     let dir = std::path::Path::new(env!("CARGO_TARGET_TMPDIR"))
         .join(format!("robot-hit-{}", std::process::id()));
@@ -1034,8 +1037,8 @@ fn a_recorded_robot_hit_seeds_the_return_in_the_replay() {
         z: v.z,
     };
     let hit_msg = |normal: Vector3<f64>| RobotHitMsg {
-        header: ttball::msgs::std_msgs::Header {
-            stamp: ttball::msgs::builtin_interfaces::Time::from_nanos(scenario.hit.stamp),
+        header: ttball::ros::msgs::std_msgs::Header {
+            stamp: ttball::ros::msgs::builtin_interfaces::Time::from_nanos(scenario.hit.stamp),
             frame_id: "table".into(),
         },
         racket_velocity: ros(&scenario.hit.racket.velocity),
@@ -1054,7 +1057,7 @@ fn a_recorded_robot_hit_seeds_the_return_in_the_replay() {
         &hit_msg(scenario.hit.racket.normal * 2.0),
     )
     .unwrap();
-    let write_detection = |w: &mut BagWriter<_>, d: &ttball::detection::Detection| {
+    let write_detection = |w: &mut BagWriter<_>, d: &ttball::model::detection::Detection| {
         w.write(
             detections,
             DETECTION_TYPE,
@@ -1079,7 +1082,8 @@ fn a_recorded_robot_hit_seeds_the_return_in_the_replay() {
     w.finish().unwrap();
     let cancel = std::sync::atomic::AtomicBool::new(false);
     let summary =
-        ttball::replay::replay(&input, &output, &scenario.config, &mut |_, _| {}, &cancel).unwrap();
+        ttball::bag::replay::replay(&input, &output, &scenario.config, &mut |_, _| {}, &cancel)
+            .unwrap();
     assert_eq!(summary.robot_hits_refused, 1);
     assert_eq!(summary.counters.seeded_by_hit, 1);
     assert_eq!(summary.counters.hits_not_seeded, 0);
@@ -1168,7 +1172,7 @@ fn the_return_after_an_announced_hit_is_tracked_from_its_first_detection() {
 /// hit whose return never shows is counted as having seeded nothing.
 #[test]
 fn an_announced_hit_waits_past_a_stray_detection_and_times_out_without_a_return() {
-    use ttball::estimator::Estimator;
+    use ttball::online::estimator::Estimator;
     let scenario = return_scenario(0x9e37_79b9 + 3);
     let run = |stray: bool, back: bool| {
         let mut estimator = Estimator::new(&scenario.config);

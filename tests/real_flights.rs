@@ -19,10 +19,11 @@ use std::path::PathBuf;
 use std::sync::OnceLock;
 
 use ttball::config::Config;
-use ttball::real::{
-    LauncherFlights, LeadOutcome, Plane, RealEvalOptions, RealReport, SpinKind, detect_bounce,
-    drag_only, evaluate_flights, parse_mpi_csv,
+use ttball::eval::real::{
+    LauncherFlights, LeadOutcome, Plane, RealEvalOptions, RealReport, SpinKind, drag_only,
+    evaluate_flights, parse_mpi_csv,
 };
+use ttball::offline::ballistic::detect_bounce;
 
 fn data_dir() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/data/mpi_launcher")
@@ -101,7 +102,7 @@ fn the_transform_puts_every_bounce_on_the_robots_half_at_one_radius() {
         e.x_extent.0,
         e.x_extent.1
     );
-    // The documented values (module doc of ttball::real::mpi).
+    // The documented values (module doc of ttball::eval::real::mpi).
     assert!((t.z_surface - 0.7396).abs() < 0.0005, "{t:?}");
     assert!((t.c_y - 0.005).abs() < 0.001, "{t:?}");
     assert_eq!(t.c_x, 1.37);
@@ -249,7 +250,8 @@ fn print_flights(report: &RealReport) {
                 c.bounce.velocity_after.z,
                 leads.join(" | "),
                 spin,
-                f.counters.rejected(ttball::estimator::Rejection::Gated)
+                f.counters
+                    .rejected(ttball::online::estimator::Rejection::Gated)
             ),
             Err(why) => println!(
                 "  {:8} {:2}: not scored: {}",

@@ -11,14 +11,14 @@
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
 
+use ttball::bag::record::write_session;
+use ttball::bag::replay::{DETECTION_TYPE, ReplayError, STATE_TYPE, replay};
 use ttball::bag::{BagWriter, decode, read_bag_file};
 use ttball::config::Config;
-use ttball::estimator::Rejection;
-use ttball::msgs::convert::detection_to_msg;
-use ttball::msgs::ttball_msgs::msg::{BallDetection, BallState, InterceptPrediction};
-use ttball::record::write_session;
-use ttball::replay::{DETECTION_TYPE, ReplayError, STATE_TYPE, replay};
-use ttball::sim::{Cameras, SimOptions, simulate};
+use ttball::eval::sim::{Cameras, SimOptions, simulate};
+use ttball::online::estimator::Rejection;
+use ttball::ros::msgs::convert::detection_to_msg;
+use ttball::ros::msgs::ttball_msgs::msg::{BallDetection, BallState, InterceptPrediction};
 
 fn dir(name: &str) -> PathBuf {
     let d = Path::new(env!("CARGO_TARGET_TMPDIR"))
@@ -27,7 +27,7 @@ fn dir(name: &str) -> PathBuf {
     d
 }
 
-fn simulated_bag(path: &Path, shots: usize) -> ttball::sim::Session {
+fn simulated_bag(path: &Path, shots: usize) -> ttball::eval::sim::Session {
     let config = Config::default();
     let session = simulate(
         &config,
@@ -43,7 +43,7 @@ fn simulated_bag(path: &Path, shots: usize) -> ttball::sim::Session {
     session
 }
 
-fn run(input: &Path, output: &Path) -> Result<ttball::replay::ReplaySummary, ReplayError> {
+fn run(input: &Path, output: &Path) -> Result<ttball::bag::replay::ReplaySummary, ReplayError> {
     replay(
         input,
         output,

@@ -13,11 +13,11 @@ use std::process::Command;
 
 use nalgebra::Vector3;
 use ttball::config::Config;
-use ttball::physics::racket::{RacketModel, RacketState};
-use ttball::physics::state::BallState;
-use ttball::rebound_calibration::{
+use ttball::offline::rebound_calibration::{
     HitSet, HitsError, RubberCalibration, RubberCalibrationError, RubberOptions, calibrate_rubber,
 };
+use ttball::physics::racket::{RacketModel, RacketState};
+use ttball::physics::state::BallState;
 
 fn racket_file(racket: &str) -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR"))

@@ -11,11 +11,11 @@ use std::sync::OnceLock;
 
 use nalgebra::Vector3;
 use ttball::config::Config;
-use ttball::detection::Source;
-use ttball::physics::{BallState, Cursor, EventKind, PredictOptions, Propagator, Watch, predict};
-use ttball::sim::{
+use ttball::eval::sim::{
     Cameras, DEFAULT_EPOCH, Session, ShotKind, SimDetection, SimError, SimOptions, simulate,
 };
+use ttball::model::detection::Source;
+use ttball::physics::{BallState, Cursor, EventKind, PredictOptions, Propagator, Watch, predict};
 
 const SHOTS: usize = 40;
 

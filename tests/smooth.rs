@@ -14,7 +14,7 @@ use std::collections::BTreeMap;
 
 use common::{ok, run, scratch};
 use ttball::bag::{decode, read_bag_file};
-use ttball::msgs::ttball_msgs::msg::{BallDetection, BallState};
+use ttball::ros::msgs::ttball_msgs::msg::{BallDetection, BallState};
 
 /// (stamp in ns, track) of every message of `topic`.
 fn states(path: &std::path::Path, topic: &str) -> Vec<(i64, u32, BallState)> {

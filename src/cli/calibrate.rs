@@ -7,13 +7,13 @@ use std::process::ExitCode;
 
 use anyhow::{Context, bail};
 use clap::{Args, ValueEnum};
-use ttball::calibrate::{
+use ttball::bag::replay::read_detections;
+use ttball::config::Config;
+use ttball::offline::calibrate::{
     Calibration, FlightInput, FlightLabel, Holdout, Options, Parameter, calibrate, holdout,
 };
-use ttball::config::Config;
+use ttball::offline::smooth::split_flights;
 use ttball::plot::ChartOptions;
-use ttball::replay::read_detections;
-use ttball::smooth::split_flights;
 
 use super::{BadUsage, ConfigArgs, write_stdout};
 

@@ -6,10 +6,10 @@ use std::process::ExitCode;
 
 use anyhow::{Context, bail};
 use ttball::config::Config;
-use ttball::plot::ChartOptions;
-use ttball::rebound_calibration::{
+use ttball::offline::rebound_calibration::{
     GroupErrors, HitSet, RubberCalibration, RubberOptions, calibrate_rubber, rejected_by_reason,
 };
+use ttball::plot::ChartOptions;
 
 use super::calibrate::{CalibrateArgs, Group};
 use super::{BadUsage, write_stdout};

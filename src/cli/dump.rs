@@ -9,11 +9,14 @@ use anyhow::Context;
 use clap::Args;
 use serde_json::{Value, json};
 use ttball::bag::{DecodeError, decode, read_bag_file};
-use ttball::msgs::nav_msgs::Odometry;
-use ttball::msgs::ttball_msgs::msg::{
+use ttball::ros::msgs::nav_msgs::Odometry;
+use ttball::ros::msgs::ttball_msgs::msg::{
     BallDetection, BallState, InterceptPrediction, PredictedTrajectory,
 };
-use ttball::msgs::visualization_msgs::MarkerArray;
+use ttball::ros::msgs::type_names::{
+    DETECTION_TYPE, INTERCEPT_TYPE, MARKERS_TYPE, ODOMETRY_TYPE, STATE_TYPE, TRAJECTORY_TYPE,
+};
+use ttball::ros::msgs::visualization_msgs::MarkerArray;
 
 /// Arguments of `ttball dump`.
 #[derive(Debug, Args)]
@@ -37,12 +40,12 @@ fn to_json<T: serde::de::DeserializeOwned + serde::Serialize>(
 /// The message as JSON, for the types ttball knows.
 fn decode_json(schema: &str, data: &[u8]) -> Option<Result<Value, DecodeError>> {
     Some(match schema {
-        "ttball_msgs/msg/BallDetection" => to_json::<BallDetection>(data),
-        "ttball_msgs/msg/BallState" => to_json::<BallState>(data),
-        "ttball_msgs/msg/InterceptPrediction" => to_json::<InterceptPrediction>(data),
-        "ttball_msgs/msg/PredictedTrajectory" => to_json::<PredictedTrajectory>(data),
-        "visualization_msgs/msg/MarkerArray" => to_json::<MarkerArray>(data),
-        "nav_msgs/msg/Odometry" => to_json::<Odometry>(data),
+        DETECTION_TYPE => to_json::<BallDetection>(data),
+        STATE_TYPE => to_json::<BallState>(data),
+        INTERCEPT_TYPE => to_json::<InterceptPrediction>(data),
+        TRAJECTORY_TYPE => to_json::<PredictedTrajectory>(data),
+        MARKERS_TYPE => to_json::<MarkerArray>(data),
+        ODOMETRY_TYPE => to_json::<Odometry>(data),
         _ => return None,
     })
 }

@@ -6,15 +6,15 @@ use std::process::ExitCode;
 
 use anyhow::Context;
 use clap::{Args, ValueEnum};
+use ttball::eval::real::{LauncherFlights, RealEvalOptions, SpinKind, evaluate_flights};
 use ttball::eval::sets::{
     LeadComparison, SETTLE_FLIGHTS, SetReport, TrialSet, run_set, standard_sets,
 };
+use ttball::eval::sim::{Cameras, SimOptions, simulate};
 use ttball::eval::{
     BatchPhysics, Comparison, Efficiency, EvalReport, efficiency, evaluate_learning,
 };
 use ttball::physics::PhysicsParams;
-use ttball::real::{LauncherFlights, RealEvalOptions, SpinKind, evaluate_flights};
-use ttball::sim::{Cameras, SimOptions, simulate};
 
 use super::report::accuracy_table;
 use super::{ConfigArgs, write_stdout};

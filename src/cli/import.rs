@@ -6,12 +6,12 @@ use std::process::ExitCode;
 
 use anyhow::{Context, bail};
 use clap::{Args, Subcommand};
-use ttball::detection::{Source, seconds_to_ns};
-use ttball::real::mpi::{
+use ttball::bag::record::write_detections;
+use ttball::eval::real::mpi::{
     RawFlight, SpinKind, estimate_transform, flight_detections, parse_mpi_csv,
 };
-use ttball::record::write_detections;
-use ttball::sim::DEFAULT_EPOCH;
+use ttball::eval::sim::DEFAULT_EPOCH;
+use ttball::model::detection::{Source, seconds_to_ns};
 
 use super::{ConfigArgs, write_stdout};
 

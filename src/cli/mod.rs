@@ -145,7 +145,7 @@ pub enum Command {
 
     /// Predict what a racket hit does: rebound, spin, contact time and forces, wrist load, landing.
     ///
-    /// The racket impact model (Kawazoe & Suzuki, seeds 000 and 001): reduced mass of the racket
+    /// The racket impact model (Kawazoe & Suzuki; Kawazoe et al. 2010): reduced mass of the racket
     /// and arm at the impact point, velocity-dependent restitution, contact time and force from
     /// the ball-rubber restoring characteristic, spin from the rubber's friction, the force on
     /// the grip; then the return flight to its first bounce. The default ball is a real rally

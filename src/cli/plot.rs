@@ -13,14 +13,14 @@ use std::process::ExitCode;
 use anyhow::{Context, bail};
 use clap::Args;
 use ttball::bag::decode;
-use ttball::detection::seconds_to_ns;
-use ttball::estimator::{Estimator, TrackStatus};
-use ttball::msgs::convert::state_from_msg;
-use ttball::msgs::ttball_msgs::msg::BallState;
+use ttball::bag::replay::read_detections;
+use ttball::model::detection::seconds_to_ns;
+use ttball::online::estimator::{Estimator, TrackStatus};
 use ttball::plot::{
     PlotData, PlotOptions, PlotTrajectory, PlotTruth, Selection, render_png, render_svg,
 };
-use ttball::replay::read_detections;
+use ttball::ros::msgs::convert::state_from_msg;
+use ttball::ros::msgs::ttball_msgs::msg::BallState;
 
 use super::{ConfigArgs, write_stdout};
 

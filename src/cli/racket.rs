@@ -1,7 +1,7 @@
 //! `ttball rebound` and `ttball aim`: the racket impact model from the command line. `rebound`
 //! predicts what a given stroke does to a given ball; `aim` finds the stroke that returns the
 //! ball to a target. Both run the same core as the node's `~/predict_rebound` and
-//! `~/plan_return` ([`ttball::stroke::Stroke`]).
+//! `~/plan_return` ([`ttball::online::stroke::Stroke`]).
 
 use std::fmt::Write as _;
 use std::path::PathBuf;
@@ -11,8 +11,8 @@ use anyhow::Context;
 use clap::Args;
 use nalgebra::{Vector2, Vector3};
 use ttball::config::Config;
+use ttball::online::stroke::{Aim, Plan, Rebound, ReturnCondition, Stroke};
 use ttball::physics::{BallState, BounceRegime, RacketState, StateMatrix, StateVector};
-use ttball::stroke::{Aim, Plan, Rebound, ReturnCondition, Stroke};
 
 use super::predict::{parse_numbers, parse_vector};
 use super::{BadUsage, ConfigArgs, write_stdout};
@@ -164,7 +164,7 @@ impl ReboundArgs {
             let mut out = String::new();
             let _ = writeln!(
                 out,
-                "Racket impact (Kawazoe & Suzuki; physics.md \"Racket impact\")"
+                "Racket impact (Kawazoe & Suzuki; docs/models.md \"Racket impact\")"
             );
             describe_rebound(&mut out, &config, &ball, &racket, &rebound);
             write_stdout(&out)?;
@@ -373,7 +373,7 @@ fn rebound_json(rebound: &Rebound) -> serde_json::Value {
         "wrist_force": hit.wrist.peak_force,
         "grip_acceleration": hit.wrist.peak_acceleration,
         "outcome": flight.outcome.describe(),
-        "lands_on_table": flight.outcome == ttball::stroke::ReturnOutcome::Lands,
+        "lands_on_table": flight.outcome == ttball::online::stroke::ReturnOutcome::Lands,
         "landing": flight.landing.map(|(t, s)| serde_json::json!({
             "time": t,
             "position": s.position.as_slice(),

@@ -8,11 +8,11 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 
 use anyhow::{Context, bail};
 use clap::Args;
-use ttball::ekf::NoiseScales;
-use ttball::estimator::{LearnedModelNoise, LearnedParams, LearnedSourceNoise, Rejection};
-use ttball::live_view::LiveView;
+use ttball::bag::live_view::LiveView;
+use ttball::bag::replay::{ReplaySummary, replay, replay_observed};
+use ttball::online::ekf::NoiseScales;
+use ttball::online::estimator::{LearnedModelNoise, LearnedParams, LearnedSourceNoise, Rejection};
 use ttball::physics::PhysicsParams;
-use ttball::replay::{ReplaySummary, replay, replay_observed};
 
 use super::report::accuracy_table;
 use super::{ConfigArgs, cancel_on_interrupt, progress_bar, write_stdout};

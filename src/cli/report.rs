@@ -3,7 +3,8 @@
 
 use std::fmt::Write as _;
 
-use ttball::eval::{ErrorStats, EvalReport};
+use ttball::eval::EvalReport;
+use ttball::model::stats::ErrorStats;
 
 fn stats_mm(s: &ErrorStats) -> String {
     format!(

@@ -5,8 +5,8 @@ use std::process::ExitCode;
 
 use anyhow::Context;
 use clap::{Args, ValueEnum};
-use ttball::record::write_session;
-use ttball::sim::{Cameras, SimOptions, simulate};
+use ttball::bag::record::write_session;
+use ttball::eval::sim::{Cameras, SimOptions, simulate};
 
 use super::{ConfigArgs, write_stdout};
 

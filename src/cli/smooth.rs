@@ -6,7 +6,7 @@ use std::process::ExitCode;
 
 use anyhow::{Context, bail};
 use clap::Args;
-use ttball::replay::{SmoothSummary, smooth_bag};
+use ttball::bag::replay::{SmoothSummary, smooth_bag};
 
 use super::{BadUsage, ConfigArgs, cancel_on_interrupt, progress_bar, write_stdout};
 

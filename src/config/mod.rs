@@ -12,7 +12,7 @@ use std::collections::BTreeMap;
 
 use serde::{Deserialize, Serialize};
 
-use crate::detection::Source;
+use crate::model::detection::Source;
 
 pub mod names;
 mod validate;
@@ -21,7 +21,7 @@ pub mod yaml;
 
 pub use validate::{ConfigError, Violation};
 
-/// The ball (ITTF 40+ ball by default; physics.md "Frames, units, time").
+/// The ball (ITTF 40+ ball by default; docs/models.md "Frames, units and time").
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct BallParams {
@@ -63,7 +63,7 @@ impl Default for AirParams {
 /// inline ([`crate::physics::aero::Polynomial`]), so validation refuses longer lists.
 pub const MAX_POLYNOMIAL_COEFFICIENTS: usize = 8;
 
-/// Spin-parameter aerodynamic model (Isomura et al., seed 004, Table 3; physics.md "Flight").
+/// Spin-parameter aerodynamic model (Isomura et al. 2014, Table 3; docs/models.md "Flight").
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct AeroParams {
@@ -96,7 +96,7 @@ impl Default for AeroParams {
 }
 
 impl AeroParams {
-    /// The seed's polynomials (Isomura et al. 2014, seed 004 Table 3), a CFD fit for an older
+    /// The seed's polynomials (Isomura et al. 2014, Table 3), a CFD fit for an older
     /// ball: `config/presets/seed_2014.yaml`.
     pub fn seed_2014() -> Self {
         Self {
@@ -110,7 +110,7 @@ impl AeroParams {
     }
 }
 
-/// Table geometry (ITTF) and the bounce model (Nakashima et al., ACC 2010; physics.md "Table bounce").
+/// Table geometry (ITTF) and the bounce model (Nakashima et al., ACC 2010; docs/models.md "Table bounce").
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct TableParams {
@@ -147,7 +147,7 @@ impl Default for TableParams {
 /// Standard gravity [m/s^2].
 pub const STANDARD_GRAVITY: f64 = 9.80665;
 
-/// The seed racket of Kawazoe & Suzuki (seed 000; physics.md "Racket impact").
+/// The seed racket of Kawazoe & Suzuki (Kawazoe & Suzuki; docs/models.md "Racket impact").
 ///
 /// Used by the racket-impact model: the reduced mass of the racket at the impact point,
 /// M_r = I_G M_R / (I_G + M_R b^2), and the force transmitted to the grip.
@@ -161,7 +161,7 @@ pub struct RacketParams {
     /// Moment of inertia I_G about the centre of gravity, for rotation in the plane of the long
     /// axis and the face normal [kg m^2]. Seed racket: 2.51 g m^2; the transcription says "about
     /// the grip", but only the centre-of-gravity reading reproduces the paper's 78.1 g reduced
-    /// mass at b = 0.132 m (physics.md).
+    /// mass at b = 0.132 m (docs/models.md).
     pub inertia_about_center_of_gravity: f64,
     /// Moment of inertia about the racket's long axis [kg m^2]. Seed racket: 0.26 g m^2.
     pub inertia_about_long_axis: f64,
@@ -174,14 +174,14 @@ pub struct RacketParams {
     /// closer to the grip are refused. The seeds give no value; 100 mm is a common handle length.
     pub face_start_from_grip_end: f64,
     /// The farthest impact point along the long axis, from the grip end [m]. Seed racket: the top
-    /// point A at b = 132 mm from the centre of gravity, 279 mm from the grip end (seed 000).
+    /// point A at b = 132 mm from the centre of gravity, 279 mm from the grip end (Kawazoe & Suzuki).
     pub face_end_from_grip_end: f64,
     /// Coefficient of restitution of the ball on the clamped rubber, e_RB(V) = c0 + c1 V + ...,
-    /// V the normal impact speed [m/s], lowest order first; clamped to [0, 1]. Seed 000 eq. (2):
+    /// V the normal impact speed [m/s], lowest order first; clamped to [0, 1]. Kawazoe & Suzuki eq. (2):
     /// 0.77 - 0.0123 V (38 mm ball on Tamas SRIVER, 1.9 mm sponge).
     pub rubber_restitution: Vec<f64>,
     /// Coulomb friction coefficient between ball and rubber [-]: the tangential impulse is at most
-    /// this times the normal impulse (physics.md "Racket impact"; source in config/ttball.yaml).
+    /// this times the normal impulse (docs/models.md "Racket impact"; source in config/ttball.yaml).
     pub rubber_friction: f64,
     /// Tangential coefficient of restitution of ball on rubber, e_t [-], in [-1, 1]: where the
     /// rubber grips the ball, the contact point's tangential velocity relative to the face
@@ -205,12 +205,12 @@ pub struct RacketParams {
     /// landing covariance of a planned return includes it. Default [0, 0].
     pub rebound_scatter: Vec<f64>,
     /// Restoring characteristic of the ball-rubber system, F = f(K) = c0 + c1 K + c2 K^2 + ...
-    /// with F [N] and K = dF/dX [N/m], lowest order first (seed 000 eq. (1) is this curve in kgf
+    /// with F [N] and K = dF/dX [N/m], lowest order first (Kawazoe & Suzuki eq. (1) is this curve in kgf
     /// and kgf/mm: multiply c_i by 9.80665 / 9806.65^i). Default and source in
     /// config/ttball.yaml.
     pub restoring_force_vs_stiffness: Vec<f64>,
     /// Natural frequencies of the racket plate's modes counted in the vibration loss [Hz]
-    /// (seed 000 eq. 14-20). Empty (default): no vibration loss, as the seed concludes it is
+    /// (Kawazoe & Suzuki eq. 14-20). Empty (default): no vibration loss, as the seed concludes it is
     /// negligible.
     pub vibration_mode_frequencies: Vec<f64>,
     /// Modal mass of each of those modes at the impact point [kg] (1 / squared mass-normalised
@@ -250,16 +250,16 @@ pub const RUBBER_FRICTION: f64 = 1.0;
 /// reproduce a published contact time (source in config/ttball.yaml).
 pub const HERTZ_RESTORING_CUBIC: f64 = 2.3834e-12;
 
-/// What holds the racket (Kawazoe & Suzuki, seed 000 eq. 5-6; seed 001 eq. 23-26).
+/// What holds the racket (Kawazoe & Suzuki eq. 5-6; Kawazoe et al. 2010 eq. 23-26).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct ArmParams {
     /// Equivalent mass M_H of the arm or robot wrist, lumped at the grip [kg]. Human arm: about
-    /// 1.0 kg (0.97 kg for a 60 kg, 170 cm player, seed 000). A robot sets its wrist's effective
+    /// 1.0 kg (0.97 kg for a 60 kg, 170 cm player, Kawazoe & Suzuki). A robot sets its wrist's effective
     /// mass at the grip; a large value approximates a rigidly held racket, 0 a free racket.
     pub equivalent_mass: f64,
     /// Where that mass is attached: the hand's or the wrist flange's distance from the grip end
-    /// [m] (L_H of seed 001 eq. 24-26).
+    /// [m] (L_H of Kawazoe et al. 2010 eq. 24-26).
     pub grip_from_grip_end: f64,
 }
 
@@ -401,7 +401,7 @@ pub struct SourceParams {
     pub frame_rate: f64,
 }
 
-/// Measurement noise per camera source (physics.md "Cameras in the seed setup"), each matched
+/// Measurement noise per camera source (docs/models.md "Cameras"), each matched
 /// to detections by its `id`. The two cameras of the seed setup and `unknown` are always there;
 /// more cameras are added by name (`sources.side_camera.id: 3`, ...).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -525,7 +525,7 @@ pub struct EkfParams {
     /// The scatter of one bounce's restitution about the table's [-].
     pub bounce_restitution_sigma: f64,
     /// The extra position noise of a detection of a ball at the table (its centre within
-    /// [`CONTACT_BAND`](crate::estimator::CONTACT_BAND) of its contact height over the table)
+    /// [`CONTACT_BAND`](crate::online::estimator::CONTACT_BAND) of its contact height over the table)
     /// [m], added in quadrature to its source's: a ball touching or nearly touching the surface
     /// merges with its reflection and shadow in the image, and is squashed for a millisecond.
     pub contact_position_sigma: f64,

@@ -15,15 +15,20 @@
 
 use nalgebra::{Matrix2, Vector2, Vector3};
 
-use crate::batch::fit_whole_flight;
 use crate::config::Config;
-use crate::detection::{Detection, Source, seconds_to_ns};
-use crate::estimator::{Counters, Estimate, Estimator, Output, Rejection, TrackStatus, Verdict};
-use crate::intercept::{InterceptQuery, predict_intercept};
+use crate::eval::sim::Session;
+use crate::model::detection::{Detection, Source, seconds_to_ns};
+use crate::model::stats::ErrorStats;
+use crate::offline::batch::fit_whole_flight;
+use crate::online::estimator::{
+    Counters, Estimate, Estimator, Output, Rejection, TrackStatus, Verdict,
+};
+use crate::online::intercept::{InterceptQuery, predict_intercept};
 use crate::physics::{BallState, Propagator};
-use crate::sim::Session;
 
+pub mod real;
 pub mod sets;
+pub mod sim;
 
 /// The leads before the true crossing at which interceptions are scored [s].
 pub const LEADS: [f64; 3] = [0.3, 0.2, 0.1];
@@ -38,37 +43,6 @@ pub const BOUNCE_WINDOW: f64 = 0.002;
 /// A good detection gated this soon after the true bounce [s] counts against the bounce
 /// model's uncertainty ([`EvalReport::gated_after_bounce_shots`]).
 pub const AFTER_BOUNCE: f64 = 0.05;
-
-/// Root mean square, median and count of a set of errors.
-#[derive(Debug, Clone, Copy, PartialEq, Default, serde::Serialize)]
-pub struct ErrorStats {
-    /// Number of values.
-    pub count: usize,
-    /// Root mean square.
-    pub rms: f64,
-    /// Median of the absolute values.
-    pub median: f64,
-    /// 95th percentile of the absolute values.
-    pub p95: f64,
-}
-
-impl ErrorStats {
-    /// The statistics of `values` (absolute values for the median and percentile).
-    pub fn of(values: &[f64]) -> Self {
-        if values.is_empty() {
-            return Self::default();
-        }
-        let mut sorted: Vec<f64> = values.iter().map(|v| v.abs()).collect();
-        sorted.sort_by(f64::total_cmp);
-        let at = |q: f64| sorted[((sorted.len() - 1) as f64 * q).round() as usize];
-        Self {
-            count: values.len(),
-            rms: (values.iter().map(|v| v * v).sum::<f64>() / values.len() as f64).sqrt(),
-            median: at(0.5),
-            p95: at(0.95),
-        }
-    }
-}
 
 /// Interception accuracy at one lead.
 #[derive(Debug, Clone, Copy, PartialEq, Default, serde::Serialize)]
@@ -142,8 +116,8 @@ pub struct ShotTruth {
     pub intercept_spin: Vector3<f64>,
 }
 
-impl From<&crate::sim::ShotTruth> for ShotTruth {
-    fn from(shot: &crate::sim::ShotTruth) -> Self {
+impl From<&crate::eval::sim::ShotTruth> for ShotTruth {
+    fn from(shot: &crate::eval::sim::ShotTruth) -> Self {
         Self {
             bounce_stamp: shot.bounce.stamp,
             intercept_stamp: shot.intercept.stamp,
@@ -422,9 +396,9 @@ pub fn evaluate(config: &Config, session: &Session) -> EvalReport {
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Learning {
     /// The physical parameters and their flight-to-flight dispersion.
-    pub params: crate::estimator::LearnedParams,
+    pub params: crate::online::estimator::LearnedParams,
     /// The process noise and bounce scatter scales.
-    pub model_noise: crate::estimator::LearnedModelNoise,
+    pub model_noise: crate::online::estimator::LearnedModelNoise,
 }
 
 /// [`evaluate`], with what the estimator had learned at the end.
@@ -444,9 +418,9 @@ pub(crate) struct Run {
     pub(crate) scorer: Scorer,
     pub(crate) counters: Counters,
     /// The physical parameters it had learned at the end.
-    pub(crate) learned: crate::estimator::LearnedParams,
+    pub(crate) learned: crate::online::estimator::LearnedParams,
     /// How far it had learned the flights stray from its model, at the end.
-    pub(crate) model_noise: crate::estimator::LearnedModelNoise,
+    pub(crate) model_noise: crate::online::estimator::LearnedModelNoise,
     /// The physical parameters it had learned when each shot's first detection came.
     pub(crate) physics_at_start: Vec<Option<crate::physics::PhysicsParams>>,
 }
@@ -542,7 +516,7 @@ pub struct Efficiency {
     pub spin_before_high_speed: Comparison,
 }
 
-/// The filter's efficiency ([`Efficiency`]), against the batch fit ([`crate::batch`]) of the
+/// The filter's efficiency ([`Efficiency`]), against the batch fit ([`crate::offline::batch`]) of the
 /// same detections (all of the shot's that had arrived when the filter published, outliers
 /// included) at the same stamps, with the configured physics and with the physics the estimator
 /// had learned when the shot began. At each of [`LEADS`] the interception the filter published

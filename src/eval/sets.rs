@@ -17,11 +17,12 @@
 //! 200 ms lead over the shots after the first [`SETTLE_FLIGHTS`] against the reference's, and
 //! the learned parameters against the truth.
 
-use super::{ErrorStats, EvalReport, LEADS, run};
+use super::{EvalReport, LEADS, run};
 use crate::config::Config;
-use crate::estimator::LearnedParams;
+use crate::eval::sim::{Cameras, SimError, SimOptions, Spread, simulate};
+use crate::model::stats::ErrorStats;
+use crate::online::estimator::LearnedParams;
 use crate::physics::PhysicsParams;
-use crate::sim::{Cameras, SimError, SimOptions, Spread, simulate};
 
 /// Flights the adaptation is given before the interception is compared with the reference's.
 pub const SETTLE_FLIGHTS: usize = 10;
@@ -209,7 +210,7 @@ pub struct SetReport {
     /// What the filter learned of the physics by the end.
     pub learned: LearnedParams,
     /// What it learned of how far the flights stray from its model by the end.
-    pub model_noise: crate::estimator::LearnedModelNoise,
+    pub model_noise: crate::online::estimator::LearnedModelNoise,
     /// The true physics.
     pub truth: PhysicsParams,
 }
@@ -283,12 +284,12 @@ pub fn sim_options(filter: &Config, set: &TrialSet, shots: usize, seed: u64) -> 
     if set.play == Play::Elite {
         let random = &mut params.shots.random;
         params.shots.real_fraction = 0.0;
-        random.speed = crate::sim::Interval::new(3.0, 28.0);
+        random.speed = crate::eval::sim::Interval::new(3.0, 28.0);
         random.speed_spread = Some(Spread {
             median: 9.0,
             p90: 18.0,
         });
-        random.spin = crate::sim::Interval::new(0.0, 960.0);
+        random.spin = crate::eval::sim::Interval::new(0.0, 960.0);
         random.spin_spread = Some(Spread {
             median: 290.0,
             p90: 690.0,

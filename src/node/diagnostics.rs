@@ -5,14 +5,14 @@
 //! STALE when it falls silent while the others deliver). Pure: the caller passes the clock
 //! readings.
 
-use crate::ekf::NoiseScales;
-use crate::estimator::{Counters, Rejection};
-use crate::estimator::{LearnedModelNoise, LearnedParams, LearnedSourceNoise};
-use crate::msgs::builtin_interfaces::Time;
-use crate::msgs::diagnostic_msgs::{DiagnosticArray, DiagnosticStatus, KeyValue};
-use crate::msgs::std_msgs::Header;
+use crate::model::stats::DurationSummary;
+use crate::online::ekf::NoiseScales;
+use crate::online::estimator::{Counters, Rejection};
+use crate::online::estimator::{LearnedModelNoise, LearnedParams, LearnedSourceNoise};
 use crate::physics::PhysicsParams;
-use crate::stats::DurationSummary;
+use crate::ros::msgs::builtin_interfaces::Time;
+use crate::ros::msgs::diagnostic_msgs::{DiagnosticArray, DiagnosticStatus, KeyValue};
+use crate::ros::msgs::std_msgs::Header;
 
 /// What happened to detections before they reached the estimator, and to the node's outputs.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
@@ -561,7 +561,7 @@ mod tests {
             source: source.to_owned(),
             position_sigma,
             stamp_sigma,
-            estimate: crate::estimator::SourceNoiseEstimate {
+            estimate: crate::online::estimator::SourceNoiseEstimate {
                 position_scale: 1.0,
                 timing_variance: stamp_sigma * stamp_sigma,
                 spin_scale: 1.0,

@@ -8,7 +8,7 @@
 use std::collections::VecDeque;
 use std::time::Instant;
 
-use crate::msgs::ttball_msgs::msg::BallDetection;
+use crate::ros::msgs::ttball_msgs::msg::BallDetection;
 
 /// A detection taken off DDS, with the instant DDS received it.
 pub type Queued = (BallDetection, Instant);

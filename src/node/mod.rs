@@ -51,27 +51,30 @@ pub use diagnostics::{
 };
 pub use play::{Latency, LatencyReport, PlayOptions, PlaySummary, play};
 
+use crate::bag::live_view::LiveView;
 use crate::bag::mcap_time;
-use crate::config::{Config, SourceIndex};
-use crate::detection::Source;
-use crate::estimator::{Counters, Verdict};
-use crate::live_view::LiveView;
-use crate::msgs::diagnostic_msgs::DiagnosticArray;
-use crate::msgs::geometry_msgs::{Quaternion, Transform, TransformStamped, Vector3};
-use crate::msgs::nav_msgs::Odometry;
-use crate::msgs::rosgraph_msgs::Clock;
-use crate::msgs::std_msgs::Header;
-use crate::msgs::tf2_msgs::TFMessage;
-use crate::msgs::ttball_msgs::msg::{
-    BallDetection, BallState, InterceptPrediction, PredictedTrajectory, RobotHit,
-};
-use crate::msgs::visualization_msgs::MarkerArray;
-use crate::pipeline::{Pipeline, Published};
-use crate::replay::{
+use crate::bag::replay::{
     DETECTION_TYPE, INTERCEPT_TYPE, MARKERS_TYPE, ROBOT_HIT_TYPE, STATE_TYPE, TRAJECTORY_TYPE,
 };
-use crate::replay::{ODOMETRY_TYPE, TF_MESSAGE_TYPE, TF_STATIC_TOPIC};
-use crate::stats::{DurationHistogram, DurationSummary};
+use crate::bag::replay::{ODOMETRY_TYPE, TF_MESSAGE_TYPE, TF_STATIC_TOPIC};
+use crate::config::{Config, SourceIndex};
+use crate::model::detection::Source;
+use crate::model::stats::{DurationHistogram, DurationSummary};
+use crate::online::estimator::{Counters, Verdict};
+use crate::ros::msgs::diagnostic_msgs::DiagnosticArray;
+use crate::ros::msgs::geometry_msgs::{Quaternion, Transform, TransformStamped, Vector3};
+use crate::ros::msgs::nav_msgs::Odometry;
+use crate::ros::msgs::rosgraph_msgs::Clock;
+use crate::ros::msgs::std_msgs::Header;
+use crate::ros::msgs::tf2_msgs::TFMessage;
+use crate::ros::msgs::ttball_msgs::msg::{
+    BallDetection, BallState, InterceptPrediction, PredictedTrajectory, RobotHit,
+};
+pub use crate::ros::msgs::type_names::{
+    CLOCK_TYPE, DIAGNOSTICS_TYPE, PLAN_RETURN_TYPE, PREDICT_REBOUND_TYPE, PREDICT_TRAJECTORY_TYPE,
+};
+use crate::ros::msgs::visualization_msgs::MarkerArray;
+use crate::ros::pipeline::{Pipeline, Published};
 use intake::{DetectionQueue, Queued, SequenceGaps};
 use parameters::Parameters;
 use ros2_client::parameters::raw::ParameterEvent;
@@ -82,23 +85,13 @@ impl ros2_client::Message for Clock {}
 impl ros2_client::Message for TFMessage {}
 impl ros2_client::Message for RobotHit {}
 
-/// ROS 2 type of `/diagnostics`.
-pub const DIAGNOSTICS_TYPE: &str = "diagnostic_msgs/msg/DiagnosticArray";
-/// ROS 2 type of the `~/predict_trajectory` service.
-pub const PREDICT_TRAJECTORY_TYPE: &str = "ttball_msgs/srv/PredictTrajectory";
 /// Base name of the trajectory service, private to the node (`~/predict_trajectory`).
 pub const PREDICT_TRAJECTORY_SERVICE: &str = "predict_trajectory";
-/// ROS 2 type of the `~/predict_rebound` service.
-pub const PREDICT_REBOUND_TYPE: &str = "ttball_msgs/srv/PredictRebound";
 /// Base name of the rebound service, private to the node (`~/predict_rebound`).
 pub const PREDICT_REBOUND_SERVICE: &str = "predict_rebound";
-/// ROS 2 type of the `~/plan_return` service.
-pub const PLAN_RETURN_TYPE: &str = "ttball_msgs/srv/PlanReturn";
 /// Base name of the racket command service, private to the node (`~/plan_return`).
 pub const PLAN_RETURN_SERVICE: &str = "plan_return";
 
-/// ROS 2 type of `/clock`.
-pub const CLOCK_TYPE: &str = "rosgraph_msgs/msg/Clock";
 /// The simulated time's topic, followed with `use_sim_time`.
 pub const CLOCK_TOPIC: &str = "/clock";
 
@@ -127,10 +120,10 @@ pub enum NodeError {
     Thread(String),
     /// Reading the bag to play failed.
     #[error(transparent)]
-    Replay(#[from] crate::replay::ReplayError),
+    Replay(#[from] crate::bag::replay::ReplayError),
     /// The Foxglove live view could not start.
     #[error(transparent)]
-    LiveView(#[from] crate::live_view::LiveViewError),
+    LiveView(#[from] crate::bag::live_view::LiveViewError),
 }
 
 /// Where the node runs: DDS domain and interfaces. [`Placement::from_env`] reads them as ROS 2
@@ -608,7 +601,7 @@ fn table_transform(config: &Config, stamp: i64) -> Option<TFMessage> {
     (!parent.is_empty()).then(|| TFMessage {
         transforms: vec![TransformStamped {
             header: Header {
-                stamp: crate::msgs::builtin_interfaces::Time::from_nanos(stamp),
+                stamp: crate::ros::msgs::builtin_interfaces::Time::from_nanos(stamp),
                 frame_id: parent.to_owned().into(),
             },
             child_frame_id: config.frames.table_frame.clone(),

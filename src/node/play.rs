@@ -21,12 +21,12 @@ use ros2_client::{NodeName, Publisher, Subscription};
 use tracing::{info, warn};
 
 use super::{NodeError, Placement, dds};
+use crate::bag::replay::{INTERCEPT_TYPE, STATE_TYPE, detection_channel};
 use crate::bag::{decode, read_bag_file};
 use crate::config::Config;
-use crate::msgs::builtin_interfaces::Time;
-use crate::msgs::ttball_msgs::msg::{BallDetection, BallState, InterceptPrediction};
-use crate::replay::{INTERCEPT_TYPE, STATE_TYPE, detection_channel};
-use crate::stats::DurationHistogram;
+use crate::model::stats::DurationHistogram;
+use crate::ros::msgs::builtin_interfaces::Time;
+use crate::ros::msgs::ttball_msgs::msg::{BallDetection, BallState, InterceptPrediction};
 
 /// How to play.
 #[derive(Debug, Clone, PartialEq)]
@@ -178,7 +178,7 @@ pub fn play(
     cancel: &AtomicBool,
     progress: &mut dyn FnMut(u64, u64),
 ) -> Result<PlaySummary, NodeError> {
-    let contents = read_bag_file(bag).map_err(crate::replay::ReplayError::from)?;
+    let contents = read_bag_file(bag).map_err(crate::bag::replay::ReplayError::from)?;
     let channel = detection_channel(
         &contents.channels,
         &config.resolved_topics().detections,

@@ -22,12 +22,12 @@ use super::{
     PREDICT_REBOUND_TYPE, PREDICT_TRAJECTORY_SERVICE, PREDICT_TRAJECTORY_TYPE,
 };
 use crate::config;
-use crate::msgs::std_srvs::{TriggerRequest, TriggerResponse};
-use crate::msgs::ttball_msgs::srv::{
+use crate::ros::msgs::std_srvs::{TriggerRequest, TriggerResponse};
+use crate::ros::msgs::ttball_msgs::srv::{
     PlanReturnRequest, PlanReturnResponse, PredictReboundRequest, PredictReboundResponse,
     PredictTrajectoryRequest, PredictTrajectoryResponse,
 };
-use crate::pipeline::Pipeline;
+use crate::ros::pipeline::Pipeline;
 
 impl ros2_client::Message for PredictTrajectoryRequest {}
 impl ros2_client::Message for PredictTrajectoryResponse {}

@@ -1,5 +1,5 @@
 //! Flight of a spinning ball: the spin-parameter aerodynamic model of Isomura, Hayakawa, Asai and
-//! Ariizumi (seed 004, eq. 1-3 and Table 3), with the corrections of physics.md "Flight":
+//! Ariizumi (2014, eq. 1-3 and Table 3), with the corrections of docs/models.md "Flight":
 //!
 //! ```text
 //! dp/dt = v
@@ -545,7 +545,7 @@ mod tests {
     use super::*;
     use approx::assert_relative_eq;
 
-    /// The seed's model (physics.md's numbers are the seed's).
+    /// The seed's model (docs/models.md lists its values).
     fn model() -> FlightModel {
         FlightModel::new(&Config {
             aero: crate::config::AeroParams::seed_2014(),
@@ -561,9 +561,9 @@ mod tests {
         assert_relative_eq!(s, -2.0 + 12.0);
     }
 
-    /// physics.md lists these values of the seed 004 Table 3 polynomials.
+    /// docs/models.md lists these values of the Table 3 polynomials of Isomura et al. 2014.
     #[test]
-    fn coefficients_match_physics_md() {
+    fn coefficients_match_the_listed_values() {
         let m = model();
         let cases_cd = [(0.1, 0.4034), (1.0, 0.6526)];
         for (sp, cd) in cases_cd {
@@ -579,13 +579,13 @@ mod tests {
     }
 
     #[test]
-    fn factors_match_physics_md() {
+    fn factors_match_the_listed_values() {
         let m = model();
         assert_relative_eq!(m.drag_factor(), 0.27925, epsilon = 5e-6);
         assert_relative_eq!(m.magnus_factor(), 0.014893, epsilon = 5e-7);
     }
 
-    /// physics.md worked example: v = (-8, 0, 1) m/s, w = (0, -300, 0) rad/s.
+    /// The worked example of docs/models.md: v = (-8, 0, 1) m/s, w = (0, -300, 0) rad/s.
     #[test]
     fn worked_drag_and_magnus_example() {
         let f = model().forces(

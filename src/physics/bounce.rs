@@ -1,5 +1,5 @@
 //! Table bounce: the impulse model with Coulomb friction of Nakashima, Ogawa, Kobayashi and Hayakawa
-//! (ACC 2010), for a thin spherical shell (I = 2/3 m r^2), as stated in physics.md "Table bounce":
+//! (ACC 2010), for a thin spherical shell (I = 2/3 m r^2), as stated in docs/models.md "Table bounce":
 //!
 //! ```text
 //! u = (v_x - r w_y, v_y + r w_x)                slip of the contact point

@@ -1,6 +1,6 @@
 //! Contact time, force and deformation of a ball-racket impact, and the racket plate's vibration
-//! loss: Kawazoe & Suzuki (seed 000 eq. 1, 7-11, 14-20; seed 001 eq. 27-37), as stated in
-//! physics.md "Racket impact":
+//! loss: Kawazoe & Suzuki (eq. 1, 7-11, 14-20; Kawazoe et al. 2010 eq. 27-37), as stated in
+//! docs/models.md "Racket impact":
 //!
 //! ```text
 //! m_e    = m M_r / (m + M_r)                        ball against the racket's reduced mass
@@ -12,10 +12,10 @@
 //!
 //! The stiffness K of the impact is where eq. (11) meets the characteristic; [`ContactError`]
 //! says so when they never meet (the transcribed eq. (1) peaks at 0.17 kgf, far below any real
-//! impact, physics.md). The deformation of the ball-rubber system at a force f(K) is
+//! impact, docs/models.md). The deformation of the ball-rubber system at a force f(K) is
 //! X = integral of dF / K = integral f'(k) / k dk from the unloaded stiffness K_0 (f(K_0) = 0).
 //!
-//! Vibration loss (seed 000 eq. 15-20): the half-sine pulse has the spectrum
+//! Vibration loss (Kawazoe & Suzuki eq. 15-20): the half-sine pulse has the spectrum
 //! S(f) = (2 F_max T_c / pi) |cos(pi f T_c) / (1 - (2 f T_c)^2)|; a plate mode of frequency f_k and
 //! modal mass m_k at the impact point takes the energy S(f_k)^2 / (2 m_k), which lowers the
 //! restitution to e_r = sqrt(e_RB^2 - 2 E_1 (m + M_r) / (m M_r V^2)) (eq. 18-19).
@@ -35,7 +35,7 @@ const SEARCH_RATIO: f64 = 1.1;
 /// Bisection steps after the bracket is found (relative precision 2^-60 of a 10 % bracket).
 const BISECTIONS: usize = 60;
 
-/// The restoring characteristic F = f(K) of the ball-rubber system (seed 000 eq. 1), in SI.
+/// The restoring characteristic F = f(K) of the ball-rubber system (Kawazoe & Suzuki eq. 1), in SI.
 #[derive(Debug, Clone, PartialEq)]
 pub struct RestoringCharacteristic {
     force: Polynomial,
@@ -71,7 +71,7 @@ pub struct Contact {
      (about {needed_at_1ms:.0} N for a 1 ms contact), but the restoring characteristic \
      racket.restoring_force_vs_stiffness stays below it up to K = {MAX_STIFFNESS:.0e} N/m \
      (its force there: {force_at_max:.3e} N); configure a curve F = f(K) that reaches the forces \
-     of a real impact (physics.md \"Racket impact\")"
+     of a real impact (docs/models.md \"Racket impact\")"
 )]
 pub struct ContactError {
     /// Normal impact speed [m/s].
@@ -208,7 +208,7 @@ pub struct VibrationMode {
 }
 
 /// Amplitude spectrum of a half-sine force pulse of peak `peak_force` and duration
-/// `contact_time` at frequency `frequency` (seed 000 eq. 15; seed 001 eq. 33) [N s]. At f = 0 it
+/// `contact_time` at frequency `frequency` (Kawazoe & Suzuki eq. 15; Kawazoe et al. 2010 eq. 33) [N s]. At f = 0 it
 /// is the impulse 2 F_max T_c / pi.
 pub fn pulse_spectrum(frequency: f64, peak_force: f64, contact_time: f64) -> f64 {
     let x = 2.0 * frequency * contact_time;
@@ -263,7 +263,7 @@ mod tests {
             text.contains("racket.restoring_force_vs_stiffness"),
             "{text}"
         );
-        // About 4 kgf for a 1 ms contact at 10 m/s (physics.md).
+        // About 4 kgf for a 1 ms contact at 10 m/s (docs/models.md).
         assert_relative_eq!(err.needed_at_1ms / KGF, 4.1, epsilon = 0.1);
     }
 

@@ -1,12 +1,12 @@
 //! The physics core: flight, table bounce and event-aware propagation of the ball state.
 //! Pure functions of the state and the configuration: no I/O, no clock.
 //!
-//! - [`aero`]: the spin-parameter aerodynamic flight model and its Jacobian (seed 004).
+//! - [`aero`]: the spin-parameter aerodynamic flight model and its Jacobian (Isomura et al. 2014).
 //! - [`bounce`]: the table bounce with friction and its Jacobian (Nakashima et al., ACC 2010).
 //! - [`propagate`]: RK4 with the state-transition matrix, and events (table, net, floor, a plane
 //!   x = const) root-found inside a step, with the sensitivity of their time to the state.
 //! - [`predict`]: a whole predicted flight with its events, the base of every later prediction.
-//! - [`racket`]: the racket impact (Kawazoe, seeds 000 and 001): reduced mass, restitution,
+//! - [`racket`]: the racket impact (Kawazoe & Suzuki; Kawazoe et al. 2010): reduced mass, restitution,
 //!   rebound, spin from the rubber's friction, load on the grip.
 //! - [`contact`]: contact time, force and deformation of that impact, and the plate's vibration
 //!   loss.

@@ -1,5 +1,5 @@
-//! The racket impact: Kawazoe & Suzuki (seed 000) and Kawazoe et al. (seed 001), as stated in
-//! physics.md "Racket impact", in the racket's frame at the impact point.
+//! The racket impact: Kawazoe & Suzuki and Kawazoe et al. 2010, as stated in
+//! docs/models.md "Racket impact", in the racket's frame at the impact point.
 //!
 //! Normal direction (unit normal n of the face, toward the ball; V = -(v - V_R) . n > 0 the normal
 //! approach speed of the ball relative to the racket's impact point):
@@ -24,7 +24,7 @@
 //! seed's model; ttball's empirical coefficient, calibrated on recorded hits). The racket's
 //! tangential response is neglected (the impulse is a few per cent of its momentum).
 //!
-//! Force on the grip (the robot's wrist), seed 001 eq. 10-14: S_1 = chi S_0 with
+//! Force on the grip (the robot's wrist), Kawazoe et al. 2010 eq. 10-14: S_1 = chi S_0 with
 //! chi = (M_R a b / J - 1) / (1 + (M_R / M_H)(1 - M_R b^2 / J)), a the impact point and b the
 //! racket's centre of gravity from the grip, J = I_G + M_R b^2 the racket's inertia about the grip.
 //! Shock acceleration of the grip, eq. 42: A = S_0 (1 / M - c X / I_GH), X the grip's distance
@@ -73,7 +73,7 @@ pub struct NormalImpact {
     pub contact: Contact,
 }
 
-/// The load on what holds the racket (seed 001 eq. 10-14, 42).
+/// The load on what holds the racket (Kawazoe et al. 2010 eq. 10-14, 42).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct WristLoad {
     /// Ratio chi of the grip force to the impact force, eq. 14 (0 for a free racket) [-].
@@ -279,13 +279,13 @@ impl RacketModel {
     }
 
     /// Shift of the centre of gravity toward the grip when the arm's mass is added, Delta G
-    /// (seed 001 eq. 26) [m].
+    /// (Kawazoe et al. 2010 eq. 26) [m].
     fn center_shift(&self) -> f64 {
         (self.center_of_gravity - self.grip) * self.arm_mass / (self.racket_mass + self.arm_mass)
     }
 
-    /// Inertia of racket and arm about their common centre of gravity, I_GH (seed 000 eq. 6;
-    /// seed 001 eq. 25) [kg m^2].
+    /// Inertia of racket and arm about their common centre of gravity, I_GH (Kawazoe & Suzuki eq. 6;
+    /// Kawazoe et al. 2010 eq. 25) [kg m^2].
     fn combined_inertia(&self) -> f64 {
         let shift = self.center_shift();
         self.inertia
@@ -294,7 +294,7 @@ impl RacketModel {
     }
 
     /// Reduced mass of racket and arm at the impact point `offset` [m] from the racket's centre
-    /// of gravity (seed 000 eq. 3, 5; seed 001 eq. 21, 23-24) [kg].
+    /// of gravity (Kawazoe & Suzuki eq. 3, 5; Kawazoe et al. 2010 eq. 21, 23-24) [kg].
     pub fn reduced_mass(&self, offset: f64) -> f64 {
         let total = self.racket_mass + self.arm_mass;
         let inertia = self.combined_inertia();
@@ -303,7 +303,7 @@ impl RacketModel {
     }
 
     /// Ball-rubber coefficient of restitution at normal impact speed `speed` [m/s], e_RB
-    /// (seed 000 eq. 2), clamped to [0, 1].
+    /// (Kawazoe & Suzuki eq. 2), clamped to [0, 1].
     pub fn rubber_restitution(&self, speed: f64) -> f64 {
         self.rubber_restitution.value(speed).clamp(0.0, 1.0)
     }
@@ -318,7 +318,7 @@ impl RacketModel {
             .contact(speed, m, reduced_mass, rubber_restitution)?;
         let vibration = vibration_energy(&self.modes, contact.peak_force, contact.contact_time);
         let restitution = if vibration > 0.0 {
-            // Seed 000 eq. 18-19: the rubber's and the plate's losses together.
+            // Kawazoe & Suzuki eq. 18-19: the rubber's and the plate's losses together.
             let loss = 2.0 * vibration * (m + reduced_mass) / (m * reduced_mass * speed * speed);
             (rubber_restitution.powi(2) - loss).max(0.0).sqrt()
         } else {
@@ -533,7 +533,7 @@ impl RacketModel {
 }
 
 /// The rebound power coefficient e = (e_r - m/M_r) / (1 + m/M_r) of a ball on a racket of
-/// restitution `restitution` and mass ratio `mass_ratio` = m / M_r (seed 000 eq. 13; seed 001
+/// restitution `restitution` and mass ratio `mass_ratio` = m / M_r (Kawazoe & Suzuki eq. 13; Kawazoe et al. 2010
 /// eq. 39).
 pub fn rebound_power_coefficient(restitution: f64, mass_ratio: f64) -> f64 {
     (restitution - mass_ratio) / (1.0 + mass_ratio)

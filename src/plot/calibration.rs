@@ -7,8 +7,8 @@ use plotters::element::DashedPathElement;
 use plotters::prelude::*;
 
 use super::{FONT, PlotError, draw_legend};
-use crate::calibrate::{Calibration, FlightResidual, polynomial_sigma};
 use crate::config::Config;
+use crate::offline::calibrate::{Calibration, FlightResidual, polynomial_sigma};
 use crate::physics::aero::Polynomial;
 
 const FITTED: RGBColor = RGBColor(31, 119, 180);

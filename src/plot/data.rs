@@ -7,8 +7,8 @@ use nalgebra::Vector3;
 
 use super::PlotError;
 use crate::config::Config;
-use crate::detection::{Detection, Source, seconds_to_ns};
-use crate::estimator::{Estimate, InterceptEstimate, Output, TrackStatus, Verdict};
+use crate::model::detection::{Detection, Source, seconds_to_ns};
+use crate::online::estimator::{Estimate, InterceptEstimate, Output, TrackStatus, Verdict};
 use crate::physics::{BallState, Trajectory};
 
 /// One detection as the estimator received it.

@@ -165,7 +165,7 @@ pub fn render_png(
 }
 
 /// The racket's rebound chart (e along the long axis and against impact speed, free and held;
-/// like seed 000 Fig. 19 and 20) as an SVG document.
+/// like Kawazoe & Suzuki Fig. 19 and 20) as an SVG document.
 pub fn render_rebound_chart_svg(
     model: &RacketModel,
     config: &Config,
@@ -199,7 +199,7 @@ pub fn render_rebound_chart_png(
 /// The calibration chart (fitted C_D(Sp) and C_M(Sp) against the starting curves, the Sp range
 /// of the data, residuals per flight) as an SVG document.
 pub fn render_calibration_svg(
-    calibration: &crate::calibrate::Calibration,
+    calibration: &crate::offline::calibrate::Calibration,
     start: &Config,
     options: &ChartOptions,
 ) -> Result<String, PlotError> {
@@ -217,7 +217,7 @@ pub fn render_calibration_svg(
 
 /// The calibration chart as an encoded PNG image (8-bit RGB).
 pub fn render_calibration_png(
-    calibration: &crate::calibrate::Calibration,
+    calibration: &crate::offline::calibrate::Calibration,
     start: &Config,
     options: &ChartOptions,
 ) -> Result<Vec<u8>, PlotError> {
@@ -231,7 +231,7 @@ pub fn render_calibration_png(
 /// The rubber calibration's chart (predicted against measured outgoing velocity and spin, by
 /// the starting and the calibrated configuration) as an SVG document or a PNG image (`png`).
 pub fn render_rubber_calibration(
-    calibration: &crate::rebound_calibration::RubberCalibration,
+    calibration: &crate::offline::rebound_calibration::RubberCalibration,
     options: &ChartOptions,
     png: bool,
 ) -> Result<Vec<u8>, PlotError> {

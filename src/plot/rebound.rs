@@ -1,4 +1,4 @@
-//! The racket's rebound chart, like Kawazoe & Suzuki's Fig. 19 and 20 (seed 000): the rebound
+//! The racket's rebound chart, like Kawazoe & Suzuki's Fig. 19 and 20: the rebound
 //! power coefficient e of the configured racket along its long axis at several impact speeds,
 //! and against impact speed at the face centre and the top point, for the free racket (solid)
 //! and the racket held by the configured arm (dashed).
@@ -19,7 +19,7 @@ const COLOURS: [RGBColor; 4] = [
     RGBColor(255, 127, 14),
     RGBColor(214, 39, 40),
 ];
-/// Offset of the face centre (point D) from the centre of gravity in seed 000: e of the free
+/// Offset of the face centre (point D) from the centre of gravity in Kawazoe & Suzuki: e of the free
 /// racket "peaks 18 mm from the centre of the face", at its centre of gravity [m].
 const FACE_CENTRE_OFFSET: f64 = 0.018;
 /// Points per curve.

@@ -14,8 +14,8 @@ use plotters::style::text_anchor::{HPos, Pos, VPos};
 
 use super::data::{PlotData, PlotEstimate, PlotTrajectory, Selection};
 use super::{FONT, PlotError};
-use crate::detection::Source;
-use crate::estimator::TrackStatus;
+use crate::model::detection::Source;
+use crate::online::estimator::TrackStatus;
 
 const WIDE: RGBColor = RGBColor(31, 119, 180);
 const HIGH_SPEED: RGBColor = RGBColor(255, 127, 14);

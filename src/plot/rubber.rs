@@ -6,7 +6,7 @@ use plotters::coord::Shift;
 use plotters::prelude::*;
 
 use super::{FONT, PlotError, draw_legend};
-use crate::rebound_calibration::{HitPrediction, RubberCalibration};
+use crate::offline::rebound_calibration::{HitPrediction, RubberCalibration};
 
 const CALIBRATED: RGBColor = RGBColor(31, 119, 180);
 const START: RGBColor = RGBColor(160, 160, 160);

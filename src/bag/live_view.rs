@@ -1,0 +1,203 @@
+//! The live view without ROS: the node's topics (or a replay's, at recorded pace) served to the
+//! Foxglove app over the Foxglove WebSocket protocol, through Foxglove's own SDK (the `foxglove`
+//! crate's WebSocket server). Each topic is a channel with its message type's `ros2msg` schema
+//! (every dependent definition embedded, as in ttball's bags) and `cdr` payloads, the same bytes
+//! the DDS samples and bag messages carry; each message keeps its log time.
+
+use std::collections::HashMap;
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use foxglove::websocket::Capability;
+use foxglove::{ChannelBuilder, Context, PartialMetadata, RawChannel, Schema, WebSocketServer};
+
+use crate::bag::{ChannelInfo, encode};
+use crate::ros::msgs::definitions;
+
+/// Why the live view could not start.
+#[derive(Debug, thiserror::Error)]
+pub enum LiveViewError {
+    /// The address is not `HOST:PORT`.
+    #[error(
+        "--foxglove {0}: give HOST:PORT, e.g. 127.0.0.1:8765 (0.0.0.0:8765 for other machines)"
+    )]
+    Address(String),
+    /// The server could not start (e.g. the port is taken).
+    #[error("cannot serve the Foxglove live view on {address}: {reason}")]
+    Start {
+        /// The address asked for.
+        address: String,
+        /// What the server said.
+        reason: String,
+    },
+}
+
+/// A running Foxglove WebSocket server and its channels, one per topic.
+pub struct LiveView {
+    context: Arc<Context>,
+    server: Option<foxglove::WebSocketServerHandle>,
+    channels: HashMap<String, Arc<RawChannel>>,
+    /// Replays at recorded pace: the wall time of the first message and its log time, and the
+    /// speed-up (`None`: log at once, as the live node does).
+    pace: Option<(f64, Option<(Instant, u64)>)>,
+}
+
+impl LiveView {
+    /// Serves on `address` (`HOST:PORT`; port 0 picks a free one, see [`Self::port`]).
+    pub fn start(address: &str) -> Result<Self, LiveViewError> {
+        let (host, port) = address
+            .rsplit_once(':')
+            .and_then(|(h, p)| Some((h, p.parse::<u16>().ok()?)))
+            .filter(|(h, _)| !h.is_empty())
+            .ok_or_else(|| LiveViewError::Address(address.to_owned()))?;
+        let context = Context::new();
+        let server = WebSocketServer::new()
+            .name("ttball")
+            .bind(host, port)
+            .context(&context)
+            .capabilities([Capability::Time])
+            .start_blocking()
+            .map_err(|e| LiveViewError::Start {
+                address: address.to_owned(),
+                reason: e.to_string(),
+            })?;
+        Ok(Self {
+            context,
+            server: Some(server),
+            channels: HashMap::new(),
+            pace: None,
+        })
+    }
+
+    /// Logs messages at the pace of their log times, `rate` times as fast (replays).
+    pub fn at_recorded_pace(mut self, rate: f64) -> Self {
+        self.pace = Some((rate, None));
+        self
+    }
+
+    /// The port served (the one picked, for port 0).
+    pub fn port(&self) -> u16 {
+        self.server
+            .as_ref()
+            .map_or(0, foxglove::WebSocketServerHandle::port)
+    }
+
+    /// How many Foxglove clients are connected.
+    pub fn clients(&self) -> usize {
+        self.server
+            .as_ref()
+            .map_or(0, foxglove::WebSocketServerHandle::client_count)
+    }
+
+    /// Waits until a client connects, at most `timeout`; whether one did.
+    pub fn wait_for_client(&self, timeout: Duration) -> bool {
+        let until = Instant::now() + timeout;
+        while self.clients() == 0 && Instant::now() < until {
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        self.clients() > 0
+    }
+
+    /// Sends one message (its CDR payload) on its channel's topic, the channel advertised on
+    /// first use with its schema.
+    pub fn log(&mut self, channel: &ChannelInfo, log_time: u64, payload: &[u8]) {
+        self.send(&channel.topic, log_time, payload, || Some(channel.clone()));
+    }
+
+    /// Sends a message of one of ttball's known types (`pkg/msg/Type`) on `topic` (nothing for
+    /// an empty topic, or a type without a definition).
+    pub fn log_message<T: serde::Serialize>(
+        &mut self,
+        topic: &str,
+        type_name: &str,
+        log_time: u64,
+        msg: &T,
+    ) {
+        if topic.is_empty() {
+            return;
+        }
+        let Ok(payload) = encode(type_name, msg) else {
+            return;
+        };
+        self.send(topic, log_time, &payload, || {
+            Some(ChannelInfo {
+                topic: topic.to_owned(),
+                schema_name: type_name.to_owned(),
+                schema_encoding: "ros2msg".to_owned(),
+                schema_data: definitions::schema(type_name)?.into_bytes(),
+                message_encoding: "cdr".to_owned(),
+                metadata: std::collections::BTreeMap::new(),
+            })
+        });
+    }
+
+    /// [`Self::log_message`] when there is a message.
+    pub fn log_optional<T: serde::Serialize>(
+        &mut self,
+        topic: &str,
+        type_name: &str,
+        log_time: u64,
+        msg: Option<&T>,
+    ) {
+        if let Some(msg) = msg {
+            self.log_message(topic, type_name, log_time, msg);
+        }
+    }
+
+    /// Sends `payload` on `topic`, whose channel `describe` gives the first time.
+    fn send(
+        &mut self,
+        topic: &str,
+        log_time: u64,
+        payload: &[u8],
+        describe: impl FnOnce() -> Option<ChannelInfo>,
+    ) {
+        if let Some((rate, start)) = &mut self.pace {
+            let (wall, first) = *start.get_or_insert((Instant::now(), log_time));
+            let due = Duration::from_secs_f64(log_time.saturating_sub(first) as f64 * 1e-9 / *rate);
+            if let Some(wait) = (wall + due).checked_duration_since(Instant::now()) {
+                std::thread::sleep(wait);
+            }
+        }
+        if !self.channels.contains_key(topic) {
+            let Some(channel) = describe() else {
+                return;
+            };
+            let built = ChannelBuilder::new(channel.topic.clone())
+                .context(&self.context)
+                .message_encoding(channel.message_encoding.clone())
+                .schema((!channel.schema_name.is_empty()).then(|| {
+                    Schema::new(
+                        channel.schema_name.clone(),
+                        channel.schema_encoding.clone(),
+                        channel.schema_data.clone(),
+                    )
+                }))
+                .build_raw();
+            // A topic the SDK refuses (it never has) is not shown; the rest goes on.
+            let Ok(raw) = built else {
+                return;
+            };
+            self.channels.insert(topic.to_owned(), raw);
+        }
+        if let Some(raw) = self.channels.get(topic) {
+            raw.log_with_meta(
+                payload,
+                PartialMetadata {
+                    log_time: Some(log_time),
+                },
+            );
+        }
+        if let Some(server) = &self.server {
+            server.broadcast_time(log_time);
+        }
+    }
+}
+
+impl Drop for LiveView {
+    fn drop(&mut self) {
+        if let Some(server) = self.server.take() {
+            drop(server.stop());
+        }
+    }
+}

@@ -1,0 +1,1079 @@
+//! The bag layer: ROS 2 MCAP bags, and what ttball does with recorded messages.
+//!
+//! - this module: the MCAP files themselves (below);
+//! - [`replay`]: an MCAP bag through the node's code path ([`crate::ros::pipeline`]), into an
+//!   output bag;
+//! - [`record`]: simulated play written as a bag, with its truth;
+//! - [`live_view`] (feature `live-view`): the same messages served to the Foxglove app over its
+//!   WebSocket protocol.
+//!
+//! ROS 2 MCAP bags, as `ros2 bag record` (rosbag2's MCAP storage) writes them and Foxglove reads
+//! them: `ros2msg` schemas with every dependent definition embedded, `cdr` payloads (the 4-byte
+//! encapsulation header, then little-endian CDR from `cdr-encoding`, the serialiser ros2-client
+//! uses), log and publish times in nanoseconds.
+//!
+//! [`BagReader`] (and [`read_bag`], [`read_bag_file`] on it) reads what it can: a corrupt chunk is
+//! skipped, a truncated file yields its complete records, and the damage says where. Messages come back in log-time order. [`BagWriter`] writes
+//! zstd-compressed chunks with the summary and indexes; [`BagWriter::finish`] must be called to
+//! finish the file (the caller does it on every path, Ctrl-C included).
+
+use std::cmp::{Ordering, Reverse};
+use std::collections::{BTreeMap, BinaryHeap};
+use std::fs::File;
+use std::io::{BufReader, BufWriter, Read, Seek, SeekFrom, Write};
+use std::path::{Path, PathBuf};
+
+use byteorder::{BigEndian, LittleEndian};
+use mcap::records::op;
+use serde::Serialize;
+use serde::de::DeserializeOwned;
+
+use crate::ros::msgs::definitions;
+
+#[cfg(feature = "live-view")]
+pub mod live_view;
+pub mod record;
+pub mod replay;
+
+/// The encapsulation header of a little-endian CDR payload (CDR_LE, options 0).
+const CDR_LE: [u8; 4] = [0x00, 0x01, 0x00, 0x00];
+
+/// What can go wrong with a bag.
+#[derive(Debug, thiserror::Error)]
+pub enum BagError {
+    /// The file cannot be read or written.
+    #[error("{path}: {source}")]
+    Io {
+        /// The file.
+        path: PathBuf,
+        /// What the system said.
+        source: std::io::Error,
+    },
+    /// The file is not an MCAP file at all.
+    #[error("{path}: not an MCAP file ({reason})")]
+    NotMcap {
+        /// The file.
+        path: PathBuf,
+        /// What the MCAP reader said.
+        reason: String,
+    },
+    /// Writing MCAP records failed.
+    #[error("{path}: cannot write MCAP: {reason}")]
+    Write {
+        /// The file.
+        path: PathBuf,
+        /// What the MCAP writer said.
+        reason: String,
+    },
+    /// A type has no known ROS 2 definition.
+    #[error("no ROS 2 definition of `{0}` is known to ttball")]
+    UnknownType(String),
+    /// A message could not be encoded as CDR.
+    #[error("cannot encode a `{type_name}` message as CDR: {reason}")]
+    Encode {
+        /// The message type.
+        type_name: String,
+        /// What the encoder said.
+        reason: String,
+    },
+}
+
+/// Why a payload could not be decoded.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum DecodeError {
+    /// Shorter than the encapsulation header.
+    #[error("payload of {0} bytes is too short for CDR")]
+    TooShort(usize),
+    /// Not plain CDR (e.g. XCDR2 or PL_CDR).
+    #[error("unsupported CDR encapsulation {0:02x}{1:02x}")]
+    Encapsulation(u8, u8),
+    /// The bytes do not decode as the expected type.
+    #[error("{0}")]
+    Cdr(String),
+}
+
+/// Encodes a message as a ROS 2 CDR payload (little endian, with the encapsulation header).
+pub fn encode<T: Serialize>(type_name: &str, msg: &T) -> Result<Vec<u8>, BagError> {
+    let body = cdr_encoding::to_vec::<T, LittleEndian>(msg).map_err(|e| BagError::Encode {
+        type_name: type_name.to_string(),
+        reason: e.to_string(),
+    })?;
+    let mut out = Vec::with_capacity(body.len() + 4);
+    out.extend_from_slice(&CDR_LE);
+    out.extend_from_slice(&body);
+    Ok(out)
+}
+
+/// Decodes a ROS 2 CDR payload (either byte order).
+pub fn decode<T: DeserializeOwned>(payload: &[u8]) -> Result<T, DecodeError> {
+    let Some((header, body)) = payload.split_first_chunk::<4>() else {
+        return Err(DecodeError::TooShort(payload.len()));
+    };
+    let decoded = match (header[0], header[1]) {
+        (0x00, 0x01) => cdr_encoding::from_bytes::<T, LittleEndian>(body),
+        (0x00, 0x00) => cdr_encoding::from_bytes::<T, BigEndian>(body),
+        (a, b) => return Err(DecodeError::Encapsulation(a, b)),
+    };
+    decoded
+        .map(|(value, _)| value)
+        .map_err(|e| DecodeError::Cdr(e.to_string()))
+}
+
+/// A channel of a bag: its topic, message type and encodings.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct ChannelInfo {
+    /// Topic name.
+    pub topic: String,
+    /// Schema name, e.g. `ttball_msgs/msg/BallDetection` (empty without a schema).
+    pub schema_name: String,
+    /// Schema encoding, e.g. `ros2msg`.
+    pub schema_encoding: String,
+    /// Schema text.
+    pub schema_data: Vec<u8>,
+    /// Message encoding, e.g. `cdr`.
+    pub message_encoding: String,
+    /// Channel metadata (rosbag2 keeps the QoS profiles here).
+    pub metadata: BTreeMap<String, String>,
+}
+
+/// One message of a bag.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct BagMessage {
+    /// Index of its channel in [`BagContents::channels`].
+    pub channel: usize,
+    /// Log time [ns].
+    pub log_time: u64,
+    /// Publish time [ns].
+    pub publish_time: u64,
+    /// The payload.
+    pub data: Vec<u8>,
+}
+
+/// What could be read of a bag.
+#[derive(Debug, Clone, PartialEq, Eq, Default)]
+pub struct BagContents {
+    /// Every channel seen.
+    pub channels: Vec<ChannelInfo>,
+    /// Every message read, in log-time order (file order among equal times).
+    pub messages: Vec<BagMessage>,
+    /// Why reading stopped early (a truncated or corrupt file), when it did.
+    pub damage: Option<String>,
+}
+
+impl BagContents {
+    /// The index of the channel of a topic.
+    pub fn channel(&self, topic: &str) -> Option<usize> {
+        channel_of(&self.channels, topic)
+    }
+}
+
+/// The index of the channel of `topic` among `channels`.
+pub fn channel_of(channels: &[ChannelInfo], topic: &str) -> Option<usize> {
+    channels.iter().position(|c| c.topic == topic)
+}
+
+/// Reads a whole bag in memory (see [`BagReader`]): an MCAP file, or a rosbag2 directory (as
+/// `ros2 bag record` writes it: `metadata.yaml` beside one or more `.mcap` files, read together).
+/// Messages come back in log-time order (file order among equal times).
+pub fn read_bag_file(path: &Path) -> Result<BagContents, BagError> {
+    collect(BagReader::open(path)?)
+}
+
+/// Reads every message of MCAP bytes in memory, in log-time order. Bytes that do not start as
+/// MCAP are an error; damage later on ends the reading with what was read and the reason.
+pub fn read_bag(bytes: &[u8]) -> Result<BagContents, String> {
+    let reader =
+        BagReader::from_bytes(bytes.to_vec(), Path::new("<bytes>")).map_err(|e| match e {
+            BagError::NotMcap { reason, .. } => reason,
+            other => other.to_string(),
+        })?;
+    collect(reader).map_err(|e| e.to_string())
+}
+
+fn collect(mut reader: BagReader) -> Result<BagContents, BagError> {
+    let mut messages = Vec::new();
+    while let Some(m) = reader.next_message() {
+        messages.push(m);
+    }
+    messages.sort_by_key(|m| m.log_time);
+    Ok(BagContents {
+        channels: reader.channels,
+        messages,
+        damage: reader.damage,
+    })
+}
+
+/// How many messages the reader holds back to put them in log-time order: a message recorded
+/// up to this many messages late still comes out in order. Bounds the reader's memory.
+pub const REORDER_WINDOW: usize = 4096;
+
+/// Streams the messages of a bag (an MCAP file, or a rosbag2 directory of them in name order)
+/// without holding the file in memory: chunks are read and decompressed one at a time, and a
+/// window of [`REORDER_WINDOW`] messages puts them in log-time order (file order among equal
+/// times). The channels of a file's summary section are known at once; others are added as they
+/// appear. A chunk whose CRC fails or that does not decompress is skipped; a file cut off yields
+/// its complete records (those of a cut chunk included); [`Self::damage`] says what and where.
+pub struct BagReader {
+    files: std::vec::IntoIter<PathBuf>,
+    file: Option<FileStream>,
+    channels: Vec<ChannelInfo>,
+    damage: Option<String>,
+    window: BinaryHeap<Reverse<Held>>,
+    sequence: u64,
+    read: u64,
+    messages: u64,
+    size: u64,
+    several_files: bool,
+    /// A summary section was read: [`Self::channels`] lists every channel from the start.
+    summarised: bool,
+}
+
+/// A message held in the reorder window, ordered by log time then arrival.
+struct Held(u64, u64, BagMessage);
+
+impl PartialEq for Held {
+    fn eq(&self, other: &Self) -> bool {
+        (self.0, self.1) == (other.0, other.1)
+    }
+}
+impl Eq for Held {}
+impl PartialOrd for Held {
+    fn partial_cmp(&self, other: &Self) -> Option<Ordering> {
+        Some(self.cmp(other))
+    }
+}
+impl Ord for Held {
+    fn cmp(&self, other: &Self) -> Ordering {
+        (self.0, self.1).cmp(&(other.0, other.1))
+    }
+}
+
+/// One MCAP file being read, a record at a time (its own framing: opcode, length, body), so
+/// that a corrupt chunk can be skipped and a chunk cut off by the end of the file still yields
+/// its complete records.
+struct FileStream {
+    path: PathBuf,
+    source: Box<dyn Read>,
+    /// Bytes of the file consumed so far (the offset of the next record).
+    offset: u64,
+    records: Records,
+    /// The messages of the chunk being read, in file order.
+    chunk: std::collections::VecDeque<BagMessage>,
+    /// Chunks skipped as corrupt (CRC mismatch, undecompressible), each with why.
+    skipped: Vec<String>,
+    /// The data section has ended (a data end or footer record).
+    finished: bool,
+}
+
+/// Largest MCAP record accepted [bytes]: a corrupt length cannot make the reader buffer more.
+const RECORD_LENGTH_LIMIT: u64 = 1 << 28;
+
+/// The schema and channel records of one MCAP file.
+#[derive(Default)]
+struct Records {
+    /// Schema id -> (name, encoding, data).
+    schemas: BTreeMap<u16, (String, String, Vec<u8>)>,
+    /// Channel id in the file -> index in [`BagReader::channels`].
+    ids: BTreeMap<u16, usize>,
+}
+
+/// The MCAP files of a rosbag2 directory in recording order: `metadata.yaml`'s
+/// `relative_file_paths` when it has one (as `ros2 bag play` reads them), else the `.mcap` files
+/// by their split number (`name_2` before `name_10`), then by name.
+pub fn rosbag2_files(dir: &Path) -> Result<Vec<PathBuf>, BagError> {
+    let not_a_bag = |reason: String| BagError::NotMcap {
+        path: dir.to_path_buf(),
+        reason,
+    };
+    let metadata = dir.join("metadata.yaml");
+    if let Ok(text) = std::fs::read_to_string(&metadata) {
+        let listed = rosbag2_listed_files(&text).map_err(|e| {
+            not_a_bag(format!(
+                "its metadata.yaml is not rosbag2's ({e}); move it away to read the .mcap files by their split number"
+            ))
+        })?;
+        let mut files = Vec::with_capacity(listed.len());
+        for name in listed {
+            // Before metadata version 4 the paths began with the bag directory's own name.
+            let file = Some(dir.join(&name))
+                .filter(|f| f.is_file())
+                .or_else(|| dir.parent().map(|p| p.join(&name)))
+                .unwrap_or_else(|| dir.join(&name));
+            if !name.ends_with(".mcap") {
+                return Err(not_a_bag(format!(
+                    "metadata.yaml lists `{name}`, which is not an MCAP file (a bag compressed per file: `ros2 bag decompress` it first)"
+                )));
+            }
+            if !file.is_file() {
+                return Err(not_a_bag(format!(
+                    "metadata.yaml lists `{name}`, which is missing from the directory"
+                )));
+            }
+            files.push(file);
+        }
+        if !files.is_empty() {
+            return Ok(files);
+        }
+    }
+    let entries = std::fs::read_dir(dir).map_err(|source| BagError::Io {
+        path: dir.to_path_buf(),
+        source,
+    })?;
+    let mut files: Vec<PathBuf> = entries
+        .filter_map(|entry| entry.ok().map(|e| e.path()))
+        .filter(|p| p.extension().is_some_and(|e| e == "mcap"))
+        .collect();
+    files.sort_by_cached_key(|p| {
+        let stem = p.file_stem().map(|s| s.to_string_lossy().into_owned());
+        let split = stem
+            .as_deref()
+            .and_then(|s| s.rsplit_once('_'))
+            .and_then(|(_, n)| n.parse::<u64>().ok());
+        (split, p.clone())
+    });
+    if files.is_empty() {
+        return Err(not_a_bag("a directory without .mcap files".to_string()));
+    }
+    Ok(files)
+}
+
+/// `rosbag2_bagfile_information.relative_file_paths` of a rosbag2 `metadata.yaml`.
+fn rosbag2_listed_files(text: &str) -> Result<Vec<String>, String> {
+    let document: serde_norway::Value = serde_norway::from_str(text).map_err(|e| e.to_string())?;
+    let info = document
+        .get("rosbag2_bagfile_information")
+        .ok_or("no rosbag2_bagfile_information")?;
+    let Some(paths) = info.get("relative_file_paths") else {
+        return Ok(Vec::new());
+    };
+    paths
+        .as_sequence()
+        .ok_or("relative_file_paths is not a list")?
+        .iter()
+        .map(|p| {
+            p.as_str()
+                .map(str::to_owned)
+                .ok_or_else(|| "relative_file_paths holds a non-string".to_owned())
+        })
+        .collect()
+}
+
+impl BagReader {
+    /// Opens a bag file or rosbag2 directory; the channels of its summary sections are read.
+    pub fn open(path: &Path) -> Result<Self, BagError> {
+        let files = if path.is_dir() {
+            rosbag2_files(path)?
+        } else {
+            vec![path.to_path_buf()]
+        };
+        let mut size = 0;
+        let mut reader = Self::empty();
+        for file in &files {
+            let mut f = File::open(file).map_err(|source| BagError::Io {
+                path: file.clone(),
+                source,
+            })?;
+            size += f.metadata().map(|m| m.len()).unwrap_or(0);
+            let mut start = Vec::with_capacity(8);
+            let _ = Read::by_ref(&mut f).take(8).read_to_end(&mut start);
+            check_magic(&start, file)?;
+            if let Some(summary) = read_summary(&mut f) {
+                reader.register_summary(&summary);
+            }
+        }
+        reader.size = size;
+        reader.several_files = files.len() > 1;
+        reader.files = files.into_iter();
+        reader.open_next()?;
+        Ok(reader)
+    }
+
+    /// A reader of MCAP bytes already in memory; `path` names them in messages.
+    pub fn from_bytes(bytes: Vec<u8>, path: &Path) -> Result<Self, BagError> {
+        check_magic(&bytes, path)?;
+        let mut reader = Self::empty();
+        reader.size = bytes.len() as u64;
+        reader.file = Some(FileStream::new(
+            path.to_path_buf(),
+            Box::new(std::io::Cursor::new(bytes)),
+        ));
+        Ok(reader)
+    }
+
+    fn empty() -> Self {
+        Self {
+            files: Vec::new().into_iter(),
+            file: None,
+            channels: Vec::new(),
+            damage: None,
+            window: BinaryHeap::with_capacity(REORDER_WINDOW + 1),
+            sequence: 0,
+            read: 0,
+            messages: 0,
+            size: 0,
+            several_files: false,
+            summarised: false,
+        }
+    }
+
+    /// True when the bag's summary section was read: [`Self::channels`] is then complete
+    /// before the first message.
+    pub fn has_summary(&self) -> bool {
+        self.summarised
+    }
+
+    /// Every channel seen so far (all of them once the summaries are read).
+    pub fn channels(&self) -> &[ChannelInfo] {
+        &self.channels
+    }
+
+    /// The index of the channel of a topic.
+    pub fn channel(&self, topic: &str) -> Option<usize> {
+        channel_of(&self.channels, topic)
+    }
+
+    /// What was damaged, when anything was: corrupt chunks skipped, and why reading stopped
+    /// early (a truncated or corrupt file).
+    pub fn damage(&self) -> Option<&str> {
+        self.damage.as_deref()
+    }
+
+    /// Bytes read so far and the bag's size in bytes (for progress).
+    pub fn progress(&self) -> (u64, u64) {
+        (self.read, self.size)
+    }
+
+    /// The next message in log-time order, or `None` at the end (or at damage).
+    pub fn next_message(&mut self) -> Option<BagMessage> {
+        while self.window.len() <= REORDER_WINDOW {
+            let Some(message) = self.read_message() else {
+                break;
+            };
+            self.sequence += 1;
+            self.window
+                .push(Reverse(Held(message.log_time, self.sequence, message)));
+        }
+        self.window.pop().map(|Reverse(Held(_, _, m))| m)
+    }
+
+    fn add_damage(&mut self, note: String) {
+        self.damage = Some(match self.damage.take() {
+            Some(before) => format!("{before}; {note}"),
+            None => note,
+        });
+    }
+
+    fn open_next(&mut self) -> Result<bool, BagError> {
+        let Some(path) = self.files.next() else {
+            self.file = None;
+            return Ok(false);
+        };
+        let f = File::open(&path).map_err(|source| BagError::Io {
+            path: path.clone(),
+            source,
+        })?;
+        self.file = Some(FileStream::new(
+            path,
+            Box::new(BufReader::with_capacity(1 << 16, f)),
+        ));
+        Ok(true)
+    }
+
+    /// The next message in file order, across the files.
+    fn read_message(&mut self) -> Option<BagMessage> {
+        loop {
+            let stream = self.file.as_mut()?;
+            let result = stream.next(&mut self.channels, &mut self.read);
+            let name = if self.several_files {
+                format!("{}: ", stream.path.display())
+            } else {
+                String::new()
+            };
+            let skipped: Vec<String> = stream.skipped.drain(..).collect();
+            for note in skipped {
+                self.add_damage(format!("{name}{note}"));
+            }
+            match result {
+                Ok(Some(message)) => {
+                    self.messages += 1;
+                    return Some(message);
+                }
+                Ok(None) => {}
+                Err(reason) => {
+                    self.add_damage(format!(
+                        "{name}reading stopped after {} messages: {reason}",
+                        self.messages
+                    ));
+                    self.file = None;
+                    return None;
+                }
+            }
+            match self.open_next() {
+                Ok(true) => {}
+                Ok(false) => return None,
+                Err(e) => {
+                    self.add_damage(e.to_string());
+                    return None;
+                }
+            }
+        }
+    }
+
+    /// Registers the channels of a file's summary section (the file's ids are read again with
+    /// its data section).
+    fn register_summary(&mut self, summary: &[u8]) {
+        self.summarised = true;
+        let mut records = Records::default();
+        for (opcode, record) in (RecordSlices { rest: summary }) {
+            if let Ok(record) = mcap::parse_record(opcode, record) {
+                records.take(record, &mut self.channels);
+            }
+        }
+    }
+}
+
+impl FileStream {
+    /// A stream over `source`, positioned after the 8 magic bytes (already checked).
+    fn new(path: PathBuf, mut source: Box<dyn Read>) -> Self {
+        let mut magic = [0u8; 8];
+        let skipped_magic = read_up_to(&mut source, &mut magic).unwrap_or(0);
+        Self {
+            path,
+            source,
+            offset: skipped_magic as u64,
+            records: Records::default(),
+            chunk: std::collections::VecDeque::new(),
+            skipped: Vec::new(),
+            finished: false,
+        }
+    }
+
+    /// The next message of the file, `None` at its end, or why it cannot be read further.
+    fn next(
+        &mut self,
+        channels: &mut Vec<ChannelInfo>,
+        read: &mut u64,
+    ) -> Result<Option<BagMessage>, String> {
+        loop {
+            if let Some(message) = self.chunk.pop_front() {
+                return Ok(Some(message));
+            }
+            if self.finished {
+                return Ok(None);
+            }
+            let at = self.offset;
+            let Some((opcode, body, complete)) = self.next_record()? else {
+                return Ok(None);
+            };
+            *read += self.offset - at;
+            if !complete {
+                if opcode == op::CHUNK {
+                    // What the cut-off chunk holds up to the end of the file is still read.
+                    let _ = self.take_chunk(&body, at, false, channels);
+                    let found = self.chunk.len();
+                    self.finished = true;
+                    if found > 0 {
+                        self.skipped.push(format!(
+                            "the file ends inside the chunk at byte {at} ({found} messages of it read)"
+                        ));
+                        continue;
+                    }
+                }
+                return Err(format!("the file ends inside a record at byte {at}"));
+            }
+            match opcode {
+                op::CHUNK => self.take_chunk(&body, at, true, channels)?,
+                op::DATA_END | op::FOOTER => self.finished = true,
+                _ => {
+                    let record = mcap::parse_record(opcode, &body)
+                        .map_err(|e| format!("the record at byte {at}: {e}"))?;
+                    if let mcap::records::Record::Message { header, data } = record {
+                        let data = data.into_owned();
+                        return self.message(&header, data).map(Some);
+                    }
+                    self.records.take(record, channels);
+                }
+            }
+        }
+    }
+
+    /// The next record: opcode, body, and whether the body is whole (false when the file ends
+    /// inside it); `None` at the end of the file.
+    fn next_record(&mut self) -> Result<Option<(u8, Vec<u8>, bool)>, String> {
+        let at = self.offset;
+        let mut head = [0u8; 9];
+        let got = read_up_to(&mut self.source, &mut head).map_err(|e| e.to_string())?;
+        self.offset += got as u64;
+        match got {
+            0 => return Ok(None),
+            9 => {}
+            _ => return Err(format!("the file ends inside a record header at byte {at}")),
+        }
+        let opcode = head[0];
+        let mut len_bytes = [0u8; 8];
+        len_bytes.copy_from_slice(&head[1..]);
+        let len = u64::from_le_bytes(len_bytes);
+        if len > RECORD_LENGTH_LIMIT {
+            return Err(format!(
+                "the record at byte {at} claims {len} bytes: corrupt"
+            ));
+        }
+        let mut body = Vec::new();
+        Read::by_ref(&mut self.source)
+            .take(len)
+            .read_to_end(&mut body)
+            .map_err(|e| e.to_string())?;
+        self.offset += body.len() as u64;
+        let complete = body.len() as u64 == len;
+        Ok(Some((opcode, body, complete)))
+    }
+
+    /// Reads a chunk record's records: its messages are queued, its schemas and channels
+    /// registered. A whole chunk whose CRC does not match, or that does not decompress, is
+    /// skipped (noted in `skipped`) and reading goes on with the next record; of a chunk cut off
+    /// by the end of the file (`complete` false), the complete records are read.
+    fn take_chunk(
+        &mut self,
+        body: &[u8],
+        at: u64,
+        complete: bool,
+        channels: &mut Vec<ChannelInfo>,
+    ) -> Result<(), String> {
+        let Some(chunk) = ChunkParts::parse(body) else {
+            return Err(format!("the chunk at byte {at} has a corrupt header"));
+        };
+        let skip = |why: String| format!("the chunk at byte {at} ({why}) was skipped");
+        let data = match decompress(&chunk, complete) {
+            Ok(data) => data,
+            Err(why) => {
+                self.skipped.push(skip(why));
+                return Ok(());
+            }
+        };
+        if complete && chunk.crc != 0 && crc32fast::hash(&data) != chunk.crc {
+            self.skipped
+                .push(skip("its CRC does not match: corrupt".to_string()));
+            return Ok(());
+        }
+        let mut records = RecordSlices { rest: &data };
+        for (opcode, record) in records.by_ref() {
+            match mcap::parse_record(opcode, record) {
+                Ok(mcap::records::Record::Message { header, data }) => {
+                    let message = self.message(&header, data.into_owned())?;
+                    self.chunk.push_back(message);
+                }
+                Ok(other) => self.records.take(other, channels),
+                Err(e) => return Err(format!("a record in the chunk at byte {at}: {e}")),
+            }
+        }
+        if complete && !records.rest.is_empty() {
+            return Err(format!("the chunk at byte {at} ends inside a record"));
+        }
+        Ok(())
+    }
+
+    /// A message record of this file as a [`BagMessage`].
+    fn message(
+        &self,
+        header: &mcap::records::MessageHeader,
+        data: Vec<u8>,
+    ) -> Result<BagMessage, String> {
+        let Some(&channel) = self.records.ids.get(&header.channel_id) else {
+            return Err(format!(
+                "a message on unknown channel {}",
+                header.channel_id
+            ));
+        };
+        Ok(BagMessage {
+            channel,
+            log_time: header.log_time,
+            publish_time: header.publish_time,
+            data,
+        })
+    }
+}
+
+/// The parts of a chunk record body: uncompressed size and CRC, compression, compressed records
+/// (as many bytes of them as there are).
+struct ChunkParts<'a> {
+    uncompressed_size: u64,
+    crc: u32,
+    compression: &'a str,
+    records: &'a [u8],
+}
+
+impl<'a> ChunkParts<'a> {
+    fn parse(body: &'a [u8]) -> Option<Self> {
+        // message_start_time u64, message_end_time u64, uncompressed_size u64,
+        // uncompressed_crc u32, compression (u32 length + UTF-8), records length u64, records.
+        let (_times, rest) = body.split_at_checked(16)?;
+        let (size, rest) = rest.split_first_chunk::<8>()?;
+        let (crc, rest) = rest.split_first_chunk::<4>()?;
+        let (name_len, rest) = rest.split_first_chunk::<4>()?;
+        let (name, rest) = rest.split_at_checked(u32::from_le_bytes(*name_len) as usize)?;
+        let (records_len, rest) = rest.split_first_chunk::<8>()?;
+        let records_len = usize::try_from(u64::from_le_bytes(*records_len)).ok()?;
+        Some(Self {
+            uncompressed_size: u64::from_le_bytes(*size),
+            crc: u32::from_le_bytes(*crc),
+            compression: std::str::from_utf8(name).ok()?,
+            records: rest.get(..records_len).unwrap_or(rest),
+        })
+    }
+}
+
+/// The records `(opcode, body)` laid end to end in `rest` (a chunk's or a summary section's);
+/// iteration stops at one cut short, which stays in `rest`.
+struct RecordSlices<'a> {
+    rest: &'a [u8],
+}
+
+impl<'a> Iterator for RecordSlices<'a> {
+    type Item = (u8, &'a [u8]);
+
+    fn next(&mut self) -> Option<Self::Item> {
+        let (&opcode, after) = self.rest.split_first()?;
+        let (len, body) = after.split_first_chunk::<8>()?;
+        let len = usize::try_from(u64::from_le_bytes(*len)).ok()?;
+        let (record, tail) = body.split_at_checked(len)?;
+        self.rest = tail;
+        Some((opcode, record))
+    }
+}
+
+/// Reads into `buf` until it is full or the source ends; the number of bytes read.
+fn read_up_to(source: &mut dyn Read, buf: &mut [u8]) -> std::io::Result<usize> {
+    let mut got = 0;
+    while got < buf.len() {
+        match source.read(&mut buf[got..]) {
+            Ok(0) => break,
+            Ok(n) => got += n,
+            Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
+            Err(e) => return Err(e),
+        }
+    }
+    Ok(got)
+}
+
+impl Records {
+    /// Registers a schema or channel record (channels merge by topic across files).
+    fn take(&mut self, record: mcap::records::Record<'_>, channels: &mut Vec<ChannelInfo>) {
+        match record {
+            mcap::records::Record::Schema { header, data } => {
+                self.schemas
+                    .insert(header.id, (header.name, header.encoding, data.into_owned()));
+            }
+            mcap::records::Record::Channel(c) => {
+                let schema = self.schemas.get(&c.schema_id);
+                let known = channels.iter().position(|known| known.topic == c.topic);
+                // A summary may repeat its channels without their schemas (the data section has
+                // them): the channel then learns its schema when the data section names it.
+                if let (Some(i), Some((name, encoding, data))) = (known, schema)
+                    && channels[i].schema_name.is_empty()
+                {
+                    channels[i].schema_name.clone_from(name);
+                    channels[i].schema_encoding.clone_from(encoding);
+                    channels[i].schema_data.clone_from(data);
+                }
+                let index = known.unwrap_or_else(|| {
+                    channels.push(ChannelInfo {
+                        topic: c.topic.clone(),
+                        schema_name: schema.map(|s| s.0.clone()).unwrap_or_default(),
+                        schema_encoding: schema.map(|s| s.1.clone()).unwrap_or_default(),
+                        schema_data: schema.map(|s| s.2.clone()).unwrap_or_default(),
+                        message_encoding: c.message_encoding.clone(),
+                        metadata: c.metadata.clone(),
+                    });
+                    channels.len() - 1
+                });
+                self.ids.insert(c.id, index);
+            }
+            _ => {}
+        }
+    }
+}
+
+/// Checks that the first bytes of a file are the MCAP magic.
+fn check_magic(start: &[u8], path: &Path) -> Result<(), BagError> {
+    if start.is_empty() {
+        return Err(BagError::NotMcap {
+            path: path.to_path_buf(),
+            reason: "the file is empty (0 bytes)".to_string(),
+        });
+    }
+    if !start.starts_with(mcap::MAGIC) {
+        return Err(BagError::NotMcap {
+            path: path.to_path_buf(),
+            reason: "it does not start with the MCAP magic bytes".to_string(),
+        });
+    }
+    Ok(())
+}
+
+/// The records of a chunk, decompressed; of a chunk cut short (`complete` false), as much as
+/// decompresses.
+fn decompress(chunk: &ChunkParts<'_>, complete: bool) -> Result<Vec<u8>, String> {
+    let size = chunk.uncompressed_size;
+    if size > RECORD_LENGTH_LIMIT {
+        return Err(format!("{size} bytes uncompressed: too large"));
+    }
+    let mut out = Vec::new();
+    let result = match chunk.compression {
+        "" => {
+            out.extend_from_slice(chunk.records);
+            Ok(0)
+        }
+        "zstd" => zstd::stream::read::Decoder::new(chunk.records)
+            .and_then(|d| d.take(size).read_to_end(&mut out))
+            .map_err(|e| format!("zstd: {e}")),
+        "lz4" => lz4::Decoder::new(chunk.records)
+            .and_then(|d| d.take(size).read_to_end(&mut out))
+            .map_err(|e| format!("lz4: {e}")),
+        other => return Err(format!("unknown compression `{other}`")),
+    };
+    if complete {
+        result?;
+        if out.len() as u64 != size {
+            return Err(format!("{} bytes decompressed, {size} declared", out.len()));
+        }
+    }
+    Ok(out)
+}
+
+/// The summary section of a finished MCAP file (from its footer), if it has one.
+fn read_summary(f: &mut File) -> Option<Vec<u8>> {
+    // Footer record: opcode, length (20), summary start, summary offset start, CRC; then magic.
+    const TAIL: u64 = 1 + 8 + 8 + 8 + 4 + 8;
+    let len = f.metadata().ok()?.len();
+    let footer_at = len.checked_sub(TAIL)?;
+    f.seek(SeekFrom::Start(footer_at)).ok()?;
+    let mut tail = [0u8; TAIL as usize];
+    f.read_exact(&mut tail).ok()?;
+    if tail[0] != mcap::records::op::FOOTER || tail[29..] != *mcap::MAGIC {
+        return None;
+    }
+    let start = u64::from_le_bytes(tail[9..17].try_into().ok()?);
+    if start == 0 || start >= footer_at {
+        return None;
+    }
+    let mut summary = vec![0u8; usize::try_from(footer_at - start).ok()?];
+    f.seek(SeekFrom::Start(start)).ok()?;
+    f.read_exact(&mut summary).ok()?;
+    Some(summary)
+}
+
+/// Writes a ROS 2 MCAP bag.
+pub struct BagWriter<W: Write + Seek> {
+    writer: mcap::Writer<W>,
+    path: PathBuf,
+    schemas: BTreeMap<(String, Vec<u8>), u16>,
+    channels: BTreeMap<String, u16>,
+    /// Each channel's description, by id (for the observer).
+    infos: BTreeMap<u16, ChannelInfo>,
+    sequence: u32,
+    observer: Option<Observer>,
+}
+
+/// Sees every message a [`BagWriter`] writes, after it is written: its channel, log time and
+/// payload (e.g. the live view, [`crate::bag::live_view`]).
+pub type Observer = Box<dyn FnMut(&ChannelInfo, u64, &[u8])>;
+
+impl BagWriter<BufWriter<File>> {
+    /// Creates (or replaces) a bag file.
+    pub fn create(path: &Path) -> Result<Self, BagError> {
+        let file = File::create(path).map_err(|source| BagError::Io {
+            path: path.to_path_buf(),
+            source,
+        })?;
+        Self::new(BufWriter::new(file), path)
+    }
+}
+
+impl<W: Write + Seek> BagWriter<W> {
+    /// A bag writer on any seekable output; `path` names it in errors.
+    pub fn new(out: W, path: &Path) -> Result<Self, BagError> {
+        let writer = mcap::WriteOptions::new()
+            .profile("ros2")
+            .library(concat!("ttball ", env!("CARGO_PKG_VERSION")))
+            // zstd's fastest level: a replay's output compresses in 0.6 of the time of the
+            // default level (3), 0.7 % larger (README "Performance").
+            .compression_level(1)
+            .create(out)
+            .map_err(|e| BagError::Write {
+                path: path.to_path_buf(),
+                reason: e.to_string(),
+            })?;
+        Ok(Self {
+            writer,
+            path: path.to_path_buf(),
+            schemas: BTreeMap::new(),
+            channels: BTreeMap::new(),
+            infos: BTreeMap::new(),
+            sequence: 0,
+            observer: None,
+        })
+    }
+
+    /// Shows every message written from now on to `observer` as well.
+    pub fn observe(&mut self, observer: Observer) {
+        self.observer = Some(observer);
+    }
+
+    fn write_error(&self, e: mcap::McapError) -> BagError {
+        BagError::Write {
+            path: self.path.clone(),
+            reason: e.to_string(),
+        }
+    }
+
+    /// The channel of a topic carrying one of ttball's known types (`pkg/msg/Type`), created on
+    /// first use with the type's full `ros2msg` schema, offered reliable and volatile (ttball's
+    /// outputs; see [`Self::channel_with_qos`]).
+    pub fn channel(&mut self, topic: &str, type_name: &str) -> Result<u16, BagError> {
+        self.channel_with_qos(topic, type_name, OfferedQos::Reliable)
+    }
+
+    /// [`Self::channel`] with the QoS its publisher offers, recorded as rosbag2 records it
+    /// (the channel's `offered_qos_profiles`), so that `ros2 bag play` republishes it so.
+    pub fn channel_with_qos(
+        &mut self,
+        topic: &str,
+        type_name: &str,
+        qos: OfferedQos,
+    ) -> Result<u16, BagError> {
+        if let Some(id) = self.channels.get(topic) {
+            return Ok(*id);
+        }
+        let schema = definitions::schema(type_name)
+            .ok_or_else(|| BagError::UnknownType(type_name.into()))?;
+        self.add_channel(&ChannelInfo {
+            topic: topic.to_string(),
+            schema_name: type_name.to_string(),
+            schema_encoding: "ros2msg".to_string(),
+            schema_data: schema.into_bytes(),
+            message_encoding: "cdr".to_string(),
+            metadata: BTreeMap::from([(OFFERED_QOS_PROFILES.to_owned(), qos.profiles_yaml())]),
+        })
+    }
+
+    /// A channel copied from another bag (same topic, schema, encodings and metadata).
+    pub fn add_channel(&mut self, info: &ChannelInfo) -> Result<u16, BagError> {
+        if let Some(id) = self.channels.get(&info.topic) {
+            return Ok(*id);
+        }
+        let schema_id = if info.schema_name.is_empty() {
+            0
+        } else {
+            let key = (info.schema_name.clone(), info.schema_data.clone());
+            match self.schemas.get(&key) {
+                Some(id) => *id,
+                None => {
+                    let id = self
+                        .writer
+                        .add_schema(&info.schema_name, &info.schema_encoding, &info.schema_data)
+                        .map_err(|e| self.write_error(e))?;
+                    self.schemas.insert(key, id);
+                    id
+                }
+            }
+        };
+        let id = self
+            .writer
+            .add_channel(
+                schema_id,
+                &info.topic,
+                &info.message_encoding,
+                &info.metadata,
+            )
+            .map_err(|e| self.write_error(e))?;
+        self.channels.insert(info.topic.clone(), id);
+        self.infos.insert(id, info.clone());
+        Ok(id)
+    }
+
+    /// Writes a payload on a channel.
+    pub fn write_raw(
+        &mut self,
+        channel: u16,
+        log_time: u64,
+        publish_time: u64,
+        data: &[u8],
+    ) -> Result<(), BagError> {
+        self.sequence = self.sequence.wrapping_add(1);
+        let header = mcap::records::MessageHeader {
+            channel_id: channel,
+            sequence: self.sequence,
+            log_time,
+            publish_time,
+        };
+        self.writer
+            .write_to_known_channel(&header, data)
+            .map_err(|e| self.write_error(e))?;
+        if let (Some(observe), Some(info)) = (&mut self.observer, self.infos.get(&channel)) {
+            observe(info, log_time, data);
+        }
+        Ok(())
+    }
+
+    /// Encodes a message as CDR and writes it; log and publish time are `log_time` [ns].
+    pub fn write<T: Serialize>(
+        &mut self,
+        channel: u16,
+        type_name: &str,
+        log_time: u64,
+        msg: &T,
+    ) -> Result<(), BagError> {
+        let payload = encode(type_name, msg)?;
+        self.write_raw(channel, log_time, log_time, &payload)
+    }
+
+    /// Finishes the file: the last chunk, the summary and the footer.
+    pub fn finish(mut self) -> Result<(), BagError> {
+        self.writer.finish().map_err(|e| self.write_error(e))?;
+        let mut out = self.writer.into_inner();
+        out.flush().map_err(|source| BagError::Io {
+            path: self.path.clone(),
+            source,
+        })
+    }
+}
+
+/// The channel metadata key under which rosbag2 records the QoS a topic's publishers offered
+/// (required by MCAP's `ros2` profile).
+pub const OFFERED_QOS_PROFILES: &str = "offered_qos_profiles";
+
+/// The QoS a channel's publisher offers, as far as `ros2 bag play` uses it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum OfferedQos {
+    /// Sensor data (REP 2003): best effort, volatile. The detections.
+    SensorData,
+    /// Reliable, volatile: ttball's outputs and the simulator's truth.
+    Reliable,
+    /// Reliable, transient local (latched): `/tf_static`.
+    TransientLocal,
+}
+
+impl OfferedQos {
+    /// The profile list as rosbag2 writes it (a YAML list of one profile, with the numeric
+    /// `rmw_qos_*_policy` values every ROS 2 distribution reads): history and depth unknown
+    /// (discovery does not carry them; rosbag2 records 3 / 0 too), durations infinite,
+    /// liveliness automatic.
+    pub fn profiles_yaml(self) -> String {
+        // rmw_qos_reliability_policy_e: 1 reliable, 2 best effort; rmw_qos_durability_policy_e:
+        // 1 transient local, 2 volatile.
+        let (reliability, durability) = match self {
+            Self::SensorData => (2, 2),
+            Self::Reliable => (1, 2),
+            Self::TransientLocal => (1, 1),
+        };
+        let infinite = "\n    sec: 2147483647\n    nsec: 4294967295";
+        format!(
+            "- history: 3\n  depth: 0\n  reliability: {reliability}\n  durability: {durability}\n  deadline:{infinite}\n  lifespan:{infinite}\n  liveliness: 1\n  liveliness_lease_duration:{infinite}\n  avoid_ros_namespace_conventions: false"
+        )
+    }
+}
+
+/// A nanosecond stamp as an MCAP time (negative stamps become 0).
+pub fn mcap_time(stamp: i64) -> u64 {
+    u64::try_from(stamp).unwrap_or(0)
+}

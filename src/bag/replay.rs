@@ -1,0 +1,663 @@
+//! Offline replay of a ROS 2 MCAP bag through the node's own code path ([`Pipeline`]): the
+//! detections of the bag, in log-time order, go through `Pipeline::on_detection` exactly as the
+//! live node's would, and the output bag holds the input topics unchanged plus what the node
+//! would have published, each with the log time of the detection that produced it. Time comes
+//! from the messages only, so two replays give byte-identical files.
+//!
+//! When the bag carries the simulator's truth (`/ball/truth`: the true state at each detection's
+//! stamp; `/ball/truth/intercept`: each shot's true crossing and bounce), the replay scores the
+//! estimator with the same [`Scorer`] as `ttball evaluate`.
+
+use std::borrow::Borrow;
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::Instant;
+
+use crate::bag::{
+    BagContents, BagError, BagMessage, BagReader, BagWriter, ChannelInfo, channel_of, decode,
+    read_bag_file,
+};
+use crate::config::Config;
+use crate::eval::{EvalReport, Scorer, ShotTruth};
+use crate::model::detection::Detection;
+use crate::model::frames::Frames;
+use crate::model::stats::DurationHistogram;
+use crate::offline::smooth::{SmoothedState, Smoothing, smooth};
+use crate::online::estimator::{Counters, Estimate, TrackStatus};
+use crate::ros::msgs::convert::{
+    add_static_transforms, detection_from_msg_in, state_from_msg, state_msg,
+    truth_intercept_from_msg,
+};
+use crate::ros::msgs::definitions;
+use crate::ros::msgs::tf2_msgs::TFMessage;
+use crate::ros::msgs::ttball_msgs::msg::{BallDetection, BallState, InterceptPrediction, RobotHit};
+pub use crate::ros::msgs::type_names::{
+    DETECTION_TYPE, INTERCEPT_TYPE, MARKERS_TYPE, ODOMETRY_TYPE, ROBOT_HIT_TYPE, STATE_TYPE,
+    TF_MESSAGE_TYPE, TRAJECTORY_TYPE,
+};
+use crate::ros::pipeline::Pipeline;
+
+/// The static transforms' topic (tf2), read by the node and, when a bag has it, by the replay.
+pub const TF_STATIC_TOPIC: &str = "/tf_static";
+/// The topic of each shot's true crossing and bounce, next to `topics.truth`.
+pub fn truth_intercept_topic(truth: &str) -> String {
+    format!("{truth}/intercept")
+}
+
+/// Why a replay could not run.
+#[derive(Debug, thiserror::Error)]
+pub enum ReplayError {
+    /// Reading or writing a bag failed.
+    #[error(transparent)]
+    Bag(#[from] BagError),
+    /// The bag has no detection topic.
+    #[error(
+        "{path}: no topic `{topic}` (topics in the bag: {present}); set the detection topic with -p topics.detections:=/your/topic"
+    )]
+    NoDetections {
+        /// The input bag.
+        path: PathBuf,
+        /// The topic looked for.
+        topic: String,
+        /// The topics present.
+        present: String,
+    },
+    /// The detection topic carries another type.
+    #[error("{path}: topic `{topic}` carries `{found}`, not `{DETECTION_TYPE}`")]
+    WrongType {
+        /// The input bag.
+        path: PathBuf,
+        /// The topic.
+        topic: String,
+        /// Its type.
+        found: String,
+    },
+    /// The detection topic has the detection type's name, but its schema declares other fields.
+    #[error(
+        "{path}: topic `{topic}` is `{DETECTION_TYPE}`, but not ttball's definition of it: its fields are `{found}`, ttball's are `{expected}`; record it with this version of ttball_msgs (msgs/msg/BallDetection.msg)"
+    )]
+    SchemaMismatch {
+        /// The input bag.
+        path: PathBuf,
+        /// The topic.
+        topic: String,
+        /// The bag's fields, `type name; ...`.
+        found: String,
+        /// ttball's fields.
+        expected: String,
+    },
+}
+
+/// What a replay did.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ReplaySummary {
+    /// The input bag.
+    pub input: PathBuf,
+    /// The output bag.
+    pub output: PathBuf,
+    /// Messages read from the input (all topics).
+    pub messages: usize,
+    /// Detection messages read.
+    pub detections: u64,
+    /// Detection messages whose payload could not be decoded (skipped).
+    pub undecodable: u64,
+    /// Robot-hit messages (`topics.robot_hits`) refused: undecodable, in an unknown frame or
+    /// with a face normal that is not a unit vector.
+    pub robot_hits_refused: u64,
+    /// What the estimator did with the decoded ones.
+    pub counters: Counters,
+    /// How many interceptions were predicted in full and how many moved from the last full one.
+    pub intercepts: crate::online::intercept::TrackerCounts,
+    /// The physical parameters the estimator learned, as it ended.
+    pub learned: crate::online::estimator::LearnedParams,
+    /// The noise it learned of each source (unknown, 150 fps, 900 fps), as it ended.
+    pub learned_noise: Vec<crate::online::estimator::LearnedSourceNoise>,
+    /// How far it learned the flights stray from its model, as it ended.
+    pub learned_model_noise: crate::online::estimator::LearnedModelNoise,
+    /// Messages written to the output bag.
+    pub written: u64,
+    /// Processing time per detection [ns], mean and 99th percentile.
+    pub processing_mean_ns: f64,
+    /// 99th percentile of the processing time per detection [ns].
+    pub processing_p99_ns: f64,
+    /// Log time spanned by the detections [s].
+    pub recorded_seconds: f64,
+    /// Time spent processing them [s].
+    pub processing_seconds: f64,
+    /// Why the input was read only in part (truncated or corrupt), if it was.
+    pub damage: Option<String>,
+    /// True when the replay was interrupted (the output holds what was done, finished).
+    pub interrupted: bool,
+    /// Accuracy against the bag's truth, when it has one.
+    pub accuracy: Option<EvalReport>,
+}
+
+impl ReplaySummary {
+    /// Recorded duration over processing time.
+    pub fn real_time_factor(&self) -> f64 {
+        if self.processing_seconds > 0.0 {
+            self.recorded_seconds / self.processing_seconds
+        } else {
+            f64::INFINITY
+        }
+    }
+}
+
+/// The output topics of the pipeline, with their channels.
+struct Outputs {
+    state: u16,
+    intercept: u16,
+    trajectory: u16,
+    markers: u16,
+    /// When `topics.odometry` is set.
+    odometry: Option<u16>,
+}
+
+/// The truth a bag carries, indexed for scoring.
+struct BagTruth {
+    /// Truth at a stamp: (shot index, state).
+    states: BTreeMap<i64, (usize, crate::physics::BallState)>,
+    shots: Vec<ShotTruth>,
+}
+
+/// The channels of the truth topics (states, shot events) among a bag's, when it has both.
+fn truth_channels(channels: &[ChannelInfo], config: &Config) -> Option<(usize, usize)> {
+    Some((
+        channel_of(channels, &config.resolved_topics().truth)?,
+        channel_of(
+            channels,
+            &truth_intercept_topic(&config.resolved_topics().truth),
+        )?,
+    ))
+}
+
+/// The truth among `messages`, its states and shot events on these channels
+/// ([`truth_channels`]).
+fn read_truth<M: Borrow<BagMessage>>(
+    (state_channel, event_channel): (usize, usize),
+    messages: impl IntoIterator<Item = M>,
+) -> BagTruth {
+    let mut shots: BTreeMap<u32, ShotTruth> = BTreeMap::new();
+    let mut shot_states = Vec::new();
+    for m in messages {
+        let m = m.borrow();
+        if m.channel == event_channel
+            && let Ok(msg) = decode::<InterceptPrediction>(&m.data)
+        {
+            let (shot, truth) = truth_intercept_from_msg(&msg);
+            shots.insert(shot, truth);
+        } else if m.channel == state_channel
+            && let Ok(msg) = decode::<BallState>(&m.data)
+        {
+            shot_states.push(state_from_msg(&msg));
+        }
+    }
+    let index: BTreeMap<u32, usize> = shots.keys().enumerate().map(|(i, id)| (*id, i)).collect();
+    let states = shot_states
+        .into_iter()
+        .filter_map(|(stamp, shot, state)| index.get(&shot).map(|i| (stamp, (*i, state))))
+        .collect();
+    BagTruth {
+        states,
+        shots: shots.into_values().collect(),
+    }
+}
+
+/// The channel of `topic` in a bag read from `path`, checked to carry `BallDetection`.
+pub fn detection_channel(
+    channels: &[ChannelInfo],
+    topic: &str,
+    path: &Path,
+) -> Result<usize, ReplayError> {
+    let Some(channel) = channel_of(channels, topic) else {
+        let present: Vec<&str> = channels.iter().map(|c| c.topic.as_str()).collect();
+        return Err(ReplayError::NoDetections {
+            path: path.to_path_buf(),
+            topic: topic.to_owned(),
+            present: if present.is_empty() {
+                "none".to_string()
+            } else {
+                present.join(", ")
+            },
+        });
+    };
+    let info = &channels[channel];
+    if info.schema_name != DETECTION_TYPE {
+        return Err(ReplayError::WrongType {
+            path: path.to_path_buf(),
+            topic: topic.to_owned(),
+            found: info.schema_name.clone(),
+        });
+    }
+    // Same name, other fields: the payloads would decode as garbage or not at all.
+    if info.schema_encoding == "ros2msg" && !info.schema_data.is_empty() {
+        let listed = |text: &str| {
+            definitions::fields(text)
+                .iter()
+                .map(|(ty, name)| format!("{ty} {name}"))
+                .collect::<Vec<_>>()
+                .join("; ")
+        };
+        let found = listed(&String::from_utf8_lossy(&info.schema_data));
+        let expected = listed(definitions::definition(DETECTION_TYPE).unwrap_or_default());
+        if found != expected {
+            return Err(ReplayError::SchemaMismatch {
+                path: path.to_path_buf(),
+                topic: topic.to_owned(),
+                found,
+                expected,
+            });
+        }
+    }
+    Ok(channel)
+}
+
+/// A detection further than this from the truth is an outlier for scoring [m].
+const OUTLIER_DISTANCE: f64 = 0.03;
+
+/// Replays `input` into `output` (see the module doc), streaming: the input is read a chunk at a
+/// time and nothing grows with the length of the bag, except the truth of a bag that has one
+/// (read in a first pass, to score against). `progress` is called with (bytes read, bytes) now
+/// and then; setting `cancel` stops early with a properly finished output.
+pub fn replay(
+    input: &Path,
+    output: &Path,
+    config: &Config,
+    progress: &mut dyn FnMut(u64, u64),
+    cancel: &AtomicBool,
+) -> Result<ReplaySummary, ReplayError> {
+    replay_observed(input, output, config, progress, cancel, None)
+}
+
+/// [`replay`], every message written to `output` shown to `observer` too, as it is written
+/// (e.g. the live view at recorded pace: `ttball replay --foxglove`).
+pub fn replay_observed(
+    input: &Path,
+    output: &Path,
+    config: &Config,
+    progress: &mut dyn FnMut(u64, u64),
+    cancel: &AtomicBool,
+    observer: Option<crate::bag::Observer>,
+) -> Result<ReplaySummary, ReplayError> {
+    let mut reader = BagReader::open(input)?;
+    let topic = &config.resolved_topics().detections;
+    // A finished bag names its channels in its summary: the detection topic is checked before
+    // anything is written. A bag without a summary (cut off) is checked as its channels appear.
+    let mut detections_on = if !reader.has_summary() {
+        None
+    } else {
+        Some(detection_channel(reader.channels(), topic, input)?)
+    };
+    let truth = match truth_channels(reader.channels(), config) {
+        Some(channels) => {
+            let mut pass = BagReader::open(input)?;
+            Some(read_truth(
+                channels,
+                std::iter::from_fn(|| pass.next_message()),
+            ))
+        }
+        None => None,
+    };
+    // Truth channels without a shot in them: nothing to score against.
+    let mut scorer = truth
+        .as_ref()
+        .filter(|t| !t.shots.is_empty())
+        .map(|t| Scorer::new(t.shots.clone()));
+
+    let mut writer = BagWriter::create(output)?;
+    if let Some(observer) = observer {
+        writer.observe(observer);
+    }
+    let outputs = Outputs {
+        state: writer.channel(&config.resolved_topics().state, STATE_TYPE)?,
+        intercept: writer.channel(&config.resolved_topics().intercept, INTERCEPT_TYPE)?,
+        trajectory: writer.channel(&config.resolved_topics().trajectory, TRAJECTORY_TYPE)?,
+        markers: writer.channel(&config.resolved_topics().markers, MARKERS_TYPE)?,
+        odometry: match config.resolved_topics().odometry.as_str() {
+            "" => None,
+            topic => Some(writer.channel(topic, ODOMETRY_TYPE)?),
+        },
+    };
+    let mut copied: Vec<u16> = Vec::new();
+
+    let mut pipeline = Pipeline::new(config);
+    let mut messages = 0usize;
+    let mut detections = 0u64;
+    let mut undecodable = 0u64;
+    let mut robot_hits_refused = 0u64;
+    let mut written = 0u64;
+    let mut times = DurationHistogram::new();
+    let mut first_last: Option<(u64, u64)> = None;
+    let mut interrupted = false;
+    let mut tf_static_on: Option<usize> = None;
+    let mut robot_hits_on: Option<usize> = None;
+    let robot_hits_topic = config.resolved_topics().robot_hits;
+    let result = (|| -> Result<(), ReplayError> {
+        while let Some(m) = reader.next_message() {
+            if cancel.load(Ordering::Relaxed) {
+                interrupted = true;
+                break;
+            }
+            messages += 1;
+            while copied.len() < reader.channels().len() {
+                let info = &reader.channels()[copied.len()];
+                copied.push(writer.add_channel(info)?);
+            }
+            writer.write_raw(copied[m.channel], m.log_time, m.publish_time, &m.data)?;
+            written += 1;
+            if detections_on.is_none() && reader.channel(topic).is_some() {
+                detections_on = Some(detection_channel(reader.channels(), topic, input)?);
+            }
+            if tf_static_on.is_none() {
+                tf_static_on = reader.channel(TF_STATIC_TOPIC);
+            }
+            // Static transforms bring detections in other frames into `table`, as in the node.
+            if Some(m.channel) == tf_static_on {
+                if let Ok(msg) = decode::<TFMessage>(&m.data) {
+                    pipeline.on_static_transforms(&msg);
+                }
+                continue;
+            }
+            // The robot's announced hits seed the return's track, as in the node.
+            if robot_hits_on.is_none() {
+                robot_hits_on = reader
+                    .channel(&robot_hits_topic)
+                    .filter(|&c| reader.channels()[c].schema_name == ROBOT_HIT_TYPE);
+            }
+            if Some(m.channel) == robot_hits_on {
+                match decode::<RobotHit>(&m.data) {
+                    Ok(msg) => {
+                        if pipeline.on_robot_hit(&msg).is_err() {
+                            robot_hits_refused += 1;
+                        }
+                    }
+                    Err(_) => robot_hits_refused += 1,
+                }
+                continue;
+            }
+            if Some(m.channel) != detections_on {
+                continue;
+            }
+            detections += 1;
+            let Ok(msg) = decode::<BallDetection>(&m.data) else {
+                undecodable += 1;
+                continue;
+            };
+            let started = Instant::now();
+            let step = pipeline.on_detection(&msg);
+            times.record(u64::try_from(started.elapsed().as_nanos()).unwrap_or(u64::MAX));
+            first_last =
+                Some(first_last.map_or((m.log_time, m.log_time), |(a, _)| (a, m.log_time)));
+            let t = m.log_time;
+            let p = &step.published;
+            if let Some(s) = &p.state {
+                writer.write(outputs.state, STATE_TYPE, t, s)?;
+                written += 1;
+            }
+            if let Some(i) = &p.intercept {
+                writer.write(outputs.intercept, INTERCEPT_TYPE, t, i)?;
+                written += 1;
+            }
+            if let Some(tr) = &p.trajectory {
+                writer.write(outputs.trajectory, TRAJECTORY_TYPE, t, tr)?;
+                written += 1;
+            }
+            if let Some(mk) = &p.markers {
+                writer.write(outputs.markers, MARKERS_TYPE, t, mk)?;
+                written += 1;
+            }
+            if let (Some(channel), Some(o)) = (outputs.odometry, &p.odometry) {
+                writer.write(channel, ODOMETRY_TYPE, t, o)?;
+                written += 1;
+            }
+            if let (Some(scorer), Some(truth), Some(out), Some(d)) = (
+                scorer.as_mut(),
+                truth.as_ref(),
+                step.output.as_ref(),
+                step.detection.as_ref(),
+            ) && let Some((shot, state)) = truth.states.get(&d.stamp)
+            {
+                let outlier = (d.position - state.position).norm() > OUTLIER_DISTANCE;
+                scorer.score(*shot, d, state, outlier, out);
+            }
+            if detections.is_multiple_of(1024) {
+                let (done, total) = reader.progress();
+                progress(done, total);
+            }
+        }
+        if detections_on.is_none() && !interrupted {
+            detection_channel(reader.channels(), topic, input)?;
+        }
+        Ok(())
+    })();
+    // The output is finished whatever happened above.
+    let finished = writer.finish();
+    result?;
+    finished?;
+    let (done, total) = reader.progress();
+    progress(done, total);
+
+    let timing = times.summary();
+    let counters = pipeline.counters();
+    Ok(ReplaySummary {
+        input: input.to_path_buf(),
+        output: output.to_path_buf(),
+        messages,
+        detections,
+        undecodable,
+        robot_hits_refused,
+        counters,
+        intercepts: pipeline.estimator().intercept_counts(),
+        learned: pipeline.estimator().learned_params(),
+        learned_noise: pipeline.estimator().learned_noise(),
+        learned_model_noise: pipeline.estimator().learned_model_noise(),
+        written,
+        processing_mean_ns: timing.mean,
+        processing_p99_ns: timing.p99,
+        recorded_seconds: first_last.map_or(0.0, |(a, b)| (b - a) as f64 * 1e-9),
+        processing_seconds: timing.total * 1e-9,
+        damage: reader.damage().map(str::to_owned),
+        interrupted,
+        accuracy: scorer.map(|s| s.report(counters)),
+    })
+}
+
+/// The detections of a bag, decoded.
+#[derive(Debug, Clone)]
+pub struct BagDetections {
+    /// The whole bag.
+    pub contents: BagContents,
+    /// The detections brought into the table frame (`frames.table_frame`, by the bag's
+    /// `/tf_static` as the node would), in log-time (arrival) order.
+    pub detections: Vec<Detection>,
+    /// For every message of the bag, the index of its detection in `detections`.
+    pub message_detection: Vec<Option<usize>>,
+    /// Detection messages that could not be decoded.
+    pub undecodable: u64,
+    /// Detection messages in a frame not connected to the table frame.
+    pub unknown_frame: u64,
+}
+
+/// Reads `path` and decodes its detections (`topics.detections`).
+pub fn read_detections(path: &Path, config: &Config) -> Result<BagDetections, ReplayError> {
+    let contents = read_bag_file(path)?;
+    let channel = detection_channel(
+        &contents.channels,
+        &config.resolved_topics().detections,
+        path,
+    )?;
+    let tf_static = contents
+        .channels
+        .iter()
+        .position(|c| c.topic == TF_STATIC_TOPIC);
+    let mut frames = Frames::new(&config.frames.table_frame);
+    let mut detections = Vec::new();
+    let mut message_detection = Vec::with_capacity(contents.messages.len());
+    let (mut undecodable, mut unknown_frame) = (0u64, 0u64);
+    for m in &contents.messages {
+        let mut index = None;
+        if Some(m.channel) == tf_static
+            && let Ok(msg) = decode::<TFMessage>(&m.data)
+        {
+            add_static_transforms(&mut frames, &msg);
+        }
+        if m.channel == channel {
+            match decode::<BallDetection>(&m.data).map(|msg| detection_from_msg_in(&msg, &frames)) {
+                Err(_) => undecodable += 1,
+                Ok(Err(_)) => unknown_frame += 1,
+                Ok(Ok(d)) => {
+                    index = Some(detections.len());
+                    detections.push(d);
+                }
+            }
+        }
+        message_detection.push(index);
+    }
+    Ok(BagDetections {
+        contents,
+        detections,
+        message_detection,
+        undecodable,
+        unknown_frame,
+    })
+}
+
+/// What `ttball smooth` did with one bag.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SmoothSummary {
+    /// The input bag.
+    pub input: PathBuf,
+    /// The output bag.
+    pub output: PathBuf,
+    /// Detection messages read.
+    pub detections: u64,
+    /// Detection messages whose payload could not be decoded.
+    pub undecodable: u64,
+    /// Detection messages not in the `table` frame.
+    pub unknown_frame: u64,
+    /// What the smoother did (flights, failures, outliers, the estimator's counters).
+    pub smoothing: Smoothing,
+    /// Messages written to the output bag.
+    pub written: u64,
+    /// Why the input was read only in part, if it was.
+    pub damage: Option<String>,
+    /// Errors of the smoothed states against the bag's truth, when it has one.
+    pub truth_errors: Option<TruthErrors>,
+}
+
+/// Root-mean-square errors of estimates against the simulator's truth.
+#[derive(Debug, Clone, Copy, PartialEq, Default, serde::Serialize)]
+pub struct TruthErrors {
+    /// States compared.
+    pub count: usize,
+    /// Position [m].
+    pub position: f64,
+    /// Velocity [m/s].
+    pub velocity: f64,
+    /// Spin [rad/s].
+    pub spin: f64,
+}
+
+/// Smooths `input` into `output`: the input's messages unchanged plus, on `topics.smoothed`
+/// (`ttball_msgs/msg/BallState`), the whole-flight fit at every detection the estimator took
+/// ([`crate::offline::smooth`]), each with its detection's log time. `progress` gets (flights done,
+/// flights); setting `cancel` stops fitting and writes what is done, finished.
+pub fn smooth_bag(
+    input: &Path,
+    output: &Path,
+    config: &Config,
+    progress: &mut dyn FnMut(usize, usize),
+    cancel: &AtomicBool,
+) -> Result<SmoothSummary, ReplayError> {
+    let BagDetections {
+        contents,
+        detections,
+        message_detection,
+        undecodable,
+        unknown_frame,
+    } = read_detections(input, config)?;
+    let count = message_detection.iter().flatten().count() as u64 + undecodable + unknown_frame;
+    let truth = truth_channels(&contents.channels, config)
+        .map(|channels| read_truth(channels, &contents.messages));
+    let smoothing = smooth(config, &detections, progress, cancel);
+    let mut by_detection: Vec<Option<&SmoothedState>> = vec![None; detections.len()];
+    for s in &smoothing.states {
+        by_detection[s.index] = Some(s);
+    }
+
+    let mut writer = BagWriter::create(output)?;
+    let mut written = 0u64;
+    let result = (|| -> Result<(), ReplayError> {
+        let mut copied = Vec::with_capacity(contents.channels.len());
+        for channel in &contents.channels {
+            copied.push(writer.add_channel(channel)?);
+        }
+        let smoothed = writer.channel(&config.resolved_topics().smoothed, STATE_TYPE)?;
+        for (m, index) in contents.messages.iter().zip(&message_detection) {
+            writer.write_raw(copied[m.channel], m.log_time, m.publish_time, &m.data)?;
+            written += 1;
+            if let Some(s) = index.and_then(|i| by_detection[i]) {
+                writer.write(
+                    smoothed,
+                    STATE_TYPE,
+                    m.log_time,
+                    &smoothed_msg(s, &config.frames.table_frame),
+                )?;
+                written += 1;
+            }
+        }
+        Ok(())
+    })();
+    let finished = writer.finish();
+    result?;
+    finished?;
+
+    let truth_errors = truth.map(|truth| {
+        let mut sums = TruthErrors::default();
+        for s in &smoothing.states {
+            if let Some((_, t)) = truth.states.get(&s.stamp) {
+                let e = &s.fitted.state;
+                sums.count += 1;
+                sums.position += (e.position - t.position).norm_squared();
+                sums.velocity += (e.velocity - t.velocity).norm_squared();
+                sums.spin += (e.spin - t.spin).norm_squared();
+            }
+        }
+        let n = sums.count.max(1) as f64;
+        TruthErrors {
+            count: sums.count,
+            position: (sums.position / n).sqrt(),
+            velocity: (sums.velocity / n).sqrt(),
+            spin: (sums.spin / n).sqrt(),
+        }
+    });
+    Ok(SmoothSummary {
+        input: input.to_path_buf(),
+        output: output.to_path_buf(),
+        detections: count,
+        undecodable,
+        unknown_frame,
+        smoothing,
+        written,
+        damage: contents.damage,
+        truth_errors,
+    })
+}
+
+/// A smoothed state as a `BallState` message: status TRACKING, `nis` the detection's squared
+/// whitened residual against the smoothed state.
+fn smoothed_msg(s: &SmoothedState, frame: &str) -> BallState {
+    state_msg(
+        &Estimate {
+            stamp: s.stamp,
+            track_id: s.track_id,
+            status: TrackStatus::Tracking,
+            state: s.fitted.state,
+            covariance: s.fitted.covariance,
+            bounces: s.fitted.bounces,
+            nis: s.nis,
+        },
+        frame,
+    )
+}

@@ -1,0 +1,1831 @@
+//! The estimator: one entry point, [`Estimator::handle`], that takes every detection as it
+//! arrives and returns the filtered state and the interception prediction. The ROS node and the
+//! MCAP replay both call it, so a replay runs exactly the code path of the live node.
+//!
+//! - Zero added latency: each detection is processed on arrival. A detection older than the
+//!   newest fused one (the two cameras have different latencies) is fused by rolling back to the
+//!   estimate before its stamp and re-applying the newer detections, from a bounded history
+//!   (`tracking.rollback_window`); an older one is dropped and counted.
+//! - Gating by the Mahalanobis distance at `gating.probability`; a run of
+//!   `gating.max_consecutive_rejections` rejections, or a gap longer than `tracking.timeout`,
+//!   ends the track, and the next detections start a new one with a new track id.
+//! - Initialisation from the first `ekf.init_detections` detections (`init.rs`). A track that
+//!   starts on the robot's half with the ball rising toward the robot (a restart after a run of
+//!   rejections, or a late first sight) counts the bounce it must already have made.
+//! - A detection whose stamp jumps beyond `tracking.timeout` is held until the next one confirms
+//!   the jump (a new ball, a restarted clock: a new track) or shows a glitch
+//!   ([`Rejection::StampJump`]); see [`Estimator::update`]. Every rejected detection is counted
+//!   by reason ([`Counters`]); the rules are tabled in the README ("Bad input").
+//!
+//! No heap allocation per detection: the history and buffers are allocated once.
+
+mod init;
+mod learning;
+mod model_noise;
+mod noise;
+
+use std::collections::VecDeque;
+
+use nalgebra::{Matrix3, Matrix6, SVector, Vector3};
+
+use crate::config::{Config, SourceIndex, SourceParams};
+use crate::model::detection::{Detection, Source, seconds_to_ns};
+use crate::model::stats::chi_square_quantile;
+use crate::online::ekf::{
+    BounceNoise, Ekf, FilterNoise, Fused, NOISE_SCALES, NoiseScore, NoiseSensitivity,
+    ParamCovariance, ProcessNoise, UpdateError, position_H, position_spin_H,
+};
+use crate::online::intercept::{Intercept, InterceptQuery, InterceptTracker};
+use crate::physics::racket::{RacketModel, RacketState};
+use crate::physics::{
+    BallState, FlightModel, PARAMS, ParamVector, PhysicsParams, PredictOptions, Propagator,
+    StateMatrix, Trajectory, predict,
+};
+use learning::Learned;
+use model_noise::ModelNoiseLearner;
+use noise::NoiseLearner;
+pub use noise::SourceNoiseEstimate;
+
+/// Track status, with the codes of `BallState.msg`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum TrackStatus {
+    /// Collecting the first detections of a new ball.
+    Initializing,
+    /// Detections are being fused.
+    Tracking,
+    /// No detection fused for longer than `tracking.coast_after`: the estimate is a prediction.
+    Coasting,
+}
+
+impl TrackStatus {
+    /// The `STATUS_*` code of `BallState.msg`.
+    pub fn code(self) -> u8 {
+        match self {
+            Self::Initializing => 1,
+            Self::Tracking => 2,
+            Self::Coasting => 3,
+        }
+    }
+}
+
+/// Why a detection was not fused.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum Rejection {
+    /// A position, spin or covariance value is NaN or infinite.
+    NonFinite,
+    /// The confidence is outside [0, 1].
+    BadConfidence,
+    /// The confidence is below `ekf.min_confidence`.
+    LowConfidence,
+    /// A given covariance is not symmetric positive definite.
+    BadCovariance,
+    /// Older than the rollback window behind the newest fused detection, or before the track.
+    TooOld,
+    /// Same stamp and source as a detection already fused.
+    Duplicate,
+    /// Outside the Mahalanobis gate of the track.
+    Gated,
+    /// Dropped while initialising: it did not fit a ballistic flight with the others.
+    InitOutlier,
+    /// Rejected by an adapter before the filter: its `frame_id` is not `table`.
+    UnknownFrame,
+    /// More than `tracking.timeout` away from the stamps of the current track (or of the
+    /// detections initialising one), and the next detection did not confirm the jump: a clock
+    /// glitch. A jump the next detection confirms (a new ball after a pause, a restarted camera's
+    /// clock) starts a new track with both.
+    StampJump,
+    /// The position is more than [`MAX_RANGE`] from the table's centre: not a ball in play.
+    OutOfRange,
+}
+
+impl Rejection {
+    /// Every reason, in the order of [`Counters::rejected`].
+    pub const ALL: [Self; 11] = [
+        Self::NonFinite,
+        Self::BadConfidence,
+        Self::LowConfidence,
+        Self::BadCovariance,
+        Self::TooOld,
+        Self::Duplicate,
+        Self::Gated,
+        Self::InitOutlier,
+        Self::UnknownFrame,
+        Self::StampJump,
+        Self::OutOfRange,
+    ];
+
+    /// A short snake_case name for summaries and diagnostics.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::NonFinite => "non_finite",
+            Self::BadConfidence => "bad_confidence",
+            Self::LowConfidence => "low_confidence",
+            Self::BadCovariance => "bad_covariance",
+            Self::TooOld => "too_old",
+            Self::Duplicate => "duplicate",
+            Self::Gated => "gated",
+            Self::InitOutlier => "init_outlier",
+            Self::UnknownFrame => "unknown_frame",
+            Self::StampJump => "stamp_jump",
+            Self::OutOfRange => "out_of_range",
+        }
+    }
+
+    fn index(self) -> usize {
+        Self::ALL.iter().position(|r| *r == self).unwrap_or(0)
+    }
+}
+
+/// What happened to the detections so far.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct Counters {
+    /// Detections handled.
+    pub received: u64,
+    /// Detections fused into a track (including those fused late through a rollback).
+    pub fused: u64,
+    /// Detections used to initialise a track (or still waiting in the initialiser).
+    pub initializing: u64,
+    /// Rejected detections by reason, in the order of [`Rejection::ALL`].
+    pub rejected: [u64; Rejection::ALL.len()],
+    /// Tracks started.
+    pub tracks: u64,
+    /// Tracks refuted by their detections (a run of gated ones) and re-anchored on them: the
+    /// same ball, the same id, not counted in `tracks`.
+    pub reanchored: u64,
+    /// Late detections fused by rolling back.
+    pub rollbacks: u64,
+    /// Spin measurements that disagreed with the filter's spin and replaced it.
+    pub spin_resets: u64,
+    /// Detections near the table's edge that the other bounce hypothesis explained better.
+    pub edge_retries: u64,
+    /// Detections that claimed a spin of exactly zero (a detector's placeholder, not a
+    /// measurement): their spin was ignored, the detection judged as a position alone.
+    pub zero_spin_ignored: u64,
+    /// Tracks started at their first detection from the predicted rebound of an announced
+    /// robot hit ([`Estimator::expect_hit`]).
+    pub seeded_by_hit: u64,
+    /// Announced robot hits that seeded no track: no live track to hit, the track already
+    /// past the hit, the hit impossible, or the first detection after it far from the rebound.
+    pub hits_not_seeded: u64,
+}
+
+impl Counters {
+    /// Rejected detections of one reason.
+    pub fn rejected(&self, reason: Rejection) -> u64 {
+        self.rejected[reason.index()]
+    }
+
+    /// All rejected detections.
+    pub fn total_rejected(&self) -> u64 {
+        self.rejected.iter().sum()
+    }
+    /// "reason count" for every reason with rejected detections, in the order of
+    /// [`Rejection::ALL`].
+    pub fn rejections(&self) -> Vec<String> {
+        Rejection::ALL
+            .iter()
+            .filter(|r| self.rejected(**r) > 0)
+            .map(|r| format!("{} {}", r.name(), self.rejected(*r)))
+            .collect()
+    }
+}
+
+/// What the estimator did with one detection.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Verdict {
+    /// Fused into the track; the normalised innovation squared of the update.
+    Fused {
+        /// NIS of the update.
+        nis: f64,
+    },
+    /// Taken by the initialiser of a new track.
+    Initializing,
+    /// Its stamp jumped beyond `tracking.timeout`: held until the next detection confirms the
+    /// jump or shows a glitch (see [`Estimator::update`]); counted as initialising meanwhile.
+    Held,
+    /// Not fused.
+    Rejected(Rejection),
+}
+
+/// The filtered state of the tracked ball.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Estimate {
+    /// Time of the estimate [ns].
+    pub stamp: i64,
+    /// The track.
+    pub track_id: u32,
+    /// Track status.
+    pub status: TrackStatus,
+    /// The state.
+    pub state: BallState,
+    /// Its covariance over (position, velocity, spin).
+    pub covariance: StateMatrix,
+    /// Table bounces since the track started.
+    pub bounces: u32,
+    /// NIS of the last fused update.
+    pub nis: f64,
+}
+
+/// The interception prediction made from an estimate.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct InterceptEstimate {
+    /// Time of the estimate it was predicted from [ns].
+    pub stamp: i64,
+    /// The track.
+    pub track_id: u32,
+    /// The prediction (times relative to `stamp`).
+    pub intercept: Intercept,
+}
+
+/// Everything [`Estimator::handle`] returns for one detection.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Output {
+    /// What happened to the detection.
+    pub verdict: Verdict,
+    /// The estimate after it, when there is a ball.
+    pub estimate: Option<Estimate>,
+    /// The interception prediction from that estimate, when a track exists.
+    pub intercept: Option<InterceptEstimate>,
+}
+
+/// Measurement noise of one source, as variances.
+#[derive(Debug, Clone, PartialEq)]
+struct SourceNoise {
+    /// The source's name (its key under `sources`).
+    name: String,
+    position_var: f64,
+    spin_var: Option<f64>,
+}
+
+impl SourceNoise {
+    fn new(name: &str, p: &SourceParams) -> Self {
+        Self {
+            name: name.to_owned(),
+            position_var: p.position_sigma * p.position_sigma,
+            spin_var: (p.spin_sigma > 0.0).then_some(p.spin_sigma * p.spin_sigma),
+        }
+    }
+}
+
+/// The configuration as the estimator uses it.
+#[derive(Debug, Clone, PartialEq)]
+pub(crate) struct Settings {
+    /// What the filter's prediction adds to the physics.
+    filter: FilterNoise,
+    /// The extra position variance of a detection of a ball at the table [m^2].
+    contact_var: f64,
+    /// The adaptation's prior: the configured parameters, and their variances (zero for those
+    /// not adapted).
+    param_prior: ParamVector,
+    param_prior_var: ParamVector,
+    /// The flight-to-flight dispersion of the parameters (variances).
+    param_dispersion: ParamVector,
+    gate_position: f64,
+    gate_position_spin: f64,
+    gate_probability: f64,
+    /// Every source's noise, in the order of [`SourcesParams::all`].
+    sources: Vec<SourceNoise>,
+    /// Each detection's source's place in `sources`.
+    source_index: SourceIndex,
+    min_confidence: f64,
+    init_count: usize,
+    init_span: i64,
+    spin_prior_var: f64,
+    max_rejections: u32,
+    timeout: i64,
+    rollback: i64,
+    coast: i64,
+    plane_x: f64,
+    horizon: f64,
+    gravity: f64,
+}
+
+impl Settings {
+    pub(crate) fn new(config: &Config) -> Self {
+        let p = config.gating.probability;
+        let adaptation = &config.adaptation;
+        let sigmas = ParamVector::new(
+            adaptation.drag_scale_sigma,
+            adaptation.magnus_scale_sigma,
+            adaptation.restitution_sigma,
+            adaptation.friction_sigma,
+        ) * if adaptation.enabled { 1.0 } else { 0.0 };
+        let param_prior_var = sigmas.component_mul(&sigmas);
+        Self {
+            filter: FilterNoise {
+                process: ProcessNoise {
+                    acceleration_density: config.ekf.acceleration_noise_density,
+                    spin_density: config.ekf.spin_noise_density,
+                    param_density: param_prior_var
+                        * (adaptation.drift_per_hour * adaptation.drift_per_hour / 3600.0),
+                },
+                bounce: BounceNoise {
+                    impulse_sigma: config.ekf.bounce_impulse_sigma,
+                    restitution_sigma: config.ekf.bounce_restitution_sigma,
+                    unscented: config.ekf.bounce_unscented,
+                },
+                spin_spread: config.ekf.spin_parameter_spread,
+            },
+            contact_var: config.ekf.contact_position_sigma * config.ekf.contact_position_sigma,
+            param_prior: PhysicsParams::from_config(config).to_vector(),
+            param_prior_var,
+            param_dispersion: {
+                let d = ParamVector::new(
+                    adaptation.drag_scale_flight_sigma,
+                    adaptation.magnus_scale_flight_sigma,
+                    adaptation.restitution_flight_sigma,
+                    adaptation.friction_flight_sigma,
+                );
+                d.component_mul(&d)
+            },
+            gate_position: chi_square_quantile(p, 3),
+            gate_position_spin: chi_square_quantile(p, 6),
+            gate_probability: p,
+            sources: config
+                .sources
+                .all()
+                .into_iter()
+                .map(|(name, p)| SourceNoise::new(name, p))
+                .collect(),
+            source_index: config.sources.index(),
+            min_confidence: config.ekf.min_confidence,
+            init_count: config.ekf.init_detections.max(3) as usize,
+            init_span: seconds_to_ns(config.ekf.init_max_span),
+            spin_prior_var: config.ekf.spin_prior_sigma * config.ekf.spin_prior_sigma,
+            max_rejections: config.gating.max_consecutive_rejections.max(1),
+            timeout: seconds_to_ns(config.tracking.timeout),
+            rollback: seconds_to_ns(config.tracking.rollback_window),
+            coast: seconds_to_ns(config.tracking.coast_after),
+            plane_x: config.intercept.plane_x,
+            horizon: config.prediction.horizon,
+            gravity: config.gravity,
+        }
+    }
+
+    fn source(&self, source: Source) -> &SourceNoise {
+        &self.sources[self.source_index.of(source)]
+    }
+}
+
+/// A measurement ready for the filter.
+#[derive(Debug, Clone, Copy, PartialEq)]
+#[expect(
+    clippy::large_enum_variant,
+    reason = "kept inline: no heap allocation per detection"
+)]
+pub(crate) enum Measurement {
+    /// A position of covariance r; its stamp's timing variance [s^2] moves it along the flight.
+    Position {
+        z: Vector3<f64>,
+        r: Matrix3<f64>,
+        timing: f64,
+    },
+    /// A position and a spin.
+    PositionSpin {
+        z: SVector<f64, 6>,
+        r: Matrix6<f64>,
+        timing: f64,
+    },
+}
+
+impl Measurement {
+    /// The measurement with its noise as the estimator has learned its source's
+    /// ([`noise::SourceNoiseEstimate`]): its position and spin covariances scaled, its timing
+    /// noise set.
+    fn with_learned_noise(mut self, noise: &SourceNoiseEstimate) -> Self {
+        match &mut self {
+            Self::Position { r, timing, .. } => {
+                *r *= noise.position_scale;
+                *timing = noise.timing_variance;
+            }
+            Self::PositionSpin { r, timing, .. } => {
+                let mut position = r.fixed_view_mut::<3, 3>(0, 0);
+                position *= noise.position_scale;
+                let mut spin = r.fixed_view_mut::<3, 3>(3, 3);
+                spin *= noise.spin_scale;
+                *timing = noise.timing_variance;
+            }
+        }
+        self
+    }
+
+    /// The measurement with `variance` [m^2] added to its position's, on every axis.
+    fn with_extra_position_variance(mut self, variance: f64) -> Self {
+        match &mut self {
+            Self::Position { r, .. } => *r += Matrix3::identity() * variance,
+            Self::PositionSpin { r, .. } => {
+                let mut position = r.fixed_view_mut::<3, 3>(0, 0);
+                position += Matrix3::identity() * variance;
+            }
+        }
+        self
+    }
+
+    /// The measurement at a predicted velocity `v` [m/s]: the timing noise added to the
+    /// position covariance along it (timing v v').
+    fn at_velocity(mut self, v: &Vector3<f64>) -> Self {
+        match &mut self {
+            Self::Position { r, timing, .. } if *timing > 0.0 => *r += v * v.transpose() * *timing,
+            Self::PositionSpin { r, timing, .. } if *timing > 0.0 => {
+                let mut position = r.fixed_view_mut::<3, 3>(0, 0);
+                position += v * v.transpose() * *timing;
+            }
+            _ => {}
+        }
+        self
+    }
+}
+
+/// A detection as a measurement with its noise (its own covariance, else its source's), or why
+/// it is rejected. Shared by the filter and the batch fit ([`crate::offline::batch`]).
+pub(crate) fn measurement(settings: &Settings, d: &Detection) -> Result<Measurement, Rejection> {
+    let finite = d.position.iter().all(|v| v.is_finite())
+        && d.spin.is_none_or(|w| w.iter().all(|v| v.is_finite()))
+        && d.position_covariance
+            .is_none_or(|c| c.iter().all(|v| v.is_finite()))
+        && d.spin_covariance
+            .is_none_or(|c| c.iter().all(|v| v.is_finite()));
+    if !finite {
+        return Err(Rejection::NonFinite);
+    }
+    if d.position.norm() > MAX_RANGE {
+        return Err(Rejection::OutOfRange);
+    }
+    let confidence = f64::from(d.confidence);
+    if !(0.0..=1.0).contains(&confidence) {
+        return Err(Rejection::BadConfidence);
+    }
+    if confidence < settings.min_confidence {
+        return Err(Rejection::LowConfidence);
+    }
+    let noise = settings.source(d.source);
+    let r_position = match d.position_covariance {
+        Some(c) if !is_spd(&c) => return Err(Rejection::BadCovariance),
+        Some(c) => c,
+        None => Matrix3::identity() * noise.position_var,
+    };
+    let spin = d.spin.filter(|_| !claims_placeholder_spin(d));
+    let r_spin = match (spin, d.spin_covariance, noise.spin_var) {
+        (None, _, _) => None,
+        (Some(_), Some(c), _) if !is_spd(&c) => return Err(Rejection::BadCovariance),
+        (Some(_), Some(c), _) => Some(c),
+        (Some(_), None, Some(var)) => Some(Matrix3::identity() * var),
+        // A source that does not measure spin: its spin values are ignored.
+        (Some(_), None, None) => None,
+    };
+    Ok(match (spin, r_spin) {
+        (Some(w), Some(rs)) => {
+            let mut z = SVector::<f64, 6>::zeros();
+            z.fixed_rows_mut::<3>(0).copy_from(&d.position);
+            z.fixed_rows_mut::<3>(3).copy_from(&w);
+            let mut r = Matrix6::zeros();
+            r.fixed_view_mut::<3, 3>(0, 0).copy_from(&r_position);
+            r.fixed_view_mut::<3, 3>(3, 3).copy_from(&rs);
+            Measurement::PositionSpin { z, r, timing: 0.0 }
+        }
+        _ => Measurement::Position {
+            z: d.position,
+            r: r_position,
+            timing: 0.0,
+        },
+    })
+}
+
+/// A ball on the robot's half, moving toward the robot and rising, has bounced there already
+/// (an incoming ball falls from the net to its bounce).
+fn already_bounced(x: &crate::physics::StateVector) -> bool {
+    x[0] < 0.0 && x[3] < 0.0 && x[5] > 0.0
+}
+
+/// A detection whose spin is exactly zero: a detector's placeholder, not a measurement.
+fn claims_placeholder_spin(d: &Detection) -> bool {
+    d.spin.is_some_and(|w| w == Vector3::zeros())
+}
+
+/// Two detections of the same camera frame: a duplicate.
+fn same_frame(a: &Detection, b: &Detection) -> bool {
+    a.stamp == b.stamp && a.source == b.source
+}
+
+fn is_spd(m: &Matrix3<f64>) -> bool {
+    (m - m.transpose()).abs().max() <= 1e-9 * m.abs().max().max(f64::MIN_POSITIVE)
+        && m.cholesky().is_some()
+}
+
+/// The estimate at one time, with what the track knows at that time.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct Snapshot {
+    ekf: Ekf,
+    stamp: i64,
+    bounces: u32,
+    robot_half_bounces: u32,
+    last_fused: i64,
+    nis: f64,
+}
+
+/// A fused detection and the estimate just after it.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct Entry {
+    detection: Detection,
+    measurement: Measurement,
+    after: Snapshot,
+}
+
+#[derive(Debug, Clone)]
+struct Track {
+    id: u32,
+    now: Snapshot,
+    /// The estimate just before the oldest history entry.
+    base: Snapshot,
+    history: VecDeque<Entry>,
+    consecutive_rejections: u32,
+    /// The physical parameters (and their covariance) the track started from.
+    param_prior: (ParamVector, ParamCovariance),
+    /// When it started [ns].
+    started: i64,
+}
+
+/// The estimator (see the module doc).
+#[derive(Debug, Clone)]
+pub struct Estimator {
+    settings: Settings,
+    propagator: Propagator,
+    flight: FlightModel,
+    track: Option<Track>,
+    /// Detections of a ball being initialised, sorted by stamp.
+    pending: Vec<Detection>,
+    /// The latest run of rejected detections, to seed a new track.
+    rejected_run: VecDeque<Detection>,
+    next_track_id: u32,
+    counters: Counters,
+    history_capacity: usize,
+    /// The history buffer of the next track, allocated once.
+    spare_history: VecDeque<Entry>,
+    /// Spin measurements that overruled the filter's spin (see `fuse_position_spin`).
+    spin_resets: std::cell::Cell<u64>,
+    /// The propagator with the table grown and shrunk by [`EDGE_MARGIN`].
+    edge_alternatives: [Propagator; 2],
+    /// Detections fused under the other edge hypothesis.
+    edge_retries: std::cell::Cell<u64>,
+    /// A detection that jumped more than `tracking.timeout` off the current stamps, held until
+    /// the next detection confirms the jump or shows it was a glitch (see [`Self::update`]).
+    held: Option<(Detection, Measurement)>,
+    /// The interception kept up to date from detection to detection.
+    intercepts: InterceptTracker,
+    /// A track just refuted by a run of rejected detections, whose id the next track keeps
+    /// when it is the same ball.
+    continuation: Option<Continuation>,
+    /// What the estimator has learned of each source's noise.
+    noise: NoiseLearner,
+    /// The prior innovation of the detection `fuse` just fused (or gated), for the noise.
+    innovation: std::cell::Cell<Option<noise::Innovation>>,
+    /// What the estimator has learned of how far the flights stray from the model.
+    model_noise: ModelNoiseLearner,
+    /// The score of the noise scales of the detection `fuse` just fused.
+    score: std::cell::Cell<Option<NoiseScore>>,
+    /// How the live track's covariance depends on the noise scales, when they are learned:
+    /// carried along the track's newest detections (a late one, fused by rolling back, neither
+    /// moves it nor teaches the scales), allocated once.
+    sensitivity: Option<Box<NoiseSensitivity>>,
+    /// What the estimator knows of the physical parameters between tracks.
+    learned: Learned,
+    /// The racket-impact model, for the robot's announced hits.
+    racket: RacketModel,
+    /// The robot's next hit, announced ([`Self::expect_hit`]), and the rebound predicted from it
+    /// at the first detection after its impact (kept for the detections after it until one fits
+    /// or `tracking.timeout` has passed since the impact).
+    expected_hit: Option<(RobotHit, Option<Snapshot>)>,
+}
+
+/// The robot's own hit, announced to the estimator: when and with what racket state it meets
+/// the ball (the answer of `plan_return`, or the robot controller's command), so that the return
+/// flight is tracked from its first detection.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RobotHit {
+    /// Stamp of the impact [ns].
+    pub stamp: i64,
+    /// The racket at the impact, in the table frame.
+    pub racket: RacketState,
+}
+
+/// What the estimator has learned of one source's noise ([`Estimator::learned_noise`]).
+#[derive(Debug, Clone, PartialEq)]
+pub struct LearnedSourceNoise {
+    /// The source's configuration key (`sources.*`).
+    pub source: String,
+    /// Its position sigma [m]: the configured one times the learned scale's square root.
+    pub position_sigma: f64,
+    /// The sigma of its stamps' timing [s].
+    pub stamp_sigma: f64,
+    /// The estimate behind them.
+    pub estimate: SourceNoiseEstimate,
+}
+
+impl LearnedSourceNoise {
+    /// Whether its detections have taught anything yet (beyond the configured prior's weight).
+    pub fn has_learned(&self) -> bool {
+        self.estimate.weight > noise::PRIOR_WEIGHT
+    }
+}
+
+/// What the estimator has learned of how far the flights stray from its model
+/// ([`Estimator::learned_model_noise`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct LearnedModelNoise {
+    /// The scales on the configured noise [-].
+    pub scales: crate::online::ekf::NoiseScales,
+    /// The standard deviation of the log of each scale (from the information behind it), in
+    /// the order of [`crate::online::ekf::NoiseScales::NAMES`].
+    pub log_sigma: [f64; crate::online::ekf::NOISE_SCALES],
+}
+
+/// What an estimator has learned of the physical parameters, carried to another
+/// ([`Estimator::learned_physics`], [`Estimator::adopt_learned_physics`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct LearnedPhysics {
+    params: Learned,
+    model_noise: ModelNoiseLearner,
+}
+
+impl LearnedPhysics {
+    /// The ball's and table's parameters it holds, with their uncertainty.
+    pub fn params(&self) -> LearnedParams {
+        let (theta, covariance) = self.params.global();
+        LearnedParams::new(
+            &theta,
+            &covariance,
+            self.params.tracks(),
+            &self.params.dispersion(),
+        )
+    }
+}
+
+/// The physical parameters the estimator has learned ([`Estimator::learned_params`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct LearnedParams {
+    /// The estimate (of the live track, else as the last track left it).
+    pub params: PhysicsParams,
+    /// Standard deviation of each parameter, in the order of [`PhysicsParams::NAMES`] [-].
+    pub sigma: [f64; PARAMS],
+    /// Tracks that have contributed, the live one included.
+    pub tracks: u64,
+    /// How much each parameter scatters from flight to flight about these [-] (the dispersion's
+    /// standard deviation, as learned; zero for a single flight's own parameters).
+    pub flight_sigma: [f64; PARAMS],
+}
+
+impl LearnedParams {
+    /// Parameters `theta` of covariance `covariance`, learned over `tracks` tracks, with a
+    /// flight-to-flight dispersion of variances `dispersion`.
+    fn new(
+        theta: &ParamVector,
+        covariance: &ParamCovariance,
+        tracks: u64,
+        dispersion: &ParamVector,
+    ) -> Self {
+        Self {
+            params: PhysicsParams::from_vector(theta),
+            sigma: std::array::from_fn(|i| covariance[(i, i)].max(0.0).sqrt()),
+            tracks,
+            flight_sigma: std::array::from_fn(|i| dispersion[i].max(0.0).sqrt()),
+        }
+    }
+}
+
+impl Track {
+    /// `learned` updated with what this track has learned of the physics so far.
+    fn taught(&self, learned: &Learned) -> Learned {
+        learned.absorbed(
+            &self.param_prior,
+            &(self.now.ekf.theta, self.now.ekf.param_covariance()),
+            self.started,
+            self.now.stamp,
+        )
+    }
+}
+
+/// A track refuted by a run of rejected detections: its id and its last estimate.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct Continuation {
+    id: u32,
+    last: Snapshot,
+}
+
+/// The entries of a track's history: 900 + 150 detections per second over the rollback window,
+/// with a wide margin.
+fn history_capacity(config: &Config) -> usize {
+    ((config.tracking.rollback_window * 2000.0).ceil() as usize).clamp(16, 4096)
+}
+
+/// How far [m] a track's first estimate may be from where a refuted track's estimate had flown
+/// to for it to be the same ball re-anchored (a bounce mispredicted by 1 m/s is 5 cm off after
+/// 50 ms).
+pub const REANCHOR_DISTANCE: f64 = 0.2;
+
+/// How close to its contact height [m] a ball is "at the table": a spin measured there that
+/// contradicts the estimate's may be of the other side of the bounce and is not used (1.5 cm is
+/// 5 ms of a ball falling at 3 m/s).
+const BOUNCE_SPIN_MARGIN: f64 = 0.015;
+
+/// How close to its contact height [m] a ball is in contact with the table in the camera's
+/// eyes: its detections there get the extra noise `ekf.contact_position_sigma` (half a ball
+/// diameter: the ball's image meets its reflection and shadow on the surface).
+pub const CONTACT_BAND: f64 = 0.02;
+
+/// How far from the table's edge [m] a detection is also fused with the table grown and shrunk
+/// by as much, and the better fit kept (the estimate's position is uncertain by millimetres; the
+/// edge is sharp).
+const EDGE_MARGIN: f64 = 0.02;
+
+/// Farthest a detection may be from the table's centre [m] (the table is 2.74 m long; a ball in
+/// play stays within a few metres of it).
+pub const MAX_RANGE: f64 = 10.0;
+
+impl Estimator {
+    /// An estimator with the given configuration (assumed validated).
+    pub fn new(config: &Config) -> Self {
+        let settings = Settings::new(config);
+        let history_capacity = history_capacity(config);
+        let pending_capacity = settings.init_count.max(settings.max_rejections as usize) + 8;
+        let propagator = Propagator::new(config);
+        Self {
+            flight: FlightModel::new(config),
+            track: None,
+            pending: Vec::with_capacity(pending_capacity),
+            rejected_run: VecDeque::with_capacity(settings.max_rejections as usize + 1),
+            next_track_id: 1,
+            counters: Counters::default(),
+            history_capacity,
+            spare_history: VecDeque::with_capacity(history_capacity),
+            spin_resets: std::cell::Cell::new(0),
+            edge_alternatives: [EDGE_MARGIN, -EDGE_MARGIN].map(|m| propagator.with_edge_margin(m)),
+            edge_retries: std::cell::Cell::new(0),
+            held: None,
+            intercepts: InterceptTracker::new(config.intercept.refresh.clone()),
+            continuation: None,
+            noise: NoiseLearner::new(config),
+            innovation: std::cell::Cell::new(None),
+            model_noise: ModelNoiseLearner::new(
+                config.ekf.learn_model_noise,
+                config.ekf.model_noise_memory,
+            ),
+            score: std::cell::Cell::new(None),
+            sensitivity: config
+                .ekf
+                .learn_model_noise
+                .then(|| Box::new([StateMatrix::zeros(); NOISE_SCALES])),
+            learned: Learned::new(
+                settings.param_prior,
+                settings.param_prior_var,
+                settings.filter.process.param_density,
+                settings.param_dispersion,
+                config.adaptation.learn_dispersion,
+            ),
+            racket: RacketModel::new(config),
+            expected_hit: None,
+            propagator,
+            settings,
+        }
+    }
+
+    /// Takes `config`'s estimator, gating, source-noise, tracking and interception values from
+    /// the next detection on, keeping the live track, what was learned of the physics and the
+    /// counters (the node's `set_parameters`). `previous` is the configuration it ran with: what
+    /// was learned of a source's noise starts again from the configured values when they
+    /// changed, as does the learned model noise when its settings did. The physical parameters
+    /// (ball, air, aero, table, gravity, adaptation, prediction step) are the ones it was
+    /// created with: a change of those needs [`Self::reset`] or a new estimator.
+    pub fn reconfigure(&mut self, previous: &Config, config: &Config) {
+        let physics = |c: &Config| {
+            (
+                c.gravity,
+                c.ball.clone(),
+                c.air.clone(),
+                c.aero.clone(),
+                c.table.clone(),
+                c.adaptation.clone(),
+            )
+        };
+        let mut settings = Settings::new(config);
+        if physics(previous) != physics(config) {
+            // Not applied live: the physics the tracks were learning from stays.
+            let old = Settings::new(previous);
+            settings.param_prior = old.param_prior;
+            settings.param_prior_var = old.param_prior_var;
+            settings.param_dispersion = old.param_dispersion;
+            settings.filter.process.param_density = old.filter.process.param_density;
+            settings.gravity = old.gravity;
+        }
+        self.settings = settings;
+        self.intercepts
+            .reconfigure(config.intercept.refresh.clone());
+        if previous.sources != config.sources
+            || previous.ekf.learn_noise != config.ekf.learn_noise
+            || previous.ekf.noise_memory != config.ekf.noise_memory
+        {
+            self.noise = NoiseLearner::new(config);
+        }
+        if previous.ekf.learn_model_noise != config.ekf.learn_model_noise
+            || previous.ekf.model_noise_memory != config.ekf.model_noise_memory
+        {
+            self.model_noise =
+                ModelNoiseLearner::new(config.ekf.learn_model_noise, config.ekf.model_noise_memory);
+            self.sensitivity = config
+                .ekf
+                .learn_model_noise
+                .then(|| Box::new([StateMatrix::zeros(); NOISE_SCALES]));
+        }
+        let history_capacity = history_capacity(config);
+        if history_capacity != self.history_capacity {
+            self.history_capacity = history_capacity;
+            self.spare_history = VecDeque::with_capacity(history_capacity);
+        }
+        self.racket = RacketModel::new(config);
+    }
+
+    /// Announces the robot's next hit: the first detection after `hit.stamp` that the predicted
+    /// rebound explains (the live track's ball carried to the impact, hit by `hit.racket`, with
+    /// the covariance of both and of the rubber, [`RacketModel::rebound_covariance`]) starts the
+    /// return's track at once, instead of after the initialiser's detections. A later
+    /// announcement replaces an earlier one; one that seeds nothing is counted
+    /// ([`Counters::hits_not_seeded`]) and the detections go their usual way.
+    pub fn expect_hit(&mut self, hit: RobotHit) {
+        if self.expected_hit.is_some() {
+            self.counters.hits_not_seeded += 1;
+        }
+        self.expected_hit = Some((hit, None));
+    }
+
+    /// Drops the tracks and what was learned (physics, noise), as a new estimator of `config`
+    /// would start, keeping the counters and counting track ids on (the node's `~/reset`).
+    pub fn reset(&mut self, config: &Config) {
+        let counters = self.counters();
+        let next_track_id = self.next_track_id;
+        *self = Self::new(config);
+        self.counters = counters;
+        self.spin_resets.set(counters.spin_resets);
+        self.edge_retries.set(counters.edge_retries);
+        self.next_track_id = next_track_id;
+    }
+
+    /// What the estimator has learned of the physical parameters, to start another estimator
+    /// from ([`Self::adopt_learned_physics`]): the ball's and table's, the live track's lesson
+    /// included.
+    pub fn learned_physics(&self) -> LearnedPhysics {
+        LearnedPhysics {
+            params: self.learned_with_live_track(),
+            model_noise: self.model_noise,
+        }
+    }
+
+    /// Starts from what another estimator (of the same configuration) learned of the physical
+    /// parameters and of how far the flights stray from the model, as if its tracks had been
+    /// this one's.
+    pub fn adopt_learned_physics(&mut self, learned: &LearnedPhysics) {
+        self.learned = learned.params;
+        self.model_noise = learned.model_noise;
+    }
+
+    fn learned_with_live_track(&self) -> Learned {
+        self.track
+            .as_ref()
+            .map_or(self.learned, |track| track.taught(&self.learned))
+    }
+
+    /// The live track's own physical parameters (its flight's, see [`Self::learned_params`] for
+    /// the ball's and table's), if a track is live.
+    pub fn track_params(&self) -> Option<LearnedParams> {
+        let ekf = &self.track.as_ref()?.now.ekf;
+        Some(LearnedParams::new(
+            &ekf.theta,
+            &ekf.param_covariance(),
+            self.learned.tracks() + 1,
+            &ParamVector::zeros(),
+        ))
+    }
+
+    /// The physical parameters learned so far, over all tracks (the live one included as far as
+    /// it has come); the configured values, with their prior uncertainty, before any track.
+    pub fn learned_params(&self) -> LearnedParams {
+        self.learned_physics().params()
+    }
+
+    /// The propagator at a snapshot's parameters.
+    fn propagator_of(&self, snapshot: &Snapshot) -> Propagator {
+        self.propagator.with_params(&snapshot.ekf.params())
+    }
+
+    /// What happened to the detections so far.
+    pub fn counters(&self) -> Counters {
+        Counters {
+            spin_resets: self.spin_resets.get(),
+            edge_retries: self.edge_retries.get(),
+            ..self.counters
+        }
+    }
+
+    /// How many interceptions were predicted in full and how many moved to first order from the
+    /// last full one (see [`crate::online::intercept::InterceptTracker`]).
+    pub fn intercept_counts(&self) -> crate::online::intercept::TrackerCounts {
+        self.intercepts.counts()
+    }
+
+    /// The propagator the estimator predicts with.
+    pub fn propagator(&self) -> &Propagator {
+        &self.propagator
+    }
+
+    /// The current estimate of the tracked ball, if any.
+    pub fn estimate(&self) -> Option<Estimate> {
+        self.track
+            .as_ref()
+            .map(|t| self.estimate_of(t, &t.now, t.now.stamp))
+    }
+
+    /// The predicted trajectory of the tracked ball from its current estimate, sampled every
+    /// `dt` seconds over `horizon` seconds (for `PredictedTrajectory`; allocates its samples).
+    pub fn predicted_trajectory(&self, dt: f64, horizon: f64) -> Option<(i64, Trajectory)> {
+        let track = self.track.as_ref()?;
+        let start = BallState::from_vector(&track.now.ekf.x);
+        Some((track.now.stamp, self.predict_flight(&start, dt, horizon)))
+    }
+
+    /// The predicted flight of any ball state with this estimator's model and learned
+    /// parameters, sampled every `dt` seconds over `horizon` seconds (events: table, net,
+    /// floor, the hitting plane).
+    pub fn predict_flight(&self, start: &BallState, dt: f64, horizon: f64) -> Trajectory {
+        let options = PredictOptions {
+            horizon,
+            sample_interval: dt,
+            plane_x: Some(self.settings.plane_x),
+            stop_at_plane: false,
+        };
+        let propagator = self.propagator.with_params(&self.learned_params().params);
+        predict(&propagator, start, &options)
+    }
+
+    /// Counts a detection that an adapter rejected before it reached the filter (e.g. its
+    /// message's frame is not `table`), so that every input is accounted for in one place.
+    pub fn reject(&mut self, reason: Rejection) {
+        self.counters.received += 1;
+        self.counters.rejected[reason.index()] += 1;
+    }
+
+    /// Takes one detection (in arrival order) and returns the estimate and interception after it:
+    /// [`Self::update`], then the interception from the updated state.
+    pub fn handle(&mut self, detection: &Detection) -> Output {
+        let verdict = self.update(detection);
+        self.output(verdict, detection.stamp)
+    }
+
+    /// Takes one detection (in arrival order) into the filter, rolling back and re-applying the
+    /// newer ones when it is late, without predicting the interception; says what became of it.
+    ///
+    /// A detection more than `tracking.timeout` before or after the current track's last fused
+    /// stamp (or, with no track, the newest detection initialising one) is a jump: a new ball
+    /// after a pause, a camera whose clock restarted, or a glitched stamp. It is held ([`Verdict::Held`],
+    /// counted as initialising) until the next detection tells which: one within `tracking.timeout` of it
+    /// confirms the jump, and both start a new track; one that carries on the current stamps
+    /// shows it was a glitch, and it is counted as [`Rejection::StampJump`]. So one bad stamp
+    /// never ends a track or stalls the initialiser. The output for a held detection is the
+    /// track's estimate, not moved to its stamp.
+    pub fn update(&mut self, detection: &Detection) -> Verdict {
+        self.counters.received += 1;
+        if claims_placeholder_spin(detection) {
+            self.counters.zero_spin_ignored += 1;
+        }
+        let verdict = match self.measurement(detection) {
+            Err(reason) => Verdict::Rejected(reason),
+            Ok(measurement) => self.screen_jump(detection, measurement),
+        };
+        self.count(verdict);
+        verdict
+    }
+
+    fn count(&mut self, verdict: Verdict) {
+        match verdict {
+            Verdict::Fused { .. } => self.counters.fused += 1,
+            Verdict::Initializing | Verdict::Held => self.counters.initializing += 1,
+            Verdict::Rejected(reason) => self.counters.rejected[reason.index()] += 1,
+        }
+    }
+
+    /// True while a detection whose stamp jumped is held (see [`Self::update`]).
+    pub fn holds_a_jump(&self) -> bool {
+        self.held.is_some()
+    }
+
+    /// Re-counts a held detection (counted as initialising when it was held) with its verdict.
+    fn recount_held(&mut self, verdict: Verdict) {
+        if !matches!(verdict, Verdict::Initializing | Verdict::Held) {
+            self.counters.initializing = self.counters.initializing.saturating_sub(1);
+            self.count(verdict);
+        }
+    }
+
+    /// The stamp the current detections run on: the track's last fused one, else the newest
+    /// detection initialising one.
+    fn current_stamp(&self) -> Option<i64> {
+        match &self.track {
+            Some(track) => Some(track.now.last_fused),
+            None => self.pending.last().map(|p| p.stamp),
+        }
+    }
+
+    /// Holds, confirms or dismisses a jump in the stamps (see [`Self::update`]).
+    fn screen_jump(&mut self, d: &Detection, m: Measurement) -> Verdict {
+        let Some(current) = self.current_stamp() else {
+            return self.process(d, m);
+        };
+        let timeout = self.settings.timeout;
+        let offset = d.stamp - current;
+        // Either way: a camera whose clock restarted sends stamps from long ago, for good.
+        let jump = offset.abs() > timeout;
+        if !jump {
+            if d.stamp > current && self.held.take().is_some() {
+                self.recount_held(Verdict::Rejected(Rejection::StampJump));
+            }
+            return self.process(d, m);
+        }
+        match self.held.take() {
+            Some((first, first_m))
+                if (d.stamp - first.stamp).abs() <= timeout && !same_frame(&first, d) =>
+            {
+                // Confirmed: a new timeline starts with both detections.
+                self.end_track();
+                let first_verdict = self.process(&first, first_m);
+                self.recount_held(first_verdict);
+                self.process(d, m)
+            }
+            superseded => {
+                if superseded.is_some() {
+                    self.recount_held(Verdict::Rejected(Rejection::StampJump));
+                }
+                self.held = Some((*d, m));
+                Verdict::Held
+            }
+        }
+    }
+
+    fn output(&mut self, verdict: Verdict, stamp: i64) -> Output {
+        let Some(track) = &self.track else {
+            return Output {
+                verdict,
+                estimate: self.initializing_estimate(),
+                intercept: None,
+            };
+        };
+        // A rejected detection newer than the track still moves the estimate to its time (not
+        // across a jump: a held or glitched stamp leaves it where it is).
+        let snapshot = if stamp > track.now.stamp
+            && stamp - track.now.stamp <= self.settings.timeout
+            && !matches!(verdict, Verdict::Fused { .. })
+        {
+            let mut s = track.now;
+            self.advance(&mut s, stamp);
+            s
+        } else {
+            track.now
+        };
+        let estimate = self.estimate_of(track, &snapshot, stamp);
+        let query = InterceptQuery {
+            plane_x: self.settings.plane_x,
+            horizon: self.settings.horizon,
+            bounced_on_robot_half: snapshot.robot_half_bounces > 0,
+        };
+        let intercept = self.intercepts.predict(
+            &self.propagator_of(&snapshot),
+            track.id,
+            snapshot.stamp,
+            &snapshot.ekf.x,
+            &snapshot.ekf.P,
+            &query,
+        );
+        Output {
+            verdict,
+            estimate: Some(estimate),
+            intercept: Some(InterceptEstimate {
+                stamp: snapshot.stamp,
+                track_id: track.id,
+                intercept,
+            }),
+        }
+    }
+
+    fn estimate_of(&self, track: &Track, snapshot: &Snapshot, now: i64) -> Estimate {
+        let status = if now.max(snapshot.stamp) - snapshot.last_fused > self.settings.coast {
+            TrackStatus::Coasting
+        } else {
+            TrackStatus::Tracking
+        };
+        Estimate {
+            stamp: snapshot.stamp,
+            track_id: track.id,
+            status,
+            state: BallState::from_vector(&snapshot.ekf.x),
+            covariance: snapshot.ekf.state_covariance(),
+            bounces: snapshot.bounces,
+            nis: snapshot.nis,
+        }
+    }
+
+    /// The provisional estimate of a ball being initialised (from 2 detections on).
+    fn initializing_estimate(&self) -> Option<Estimate> {
+        if self.pending.len() < 2 {
+            return None;
+        }
+        let fit = self.fit_pending()?;
+        Some(Estimate {
+            stamp: fit.stamp,
+            track_id: self.next_track_id,
+            status: TrackStatus::Initializing,
+            state: BallState::from_vector(&fit.x),
+            covariance: fit.P,
+            bounces: 0,
+            nis: 0.0,
+        })
+    }
+
+    /// Checks a detection and turns it into a measurement with its noise, as learned of its
+    /// source.
+    fn measurement(&self, d: &Detection) -> Result<Measurement, Rejection> {
+        let source = self.settings.source_index.of(d.source);
+        Ok(measurement(&self.settings, d)?.with_learned_noise(&self.noise.of(source)))
+    }
+
+    /// Learns the noise of a detection's source from the innovation of its first fusion (the
+    /// one `fuse` left), if any.
+    fn learn_noise(&mut self, d: &Detection) {
+        if let (Some(innovation), Ok(base)) =
+            (self.innovation.take(), measurement(&self.settings, d))
+        {
+            let (r0, spin_r0) = match base {
+                Measurement::Position { r, .. } => (r, None),
+                Measurement::PositionSpin { r, .. } => (
+                    r.fixed_view::<3, 3>(0, 0).into_owned(),
+                    Some(r.fixed_view::<3, 3>(3, 3).into_owned()),
+                ),
+            };
+            let innovation = noise::Innovation {
+                r0,
+                spin: innovation
+                    .spin
+                    .zip(spin_r0)
+                    .map(|((y, hph, _), r0)| (y, hph, r0)),
+                ..innovation
+            };
+            self.noise
+                .learn(self.settings.source_index.of(d.source), &innovation);
+        }
+        if let Some(score) = self.score.take() {
+            self.model_noise.learn(&score);
+        }
+    }
+
+    /// What the estimator has learned of how far the flights stray from its model: the scales on
+    /// its configured process noise and bounce scatter.
+    pub fn learned_model_noise(&self) -> LearnedModelNoise {
+        LearnedModelNoise {
+            scales: self.model_noise.scales(),
+            log_sigma: self
+                .model_noise
+                .information()
+                .map(|i| 1.0 / i.max(f64::MIN_POSITIVE).sqrt()),
+        }
+    }
+
+    /// What the estimator has learned of each source's noise, in the order of
+    /// [`SourcesParams::all`](crate::config::SourcesParams::all).
+    pub fn learned_noise(&self) -> Vec<LearnedSourceNoise> {
+        self.settings
+            .sources
+            .iter()
+            .zip(self.noise.all())
+            .map(|(source, estimate)| LearnedSourceNoise {
+                source: source.name.clone(),
+                position_sigma: source.position_var.sqrt() * estimate.position_scale.sqrt(),
+                stamp_sigma: estimate.timing_variance.sqrt(),
+                estimate: *estimate,
+            })
+            .collect()
+    }
+
+    fn process(&mut self, d: &Detection, m: Measurement) -> Verdict {
+        if let Some((hit, _)) = self.expected_hit
+            && d.stamp > hit.stamp
+        {
+            if let Some(verdict) = self.start_from_hit(&hit, d, m) {
+                self.expected_hit = None;
+                return verdict;
+            }
+            if d.stamp - hit.stamp > self.settings.timeout {
+                self.expected_hit = None;
+                self.counters.hits_not_seeded += 1;
+            }
+        }
+        let Some(track) = &self.track else {
+            return self.initialise(d);
+        };
+        if d.stamp - track.now.last_fused > self.settings.timeout {
+            self.end_track();
+            return self.initialise(d);
+        }
+        let result = if d.stamp >= track.now.stamp {
+            self.fuse_newest(d, m)
+        } else {
+            self.fuse_late(d, m)
+        };
+        match result {
+            Ok(nis) => {
+                if let Some(track) = self.track.as_mut() {
+                    track.consecutive_rejections = 0;
+                }
+                self.rejected_run.clear();
+                Verdict::Fused { nis }
+            }
+            Err(Rejection::Gated) => self.count_gated(d),
+            Err(reason) => Verdict::Rejected(reason),
+        }
+    }
+
+    /// A gated detection; a run of them ends the track and seeds a new one.
+    fn count_gated(&mut self, d: &Detection) -> Verdict {
+        if self.rejected_run.len() == self.rejected_run.capacity() {
+            self.rejected_run.pop_front();
+        }
+        self.rejected_run.push_back(*d);
+        let Some(track) = self.track.as_mut() else {
+            return Verdict::Rejected(Rejection::Gated);
+        };
+        track.consecutive_rejections += 1;
+        if track.consecutive_rejections >= self.settings.max_rejections {
+            let refuted = Continuation {
+                id: track.id,
+                last: track.now,
+            };
+            self.end_track();
+            // The rejected run is the ball after a racket hit or a new serve, or the same ball
+            // where its prediction was refuted (most often at a bounce): the track it starts
+            // keeps the refuted one's id if it is the same ball ([`Self::continues`]).
+            self.continuation = Some(refuted);
+            while let Some(seed) = self.rejected_run.pop_front() {
+                self.insert_pending(&seed);
+            }
+            if self.pending.len() >= self.settings.init_count {
+                self.try_start_track();
+            }
+        }
+        Verdict::Rejected(Rejection::Gated)
+    }
+
+    fn end_track(&mut self) {
+        self.continuation = None;
+        if let Some(track) = self.track.take() {
+            // What the track learned of the physics carries over to the next.
+            self.learned = track.taught(&self.learned);
+            // Keep the history's buffer for the next track: no allocation per track.
+            self.spare_history = track.history;
+            self.spare_history.clear();
+        }
+        self.pending.clear();
+    }
+
+    /// Moves a snapshot forward to `stamp`, counting bounces.
+    fn advance(&self, snapshot: &mut Snapshot, stamp: i64) {
+        self.advance_with(&self.propagator, snapshot, stamp, None);
+    }
+
+    fn advance_with(
+        &self,
+        propagator: &Propagator,
+        snapshot: &mut Snapshot,
+        stamp: i64,
+        sensitivity: Option<&mut NoiseSensitivity>,
+    ) {
+        let dt = (stamp - snapshot.stamp) as f64 * 1e-9;
+        if dt > 0.0 {
+            let report = snapshot.ekf.predict(
+                propagator,
+                &self.settings.filter,
+                &self.model_noise.scales(),
+                sensitivity,
+                dt,
+            );
+            snapshot.bounces += report.bounces;
+            snapshot.robot_half_bounces += report.robot_half_bounces;
+        }
+        snapshot.stamp = stamp.max(snapshot.stamp);
+    }
+
+    /// Fuses a measurement into a snapshot at the detection's stamp, carrying the covariance's
+    /// `sensitivity` to the noise scales along when given.
+    fn fuse(
+        &self,
+        snapshot: &mut Snapshot,
+        d: &Detection,
+        m: &Measurement,
+        sensitivity: Option<&mut NoiseSensitivity>,
+    ) -> Result<f64, Rejection> {
+        let prior = *snapshot;
+        let scoring = sensitivity.is_some();
+        let (mut result, innovation) =
+            self.predict_and_update(&self.propagator, snapshot, d, m, sensitivity);
+        self.innovation.set(innovation);
+        if self.near_table_edge(snapshot) {
+            // An edge ball: estimate and ball may land on either side of the table's edge. The
+            // hypothesis that explains the detection best wins.
+            for alternative in &self.edge_alternatives {
+                let mut other = prior;
+                let Ok(fused) = self
+                    .predict_and_update(alternative, &mut other, d, m, None)
+                    .0
+                else {
+                    continue;
+                };
+                let better = match result {
+                    Ok(current) => fused.nis < current.nis && other.bounces != snapshot.bounces,
+                    Err(_) => true,
+                };
+                if better {
+                    *snapshot = other;
+                    self.edge_retries.set(self.edge_retries.get() + 1);
+                    result = Ok(fused);
+                }
+            }
+        }
+        match result {
+            Ok(fused) => {
+                snapshot.last_fused = d.stamp;
+                snapshot.nis = fused.nis;
+                self.score.set(scoring.then_some(fused.score));
+                Ok(fused.nis)
+            }
+            Err(UpdateError::Gated { .. }) => Err(Rejection::Gated),
+            Err(UpdateError::NotFinite) => Err(Rejection::NonFinite),
+            Err(UpdateError::NotPositiveDefinite) => Err(Rejection::BadCovariance),
+        }
+    }
+
+    fn predict_and_update(
+        &self,
+        propagator: &Propagator,
+        snapshot: &mut Snapshot,
+        d: &Detection,
+        m: &Measurement,
+        mut sensitivity: Option<&mut NoiseSensitivity>,
+    ) -> (Result<Fused, UpdateError>, Option<noise::Innovation>) {
+        self.advance_with(propagator, snapshot, d.stamp, sensitivity.as_deref_mut());
+        let x = &snapshot.ekf.x;
+        let velocity = x.fixed_rows::<3>(3).into_owned();
+        let p = snapshot.ekf.state_covariance();
+        let hph = p.fixed_view::<3, 3>(0, 0).into_owned();
+        // A ball at the table: its detection's own extra noise, which teaches nothing of its
+        // camera's.
+        let at_contact =
+            self.settings.contact_var > 0.0 && self.at_the_table(snapshot, CONTACT_BAND);
+        let m = if at_contact {
+            m.with_extra_position_variance(self.settings.contact_var)
+        } else {
+            *m
+        };
+        let m = m.at_velocity(&velocity);
+        let (y, spin) = match &m {
+            Measurement::Position { z, .. } => (z - x.fixed_rows::<3>(0), None),
+            Measurement::PositionSpin { z, .. } => (
+                z.fixed_rows::<3>(0) - x.fixed_rows::<3>(0),
+                Some((
+                    z.fixed_rows::<3>(3) - x.fixed_rows::<3>(6),
+                    p.fixed_view::<3, 3>(6, 6).into_owned(),
+                    Matrix3::zeros(),
+                )),
+            ),
+        };
+        let innovation = (!at_contact).then_some(noise::Innovation {
+            y,
+            hph,
+            r0: Matrix3::zeros(),
+            velocity,
+            spin,
+        });
+        let result = match &m {
+            Measurement::Position { z, r, .. } => snapshot.ekf.update(
+                z,
+                &position_H(),
+                r,
+                self.settings.gate_position,
+                sensitivity,
+            ),
+            Measurement::PositionSpin { z, r, .. } => {
+                self.fuse_position_spin(snapshot, z, r, sensitivity)
+            }
+        };
+        (result, innovation)
+    }
+
+    /// True when the estimate is within `band` [m] of its contact height over the table: a few
+    /// milliseconds from a bounce.
+    fn at_the_table(&self, snapshot: &Snapshot, band: f64) -> bool {
+        let x = &snapshot.ekf.x;
+        (x[2] - self.flight.radius()).abs() < band
+            && self.propagator.distance_outside_table(x[0], x[1]) < EDGE_MARGIN
+    }
+
+    /// True when the estimate is low over the table's edge, where a bounce is a close call.
+    fn near_table_edge(&self, snapshot: &Snapshot) -> bool {
+        let x = &snapshot.ekf.x;
+        let outside = self.propagator.distance_outside_table(x[0], x[1]);
+        x[2] < 0.1 && outside.abs() < EDGE_MARGIN
+    }
+
+    /// A position + spin measurement. The position is gated on its own; when it fits but the
+    /// spin does not, the filter's spin (learned from curvature, where the EKF can be
+    /// overconfident at high spin parameters) is forgotten in favour of the camera's, and counted.
+    fn fuse_position_spin(
+        &self,
+        snapshot: &mut Snapshot,
+        z: &SVector<f64, 6>,
+        r: &Matrix6<f64>,
+        mut sensitivity: Option<&mut NoiseSensitivity>,
+    ) -> Result<Fused, UpdateError> {
+        let z_position = z.fixed_rows::<3>(0).into_owned();
+        let r_position = r.fixed_view::<3, 3>(0, 0).into_owned();
+        let gate = self.settings.gate_position;
+        if let Some(nis) = snapshot.ekf.nis(&z_position, &position_H(), &r_position)
+            && nis > gate
+        {
+            return Err(UpdateError::Gated { nis, gate });
+        }
+        let h = position_spin_H();
+        match snapshot.ekf.update(
+            z,
+            &h,
+            r,
+            self.settings.gate_position_spin,
+            sensitivity.as_deref_mut(),
+        ) {
+            // At the table the measured spin may be of the other side of the bounce (the
+            // bounce's time is uncertain by a millisecond or two, and it changes the spin by
+            // hundreds of rad/s): the position alone.
+            Err(UpdateError::Gated { .. }) if self.at_the_table(snapshot, BOUNCE_SPIN_MARGIN) => {
+                snapshot
+                    .ekf
+                    .update(&z_position, &position_H(), &r_position, gate, sensitivity)
+            }
+            Err(UpdateError::Gated { .. }) => {
+                snapshot
+                    .ekf
+                    .reset_spin(self.settings.spin_prior_var, sensitivity.as_deref_mut());
+                self.spin_resets.set(self.spin_resets.get() + 1);
+                match snapshot.ekf.update(
+                    z,
+                    &h,
+                    r,
+                    self.settings.gate_position_spin,
+                    sensitivity.as_deref_mut(),
+                ) {
+                    Ok(fused) => Ok(fused),
+                    Err(_) => snapshot.ekf.update(
+                        &z_position,
+                        &position_H(),
+                        &r_position,
+                        gate,
+                        sensitivity,
+                    ),
+                }
+            }
+            other => other,
+        }
+    }
+
+    fn fuse_newest(&mut self, d: &Detection, m: Measurement) -> Result<f64, Rejection> {
+        let Some(track) = &self.track else {
+            return Err(Rejection::TooOld);
+        };
+        if track
+            .history
+            .back()
+            .is_some_and(|e| same_frame(&e.detection, d))
+        {
+            return Err(Rejection::Duplicate);
+        }
+        let mut snapshot = track.now;
+        // The sensitivity to the noise scales moves on only with a detection fused.
+        let mut sensitivity = self.sensitivity.as_deref().copied();
+        let result = self.fuse(&mut snapshot, d, &m, sensitivity.as_mut());
+        self.learn_noise(d);
+        let nis = result?;
+        if let (Some(kept), Some(moved)) = (self.sensitivity.as_deref_mut(), sensitivity) {
+            *kept = moved;
+        }
+        self.push_history(Entry {
+            detection: *d,
+            measurement: m,
+            after: snapshot,
+        });
+        Ok(nis)
+    }
+
+    /// Fuses a detection older than the newest fused one: roll back, fuse, re-apply the newer.
+    fn fuse_late(&mut self, d: &Detection, m: Measurement) -> Result<f64, Rejection> {
+        let Some(track) = &self.track else {
+            return Err(Rejection::TooOld);
+        };
+        if track.now.stamp - d.stamp > self.settings.rollback || d.stamp < track.base.stamp {
+            return Err(Rejection::TooOld);
+        }
+        if track.history.iter().any(|e| same_frame(&e.detection, d)) {
+            return Err(Rejection::Duplicate);
+        }
+        let index = track
+            .history
+            .partition_point(|e| e.detection.stamp <= d.stamp);
+        let mut snapshot = match index {
+            0 => track.base,
+            i => track.history[i - 1].after,
+        };
+        let result = self.fuse(&mut snapshot, d, &m, None);
+        self.learn_noise(d);
+        let nis = result?;
+        let late = Entry {
+            detection: *d,
+            measurement: m,
+            after: snapshot,
+        };
+        let Some(mut track) = self.track.take() else {
+            return Err(Rejection::TooOld);
+        };
+        for entry in track.history.iter_mut().skip(index) {
+            // A re-applied detection that no longer passes the gate is skipped.
+            let mut next = snapshot;
+            if self
+                .fuse(&mut next, &entry.detection, &entry.measurement, None)
+                .is_ok()
+            {
+                snapshot = next;
+            } else {
+                self.advance(&mut snapshot, entry.detection.stamp);
+            }
+            entry.after = snapshot;
+        }
+        let mut index = index;
+        if track.history.len() >= self.history_capacity
+            && let Some(oldest) = track.history.pop_front()
+        {
+            track.base = oldest.after;
+            index = index.saturating_sub(1);
+        }
+        track.history.insert(index, late);
+        track.now = snapshot;
+        self.track = Some(track);
+        self.counters.rollbacks += 1;
+        Ok(nis)
+    }
+
+    fn push_history(&mut self, entry: Entry) {
+        let rollback = self.settings.rollback;
+        let capacity = self.history_capacity;
+        let Some(track) = self.track.as_mut() else {
+            return;
+        };
+        track.now = entry.after;
+        while track.history.len() >= capacity
+            || track
+                .history
+                .front()
+                .is_some_and(|e| e.detection.stamp < entry.after.stamp - rollback)
+        {
+            let Some(oldest) = track.history.pop_front() else {
+                break;
+            };
+            track.base = oldest.after;
+        }
+        track.history.push_back(entry);
+    }
+
+    fn insert_pending(&mut self, d: &Detection) {
+        if self.pending.len() == self.pending.capacity() {
+            self.pending.remove(0);
+        }
+        let index = self.pending.partition_point(|p| p.stamp <= d.stamp);
+        self.pending.insert(index, *d);
+        // Keep only the detections within the initialisation span of the newest.
+        let newest = self.pending.last().map_or(d.stamp, |p| p.stamp);
+        let span = self.settings.init_span;
+        self.pending.retain(|p| newest - p.stamp <= span);
+    }
+
+    fn initialise(&mut self, d: &Detection) -> Verdict {
+        if self
+            .pending
+            .iter()
+            .any(|p| p.stamp == d.stamp && p.source == d.source)
+        {
+            return Verdict::Rejected(Rejection::Duplicate);
+        }
+        self.insert_pending(d);
+        if self.pending.len() >= self.settings.init_count && !self.try_start_track() {
+            // Inconsistent: drop the worst-fitting detection and wait for more.
+            if let Some(fit) = self.fit_pending() {
+                self.pending.remove(fit.worst);
+                self.counters.rejected[Rejection::InitOutlier.index()] += 1;
+                self.counters.initializing = self.counters.initializing.saturating_sub(1);
+            }
+        }
+        Verdict::Initializing
+    }
+
+    fn fit_pending(&self) -> Option<init::InitialFit> {
+        // A rough speed from the first and last pending detections, for the timing noise.
+        let (first, last) = (self.pending.first()?, self.pending.last()?);
+        if first.stamp == last.stamp {
+            return None;
+        }
+        let span = (last.stamp - first.stamp) as f64 * 1e-9;
+        let speed_sq = if span > 0.0 {
+            ((last.position - first.position) / span).norm_squared()
+        } else {
+            0.0
+        };
+        let weights = |d: &Detection| {
+            let m = self.measurement(d).ok()?;
+            Some(match m {
+                Measurement::Position { r, timing, .. } => init::Weights {
+                    position_var: r.diagonal().add_scalar(timing * speed_sq),
+                    spin: None,
+                },
+                Measurement::PositionSpin { z, r, timing } => init::Weights {
+                    position_var: r
+                        .fixed_view::<3, 3>(0, 0)
+                        .diagonal()
+                        .add_scalar(timing * speed_sq),
+                    spin: Some((
+                        z.fixed_rows::<3>(3).into_owned(),
+                        r.fixed_view::<3, 3>(3, 3).diagonal(),
+                    )),
+                },
+            })
+        };
+        let theta = self.learned.global().0;
+        let (k_d, k_m) = (
+            theta[crate::physics::params::DRAG_SCALE],
+            theta[crate::physics::params::MAGNUS_SCALE],
+        );
+        init::fit(
+            &self.pending,
+            &weights,
+            &self.flight.with_scales(k_d, k_m),
+            self.settings.gravity,
+            &self.settings,
+        )
+    }
+
+    /// Starts a track from the pending detections when they fit one ballistic flight.
+    fn try_start_track(&mut self) -> bool {
+        let Some(fit) = self.fit_pending() else {
+            return false;
+        };
+        let gate = chi_square_quantile(self.settings.gate_probability, fit.dof.max(1));
+        let speed = fit.x.fixed_rows::<3>(3).norm();
+        if fit.chi_square > gate || speed > 40.0 {
+            return false;
+        }
+        let param_prior = self.learned.track_prior(fit.stamp);
+        let (theta, p_theta) = param_prior;
+        let mut snapshot = Snapshot {
+            ekf: Ekf::new(fit.x, fit.P, theta, p_theta),
+            stamp: fit.stamp,
+            bounces: 0,
+            robot_half_bounces: u32::from(already_bounced(&fit.x)),
+            last_fused: fit.stamp,
+            nis: 0.0,
+        };
+        let first_seen = self.pending.first().map_or(fit.stamp, |d| d.stamp);
+        let continued = self
+            .continuation
+            .take()
+            .and_then(|c| self.continues(&c, &fit.x, fit.stamp, first_seen));
+        let id = match continued {
+            Some((id, before)) => {
+                // The same ball: its id, and the bounces it has made.
+                snapshot.bounces = before.bounces;
+                snapshot.robot_half_bounces =
+                    snapshot.robot_half_bounces.max(before.robot_half_bounces);
+                self.counters.reanchored += 1;
+                id
+            }
+            None => {
+                let id = self.next_track_id;
+                self.next_track_id = self.next_track_id.wrapping_add(1).max(1);
+                self.counters.tracks += 1;
+                id
+            }
+        };
+        // Nothing of the new track depends on the noise scales yet.
+        if let Some(d) = self.sensitivity.as_deref_mut() {
+            *d = [StateMatrix::zeros(); NOISE_SCALES];
+        }
+        let history = std::mem::take(&mut self.spare_history);
+        self.track = Some(Track {
+            id,
+            now: snapshot,
+            base: snapshot,
+            history,
+            consecutive_rejections: 0,
+            param_prior,
+            started: fit.stamp,
+        });
+        self.pending.clear();
+        true
+    }
+
+    /// Starts the return's track at `d`, a detection after the announced `hit`, from the
+    /// predicted rebound of the live track's ball (predicted at the first detection after the
+    /// impact, then kept); None (nothing changed but the kept rebound) when there was no live
+    /// track before the impact, the hit is impossible or `d` is gated against the rebound.
+    fn start_from_hit(&mut self, hit: &RobotHit, d: &Detection, m: Measurement) -> Option<Verdict> {
+        let kept = self.expected_hit.and_then(|(_, seed)| seed);
+        let seed = match kept {
+            Some(seed) => seed,
+            None => {
+                let seed = self.rebound_seed(hit)?;
+                self.expected_hit = Some((*hit, Some(seed)));
+                seed
+            }
+        };
+        let param_prior = self.learned.track_prior(hit.stamp);
+        let mut snapshot = seed;
+        let nis = self.fuse(&mut snapshot, d, &m, None).ok()?;
+        self.learn_noise(d);
+        self.end_track();
+        let id = self.next_track_id;
+        self.next_track_id = self.next_track_id.wrapping_add(1).max(1);
+        self.counters.tracks += 1;
+        self.counters.seeded_by_hit += 1;
+        if let Some(s) = self.sensitivity.as_deref_mut() {
+            *s = [StateMatrix::zeros(); NOISE_SCALES];
+        }
+        let mut history = std::mem::take(&mut self.spare_history);
+        history.push_back(Entry {
+            detection: *d,
+            measurement: m,
+            after: snapshot,
+        });
+        self.track = Some(Track {
+            id,
+            now: snapshot,
+            base: seed,
+            history,
+            consecutive_rejections: 0,
+            param_prior,
+            started: d.stamp,
+        });
+        self.rejected_run.clear();
+        Some(Verdict::Fused { nis })
+    }
+
+    /// The predicted rebound of the live track's ball at the announced `hit`, with its
+    /// covariance; None when there is no live track before the impact or the hit is impossible.
+    fn rebound_seed(&self, hit: &RobotHit) -> Option<Snapshot> {
+        let track = self.track.as_ref()?;
+        if track.now.stamp > hit.stamp {
+            return None;
+        }
+        let mut incoming = track.now;
+        self.advance(&mut incoming, hit.stamp);
+        let ball = BallState::from_vector(&incoming.ekf.x);
+        let after = self.racket.hit(&ball, &hit.racket).ok()?.ball;
+        let covariance =
+            self.racket
+                .rebound_covariance(&ball, &incoming.ekf.state_covariance(), &hit.racket)?;
+        let (theta, p_theta) = self.learned.track_prior(hit.stamp);
+        Some(Snapshot {
+            ekf: Ekf::new(after.to_vector(), covariance, theta, p_theta),
+            stamp: hit.stamp,
+            bounces: 0,
+            robot_half_bounces: 0,
+            last_fused: hit.stamp,
+            nis: 0.0,
+        })
+    }
+
+    /// Whether a track starting at `stamp` in state `x`, fitted to detections from
+    /// `first_seen` on, is the ball of the refuted track `c`: seen again within
+    /// [`tracking.timeout`] of its last fused detection, within [`REANCHOR_DISTANCE`] of where
+    /// its estimate had flown to, and moving the same way along the table (a racket hit turns
+    /// the ball around). Then its id and the estimate it had flown to.
+    fn continues(
+        &self,
+        c: &Continuation,
+        x: &crate::physics::StateVector,
+        stamp: i64,
+        first_seen: i64,
+    ) -> Option<(u32, Snapshot)> {
+        if first_seen - c.last.last_fused > self.settings.timeout || stamp < c.last.stamp {
+            return None;
+        }
+        let mut flown = c.last;
+        self.advance(&mut flown, stamp);
+        let apart = (flown.ekf.x.fixed_rows::<3>(0) - x.fixed_rows::<3>(0)).norm();
+        (apart <= REANCHOR_DISTANCE && flown.ekf.x[3] * x[3] > 0.0).then_some((c.id, flown))
+    }
+}

@@ -1,0 +1,210 @@
+//! The measurement noise each camera source really has, learned from the filter's innovations
+//! and carried from track to track (`ekf.learn_noise`).
+//!
+//! A source's position noise is modelled as R = s R_0 + tau v v': its configured (or the
+//! detection's own) covariance R_0 times a scale s, and the error of its stamps (variance tau
+//! [s^2]) moving the measured position along the velocity v; its spin noise as s_w R_w. For a
+//! consistent filter the prior innovation y = z - H x^- has E[y y'] = H P^- H' + R, so each
+//! detection gives an unbiased sample of the noise in its own directions: across the flight
+//! (the plane perpendicular to v), s = (|y_c|^2 - tr(P_c H P^- H' P_c)) / tr(P_c R_0 P_c); along
+//! it, tau = (y_a^2 - v^ H P^- H' v^ - s v^ R_0 v^) / |v|^2; and s_w likewise from the spin. Each
+//! sample is limited to [`SAMPLE_LIMIT`] times the current estimate (an outlier moves it little)
+//! and averaged with a fading memory of `ekf.noise_memory` detections, starting from the
+//! configured values with the weight of [`PRIOR_WEIGHT`] detections. Gated detections count
+//! too: leaving them out would bias the estimate low and keep it there. A detection whose
+//! prediction is less certain than its noise (a new track, just after a bounce, a spin just
+//! reset) teaches nothing: its sample would be mostly the prediction's error.
+
+use nalgebra::{Matrix3, Vector3};
+
+use crate::config::Config;
+
+/// The configured noise counts as this many detections when the learning starts.
+pub const PRIOR_WEIGHT: f64 = 20.0;
+/// A sample is cut to this many times the current estimate of its variance.
+pub const SAMPLE_LIMIT: f64 = 9.0;
+/// Below this speed [m/s] the flight has no direction: the whole position innovation counts
+/// as noise across it.
+const MIN_SPEED: f64 = 0.5;
+
+/// The learned noise of one source.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SourceNoiseEstimate {
+    /// s: the scale on the position covariance [-].
+    pub position_scale: f64,
+    /// tau: the variance of the stamps' timing [s^2].
+    pub timing_variance: f64,
+    /// s_w: the scale on the spin covariance [-].
+    pub spin_scale: f64,
+    /// Detections (plus the prior's weight) behind the estimate, at most the memory [-].
+    pub weight: f64,
+    /// Spin measurements behind `spin_scale` (plus the prior's weight) [-].
+    pub spin_weight: f64,
+}
+
+impl SourceNoiseEstimate {
+    fn prior(stamp_sigma: f64) -> Self {
+        Self {
+            position_scale: 1.0,
+            timing_variance: stamp_sigma * stamp_sigma,
+            spin_scale: 1.0,
+            weight: PRIOR_WEIGHT,
+            spin_weight: PRIOR_WEIGHT,
+        }
+    }
+}
+
+/// The prior innovation of one position (and spin) measurement.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct Innovation {
+    /// z - H x^- of the position [m].
+    pub y: Vector3<f64>,
+    /// H P^- H' of the position [m^2].
+    pub hph: Matrix3<f64>,
+    /// The measurement's own covariance before the learned scale, R_0 [m^2].
+    pub r0: Matrix3<f64>,
+    /// The predicted velocity [m/s].
+    pub velocity: Vector3<f64>,
+    /// The spin's innovation, H P^- H' and R_0, when measured.
+    pub spin: Option<(Vector3<f64>, Matrix3<f64>, Matrix3<f64>)>,
+}
+
+/// The learned noise of every source, in the order of
+/// [`SourcesParams::all`](crate::config::SourcesParams::all) (indexed by
+/// [`SourceIndex::of`](crate::config::SourceIndex::of)).
+#[derive(Debug, Clone, PartialEq)]
+pub(crate) struct NoiseLearner {
+    sources: Vec<SourceNoiseEstimate>,
+    memory: f64,
+    enabled: bool,
+}
+
+impl NoiseLearner {
+    pub(crate) fn new(config: &Config) -> Self {
+        Self {
+            sources: config
+                .sources
+                .all()
+                .into_iter()
+                .map(|(_, p)| SourceNoiseEstimate::prior(p.stamp_sigma))
+                .collect(),
+            memory: f64::from(config.ekf.noise_memory).max(PRIOR_WEIGHT),
+            enabled: config.ekf.learn_noise,
+        }
+    }
+
+    /// The current estimate for the source at `index`.
+    pub(crate) fn of(&self, index: usize) -> SourceNoiseEstimate {
+        self.sources[index]
+    }
+
+    /// Every source's estimate, in index order.
+    pub(crate) fn all(&self) -> &[SourceNoiseEstimate] {
+        &self.sources
+    }
+
+    /// Learns from one detection's prior innovation (of the source at `index`).
+    pub(crate) fn learn(&mut self, index: usize, innovation: &Innovation) {
+        if !self.enabled {
+            return;
+        }
+        let memory = self.memory;
+        let e = &mut self.sources[index];
+        let i = innovation;
+        let speed = i.velocity.norm();
+        let (across, along) = if speed >= MIN_SPEED {
+            let u = i.velocity / speed;
+            (Matrix3::identity() - u * u.transpose(), Some(u))
+        } else {
+            (Matrix3::identity(), None)
+        };
+        let r0_across = (across * i.r0 * across).trace();
+        let hph_across = (across * i.hph * across).trace();
+        // Only where the prediction is sharper than the noise: a sample is the difference of
+        // the innovation and the prediction's variance, and where the prediction dominates
+        // (a new track, after a bounce) that difference is mostly the prediction's error.
+        if r0_across <= 0.0 || hph_across > e.position_scale * r0_across {
+            return;
+        }
+        e.weight = (e.weight + 1.0).min(memory);
+        let y_c = across * i.y;
+        let sample = ((y_c.norm_squared() - hph_across) / r0_across).max(0.0);
+        let scale = e.position_scale;
+        e.position_scale += (sample.min(SAMPLE_LIMIT * scale) - scale) / e.weight;
+        e.position_scale = e.position_scale.max(1e-3);
+        if let Some(u) = along {
+            let y_a = u.dot(&i.y);
+            let position_along = e.position_scale * u.dot(&(i.r0 * u));
+            let timing_along = e.timing_variance * speed * speed;
+            let excess = y_a * y_a - u.dot(&(i.hph * u)) - position_along;
+            let limit = SAMPLE_LIMIT * (position_along + timing_along);
+            let sample = excess.min(limit) / (speed * speed);
+            e.timing_variance += (sample - e.timing_variance) / e.weight;
+            e.timing_variance = e.timing_variance.max(0.0);
+        }
+        if let Some((y_w, hph_w, r0_w)) = i.spin {
+            let r0 = r0_w.trace();
+            if r0 > 0.0 && hph_w.trace() <= e.spin_scale * r0 {
+                e.spin_weight = (e.spin_weight + 1.0).min(memory);
+                let sample = ((y_w.norm_squared() - hph_w.trace()) / r0).max(0.0);
+                let scale = e.spin_scale;
+                e.spin_scale += (sample.min(SAMPLE_LIMIT * scale) - scale) / e.spin_weight;
+                e.spin_scale = e.spin_scale.max(1e-3);
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::model::rng::Rng;
+
+    /// Innovations of a source whose noise is twice (in sigma) the configured, with stamps off
+    /// by 1 ms (sigma) at 8 m/s, over a prior of a fifth of the noise: the learner finds the
+    /// scale (4) and the timing variance (1e-6 s^2) within a few percent.
+    #[test]
+    fn finds_the_scale_and_the_timing_noise() {
+        let mut config = Config::default();
+        config.ekf.noise_memory = 20_000;
+        let mut learner = NoiseLearner::new(&config);
+        let mut rng = Rng::new(7);
+        let r0 = Matrix3::identity() * 4e-6;
+        let hph = Matrix3::identity() * 4e-6 / 5.0;
+        let velocity = Vector3::new(-8.0, 0.5, 1.0);
+        let u = velocity.normalize();
+        for _ in 0..20_000 {
+            let noise = rng.normal3() * 4e-3 + u * (velocity.norm() * 1e-3 * rng.normal());
+            let prior = rng.normal3() * (4e-6f64 / 5.0).sqrt();
+            let innovation = Innovation {
+                y: noise + prior,
+                hph,
+                r0,
+                velocity,
+                spin: None,
+            };
+            learner.learn(1, &innovation);
+        }
+        let e = learner.of(1);
+        assert!((e.position_scale - 4.0).abs() < 0.1, "{e:?}");
+        assert!((e.timing_variance - 1.0e-6).abs() < 0.05e-6, "{e:?}");
+        // The other sources learned nothing.
+        assert_eq!(learner.of(2).position_scale, 1.0);
+    }
+
+    #[test]
+    fn learns_nothing_when_switched_off() {
+        let mut config = Config::default();
+        config.ekf.learn_noise = false;
+        let mut learner = NoiseLearner::new(&config);
+        let innovation = Innovation {
+            y: Vector3::new(0.01, 0.01, 0.01),
+            hph: Matrix3::zeros(),
+            r0: Matrix3::identity() * 4e-6,
+            velocity: Vector3::new(-5.0, 0.0, 0.0),
+            spin: None,
+        };
+        learner.learn(1, &innovation);
+        assert_eq!(learner, NoiseLearner::new(&config));
+    }
+}

@@ -1,0 +1,15 @@
+//! The online layer: everything the node runs per detection, and nothing else.
+//!
+//! - [`estimator`]: the one entry point, `Estimator::handle(detection)`: tracking, out-of-order
+//!   fusion, gating, initialisation, the learned physics and noise, interception after every
+//!   update; its measurement model is shared with the batch fit.
+//! - [`ekf`]: the extended Kalman filter over (position, velocity, spin) and the physical
+//!   parameters it adapts.
+//! - [`intercept`]: the predicted crossing of the robot's hitting plane, with its covariance.
+//! - [`stroke`]: the robot's hit: the ball's rebound off the racket and its return flight, and
+//!   the racket command (velocity, face normal) that returns the ball to a target.
+
+pub mod ekf;
+pub mod estimator;
+pub mod intercept;
+pub mod stroke;

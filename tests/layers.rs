@@ -1,0 +1,126 @@
+//! The layer rule of `src/lib.rs`, checked on the source: a module uses only its own layer and
+//! the layers listed before it (below it), never one listed after it (above it). Every `crate::`
+//! path outside comments is read, in library code and in its unit tests alike.
+
+#![allow(clippy::unwrap_used, clippy::panic, reason = "test code: fail loudly")]
+
+use std::path::{Path, PathBuf};
+
+/// The layers, lowest first, as `src/lib.rs` lists them.
+const LAYERS: [&str; 10] = [
+    "model", "config", "physics", "online", "offline", "eval", "plot", "ros", "bag", "node",
+];
+
+fn rank(layer: &str) -> Option<usize> {
+    LAYERS.iter().position(|l| *l == layer)
+}
+
+fn sources(dir: &Path, out: &mut Vec<PathBuf>) {
+    for entry in std::fs::read_dir(dir).unwrap() {
+        let path = entry.unwrap().path();
+        if path.is_dir() {
+            sources(&path, out);
+        } else if path.extension().is_some_and(|e| e == "rs") {
+            out.push(path);
+        }
+    }
+}
+
+/// Every layer named after `crate::` on a line of code (comments left out).
+fn used_layers(text: &str) -> Vec<(usize, String)> {
+    let mut used = Vec::new();
+    for (number, line) in text.lines().enumerate() {
+        let code = line.split("//").next().unwrap_or("");
+        let mut rest = code;
+        while let Some(at) = rest.find("crate::") {
+            let after = &rest[at + "crate::".len()..];
+            let name: String = after
+                .chars()
+                .take_while(|c| c.is_ascii_alphanumeric() || *c == '_')
+                .collect();
+            used.push((number + 1, name));
+            rest = after;
+        }
+    }
+    used
+}
+
+#[test]
+fn every_module_uses_only_its_layer_and_the_layers_below_it() {
+    let src = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("src");
+    let mut files = Vec::new();
+    sources(&src, &mut files);
+    files.sort();
+    let mut broken = Vec::new();
+    let mut checked = 0;
+    for file in &files {
+        let relative = file.strip_prefix(&src).unwrap();
+        let top = relative
+            .components()
+            .next()
+            .unwrap()
+            .as_os_str()
+            .to_string_lossy();
+        let top = top.trim_end_matches(".rs");
+        if matches!(top, "lib" | "main" | "cli") {
+            continue;
+        }
+        let own = rank(top).unwrap_or_else(|| {
+            panic!("src/{top} is in no layer: add it to src/lib.rs's list and to LAYERS here")
+        });
+        checked += 1;
+        let text = std::fs::read_to_string(file).unwrap();
+        for (line, name) in used_layers(&text) {
+            match rank(&name) {
+                Some(used) if used > own => broken.push(format!(
+                    "src/{}:{line}: layer {top} uses crate::{name}, a layer above it",
+                    relative.display()
+                )),
+                Some(_) => {}
+                None => broken.push(format!(
+                    "src/{}:{line}: crate::{name} is in no layer",
+                    relative.display()
+                )),
+            }
+        }
+    }
+    assert!(
+        checked > 50,
+        "only {checked} source files found under {}",
+        src.display()
+    );
+    assert!(broken.is_empty(), "{}", broken.join("\n"));
+}
+
+#[test]
+fn the_layer_list_here_is_the_one_in_lib_rs() {
+    let lib = std::fs::read_to_string(PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("src/lib.rs"))
+        .unwrap();
+    let declared: Vec<&str> = lib
+        .lines()
+        .filter_map(|l| l.trim().strip_prefix("pub mod "))
+        .map(|l| l.trim_end_matches(';'))
+        .collect();
+    assert_eq!(
+        declared, LAYERS,
+        "src/lib.rs declares its layers in this order"
+    );
+    for (i, layer) in LAYERS.iter().enumerate() {
+        let entry = format!("//! {}. ", i + 1);
+        let line = lib
+            .lines()
+            .find(|l| l.starts_with(&entry))
+            .unwrap_or_else(|| panic!("src/lib.rs's docs list no layer {}", i + 1));
+        assert!(
+            line.contains(layer),
+            "layer {} of src/lib.rs's docs is not {layer}: {line}",
+            i + 1
+        );
+    }
+}
+
+#[test]
+fn the_checker_sees_a_path_into_a_lower_layer() {
+    let used = used_layers("use crate::bag::replay; // crate::node in a comment\n");
+    assert_eq!(used, vec![(1, "bag".to_string())]);
+}
