@@ -27,7 +27,7 @@
 //!
 //! The command-line tool (`src/cli`, in the binary) sits on top of them all.
 //!
-//! Units are SI everywhere (m, s, kg, rad/s) in the `table` frame described in the README. The
+//! Units are SI everywhere (m, s, kg, rad/s) in the `table` frame (docs/models.md, "Frames, units and time"). The
 //! models and their sources are in `docs/models.md`.
 
 pub mod model;

@@ -289,7 +289,7 @@ fn the_estimator_predicts_real_flights_through_their_bounce() {
     // The issue asks for none in 99 % of flights (all 40 here). The frames next to a contact
     // get its extra noise (`ekf.contact_position_sigma`; without it 4 flights). One flight is
     // left: backspin 14, whose frames around the bounce (three gaps of 11-16 ms) fit no bounce
-    // together (README, "Real launcher flights"). No worse than that.
+    // together (docs/real_flights.md). No worse than that.
     assert!(
         gated.len() <= 1 && gated.iter().all(|(_, n)| *n == 1),
         "{gated:?}"
@@ -405,7 +405,7 @@ fn the_kind_of_spin_before_the_bounce() {
     assert!(t.0 > 0.0, "every topspin flight reads as topspin: {top:?}");
     // The no-spin flights between the two, apart from either by more than 50 rad/s: the three
     // kinds are told apart by a boundary anywhere in those gaps. (By its sign the launcher's
-    // "no spin" reads as mild topspin, 27-42 rad/s: README, "Real launcher flights".)
+    // "no spin" reads as mild topspin, 27-42 rad/s: docs/real_flights.md.)
     assert!(
         b.1 + 50.0 < n.0 && n.1 + 50.0 < t.0,
         "no spin between, well apart: {none:?}"

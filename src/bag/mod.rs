@@ -896,7 +896,7 @@ impl<W: Write + Seek> BagWriter<W> {
             .profile("ros2")
             .library(concat!("ttball ", env!("CARGO_PKG_VERSION")))
             // zstd's fastest level: a replay's output compresses in 0.6 of the time of the
-            // default level (3), 0.7 % larger (README "Performance").
+            // default level (3), 0.7 % larger (docs/performance.md).
             .compression_level(1)
             .create(out)
             .map_err(|e| BagError::Write {

@@ -54,7 +54,7 @@ pub struct CalibrateArgs {
     /// Calibrate the racket's rubber instead, from recorded hits: a CSV file with the ball's
     /// velocity and spin before and after each hit (the tt_rackets columns v_in_*,
     /// spin_before_*, v_out_*, spin_after_*; optionally racket_velocity_*, racket_normal_*,
-    /// impact_offset; README "Calibrating the racket"). Repeatable: the files are fitted
+    /// impact_offset; docs/racket.md). Repeatable: the files are fitted
     /// together and their errors reported one by one.
     #[arg(long, value_name = "HITS.csv")]
     pub rebound: Vec<PathBuf>,

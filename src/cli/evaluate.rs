@@ -1,5 +1,5 @@
 //! `ttball evaluate`: the estimator's accuracy on simulated play with truth, for both camera
-//! setups (the README's accuracy table).
+//! setups (the accuracy tables of README.md and docs/accuracy.md).
 
 use std::path::PathBuf;
 use std::process::ExitCode;

@@ -193,7 +193,7 @@ pub struct RacketParams {
     /// spin about the face normal leaves as e_z times what it was (the contact patch's twist:
     /// 1 keeps it, the seed's model, which has no torque about the normal; 0 stops it; < 0 a
     /// rubber that grips the patch and twists back). An empirical coefficient of ttball's,
-    /// calibrated on recorded hits (`ttball calibrate --rebound`; README "The racket").
+    /// calibrated on recorded hits (`ttball calibrate --rebound`; docs/racket.md).
     pub rubber_torsional_restitution: f64,
     /// Covariance of the rubber's calibrated constants, row-major over (rubber_restitution[0..n],
     /// rubber_friction, rubber_tangential_restitution, rubber_torsional_restitution), (n + 3)^2
@@ -706,7 +706,7 @@ pub struct NodeParams {
     pub diagnostics_period: f64,
     /// CPUs the node's threads run on, as `taskset -c` takes them: e.g. "1", "2,3" or "0-1".
     /// Every thread of the node, RustDDS's included, then runs there; on one core, handing a
-    /// detection from thread to thread wakes no other core (see the README's latency numbers).
+    /// detection from thread to thread wakes no other core (docs/performance.md).
     /// Empty: wherever the operating system puts them. ([`NodeParams::cpu_list`] reads it.) One
     /// CPU may be given as a bare number (`-p node.cpus:=1`).
     #[serde(deserialize_with = "text_or_number")]

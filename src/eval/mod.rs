@@ -1,5 +1,5 @@
 //! Accuracy of the estimator on a simulated session, against the simulator's truth: the numbers
-//! of the README's accuracy table.
+//! of the accuracy tables (README.md, docs/accuracy.md).
 //!
 //! The session's detections go through [`Estimator::handle`] in arrival order, exactly as the
 //! node would see them. Reported, over the shots:

@@ -1,6 +1,5 @@
 //! The harder evaluation: simulated sets whose physics, noise and timing differ from what the
-//! filter is configured with, as real balls, tables and trackers do (README "Estimator
-//! accuracy", "The harder sets").
+//! filter is configured with, as real balls, tables and trackers do (docs/accuracy.md, "The harder sets").
 //!
 //! Each set flies its truth with drag and Magnus scaled against the configured polynomials and
 //! its own table restitution and friction ([`Mismatch`]), adds position noise a factor larger

@@ -1,6 +1,6 @@
 //! The rubber calibrated from recorded hits: the racket model's rubber constants (the restitution
 //! polynomial e_RB(V), Coulomb friction mu, tangential restitution e_t, torsional restitution e_z;
-//! [`crate::physics::racket`], README "The racket") that best predict the measured
+//! [`crate::physics::racket`], docs/racket.md) that best predict the measured
 //! outgoing velocity and spin of many hits, with standard errors and k-fold cross-validation.
 //!
 //! The cost is the sum of squares of the hits' residuals, velocity in m/s over sigma_v and spin
@@ -62,7 +62,7 @@ pub enum HitsError {
     },
     /// A column the format requires is missing.
     #[error(
-        "{group}: no column {column}: a hit needs v_in_x,v_in_y,v_in_z, spin_before_x..z, v_out_x..z and spin_after_x..z (the tt_rackets columns; README \"Calibrating the racket\")"
+        "{group}: no column {column}: a hit needs v_in_x,v_in_y,v_in_z, spin_before_x..z, v_out_x..z and spin_after_x..z (the tt_rackets columns; docs/racket.md, \"The hits file\")"
     )]
     MissingColumn {
         /// The file.

@@ -1,5 +1,5 @@
 //! The physical parameters that differ from ball to ball and from table to table, and that the
-//! estimator learns online (README "Physics that adapts"): scale factors k_D and k_M on the drag
+//! estimator learns online (docs/estimator.md): scale factors k_D and k_M on the drag
 //! and Magnus forces of the flight model ([`super::aero`]), and the table's restitution e_t and
 //! friction mu_t of the bounce model ([`super::bounce`]).
 //!

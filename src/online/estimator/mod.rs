@@ -15,7 +15,7 @@
 //! - A detection whose stamp jumps beyond `tracking.timeout` is held until the next one confirms
 //!   the jump (a new ball, a restarted clock: a new track) or shows a glitch
 //!   ([`Rejection::StampJump`]); see [`Estimator::update`]. Every rejected detection is counted
-//!   by reason ([`Counters`]); the rules are tabled in the README ("Bad input").
+//!   by reason ([`Counters`]); the rules are tabled in docs/estimator.md ("Bad input").
 //!
 //! No heap allocation per detection: the history and buffers are allocated once.
 
