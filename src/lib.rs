@@ -4,7 +4,7 @@
 //!
 //! The crate is a pure core (no I/O, no clock, no ROS or MCAP types) and thin adapters around
 //! it, in folders that are layers, listed here from the bottom up. A layer uses only itself and the
-//! layers listed before it, never one listed after it (`tests/layers.rs` checks every `crate::`
+//! layers listed before it, never one listed after it (`tests/core/layers.rs` checks every `crate::`
 //! path of every source file against this list):
 //!
 //! 1. [`model`]: detections, time, frames, statistics, random numbers: the shared vocabulary.

@@ -491,7 +491,7 @@ mod tests {
         assert!(!r.success && r.message.contains("non-finite"));
     }
 
-    /// The ball of the racket tests (tests/racket.rs), just before impact, at 2 s.
+    /// The ball of the racket tests (tests/core/racket.rs), just before impact, at 2 s.
     fn ball() -> BallState {
         let mut b = BallState::default();
         b.header.stamp = crate::ros::msgs::builtin_interfaces::Time::from_nanos(seconds_to_ns(2.0));

@@ -24,7 +24,7 @@
 //! ```
 //!
 //! What the data say about the three constants ([`estimate_transform`] computes them; the numbers
-//! are for the 40 flights, and `tests/real_flights.rs` checks them):
+//! are for the 40 flights, and `tests/offline/real_flights.rs` checks them):
 //! - **z_surface.** At contact the ball centre is one radius above the surface. The contact
 //!   height of each bounce is where ballistic fits of the frames before and after it meet
 //!   ([`detect_bounce`]). 30 flights show a bounce (8 backspin and 2 topspin recordings end

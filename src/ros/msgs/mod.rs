@@ -6,7 +6,7 @@
 //! is wire order. Types map as uint8 -> `u8`, uint32 -> `u32`, int32 -> `i32`, float32 -> `f32`,
 //! float64 -> `f64`, string -> `String`, `T[N]` -> `[T; N]` (a tuple on the wire: no length prefix)
 //! and `T[]` -> `Vec<T>`. Modules follow ROS 2 naming (`ttball_msgs::msg::BallDetection`,
-//! `ttball_msgs::srv::PredictTrajectoryRequest`). `tests/msgs_contract.rs` parses `msgs/` and checks
+//! `ttball_msgs::srv::PredictTrajectoryRequest`). `tests/adapters/msgs_contract.rs` parses `msgs/` and checks
 //! these mirrors against it, so change both together.
 
 pub mod builtin_interfaces;

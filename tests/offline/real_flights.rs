@@ -13,7 +13,7 @@
 )]
 
 #[cfg(feature = "cli")]
-mod common;
+use crate::common;
 
 use std::path::PathBuf;
 use std::sync::OnceLock;

@@ -7,7 +7,7 @@
     reason = "test code: fail loudly"
 )]
 
-mod common;
+use crate::common;
 
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};

@@ -7,7 +7,7 @@
     reason = "test code: fail loudly"
 )]
 
-mod common;
+use crate::common;
 
 use std::path::{Path, PathBuf};
 

@@ -7,7 +7,7 @@
     reason = "test helpers outside #[test] functions"
 )]
 
-mod common;
+use crate::common;
 
 use std::path::{Path, PathBuf};
 use std::process::Output;

@@ -8,7 +8,7 @@
     reason = "test code: fail loudly"
 )]
 
-mod common;
+use crate::common;
 
 use std::collections::BTreeMap;
 

@@ -2,7 +2,7 @@
 //! whatever the detections, decoding arbitrary bytes as a message never panics, and neither does
 //! reading arbitrary bytes, or a real bag with bytes flipped, cut or inserted, as MCAP.
 //!
-//! `PROPTEST_CASES=N cargo test --release --test properties` runs N cases of each (the longer
+//! `PROPTEST_CASES=N cargo test --release --test adapters properties::` runs N cases of each (the longer
 //! fuzzing run in the README).
 #![cfg(feature = "bag")]
 #![allow(clippy::unwrap_used, reason = "test code: fail loudly")]

@@ -7,7 +7,7 @@
 
 use std::process::{Command, Output};
 
-mod common;
+use crate::common;
 
 fn ttball(env: &[(&str, &str)], args: &[&str]) -> Output {
     Command::new(env!("CARGO_BIN_EXE_ttball"))

@@ -6,7 +6,7 @@
     reason = "test code: fail loudly"
 )]
 
-mod common;
+use crate::common;
 
 use common::run as ttball;
 

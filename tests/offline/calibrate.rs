@@ -9,7 +9,7 @@
     reason = "test code: fail loudly"
 )]
 
-mod common;
+use crate::common;
 
 use common::{ok, run, scratch};
 use ttball::config::Config;
@@ -144,7 +144,7 @@ fn recovers_perturbed_aero_and_bounce_coefficients_from_simulated_flights() {
     assert!(with_calibrated < 0.7 * with_default);
     assert!(with_calibrated < 1.2 * with_truth);
     // (Against the same filter given the true physics, after 10 flights: `ttball evaluate
-    // --sets`, tests/evaluation.rs.)
+    // --sets`, tests/core/evaluation.rs.)
     assert!(adapting < 0.5 * with_default);
 }
 

@@ -1,0 +1,13 @@
+//! Tests of the adapter layers (ros, bag, plot): the configuration file, the message contract,
+//! the sample bags, the replay, bad input properties and the figures.
+
+#[cfg(feature = "cli")]
+#[path = "../common/mod.rs"]
+mod common;
+
+mod bags;
+mod config_yaml;
+mod msgs_contract;
+mod plot;
+mod properties;
+mod replay;

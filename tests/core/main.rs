@@ -1,0 +1,12 @@
+//! Tests of the pure core's lower layers (model, config, physics, online, eval): the physics
+//! against its sources' values and its invariants, the estimator, the learned physics, the racket,
+//! the simulator, the evaluation, and the layer rule itself. One test binary, so the crate is
+//! linked once for all of them.
+
+mod adaptation;
+mod estimator;
+mod evaluation;
+mod layers;
+mod physics;
+mod racket;
+mod sim;
