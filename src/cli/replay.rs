@@ -5,6 +5,7 @@ use std::fmt::Write as _;
 use std::path::PathBuf;
 use std::process::ExitCode;
 use std::sync::atomic::{AtomicUsize, Ordering};
+use std::time::Instant;
 
 use anyhow::{Context, bail};
 use clap::Args;
@@ -80,9 +81,8 @@ impl ReplayArgs {
             .min(jobs.len())
             .max(1);
         let next = AtomicUsize::new(0);
-        let mut results: Vec<Option<anyhow::Result<ReplaySummary>>> =
-            (0..jobs.len()).map(|_| None).collect();
-        let slots: Vec<std::sync::Mutex<Option<anyhow::Result<ReplaySummary>>>> = (0..jobs.len())
+        let mut results: Vec<Option<Finished>> = (0..jobs.len()).map(|_| None).collect();
+        let slots: Vec<std::sync::Mutex<Option<Finished>>> = (0..jobs.len())
             .map(|_| std::sync::Mutex::new(None))
             .collect();
         std::thread::scope(|scope| {
@@ -101,11 +101,15 @@ impl ReplayArgs {
                             bar.set_length(total);
                             bar.set_position(done);
                         };
+                        // The whole run of this bag, as a user waits for it: reading,
+                        // decoding, processing, encoding, compressing and writing.
+                        let started = Instant::now();
                         let result = replay(input, output, &config, &mut progress, &cancel)
                             .with_context(|| format!("cannot replay {}", input.display()));
+                        let whole_seconds = started.elapsed().as_secs_f64();
                         bar.finish_and_clear();
                         if let Ok(mut slot) = slots[i].lock() {
-                            *slot = Some(result);
+                            *slot = Some((result, whole_seconds));
                         }
                     }
                 });
@@ -116,11 +120,11 @@ impl ReplayArgs {
         }
         let mut failed = false;
         let mut summaries = Vec::new();
-        for result in results.into_iter().flatten() {
+        for (result, whole_seconds) in results.into_iter().flatten() {
             match result {
                 Ok(summary) => {
-                    write_stdout(&summary_text(&summary))?;
-                    summaries.push(summary);
+                    write_stdout(&summary_text(&summary, Some(whole_seconds)))?;
+                    summaries.push((summary, whole_seconds));
                 }
                 Err(e) => {
                     eprintln!("error: {e:#}");
@@ -129,7 +133,10 @@ impl ReplayArgs {
             }
         }
         if let Some(path) = &self.report {
-            let json: Vec<_> = summaries.iter().map(summary_json).collect();
+            let json: Vec<_> = summaries
+                .iter()
+                .map(|(summary, whole_seconds)| summary_json(summary, *whole_seconds))
+                .collect();
             std::fs::write(path, serde_json::to_string_pretty(&json)? + "\n")
                 .with_context(|| format!("cannot write {}", path.display()))?;
         }
@@ -185,7 +192,7 @@ impl ReplayArgs {
             })),
         )
         .with_context(|| format!("cannot replay {}", input.display()))?;
-        write_stdout(&summary_text(&summary))?;
+        write_stdout(&summary_text(&summary, None))?;
         Ok(if cancel.load(Ordering::Relaxed) {
             ExitCode::FAILURE
         } else {
@@ -228,8 +235,12 @@ impl ReplayArgs {
     }
 }
 
-/// The summary a user reads at the end of a replay.
-pub fn summary_text(s: &ReplaySummary) -> String {
+/// One bag's replay as it ended, with the wall time of its whole run [s].
+type Finished = (anyhow::Result<ReplaySummary>, f64);
+
+/// The summary a user reads at the end of a replay; `whole_seconds`, when the bag was replayed as
+/// fast as it goes, is the wall time of its whole run (reading to the finished output).
+pub fn summary_text(s: &ReplaySummary, whole_seconds: Option<f64>) -> String {
     let c = &s.counters;
     let mut out = format!("{} -> {}\n", s.input.display(), s.output.display());
     if let Some(damage) = &s.damage {
@@ -291,6 +302,14 @@ pub fn summary_text(s: &ReplaySummary) -> String {
         s.real_time_factor(),
         s.written
     );
+    if let Some(whole) = whole_seconds {
+        let _ = writeln!(
+            out,
+            "  whole run (reading, decoding, processing, encoding, compressing, writing): {:.2} s ({:.0}x real time)",
+            whole,
+            s.recorded_seconds / whole.max(1e-9)
+        );
+    }
     if let Some(a) = &s.accuracy {
         let _ = writeln!(
             out,
@@ -414,7 +433,7 @@ pub fn learned_json(l: &LearnedParams) -> serde_json::Value {
     serde_json::json!({"tracks": l.tracks, "params": params})
 }
 
-fn summary_json(s: &ReplaySummary) -> serde_json::Value {
+fn summary_json(s: &ReplaySummary, whole_seconds: f64) -> serde_json::Value {
     let c = &s.counters;
     let rejected: serde_json::Map<String, serde_json::Value> = Rejection::ALL
         .iter()
@@ -447,6 +466,8 @@ fn summary_json(s: &ReplaySummary) -> serde_json::Value {
         "recorded_seconds": s.recorded_seconds,
         "processing_seconds": s.processing_seconds,
         "real_time_factor": s.real_time_factor(),
+        "whole_seconds": whole_seconds,
+        "whole_real_time_factor": s.recorded_seconds / whole_seconds.max(1e-9),
         "accuracy": s.accuracy,
     })
 }

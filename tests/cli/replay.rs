@@ -77,3 +77,42 @@ fn stop_midway(input: &std::path::Path, output: &std::path::Path, signal: &str) 
         assert!(out.status.success(), "{stdout}");
     }
 }
+
+/// The summary says what the whole run cost beside the processing, on stdout and in `--report`:
+/// the whole run includes the processing, so it is never the faster of the two.
+#[test]
+fn the_summary_reports_the_whole_run_beside_the_processing() {
+    let dir = common::scratch("whole-run");
+    let output = dir.join("out.mcap");
+    let report = dir.join("report.json");
+    let stdout = common::ok(&[
+        "replay",
+        "bags/sim_rally_wide.mcap",
+        "-o",
+        output.to_str().unwrap(),
+        "--report",
+        report.to_str().unwrap(),
+    ]);
+    assert!(
+        stdout.contains(
+            "whole run (reading, decoding, processing, encoding, compressing, writing): "
+        ),
+        "{stdout}"
+    );
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&report).unwrap()).unwrap();
+    let summary = &json[0];
+    let whole = summary["whole_seconds"].as_f64().unwrap();
+    let processing = summary["processing_seconds"].as_f64().unwrap();
+    assert!(whole >= processing && processing > 0.0, "{summary}");
+    let factor = summary["whole_real_time_factor"].as_f64().unwrap();
+    let recorded = summary["recorded_seconds"].as_f64().unwrap();
+    assert!(
+        (factor * whole - recorded).abs() < 1e-6 * recorded,
+        "{summary}"
+    );
+    assert!(
+        factor <= summary["real_time_factor"].as_f64().unwrap(),
+        "{summary}"
+    );
+}
