@@ -94,13 +94,14 @@ pub enum DecodeError {
 
 /// Encodes a message as a ROS 2 CDR payload (little endian, with the encapsulation header).
 pub fn encode<T: Serialize>(type_name: &str, msg: &T) -> Result<Vec<u8>, BagError> {
-    let body = cdr_encoding::to_vec::<T, LittleEndian>(msg).map_err(|e| BagError::Encode {
+    // Straight after the header, into one buffer: CDR aligns relative to the start of the body,
+    // which the serialiser counts from its own first byte.
+    let mut out = Vec::with_capacity(CDR_LE.len() + 2 * std::mem::size_of_val(msg));
+    out.extend_from_slice(&CDR_LE);
+    cdr_encoding::to_writer::<T, LittleEndian, _>(&mut out, msg).map_err(|e| BagError::Encode {
         type_name: type_name.to_string(),
         reason: e.to_string(),
     })?;
-    let mut out = Vec::with_capacity(body.len() + 4);
-    out.extend_from_slice(&CDR_LE);
-    out.extend_from_slice(&body);
     Ok(out)
 }
 

@@ -15,10 +15,12 @@ use serde::{Deserialize, Serialize};
 use crate::model::detection::Source;
 
 pub mod names;
+pub mod range;
 mod validate;
 #[cfg(feature = "interface")]
 pub mod yaml;
 
+pub use range::Range;
 pub use validate::{ConfigError, Violation};
 
 /// The ball (ITTF 40+ ball by default; docs/models.md "Frames, units and time").

@@ -7,6 +7,7 @@
 use thiserror::Error;
 
 use super::{Config, MAX_POLYNOMIAL_COEFFICIENTS, SourceParams};
+use crate::config::range::Range;
 
 /// One configuration value outside its allowed range. `key` is the dotted parameter name, as in
 /// the ROS 2 parameters file (`table.restitution`, `aero.drag_coefficients[2]`).
@@ -27,8 +28,8 @@ pub enum Violation {
         key: String,
         /// The offending value (in the key's unit).
         value: f64,
-        /// The allowed range, in words.
-        allowed: &'static str,
+        /// The allowed range; it says itself in words.
+        allowed: Range,
     },
     /// A count (integer) is outside its range.
     #[error("`{key}` = {value} is out of range: it must be {allowed}")]
@@ -157,36 +158,43 @@ fn bullet_list(violations: &[Violation]) -> String {
 #[derive(Default)]
 struct Checker {
     violations: Vec<Violation>,
-    rules: Vec<(String, &'static str)>,
+    rules: Vec<(String, String)>,
+    ranges: Vec<(String, Range)>,
 }
 
 impl Checker {
     /// Records the rule `key` is checked against (a list's elements under the list's key).
-    fn rule(&mut self, key: &str, allowed: &'static str) {
+    fn rule(&mut self, key: &str, allowed: &str) {
         let key = key.split_once('[').map_or(key, |(list, _)| list);
         match self.rules.iter_mut().find(|(k, _)| k == key) {
-            Some((_, rule)) if *rule != allowed && allowed != "a finite number" => *rule = allowed,
+            Some((_, rule)) if rule != allowed && allowed != "a finite number" => {
+                allowed.clone_into(rule);
+            }
             Some(_) => {}
-            None => self.rules.push((key.to_owned(), allowed)),
+            None => self.rules.push((key.to_owned(), allowed.to_owned())),
         }
     }
 
     /// Records `allowed` as the rule of `key`, replacing what the checks recorded.
-    fn rule_is(&mut self, key: &str, allowed: &'static str) {
+    fn rule_is(&mut self, key: &str, allowed: &str) {
         match self.rules.iter_mut().find(|(k, _)| k == key) {
-            Some((_, rule)) => *rule = allowed,
-            None => self.rules.push((key.to_owned(), allowed)),
+            Some((_, rule)) => allowed.clone_into(rule),
+            None => self.rules.push((key.to_owned(), allowed.to_owned())),
         }
     }
 
-    fn real(&mut self, key: &str, value: f64, ok: impl Fn(f64) -> bool, allowed: &'static str) {
-        self.rule(key, allowed);
+    /// `value` inside `allowed`; NaN and infinity never are.
+    fn real(&mut self, key: &str, value: f64, allowed: Range) {
+        self.rule(key, &allowed.to_string());
+        if !key.contains('[') {
+            self.ranges.push((key.to_owned(), allowed));
+        }
         if !value.is_finite() {
             self.violations.push(Violation::NotFinite {
                 key: key.to_owned(),
                 value,
             });
-        } else if !ok(value) {
+        } else if !allowed.contains(value) {
             self.violations.push(Violation::OutOfRange {
                 key: key.to_owned(),
                 value,
@@ -203,11 +211,11 @@ impl Checker {
     }
 
     fn positive(&mut self, key: &str, value: f64) {
-        self.real(key, value, |v| v > 0.0, "greater than 0");
+        self.real(key, value, Range::greater_than(0.0));
     }
 
     fn non_negative(&mut self, key: &str, value: f64) {
-        self.real(key, value, |v| v >= 0.0, "0 or greater");
+        self.real(key, value, Range::at_least(0.0));
     }
 
     fn count(&mut self, key: &str, value: u32, min: u32, allowed: &'static str) {
@@ -237,7 +245,7 @@ impl Checker {
             });
         }
         for (i, &c) in coefficients.iter().enumerate() {
-            self.real(&format!("{key}[{i}]"), c, |_| true, "a finite number");
+            self.real(&format!("{key}[{i}]"), c, Range::any());
         }
     }
 
@@ -296,32 +304,31 @@ impl Checker {
         self.real(
             &format!("{key}.stamp_sigma"),
             source.stamp_sigma,
-            |v| (0.0..=0.1).contains(&v),
-            "between 0 and 0.1 (seconds)",
+            Range::between(0.0, 0.1).note("seconds"),
         );
         self.real(
             &format!("{key}.position_sigma"),
             source.position_sigma,
-            |v| v > 0.0 && v <= 1.0,
-            "greater than 0 and at most 1 (metres)",
+            Range::greater_than(0.0).at_most(1.0).note("metres"),
         );
         self.real(
             &format!("{key}.spin_sigma"),
             source.spin_sigma,
-            |v| (0.0..=1000.0).contains(&v),
-            "between 0 (spin not measured) and 1000 (rad/s)",
+            Range::between(0.0, 1000.0)
+                .low_meaning("spin not measured")
+                .note("rad/s"),
         );
         self.real(
             &format!("{key}.latency"),
             source.latency,
-            |v| (0.0..=1.0).contains(&v),
-            "between 0 and 1 (seconds)",
+            Range::between(0.0, 1.0).note("seconds"),
         );
         self.real(
             &format!("{key}.frame_rate"),
             source.frame_rate,
-            |v| (0.0..=100_000.0).contains(&v),
-            "between 0 (no expectation) and 100000 (Hz)",
+            Range::between(0.0, 100_000.0)
+                .low_meaning("no expectation")
+                .note("Hz"),
         );
     }
 }
@@ -379,8 +386,14 @@ impl Config {
 
     /// The rule each checked key is held to, in words (`"from 0 to 1"`), in the order of the
     /// checks; what the node's parameter descriptors give as `additional_constraints`.
-    pub fn rules(&self) -> Vec<(String, &'static str)> {
+    pub fn rules(&self) -> Vec<(String, String)> {
         self.check().rules
+    }
+
+    /// The range each checked real value is held to, by dotted key: where the node's parameter
+    /// descriptors take their `floating_point_range` from.
+    pub fn ranges(&self) -> Vec<(String, Range)> {
+        self.check().ranges
     }
 
     fn check(&self) -> Checker {
@@ -389,30 +402,34 @@ impl Config {
         c.real(
             "gravity",
             self.gravity,
-            |v| v > 0.0 && v <= 30.0,
-            "greater than 0 and at most 30 (m/s^2; Earth: 9.81)",
+            Range::greater_than(0.0)
+                .at_most(30.0)
+                .note("m/s^2; Earth: 9.81"),
         );
 
         let b = &self.ball;
         c.real(
             "ball.radius",
             b.radius,
-            |v| v > 0.0 && v <= 0.1,
-            "greater than 0 and at most 0.1 (metres; ITTF 40+: 0.020)",
+            Range::greater_than(0.0)
+                .at_most(0.1)
+                .note("metres; ITTF 40+: 0.020"),
         );
         c.real(
             "ball.mass",
             b.mass,
-            |v| v > 0.0 && v <= 0.1,
-            "greater than 0 and at most 0.1 (kilograms; ITTF 40+: 0.0027)",
+            Range::greater_than(0.0)
+                .at_most(0.1)
+                .note("kilograms; ITTF 40+: 0.0027"),
         );
 
         let a = &self.air;
         c.real(
             "air.density",
             a.density,
-            |v| (0.0..=10.0).contains(&v),
-            "between 0 (no air) and 10 (kg/m^3; 1.20 at 20 °C)",
+            Range::between(0.0, 10.0)
+                .low_meaning("no air")
+                .note("kg/m^3; 1.20 at 20 °C"),
         );
         c.positive("air.kinematic_viscosity", a.kinematic_viscosity);
 
@@ -428,8 +445,7 @@ impl Config {
             c.real(
                 key,
                 value,
-                |v| (0.0..=5.0).contains(&v),
-                "between 0 and 5 (a factor on the configured polynomial's force)",
+                Range::between(0.0, 5.0).note("a factor on the configured polynomial's force"),
             );
         }
 
@@ -438,53 +454,49 @@ impl Config {
             c.real(
                 key,
                 value,
-                |v| v > 0.0 && v <= 10.0,
-                "greater than 0 and at most 10 (metres)",
+                Range::greater_than(0.0).at_most(10.0).note("metres"),
             );
         }
         c.real(
             "table.net_height",
             t.net_height,
-            |v| (0.0..=10.0).contains(&v),
-            "between 0 (a table without a net) and 10 (metres)",
+            Range::between(0.0, 10.0)
+                .low_meaning("a table without a net")
+                .note("metres"),
         );
         c.real(
             "table.height",
             t.height,
-            |v| (0.0..=10.0).contains(&v),
-            "between 0 and 10 (metres)",
+            Range::between(0.0, 10.0).note("metres"),
         );
         c.real(
             "table.net_overhang",
             t.net_overhang,
-            |v| (0.0..=10.0).contains(&v),
-            "between 0 and 10 (metres)",
+            Range::between(0.0, 10.0).note("metres"),
         );
         c.real(
             "table.restitution",
             t.restitution,
-            |v| v > 0.0 && v <= 1.0,
-            "greater than 0 and at most 1 (a bounce cannot add energy)",
+            Range::greater_than(0.0)
+                .at_most(1.0)
+                .note("a bounce cannot add energy"),
         );
         c.real(
             "table.friction",
             t.friction,
-            |v| (0.0..=2.0).contains(&v),
-            "between 0 and 2 (published fits: 0.1 to 0.3)",
+            Range::between(0.0, 2.0).note("published fits: 0.1 to 0.3"),
         );
 
         let r = &self.racket;
         c.real(
             "racket.mass",
             r.mass,
-            |v| v > 0.0 && v <= 2.0,
-            "greater than 0 and at most 2 (kilograms)",
+            Range::greater_than(0.0).at_most(2.0).note("kilograms"),
         );
         c.real(
             "racket.center_of_gravity_from_grip_end",
             r.center_of_gravity_from_grip_end,
-            |v| v > 0.0 && v <= 1.0,
-            "greater than 0 and at most 1 (metres)",
+            Range::greater_than(0.0).at_most(1.0).note("metres"),
         );
         for (key, value) in [
             (
@@ -496,33 +508,28 @@ impl Config {
             c.real(
                 key,
                 value,
-                |v| v > 0.0 && v <= 1.0,
-                "greater than 0 and at most 1 (kg m^2)",
+                Range::greater_than(0.0).at_most(1.0).note("kg m^2"),
             );
         }
         c.real(
             "racket.face_area",
             r.face_area,
-            |v| v > 0.0 && v <= 1.0,
-            "greater than 0 and at most 1 (m^2)",
+            Range::greater_than(0.0).at_most(1.0).note("m^2"),
         );
         c.real(
             "racket.sponge_thickness",
             r.sponge_thickness,
-            |v| (0.0..=0.01).contains(&v),
-            "between 0 and 0.01 (metres; ITTF allows 4 mm of rubber)",
+            Range::between(0.0, 0.01).note("metres; ITTF allows 4 mm of rubber"),
         );
         c.real(
             "racket.face_start_from_grip_end",
             r.face_start_from_grip_end,
-            |v| (0.0..=1.0).contains(&v),
-            "between 0 and 1 (metres)",
+            Range::between(0.0, 1.0).note("metres"),
         );
         c.real(
             "racket.face_end_from_grip_end",
             r.face_end_from_grip_end,
-            |v| v > 0.0 && v <= 1.0,
-            "greater than 0 and at most 1 (metres)",
+            Range::greater_than(0.0).at_most(1.0).note("metres"),
         );
         c.at_most(
             "racket.face_start_from_grip_end",
@@ -535,20 +542,17 @@ impl Config {
         c.real(
             "racket.rubber_friction",
             r.rubber_friction,
-            |v| (0.0..=5.0).contains(&v),
-            "between 0 and 5",
+            Range::between(0.0, 5.0),
         );
         c.real(
             "racket.rubber_tangential_restitution",
             r.rubber_tangential_restitution,
-            |v| (-1.0..=1.0).contains(&v),
-            "between -1 and 1",
+            Range::between(-1.0, 1.0),
         );
         c.real(
             "racket.rubber_torsional_restitution",
             r.rubber_torsional_restitution,
-            |v| (-1.0..=1.0).contains(&v),
-            "between -1 and 1",
+            Range::between(-1.0, 1.0),
         );
         let rubber = r.rubber_restitution.len() + 3;
         c.rule(
@@ -607,16 +611,14 @@ impl Config {
             c.real(
                 &format!("racket.vibration_mode_frequencies[{i}]"),
                 f,
-                |v| v > 0.0 && v <= 1.0e5,
-                "greater than 0 and at most 100000 (Hz)",
+                Range::greater_than(0.0).at_most(1.0e5).note("Hz"),
             );
         }
         for (i, &m) in r.vibration_mode_masses.iter().enumerate() {
             c.real(
                 &format!("racket.vibration_mode_masses[{i}]"),
                 m,
-                |v| v > 0.0 && v <= 10.0,
-                "greater than 0 and at most 10 (kilograms)",
+                Range::greater_than(0.0).at_most(10.0).note("kilograms"),
             );
         }
         c.same_length(
@@ -628,14 +630,14 @@ impl Config {
         c.real(
             "arm.equivalent_mass",
             self.arm.equivalent_mass,
-            |v| (0.0..=1000.0).contains(&v),
-            "between 0 (a free racket) and 1000 (kilograms)",
+            Range::between(0.0, 1000.0)
+                .low_meaning("a free racket")
+                .note("kilograms"),
         );
         c.real(
             "arm.grip_from_grip_end",
             self.arm.grip_from_grip_end,
-            |v| (0.0..=1.0).contains(&v),
-            "between 0 and 1 (metres)",
+            Range::between(0.0, 1.0).note("metres"),
         );
         c.at_most(
             "arm.grip_from_grip_end",
@@ -648,34 +650,31 @@ impl Config {
         c.real(
             "stroke.max_racket_speed",
             s.max_racket_speed,
-            |v| v > 0.0 && v <= 100.0,
-            "greater than 0 and at most 100 (m/s)",
+            Range::greater_than(0.0).at_most(100.0).note("m/s"),
         );
         c.real(
             "stroke.net_clearance",
             s.net_clearance,
-            |v| (0.0..=3.0).contains(&v),
-            "between 0 and 3 (metres)",
+            Range::between(0.0, 3.0).note("metres"),
         );
 
         let p = &self.prediction;
         c.real(
             "prediction.step",
             p.step,
-            |v| v > 0.0 && v <= super::MAX_STEP,
-            "greater than 0 and at most 0.05 (seconds)",
+            Range::greater_than(0.0)
+                .at_most(super::MAX_STEP)
+                .note("seconds"),
         );
         c.real(
             "prediction.horizon",
             p.horizon,
-            |v| v > 0.0 && v <= 10.0,
-            "greater than 0 and at most 10 (seconds)",
+            Range::greater_than(0.0).at_most(10.0).note("seconds"),
         );
         c.real(
             "prediction.trajectory_rate",
             p.trajectory_rate,
-            |v| v > 0.0 && v <= 1000.0,
-            "greater than 0 and at most 1000 (Hz)",
+            Range::greater_than(0.0).at_most(1000.0).note("Hz"),
         );
         c.positive("prediction.trajectory_dt", p.trajectory_dt);
         c.at_most(
@@ -686,20 +685,13 @@ impl Config {
             "a trajectory needs at least one sample after its start",
         );
 
-        c.real(
-            "intercept.plane_x",
-            self.intercept.plane_x,
-            |v| (-3.0..0.0).contains(&v),
-            "at least -3 and less than 0 (metres; on the robot's side, behind or over the table; \
-             the robot's baseline is at -1.37)",
-        );
+        c.real("intercept.plane_x", self.intercept.plane_x, Range::at_least(-3.0).less_than(0.0).note("metres; on the robot's side, behind or over the table; the robot's baseline is at -1.37"));
 
         let r = &self.intercept.refresh;
         c.real(
             "intercept.refresh.max_age",
             r.max_age,
-            |v| (0.0..=1.0).contains(&v),
-            "between 0 and 1 (seconds; 0 predicts in full after every detection)",
+            Range::between(0.0, 1.0).note("seconds; 0 predicts in full after every detection"),
         );
         c.non_negative("intercept.refresh.position", r.position);
         c.non_negative("intercept.refresh.velocity", r.velocity);
@@ -747,32 +739,27 @@ impl Config {
         c.real(
             "ekf.min_confidence",
             e.min_confidence,
-            |v| (0.0..=1.0).contains(&v),
-            "between 0 and 1",
+            Range::between(0.0, 1.0),
         );
         c.real(
             "ekf.bounce_impulse_sigma",
             e.bounce_impulse_sigma,
-            |v| (0.0..=5.0).contains(&v),
-            "between 0 and 5 (m/s)",
+            Range::between(0.0, 5.0).note("m/s"),
         );
         c.real(
             "ekf.bounce_restitution_sigma",
             e.bounce_restitution_sigma,
-            |v| (0.0..=0.5).contains(&v),
-            "between 0 and 0.5",
+            Range::between(0.0, 0.5),
         );
         c.real(
             "ekf.spin_parameter_spread",
             e.spin_parameter_spread,
-            |v| (0.0..=2.0).contains(&v),
-            "between 0 and 2",
+            Range::between(0.0, 2.0),
         );
         c.real(
             "ekf.contact_position_sigma",
             e.contact_position_sigma,
-            |v| (0.0..=0.05).contains(&v),
-            "between 0 and 0.05 (m)",
+            Range::between(0.0, 0.05).note("m"),
         );
 
         c.count(
@@ -793,58 +780,56 @@ impl Config {
             (
                 "adaptation.drag_scale_sigma",
                 ad.drag_scale_sigma,
-                "between 0 (fixed) and 1",
+                Range::between(0.0, 1.0).low_meaning("fixed"),
             ),
             (
                 "adaptation.magnus_scale_sigma",
                 ad.magnus_scale_sigma,
-                "between 0 (fixed) and 1",
+                Range::between(0.0, 1.0).low_meaning("fixed"),
             ),
             (
                 "adaptation.restitution_sigma",
                 ad.restitution_sigma,
-                "between 0 (fixed) and 1",
+                Range::between(0.0, 1.0).low_meaning("fixed"),
             ),
             (
                 "adaptation.friction_sigma",
                 ad.friction_sigma,
-                "between 0 (fixed) and 1",
+                Range::between(0.0, 1.0).low_meaning("fixed"),
             ),
             (
                 "adaptation.drag_scale_flight_sigma",
                 ad.drag_scale_flight_sigma,
-                "between 0 and 1",
+                Range::between(0.0, 1.0),
             ),
             (
                 "adaptation.magnus_scale_flight_sigma",
                 ad.magnus_scale_flight_sigma,
-                "between 0 and 1",
+                Range::between(0.0, 1.0),
             ),
             (
                 "adaptation.restitution_flight_sigma",
                 ad.restitution_flight_sigma,
-                "between 0 and 1",
+                Range::between(0.0, 1.0),
             ),
             (
                 "adaptation.friction_flight_sigma",
                 ad.friction_flight_sigma,
-                "between 0 and 1",
+                Range::between(0.0, 1.0),
             ),
         ] {
-            c.real(key, value, |v| (0.0..=1.0).contains(&v), allowed);
+            c.real(key, value, allowed);
         }
         c.real(
             "adaptation.drift_per_hour",
             ad.drift_per_hour,
-            |v| (0.0..=100.0).contains(&v),
-            "between 0 and 100 (a fraction of each prior sigma per hour)",
+            Range::between(0.0, 100.0).note("a fraction of each prior sigma per hour"),
         );
 
         c.real(
             "gating.probability",
             self.gating.probability,
-            |v| v > 0.0 && v < 1.0,
-            "greater than 0 and less than 1",
+            Range::greater_than(0.0).less_than(1.0),
         );
         c.count(
             "gating.max_consecutive_rejections",
@@ -898,14 +883,12 @@ impl Config {
         c.real(
             "node.source_stale_after",
             n.source_stale_after,
-            |v| (0.1..=3600.0).contains(&v),
-            "from 0.1 to 3600 (s)",
+            Range::between(0.1, 3600.0).note("seconds"),
         );
         c.real(
             "node.diagnostics_period",
             n.diagnostics_period,
-            |v| (0.01..=60.0).contains(&v),
-            "from 0.01 to 60 (s)",
+            Range::between(0.01, 60.0).note("seconds"),
         );
 
         let tp = &self.topics;
@@ -959,19 +942,13 @@ impl Config {
             });
         } else {
             for (i, v) in pose.iter().enumerate() {
-                c.real(
-                    &format!("frames.table_pose[{i}]"),
-                    *v,
-                    |_| true,
-                    "a finite number",
-                );
+                c.real(&format!("frames.table_pose[{i}]"), *v, Range::any());
             }
             let q: f64 = pose[3..].iter().map(|v| v * v).sum();
             c.real(
                 "frames.table_pose[3..7]",
                 q,
-                |v| v > 1e-12,
-                "a non-zero quaternion",
+                Range::greater_than(1e-12).named("a non-zero quaternion"),
             );
         }
         c.rule_is(

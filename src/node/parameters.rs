@@ -21,7 +21,7 @@ use ros2_client::rcl_interfaces::ListParametersResult;
 use serde_norway::Value;
 
 use crate::config::yaml;
-use crate::config::{Config, UNKNOWN_SOURCE};
+use crate::config::{Config, Range, UNKNOWN_SOURCE};
 
 /// Sections (and single keys) whose parameters take effect between detections; the others are
 /// read-only, as they shape what the node was built with (its physics and what it learned of
@@ -61,7 +61,8 @@ pub struct Parameters {
     /// Declared names in the configuration's order, with their ROS 2 types.
     declared: Vec<(String, u8)>,
     descriptions: HashMap<String, String>,
-    rules: HashMap<String, &'static str>,
+    rules: HashMap<String, String>,
+    ranges: HashMap<String, Range>,
 }
 
 impl Parameters {
@@ -82,6 +83,7 @@ impl Parameters {
             declared,
             descriptions: yaml::descriptions(),
             rules: config.rules().into_iter().collect(),
+            ranges: config.ranges().into_iter().collect(),
         }
     }
 
@@ -164,10 +166,10 @@ impl Parameters {
         names
             .iter()
             .map(|name| {
-                let rule = self.rules.get(name.as_str()).copied().unwrap_or("");
+                let rule = self.rules.get(name.as_str()).map_or("", String::as_str);
                 let ptype = self.declared_type(name);
                 let (floating_point_range, integer_range) = match ptype {
-                    Some(ParameterType::DOUBLE) => (float_range(rule).into_iter().collect(), Vec::new()),
+                    Some(ParameterType::DOUBLE) => (self.float_range(name).into_iter().collect(), Vec::new()),
                     Some(ParameterType::INTEGER) => (Vec::new(), integer_range(rule).into_iter().collect()),
                     _ => (Vec::new(), Vec::new()),
                 };
@@ -194,6 +196,16 @@ impl Parameters {
                 }
             })
             .collect()
+    }
+
+    /// The closed interval a real parameter is checked against, if its range is closed.
+    fn float_range(&self, name: &str) -> Option<FloatingPointRange> {
+        let (from_value, to_value) = self.ranges.get(name)?.closed()?;
+        Some(FloatingPointRange {
+            from_value,
+            to_value,
+            step: 0.0,
+        })
     }
 
     /// A parameter's description: the shipped file's comment, and for a camera source added
@@ -442,24 +454,6 @@ fn type_name(ptype: u8) -> &'static str {
         ParameterType::DOUBLE_ARRAY => "a double array",
         ParameterType::STRING_ARRAY => "a string array",
         _ => "not set",
-    }
-}
-
-/// The closed interval of a rule in words (`"from 0 to 1 ..."`, `"between 0 and 0.1 ..."`).
-fn float_range(rule: &str) -> Option<FloatingPointRange> {
-    let number = |text: &str| {
-        text.trim_matches(|c: char| c == ',' || c == '(')
-            .parse::<f64>()
-            .ok()
-    };
-    let words: Vec<&str> = rule.split_whitespace().collect();
-    match words.as_slice() {
-        ["from", a, "to", b, ..] | ["between", a, "and", b, ..] => Some(FloatingPointRange {
-            from_value: number(a)?,
-            to_value: number(b)?,
-            step: 0.0,
-        }),
-        _ => None,
     }
 }
 

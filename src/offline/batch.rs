@@ -28,7 +28,8 @@ use crate::model::detection::Detection;
 use crate::model::stats::chi_square_quantile;
 use crate::offline::ballistic::fit_ballistic;
 use crate::online::ekf::PredictReport;
-use crate::online::estimator::{Measurement, Rejection, Settings, measurement};
+use crate::online::estimator::Rejection;
+use crate::online::measurement::{Measurement, MeasurementModel};
 use crate::physics::propagate::{Cursor, Propagator, Watch};
 use crate::physics::state::{BallState, SPIN, StateMatrix, StateVector};
 
@@ -115,7 +116,7 @@ pub(crate) struct Observations {
 impl Observations {
     /// The detections of one flight (any order) as the filter would measure them.
     pub fn new(config: &Config, detections: &[Detection]) -> Self {
-        let settings = Settings::new(config);
+        let model = MeasurementModel::new(config);
         let mut order: Vec<usize> = (0..detections.len()).collect();
         order.sort_by_key(|&i| detections[i].stamp);
         let start_stamp = order.first().map_or(0, |&i| detections[i].stamp);
@@ -125,7 +126,7 @@ impl Observations {
         let thresholds = [threshold(3), threshold(6)];
         for index in order {
             let d = &detections[index];
-            let whitened = measurement(&settings, d).and_then(|m| whiten(&m));
+            let whitened = model.measure(d).and_then(|m| whiten(&m));
             match whitened {
                 Ok((z, white, dims)) => list.push(Observation {
                     index,

@@ -2,9 +2,11 @@
 //!
 //! - [`estimator`]: the one entry point, `Estimator::handle(detection)`: tracking, out-of-order
 //!   fusion, gating, initialisation, the learned physics and noise, interception after every
-//!   update; its measurement model is shared with the batch fit.
+//!   update.
 //! - [`ekf`]: the extended Kalman filter over (position, velocity, spin) and the physical
 //!   parameters it adapts.
+//! - [`measurement`]: a detection as a measurement with its noise, shared by the filter and the
+//!   batch fit.
 //! - [`intercept`]: the predicted crossing of the robot's hitting plane, with its covariance.
 //! - [`stroke`]: the robot's hit: the ball's rebound off the racket and its return flight, and
 //!   the racket command (velocity, face normal) that returns the ball to a target.
@@ -12,4 +14,5 @@
 pub mod ekf;
 pub mod estimator;
 pub mod intercept;
+pub mod measurement;
 pub mod stroke;

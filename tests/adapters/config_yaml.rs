@@ -595,7 +595,12 @@ fn every_parameter_is_described() {
         descriptions["table.restitution"]
     );
     let rules = config.rules();
-    let rule = |key: &str| rules.iter().find(|(k, _)| k == key).map(|(_, r)| *r);
+    let rule = |key: &str| {
+        rules
+            .iter()
+            .find(|(k, _)| k == key)
+            .map(|(_, r)| r.as_str())
+    };
     assert_eq!(
         rule("gravity"),
         Some("greater than 0 and at most 30 (m/s^2; Earth: 9.81)")

@@ -26,16 +26,18 @@ mod noise;
 
 use std::collections::VecDeque;
 
-use nalgebra::{Matrix3, Matrix6, SVector, Vector3};
+use nalgebra::{Matrix3, Matrix6, SVector};
 
-use crate::config::{Config, SourceIndex, SourceParams};
-use crate::model::detection::{Detection, Source, seconds_to_ns};
+use crate::config::Config;
+use crate::model::detection::{Detection, seconds_to_ns};
 use crate::model::stats::chi_square_quantile;
 use crate::online::ekf::{
     BounceNoise, Ekf, FilterNoise, Fused, NOISE_SCALES, NoiseScore, NoiseSensitivity,
     ParamCovariance, ProcessNoise, UpdateError, position_H, position_spin_H,
 };
 use crate::online::intercept::{Intercept, InterceptQuery, InterceptTracker};
+pub use crate::online::measurement::{MAX_RANGE, Measurement};
+use crate::online::measurement::{MeasurementModel, claims_placeholder_spin};
 use crate::physics::racket::{RacketModel, RacketState};
 use crate::physics::{
     BallState, FlightModel, PARAMS, ParamVector, PhysicsParams, PredictOptions, Propagator,
@@ -248,25 +250,6 @@ pub struct Output {
     pub intercept: Option<InterceptEstimate>,
 }
 
-/// Measurement noise of one source, as variances.
-#[derive(Debug, Clone, PartialEq)]
-struct SourceNoise {
-    /// The source's name (its key under `sources`).
-    name: String,
-    position_var: f64,
-    spin_var: Option<f64>,
-}
-
-impl SourceNoise {
-    fn new(name: &str, p: &SourceParams) -> Self {
-        Self {
-            name: name.to_owned(),
-            position_var: p.position_sigma * p.position_sigma,
-            spin_var: (p.spin_sigma > 0.0).then_some(p.spin_sigma * p.spin_sigma),
-        }
-    }
-}
-
 /// The configuration as the estimator uses it.
 #[derive(Debug, Clone, PartialEq)]
 pub(crate) struct Settings {
@@ -284,10 +267,9 @@ pub(crate) struct Settings {
     gate_position_spin: f64,
     gate_probability: f64,
     /// Every source's noise, in the order of [`SourcesParams::all`].
-    sources: Vec<SourceNoise>,
+    /// How a detection becomes a measurement (its source's noise, the confidence floor).
+    pub(crate) measurement: MeasurementModel,
     /// Each detection's source's place in `sources`.
-    source_index: SourceIndex,
-    min_confidence: f64,
     init_count: usize,
     init_span: i64,
     spin_prior_var: f64,
@@ -341,14 +323,7 @@ impl Settings {
             gate_position: chi_square_quantile(p, 3),
             gate_position_spin: chi_square_quantile(p, 6),
             gate_probability: p,
-            sources: config
-                .sources
-                .all()
-                .into_iter()
-                .map(|(name, p)| SourceNoise::new(name, p))
-                .collect(),
-            source_index: config.sources.index(),
-            min_confidence: config.ekf.min_confidence,
+            measurement: MeasurementModel::new(config),
             init_count: config.ekf.init_detections.max(3) as usize,
             init_span: seconds_to_ns(config.ekf.init_max_span),
             spin_prior_var: config.ekf.spin_prior_sigma * config.ekf.spin_prior_sigma,
@@ -361,31 +336,6 @@ impl Settings {
             gravity: config.gravity,
         }
     }
-
-    fn source(&self, source: Source) -> &SourceNoise {
-        &self.sources[self.source_index.of(source)]
-    }
-}
-
-/// A measurement ready for the filter.
-#[derive(Debug, Clone, Copy, PartialEq)]
-#[expect(
-    clippy::large_enum_variant,
-    reason = "kept inline: no heap allocation per detection"
-)]
-pub(crate) enum Measurement {
-    /// A position of covariance r; its stamp's timing variance [s^2] moves it along the flight.
-    Position {
-        z: Vector3<f64>,
-        r: Matrix3<f64>,
-        timing: f64,
-    },
-    /// A position and a spin.
-    PositionSpin {
-        z: SVector<f64, 6>,
-        r: Matrix6<f64>,
-        timing: f64,
-    },
 }
 
 impl Measurement {
@@ -408,87 +358,6 @@ impl Measurement {
         }
         self
     }
-
-    /// The measurement with `variance` [m^2] added to its position's, on every axis.
-    fn with_extra_position_variance(mut self, variance: f64) -> Self {
-        match &mut self {
-            Self::Position { r, .. } => *r += Matrix3::identity() * variance,
-            Self::PositionSpin { r, .. } => {
-                let mut position = r.fixed_view_mut::<3, 3>(0, 0);
-                position += Matrix3::identity() * variance;
-            }
-        }
-        self
-    }
-
-    /// The measurement at a predicted velocity `v` [m/s]: the timing noise added to the
-    /// position covariance along it (timing v v').
-    fn at_velocity(mut self, v: &Vector3<f64>) -> Self {
-        match &mut self {
-            Self::Position { r, timing, .. } if *timing > 0.0 => *r += v * v.transpose() * *timing,
-            Self::PositionSpin { r, timing, .. } if *timing > 0.0 => {
-                let mut position = r.fixed_view_mut::<3, 3>(0, 0);
-                position += v * v.transpose() * *timing;
-            }
-            _ => {}
-        }
-        self
-    }
-}
-
-/// A detection as a measurement with its noise (its own covariance, else its source's), or why
-/// it is rejected. Shared by the filter and the batch fit ([`crate::offline::batch`]).
-pub(crate) fn measurement(settings: &Settings, d: &Detection) -> Result<Measurement, Rejection> {
-    let finite = d.position.iter().all(|v| v.is_finite())
-        && d.spin.is_none_or(|w| w.iter().all(|v| v.is_finite()))
-        && d.position_covariance
-            .is_none_or(|c| c.iter().all(|v| v.is_finite()))
-        && d.spin_covariance
-            .is_none_or(|c| c.iter().all(|v| v.is_finite()));
-    if !finite {
-        return Err(Rejection::NonFinite);
-    }
-    if d.position.norm() > MAX_RANGE {
-        return Err(Rejection::OutOfRange);
-    }
-    let confidence = f64::from(d.confidence);
-    if !(0.0..=1.0).contains(&confidence) {
-        return Err(Rejection::BadConfidence);
-    }
-    if confidence < settings.min_confidence {
-        return Err(Rejection::LowConfidence);
-    }
-    let noise = settings.source(d.source);
-    let r_position = match d.position_covariance {
-        Some(c) if !is_spd(&c) => return Err(Rejection::BadCovariance),
-        Some(c) => c,
-        None => Matrix3::identity() * noise.position_var,
-    };
-    let spin = d.spin.filter(|_| !claims_placeholder_spin(d));
-    let r_spin = match (spin, d.spin_covariance, noise.spin_var) {
-        (None, _, _) => None,
-        (Some(_), Some(c), _) if !is_spd(&c) => return Err(Rejection::BadCovariance),
-        (Some(_), Some(c), _) => Some(c),
-        (Some(_), None, Some(var)) => Some(Matrix3::identity() * var),
-        // A source that does not measure spin: its spin values are ignored.
-        (Some(_), None, None) => None,
-    };
-    Ok(match (spin, r_spin) {
-        (Some(w), Some(rs)) => {
-            let mut z = SVector::<f64, 6>::zeros();
-            z.fixed_rows_mut::<3>(0).copy_from(&d.position);
-            z.fixed_rows_mut::<3>(3).copy_from(&w);
-            let mut r = Matrix6::zeros();
-            r.fixed_view_mut::<3, 3>(0, 0).copy_from(&r_position);
-            r.fixed_view_mut::<3, 3>(3, 3).copy_from(&rs);
-            Measurement::PositionSpin { z, r, timing: 0.0 }
-        }
-        _ => Measurement::Position {
-            z: d.position,
-            r: r_position,
-            timing: 0.0,
-        },
-    })
 }
 
 /// A ball on the robot's half, moving toward the robot and rising, has bounced there already
@@ -497,19 +366,9 @@ fn already_bounced(x: &crate::physics::StateVector) -> bool {
     x[0] < 0.0 && x[3] < 0.0 && x[5] > 0.0
 }
 
-/// A detection whose spin is exactly zero: a detector's placeholder, not a measurement.
-fn claims_placeholder_spin(d: &Detection) -> bool {
-    d.spin.is_some_and(|w| w == Vector3::zeros())
-}
-
 /// Two detections of the same camera frame: a duplicate.
 fn same_frame(a: &Detection, b: &Detection) -> bool {
     a.stamp == b.stamp && a.source == b.source
-}
-
-fn is_spd(m: &Matrix3<f64>) -> bool {
-    (m - m.transpose()).abs().max() <= 1e-9 * m.abs().max().max(f64::MIN_POSITIVE)
-        && m.cholesky().is_some()
 }
 
 /// The estimate at one time, with what the track knows at that time.
@@ -736,10 +595,6 @@ pub const CONTACT_BAND: f64 = 0.02;
 /// by as much, and the better fit kept (the estimate's position is uncertain by millimetres; the
 /// edge is sharp).
 const EDGE_MARGIN: f64 = 0.02;
-
-/// Farthest a detection may be from the table's centre [m] (the table is 2.74 m long; a ball in
-/// play stays within a few metres of it).
-pub const MAX_RANGE: f64 = 10.0;
 
 impl Estimator {
     /// An estimator with the given configuration (assumed validated).
@@ -1149,15 +1004,19 @@ impl Estimator {
     /// Checks a detection and turns it into a measurement with its noise, as learned of its
     /// source.
     fn measurement(&self, d: &Detection) -> Result<Measurement, Rejection> {
-        let source = self.settings.source_index.of(d.source);
-        Ok(measurement(&self.settings, d)?.with_learned_noise(&self.noise.of(source)))
+        let source = self.settings.measurement.source_index(d.source);
+        Ok(self
+            .settings
+            .measurement
+            .measure(d)?
+            .with_learned_noise(&self.noise.of(source)))
     }
 
     /// Learns the noise of a detection's source from the innovation of its first fusion (the
     /// one `fuse` left), if any.
     fn learn_noise(&mut self, d: &Detection) {
         if let (Some(innovation), Ok(base)) =
-            (self.innovation.take(), measurement(&self.settings, d))
+            (self.innovation.take(), self.settings.measurement.measure(d))
         {
             let (r0, spin_r0) = match base {
                 Measurement::Position { r, .. } => (r, None),
@@ -1174,8 +1033,10 @@ impl Estimator {
                     .map(|((y, hph, _), r0)| (y, hph, r0)),
                 ..innovation
             };
-            self.noise
-                .learn(self.settings.source_index.of(d.source), &innovation);
+            self.noise.learn(
+                self.settings.measurement.source_index(d.source),
+                &innovation,
+            );
         }
         if let Some(score) = self.score.take() {
             self.model_noise.learn(&score);
@@ -1198,7 +1059,8 @@ impl Estimator {
     /// [`SourcesParams::all`](crate::config::SourcesParams::all).
     pub fn learned_noise(&self) -> Vec<LearnedSourceNoise> {
         self.settings
-            .sources
+            .measurement
+            .sources()
             .iter()
             .zip(self.noise.all())
             .map(|(source, estimate)| LearnedSourceNoise {
