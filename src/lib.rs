@@ -7,14 +7,15 @@
 //! layers listed before it, never one listed after it (`tests/core/layers.rs` checks every `crate::`
 //! path of every source file against this list):
 //!
-//! 1. [`model`]: detections, time, frames, statistics, random numbers: the shared vocabulary.
+//! 1. [`model`]: detections, time, frames, statistics, random numbers, Levenberg-Marquardt: the
+//!    shared vocabulary and tools.
 //! 2. [`config`]: every physical constant and tuning value, with defaults and range checks.
 //! 3. [`physics`]: flight (spin-parameter aerodynamic model), table bounce, racket impact,
 //!    event-aware propagation with the state-transition matrix.
 //! 4. [`online`]: what the node runs per detection: the estimator (`Estimator::handle`, the one
 //!    entry point), the EKF, the interception, the robot's stroke.
 //! 5. [`offline`]: whole recordings fitted at once: batch fit, smoothing, calibration of the
-//!    flight and of the rubber, least squares.
+//!    flight and of the rubber.
 //! 6. [`eval`]: the simulator with its truth, the real data sets, and the scoring of the
 //!    estimator against both.
 //! 7. `plot` (feature `plot`): figures (SVG, PNG) of what the estimator saw; pure rendering.

@@ -7,9 +7,12 @@
 //!   brought into the `table` frame.
 //! - [`stats`]: chi-square quantiles for gates and consistency checks, duration summaries, and the
 //!   RMS/median/p95 summary of errors.
+//! - [`least_squares`]: Levenberg-Marquardt, one damping schedule for every fit, and a dense
+//!   minimiser with central-difference Jacobians.
 //! - [`rng`]: platform-stable random numbers (xoshiro256**) for the simulator and the tests.
 
 pub mod detection;
 pub mod frames;
+pub mod least_squares;
 pub mod rng;
 pub mod stats;

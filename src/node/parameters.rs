@@ -8,7 +8,7 @@
 //!
 //! A set is checked as the configuration is loaded (type, then [`Config::validate`] of the
 //! whole): a refused value is answered with the reason and changes nothing. No DDS here: the node
-//! serves these answers ([`super::services`]) and applies the changed configuration to its
+//! serves these answers (`services`) and applies the changed configuration to its
 //! pipeline ([`crate::ros::pipeline::Pipeline::reconfigure`]).
 
 use std::collections::HashMap;

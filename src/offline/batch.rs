@@ -25,6 +25,7 @@ use thiserror::Error;
 
 use crate::config::Config;
 use crate::model::detection::Detection;
+use crate::model::least_squares::{Damping, damped_step};
 use crate::model::stats::chi_square_quantile;
 use crate::offline::ballistic::fit_ballistic;
 use crate::online::ekf::PredictReport;
@@ -476,33 +477,19 @@ fn levenberg_marquardt(
 ) -> (StateVector, Linearised, usize) {
     let mut x = start;
     let mut current = linearise(&x);
-    let mut lambda = 1e-3;
+    let mut damping = Damping::new();
     for iteration in 1..=MAX_ITERATIONS {
-        let mut accepted = None;
-        for _ in 0..20 {
-            let mut damped = current.normal;
-            for k in 0..9 {
-                damped[(k, k)] += lambda * current.normal[(k, k)].max(1e-12);
-            }
-            let Some(step) = damped.cholesky().map(|c| c.solve(&current.gradient)) else {
-                lambda *= 10.0;
-                continue;
-            };
-            let candidate = x + step;
+        let taken = damping.step(|lambda| {
+            let candidate = x + damped_step(&current.normal, &current.gradient, lambda)?;
             let next = linearise(&candidate);
-            if next.cost.is_finite() && next.cost <= current.cost {
-                accepted = Some((candidate, next));
-                break;
-            }
-            lambda *= 10.0;
-        }
-        let Some((candidate, next)) = accepted else {
+            (next.cost.is_finite() && next.cost <= current.cost).then_some((candidate, next))
+        });
+        let Some((candidate, next)) = taken else {
             return (x, current, iteration);
         };
         let change = (current.cost - next.cost) / current.cost.max(f64::MIN_POSITIVE);
         x = candidate;
         current = next;
-        lambda = (lambda / 10.0).max(1e-12);
         if change < COST_TOLERANCE {
             return (x, current, iteration);
         }

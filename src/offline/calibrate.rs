@@ -25,6 +25,7 @@ use thiserror::Error;
 
 use crate::config::Config;
 use crate::model::detection::Detection;
+use crate::model::least_squares::Damping;
 use crate::model::stats::ErrorStats;
 use crate::offline::batch::{
     Linearised, Observations, Residual, fit_from_guess, residuals, spin_prior_cost,
@@ -890,7 +891,7 @@ fn solve(
     progress: &mut dyn FnMut(&str),
 ) -> Result<Solution, CalibrationError> {
     let p = model.parameters.len();
-    let mut lambda = 1e-3;
+    let mut damping = Damping::new();
     let mut iterations = 0;
     let mut states: Vec<StateVector> = flights.iter().map(|f| f.state).collect();
     let mut current = total_cost(model, &theta, &states, flights);
@@ -942,42 +943,28 @@ fn solve(
             }
         }
         reduced_normal = reduced;
-        let mut accepted = false;
-        for _ in 0..12 {
+        let taken = damping.step(|lambda| {
             let mut s = u.clone();
             for k in 0..p {
                 s[(k, k)] += lambda * u[(k, k)].max(1e-12);
             }
             let mut rhs = gt.clone();
             let mut damped_inverses = Vec::with_capacity(blocks.len());
-            let mut singular = false;
             for b in &blocks {
                 let mut v = b.v;
                 for k in 0..9 {
                     v[(k, k)] += lambda * b.v[(k, k)].max(1e-12);
                 }
-                let Some(vi) = v.try_inverse() else {
-                    singular = true;
-                    break;
-                };
+                let vi = v.try_inverse()?;
                 let w = b.w.view((0, 0), (p, 9));
                 s -= w * vi * w.transpose();
                 rhs -= w * (vi * b.g);
                 damped_inverses.push(vi);
             }
-            let step = if singular {
-                None
-            } else {
-                s.clone().cholesky().map(|c| c.solve(&rhs))
-            };
-            let Some(step) = step else {
-                lambda *= 10.0;
-                continue;
-            };
+            let step = s.cholesky()?.solve(&rhs);
             let candidate: Vec<f64> = theta.iter().zip(step.iter()).map(|(a, d)| a + d).collect();
             if !model.admits(&candidate) {
-                lambda *= 10.0;
-                continue;
+                return None;
             }
             let candidate_states: Vec<StateVector> = blocks
                 .iter()
@@ -989,23 +976,25 @@ fn solve(
                 })
                 .collect();
             let next = total_cost(model, &candidate, &candidate_states, flights);
-            if next.cost.is_finite() && next.cost <= current.cost {
-                let change = (current.cost - next.cost) / current.cost.max(f64::MIN_POSITIVE);
-                theta = candidate;
-                states = candidate_states;
-                current = next;
-                lambda = (lambda / 10.0).max(1e-12);
-                accepted = change >= COST_TOLERANCE;
-                progress(&format!(
-                    "  iteration {iteration}: cost {:.1}, RMS position residual {:.2} mm",
-                    current.cost,
-                    current.position_rms() * 1e3
-                ));
-                break;
-            }
-            lambda *= 10.0;
-        }
-        if !accepted {
+            (next.cost.is_finite() && next.cost <= current.cost).then_some((
+                candidate,
+                candidate_states,
+                next,
+            ))
+        });
+        let Some((candidate, candidate_states, next)) = taken else {
+            break;
+        };
+        let change = (current.cost - next.cost) / current.cost.max(f64::MIN_POSITIVE);
+        theta = candidate;
+        states = candidate_states;
+        current = next;
+        progress(&format!(
+            "  iteration {iteration}: cost {:.1}, RMS position residual {:.2} mm",
+            current.cost,
+            current.position_rms() * 1e3
+        ));
+        if change < COST_TOLERANCE {
             break;
         }
     }

@@ -1,6 +1,6 @@
-//! The offline layer: whole recordings fitted at once, on top of the online layer's models.
+//! The offline layer: whole recordings fitted at once, on top of the online layer's models, each
+//! by Levenberg-Marquardt ([`crate::model::least_squares`]).
 //!
-//! - [`least_squares`]: a small dense Levenberg-Marquardt with central-difference Jacobians.
 //! - [`ballistic`]: short ballistic fits of recorded positions: the measured bounce and smoothed
 //!   positions.
 //! - [`batch`]: the batch (maximum a posteriori, robust) fit of one whole flight.
@@ -13,6 +13,5 @@
 pub mod ballistic;
 pub mod batch;
 pub mod calibrate;
-pub mod least_squares;
 pub mod rebound_calibration;
 pub mod smooth;

@@ -7,7 +7,7 @@
 //! in rad/s over sigma_w, each component measured. The two noise levels are not known in advance:
 //! they are re-estimated from the residuals of the previous fit until they settle (feasible
 //! generalised least squares), so each kind weighs by its own scatter. Minimised by
-//! Levenberg-Marquardt ([`crate::offline::least_squares`]) with central-difference Jacobians; standard
+//! Levenberg-Marquardt ([`crate::model::least_squares`]) with central-difference Jacobians; standard
 //! errors from (J^T J)^-1 times the reduced chi-square. Cross-validation fits k times on all hits
 //! but every k-th and scores the model on the ones left out (hit i is in fold i mod k).
 //!
@@ -25,7 +25,7 @@ use serde::Serialize;
 use thiserror::Error;
 
 use crate::config::Config;
-use crate::offline::least_squares::{LeastSquaresError, Minimum, minimise};
+use crate::model::least_squares::{LeastSquaresError, Minimum, minimise};
 use crate::physics::racket::{RacketModel, RacketState};
 use crate::physics::state::BallState;
 

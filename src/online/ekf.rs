@@ -571,7 +571,7 @@ impl Ekf {
     /// The score: with A = H D H' for D = dP^-/ds of each noise scale ([`NoiseSensitivity`]),
     /// d log N(y; 0, S) = -1/2 (tr(S^-1 A) - y' S^-1 A S^-1 y), information 1/2 tr(S^-1 A S^-1 A)
     /// (the innovation's likelihood as a function of the noise, Mehra 1970); y is cut to a NIS
-    /// of [`SCORE_NIS_LIMIT`] per dimension.
+    /// of `SCORE_NIS_LIMIT` per dimension.
     #[expect(non_snake_case, reason = "matrix notation")]
     pub fn update<const M: usize>(
         &mut self,

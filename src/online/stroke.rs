@@ -18,6 +18,7 @@ use nalgebra::{Matrix3, SMatrix, Vector2, Vector3};
 use thiserror::Error;
 
 use crate::config::Config;
+use crate::model::least_squares::{Damping, damped_step};
 use crate::physics::PhysicsParams;
 use crate::physics::propagate::{
     Cursor, Event, EventKind, Flow, Observer, Outcome, Propagator, Watch,
@@ -31,8 +32,6 @@ pub const LANDING_TOLERANCE: f64 = 1e-6;
 pub const CONDITION_TOLERANCE: f64 = 1e-6;
 /// Largest number of iterations of a solve.
 const MAX_ITERATIONS: usize = 40;
-/// Increases of the Levenberg-Marquardt damping before a step is given up.
-const MAX_DAMPINGS: usize = 24;
 /// Table outline margin of the solver's unbounded table [m].
 const UNBOUNDED_TABLE: f64 = 1.0e3;
 /// What the planner's return flights watch: the first bounce on the unbounded table, the net's
@@ -297,7 +296,7 @@ impl Stroke {
         let (mut command, mut residual) = self.first_guess(ball, aim)?;
         let mut closest = residual.map_or(f64::INFINITY, |r| r.fixed_rows::<2>(0).norm());
         let mut iterations = 0;
-        let mut lambda = 1e-6;
+        let mut damping = Damping::new();
         loop {
             let Some(r) = residual else {
                 return Err(PlanError::NoSolution {
@@ -323,7 +322,7 @@ impl Stroke {
                     closest,
                 },
             )?;
-            let accepted = levenberg_marquardt_step(&command, &jacobian, &r, &mut lambda, |c| {
+            let accepted = levenberg_marquardt_step(&command, &jacobian, &r, &mut damping, |c| {
                 self.residual(ball, c, aim)
             });
             let Some((candidate, next)) = accepted else {
@@ -580,14 +579,14 @@ impl Stroke {
         };
         let mut command = start;
         let mut r = error(&command)?;
-        let mut lambda = 1e-6;
+        let mut damping = Damping::new();
         for _ in 0..MAX_ITERATIONS {
             if r.norm() < 1e-9 {
                 return Some(command);
             }
             let jacobian = central_differences(&command, |c| error(c))?;
             let (next, next_r) =
-                levenberg_marquardt_step(&command, &jacobian, &r, &mut lambda, |c| error(c))?;
+                levenberg_marquardt_step(&command, &jacobian, &r, &mut damping, |c| error(c))?;
             command = next;
             r = next_r;
         }
@@ -638,31 +637,22 @@ fn central_differences(
 }
 
 /// One Levenberg-Marquardt step from `command` on f with residual `r` and Jacobian `jacobian`:
-/// (J^T J + lambda diag(J^T J)) step = -J^T r, with lambda raised until |f| falls below |r| and
-/// lowered after a success (small lambda: Newton's step; large: a short gradient step).
+/// (J^T J + lambda diag(J^T J)) step = -J^T r, lambda moved by the one damping schedule
+/// ([`Damping`]) until |f| falls below |r|.
 fn levenberg_marquardt_step(
     command: &Command,
     jacobian: &Matrix3<f64>,
     r: &Vector3<f64>,
-    lambda: &mut f64,
+    damping: &mut Damping,
     f: impl Fn(&Command) -> Option<Vector3<f64>>,
 ) -> Option<(Command, Vector3<f64>)> {
     let normal = jacobian.transpose() * jacobian;
     let gradient = jacobian.transpose() * r;
-    let scale = Matrix3::from_diagonal(&normal.diagonal().map(|d| d.max(1e-12)));
-    for _ in 0..MAX_DAMPINGS {
-        if let Some(step) = (normal + scale * *lambda).lu().solve(&(-gradient)) {
-            let candidate = command.moved(&step);
-            if let Some(next) = f(&candidate)
-                && next.norm() < r.norm()
-            {
-                *lambda = (*lambda / 3.0).max(1e-12);
-                return Some((candidate, next));
-            }
-        }
-        *lambda *= 4.0;
-    }
-    None
+    damping.step(|lambda| {
+        let candidate = command.moved(&damped_step(&normal, &(-gradient), lambda)?);
+        let next = f(&candidate)?;
+        (next.norm() < r.norm()).then_some((candidate, next))
+    })
 }
 
 /// The planner's unknowns: racket speed along the normal and the normal, with the brushing

@@ -411,7 +411,7 @@ fn median_interval(samples: &[Sample]) -> f64 {
 /// The recordings come from a camera system that sees the whole table and measures position
 /// only, at about 180 Hz: [`Source::WIDE_150FPS`] describes it (set its
 /// `sources.wide_150fps.position_sigma` to the noise of these flights, see
-/// [`estimate_noise`](super::noise::estimate_noise)).
+/// [`estimate_noise`]).
 pub fn flight_detections(flight: &Flight, epoch_ns: i64, source: Source) -> Vec<Detection> {
     flight
         .samples

@@ -1,19 +1,91 @@
-//! Dense nonlinear least squares: Levenberg-Marquardt (Marquardt 1963, with his scaling of the
-//! damping by the diagonal of J^T J) on a residual function of a few parameters, its Jacobian by
-//! central differences, and the parameters' covariance at the minimum, (J^T J)^-1 times the
-//! reduced chi-square. For small problems whose residuals come from a model one can only
-//! evaluate (the racket impact, [`crate::offline::rebound_calibration`]); the batch fit and the
-//! aero calibration exploit their problems' structure with their own normal equations.
+//! Levenberg-Marquardt, once for every least-squares fit of ttball (Marquardt 1963, with his
+//! scaling of the damping by the diagonal of the normal matrix):
+//!
+//! - [`Damping`]: the one damping schedule: a step solves (A + lambda diag(A)) d = -g; lambda
+//!   starts at 1e-3, is raised tenfold while a step fails (the system is singular or the cost does
+//!   not fall) and lowered tenfold after a step is taken. The batch fit
+//!   ([`crate::offline::batch`]), the flight calibration ([`crate::offline::calibrate`], whose
+//!   damped system is a Schur complement) and the return planner ([`crate::online::stroke`]) build
+//!   their own normal equations and take their steps through it.
+//! - [`damped_step`]: that damped system solved for a fixed-size problem, on the stack (the
+//!   batch fit's 9 states, the planner's 3 unknowns).
+//! - [`minimise`]: a dense problem of a few parameters whose residuals come from a model one can
+//!   only evaluate (the racket impact, [`crate::offline::rebound_calibration`]): its Jacobian by
+//!   central differences, and the parameters' covariance at the minimum, (J^T J)^-1 times the
+//!   reduced chi-square.
 
-use nalgebra::{DMatrix, DVector};
+use nalgebra::{DMatrix, DVector, SMatrix, SVector};
 use thiserror::Error;
+
+/// Marquardt's damping schedule (module docs): lambda and how it moves.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Damping {
+    lambda: f64,
+}
+
+impl Default for Damping {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl Damping {
+    /// Lambda of the first step: close to Gauss-Newton.
+    pub const START: f64 = 1e-3;
+    /// Factor by which lambda rises after a failed step and falls after a taken one.
+    pub const FACTOR: f64 = 10.0;
+    /// Lambda never falls below this.
+    pub const FLOOR: f64 = 1e-12;
+    /// Failed steps tried (each with a larger lambda) before an iteration is given up: a step
+    /// 10^-27 the Gauss-Newton one's gradient scaling is as good as none.
+    pub const MAX_RAISES: usize = 30;
+
+    /// The schedule at its start.
+    pub const fn new() -> Self {
+        Self {
+            lambda: Self::START,
+        }
+    }
+
+    /// The current lambda.
+    pub const fn lambda(&self) -> f64 {
+        self.lambda
+    }
+
+    /// One iteration's step: `attempt(lambda)` solves the damped system and judges the result
+    /// (`None`: singular, or not better than where it stands), with lambda raised after each
+    /// failure; the first success is returned and lambda lowered, or `None` when
+    /// [`Self::MAX_RAISES`] attempts all failed.
+    pub fn step<T>(&mut self, mut attempt: impl FnMut(f64) -> Option<T>) -> Option<T> {
+        for _ in 0..Self::MAX_RAISES {
+            if let Some(taken) = attempt(self.lambda) {
+                self.lambda = (self.lambda / Self::FACTOR).max(Self::FLOOR);
+                return Some(taken);
+            }
+            self.lambda *= Self::FACTOR;
+        }
+        None
+    }
+}
+
+/// Solves (A + lambda diag(A)) d = rhs for a symmetric positive semi-definite `normal` A of fixed
+/// size, each diagonal element floored at 1e-12 in the damping; `None` when it stays singular.
+pub fn damped_step<const N: usize>(
+    normal: &SMatrix<f64, N, N>,
+    rhs: &SVector<f64, N>,
+    lambda: f64,
+) -> Option<SVector<f64, N>> {
+    let mut damped = *normal;
+    for k in 0..N {
+        damped[(k, k)] += lambda * normal[(k, k)].max(1e-12);
+    }
+    damped.cholesky().map(|c| c.solve(rhs))
+}
 
 /// Iterations before the minimiser stops where it is.
 const MAX_ITERATIONS: usize = 100;
 /// Relative fall of the cost below which the minimum is taken as found.
 const COST_TOLERANCE: f64 = 1e-10;
-/// Increases of the damping tried before an iteration is given up.
-const MAX_DAMPINGS: usize = 30;
 
 /// Why a least-squares problem could not be solved.
 #[derive(Debug, Clone, PartialEq, Error)]
@@ -83,30 +155,23 @@ pub fn minimise(
     }
     let mut cost = r.norm_squared();
     let mut jacobian = central_differences(&residuals, &x, &r, steps);
-    let mut lambda = 1e-3;
+    let mut damping = Damping::new();
     let mut iterations = 0;
     while iterations < MAX_ITERATIONS {
         iterations += 1;
         let normal = jacobian.transpose() * &jacobian;
         let gradient = jacobian.transpose() * &r;
-        let mut accepted = None;
-        for _ in 0..MAX_DAMPINGS {
+        let taken = damping.step(|lambda| {
             let mut damped = normal.clone();
             for k in 0..n {
                 damped[(k, k)] += lambda * normal[(k, k)].max(1e-12);
             }
-            if let Some(step) = damped.cholesky().map(|c| c.solve(&(-&gradient))) {
-                let candidate = &x + step;
-                if let Some(next) = residuals(&candidate)
-                    && next.norm_squared() <= cost
-                {
-                    accepted = Some((candidate, next));
-                    break;
-                }
-            }
-            lambda *= 10.0;
-        }
-        let Some((candidate, next)) = accepted else {
+            let step = damped.cholesky()?.solve(&(-&gradient));
+            let candidate = &x + step;
+            let next = residuals(&candidate)?;
+            (next.norm_squared() <= cost).then_some((candidate, next))
+        });
+        let Some((candidate, next)) = taken else {
             break;
         };
         let next_cost = next.norm_squared();
@@ -115,7 +180,6 @@ pub fn minimise(
         r = next;
         cost = next_cost;
         jacobian = central_differences(&residuals, &x, &r, steps);
-        lambda = (lambda / 10.0).max(1e-12);
         if change < COST_TOLERANCE {
             break;
         }

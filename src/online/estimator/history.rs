@@ -1,0 +1,320 @@
+//! The track's history and fusion: moving snapshots forward through the physics, fusing a
+//! detection at its stamp (position, or position and spin; the bounce's hypotheses near the
+//! table's edge), the newest one directly and a late one by rolling back through the history
+//! and re-applying what came after it.
+
+use super::*;
+
+impl Estimator {
+    /// Moves a snapshot forward to `stamp`, counting bounces.
+    pub(super) fn advance(&self, snapshot: &mut Snapshot, stamp: i64) {
+        self.advance_with(&self.propagator, snapshot, stamp, None);
+    }
+
+    pub(super) fn advance_with(
+        &self,
+        propagator: &Propagator,
+        snapshot: &mut Snapshot,
+        stamp: i64,
+        sensitivity: Option<&mut NoiseSensitivity>,
+    ) {
+        let dt = (stamp - snapshot.stamp) as f64 * 1e-9;
+        if dt > 0.0 {
+            let report = snapshot.ekf.predict(
+                propagator,
+                &self.settings.filter,
+                &self.model_noise.scales(),
+                sensitivity,
+                dt,
+            );
+            snapshot.bounces += report.bounces;
+            snapshot.robot_half_bounces += report.robot_half_bounces;
+        }
+        snapshot.stamp = stamp.max(snapshot.stamp);
+    }
+
+    /// Fuses a measurement into a snapshot at the detection's stamp, carrying the covariance's
+    /// `sensitivity` to the noise scales along when given.
+    pub(super) fn fuse(
+        &self,
+        snapshot: &mut Snapshot,
+        d: &Detection,
+        m: &Measurement,
+        sensitivity: Option<&mut NoiseSensitivity>,
+    ) -> Result<f64, Rejection> {
+        let prior = *snapshot;
+        let scoring = sensitivity.is_some();
+        let (mut result, innovation) =
+            self.predict_and_update(&self.propagator, snapshot, d, m, sensitivity);
+        self.innovation.set(innovation);
+        if self.near_table_edge(snapshot) {
+            // An edge ball: estimate and ball may land on either side of the table's edge. The
+            // hypothesis that explains the detection best wins.
+            for alternative in &self.edge_alternatives {
+                let mut other = prior;
+                let Ok(fused) = self
+                    .predict_and_update(alternative, &mut other, d, m, None)
+                    .0
+                else {
+                    continue;
+                };
+                let better = match result {
+                    Ok(current) => fused.nis < current.nis && other.bounces != snapshot.bounces,
+                    Err(_) => true,
+                };
+                if better {
+                    *snapshot = other;
+                    self.edge_retries.set(self.edge_retries.get() + 1);
+                    result = Ok(fused);
+                }
+            }
+        }
+        match result {
+            Ok(fused) => {
+                snapshot.last_fused = d.stamp;
+                snapshot.nis = fused.nis;
+                self.score.set(scoring.then_some(fused.score));
+                Ok(fused.nis)
+            }
+            Err(UpdateError::Gated { .. }) => Err(Rejection::Gated),
+            Err(UpdateError::NotFinite) => Err(Rejection::NonFinite),
+            Err(UpdateError::NotPositiveDefinite) => Err(Rejection::BadCovariance),
+        }
+    }
+
+    pub(super) fn predict_and_update(
+        &self,
+        propagator: &Propagator,
+        snapshot: &mut Snapshot,
+        d: &Detection,
+        m: &Measurement,
+        mut sensitivity: Option<&mut NoiseSensitivity>,
+    ) -> (Result<Fused, UpdateError>, Option<noise::Innovation>) {
+        self.advance_with(propagator, snapshot, d.stamp, sensitivity.as_deref_mut());
+        let x = &snapshot.ekf.x;
+        let velocity = x.fixed_rows::<3>(3).into_owned();
+        let p = snapshot.ekf.state_covariance();
+        let hph = p.fixed_view::<3, 3>(0, 0).into_owned();
+        // A ball at the table: its detection's own extra noise, which teaches nothing of its
+        // camera's.
+        let at_contact =
+            self.settings.contact_var > 0.0 && self.at_the_table(snapshot, CONTACT_BAND);
+        let m = if at_contact {
+            m.with_extra_position_variance(self.settings.contact_var)
+        } else {
+            *m
+        };
+        let m = m.at_velocity(&velocity);
+        let (y, spin) = match &m {
+            Measurement::Position { z, .. } => (z - x.fixed_rows::<3>(0), None),
+            Measurement::PositionSpin { z, .. } => (
+                z.fixed_rows::<3>(0) - x.fixed_rows::<3>(0),
+                Some((
+                    z.fixed_rows::<3>(3) - x.fixed_rows::<3>(6),
+                    p.fixed_view::<3, 3>(6, 6).into_owned(),
+                    Matrix3::zeros(),
+                )),
+            ),
+        };
+        let innovation = (!at_contact).then_some(noise::Innovation {
+            y,
+            hph,
+            r0: Matrix3::zeros(),
+            velocity,
+            spin,
+        });
+        let result = match &m {
+            Measurement::Position { z, r, .. } => snapshot.ekf.update(
+                z,
+                &position_H(),
+                r,
+                self.settings.gate_position,
+                sensitivity,
+            ),
+            Measurement::PositionSpin { z, r, .. } => {
+                self.fuse_position_spin(snapshot, z, r, sensitivity)
+            }
+        };
+        (result, innovation)
+    }
+
+    /// True when the estimate is within `band` [m] of its contact height over the table: a few
+    /// milliseconds from a bounce.
+    pub(super) fn at_the_table(&self, snapshot: &Snapshot, band: f64) -> bool {
+        let x = &snapshot.ekf.x;
+        (x[2] - self.flight.radius()).abs() < band
+            && self.propagator.distance_outside_table(x[0], x[1]) < EDGE_MARGIN
+    }
+
+    /// True when the estimate is low over the table's edge, where a bounce is a close call.
+    pub(super) fn near_table_edge(&self, snapshot: &Snapshot) -> bool {
+        let x = &snapshot.ekf.x;
+        let outside = self.propagator.distance_outside_table(x[0], x[1]);
+        x[2] < 0.1 && outside.abs() < EDGE_MARGIN
+    }
+
+    /// A position + spin measurement. The position is gated on its own; when it fits but the
+    /// spin does not, the filter's spin (learned from curvature, where the EKF can be
+    /// overconfident at high spin parameters) is forgotten in favour of the camera's, and counted.
+    pub(super) fn fuse_position_spin(
+        &self,
+        snapshot: &mut Snapshot,
+        z: &SVector<f64, 6>,
+        r: &Matrix6<f64>,
+        mut sensitivity: Option<&mut NoiseSensitivity>,
+    ) -> Result<Fused, UpdateError> {
+        let z_position = z.fixed_rows::<3>(0).into_owned();
+        let r_position = r.fixed_view::<3, 3>(0, 0).into_owned();
+        let gate = self.settings.gate_position;
+        if let Some(nis) = snapshot.ekf.nis(&z_position, &position_H(), &r_position)
+            && nis > gate
+        {
+            return Err(UpdateError::Gated { nis, gate });
+        }
+        let h = position_spin_H();
+        match snapshot.ekf.update(
+            z,
+            &h,
+            r,
+            self.settings.gate_position_spin,
+            sensitivity.as_deref_mut(),
+        ) {
+            // At the table the measured spin may be of the other side of the bounce (the
+            // bounce's time is uncertain by a millisecond or two, and it changes the spin by
+            // hundreds of rad/s): the position alone.
+            Err(UpdateError::Gated { .. }) if self.at_the_table(snapshot, BOUNCE_SPIN_MARGIN) => {
+                snapshot
+                    .ekf
+                    .update(&z_position, &position_H(), &r_position, gate, sensitivity)
+            }
+            Err(UpdateError::Gated { .. }) => {
+                snapshot
+                    .ekf
+                    .reset_spin(self.settings.spin_prior_var, sensitivity.as_deref_mut());
+                self.spin_resets.set(self.spin_resets.get() + 1);
+                match snapshot.ekf.update(
+                    z,
+                    &h,
+                    r,
+                    self.settings.gate_position_spin,
+                    sensitivity.as_deref_mut(),
+                ) {
+                    Ok(fused) => Ok(fused),
+                    Err(_) => snapshot.ekf.update(
+                        &z_position,
+                        &position_H(),
+                        &r_position,
+                        gate,
+                        sensitivity,
+                    ),
+                }
+            }
+            other => other,
+        }
+    }
+
+    pub(super) fn fuse_newest(&mut self, d: &Detection, m: Measurement) -> Result<f64, Rejection> {
+        let Some(track) = &self.track else {
+            return Err(Rejection::TooOld);
+        };
+        if track
+            .history
+            .back()
+            .is_some_and(|e| same_frame(&e.detection, d))
+        {
+            return Err(Rejection::Duplicate);
+        }
+        let mut snapshot = track.now;
+        // The sensitivity to the noise scales moves on only with a detection fused.
+        let mut sensitivity = self.sensitivity.as_deref().copied();
+        let result = self.fuse(&mut snapshot, d, &m, sensitivity.as_mut());
+        self.learn_noise(d);
+        let nis = result?;
+        if let (Some(kept), Some(moved)) = (self.sensitivity.as_deref_mut(), sensitivity) {
+            *kept = moved;
+        }
+        self.push_history(Entry {
+            detection: *d,
+            measurement: m,
+            after: snapshot,
+        });
+        Ok(nis)
+    }
+
+    /// Fuses a detection older than the newest fused one: roll back, fuse, re-apply the newer.
+    pub(super) fn fuse_late(&mut self, d: &Detection, m: Measurement) -> Result<f64, Rejection> {
+        let Some(track) = &self.track else {
+            return Err(Rejection::TooOld);
+        };
+        if track.now.stamp - d.stamp > self.settings.rollback || d.stamp < track.base.stamp {
+            return Err(Rejection::TooOld);
+        }
+        if track.history.iter().any(|e| same_frame(&e.detection, d)) {
+            return Err(Rejection::Duplicate);
+        }
+        let index = track
+            .history
+            .partition_point(|e| e.detection.stamp <= d.stamp);
+        let mut snapshot = match index {
+            0 => track.base,
+            i => track.history[i - 1].after,
+        };
+        let result = self.fuse(&mut snapshot, d, &m, None);
+        self.learn_noise(d);
+        let nis = result?;
+        let late = Entry {
+            detection: *d,
+            measurement: m,
+            after: snapshot,
+        };
+        let Some(mut track) = self.track.take() else {
+            return Err(Rejection::TooOld);
+        };
+        for entry in track.history.iter_mut().skip(index) {
+            // A re-applied detection that no longer passes the gate is skipped.
+            let mut next = snapshot;
+            if self
+                .fuse(&mut next, &entry.detection, &entry.measurement, None)
+                .is_ok()
+            {
+                snapshot = next;
+            } else {
+                self.advance(&mut snapshot, entry.detection.stamp);
+            }
+            entry.after = snapshot;
+        }
+        let mut index = index;
+        if track.history.len() >= self.history_capacity
+            && let Some(oldest) = track.history.pop_front()
+        {
+            track.base = oldest.after;
+            index = index.saturating_sub(1);
+        }
+        track.history.insert(index, late);
+        track.now = snapshot;
+        self.track = Some(track);
+        self.counters.rollbacks += 1;
+        Ok(nis)
+    }
+
+    pub(super) fn push_history(&mut self, entry: Entry) {
+        let rollback = self.settings.rollback;
+        let capacity = self.history_capacity;
+        let Some(track) = self.track.as_mut() else {
+            return;
+        };
+        track.now = entry.after;
+        while track.history.len() >= capacity
+            || track
+                .history
+                .front()
+                .is_some_and(|e| e.detection.stamp < entry.after.stamp - rollback)
+        {
+            let Some(oldest) = track.history.pop_front() else {
+                break;
+            };
+            track.base = oldest.after;
+        }
+        track.history.push_back(entry);
+    }
+}
