@@ -436,6 +436,51 @@ pub fn calibrate(
     options: &Options,
     progress: &mut dyn FnMut(&str),
 ) -> Result<Calibration, CalibrationError> {
+    let configured = check_options(config, options)?;
+    let propagator = Propagator::new(config);
+    let (prepared, skipped) = prepare_flights(config, &propagator, flights, progress)?;
+    let before: Vec<FlightCost> = prepared
+        .iter()
+        .map(|f| flight_cost(&propagator, f, &f.state, true))
+        .collect();
+
+    // First at the configured orders (or the given ones), with the friction restarts: the
+    // flights' states and the bounce constants are then in the right basin for every other
+    // order tried, each started from these polynomials refitted to it.
+    let first_orders = (
+        options.drag_order.unwrap_or(configured.0),
+        options.magnus_order.unwrap_or(configured.1),
+    );
+    if options.aero {
+        progress(&format!(
+            "C_D order {}, C_M order {}",
+            first_orders.0, first_orders.1
+        ));
+    }
+    let (solution, prepared) =
+        fit_at_orders(config, config, options, first_orders, prepared, progress)?;
+    let first = Candidate::new(first_orders, solution, prepared);
+    let (chosen, order_trials, iterations) =
+        if options.aero && (options.drag_order.is_none() || options.magnus_order.is_none()) {
+            choose_orders(config, options, first, progress)?
+        } else {
+            let iterations = first.solution.iterations;
+            (first, Vec::new(), iterations)
+        };
+    Ok(report(
+        config,
+        options,
+        chosen,
+        &before,
+        skipped,
+        order_trials,
+        iterations,
+    ))
+}
+
+/// The options' consistency, and the polynomial orders `config` has (capped at the largest
+/// calibrated).
+fn check_options(config: &Config, options: &Options) -> Result<(usize, usize), CalibrationError> {
     if !(options.aero || options.scales || options.bounce || options.density) {
         return Err(CalibrationError::NothingToFit);
     }
@@ -453,7 +498,7 @@ pub fn calibrate(
             return Err(CalibrationError::OrderTooHigh { which, order, max });
         }
     }
-    let configured = (
+    Ok((
         config
             .aero
             .drag_coefficients
@@ -466,10 +511,17 @@ pub fn calibrate(
             .len()
             .saturating_sub(1)
             .min(MAX_MAGNUS_ORDER),
-    );
+    ))
+}
 
-    // Each flight fitted alone with the starting physics: the nuisance states' first values.
-    let propagator = Propagator::new(config);
+/// Each flight fitted alone with the starting physics: the nuisance states' first values. A
+/// flight too short or whose fit fails is skipped with its reason; at least two must remain.
+fn prepare_flights(
+    config: &Config,
+    propagator: &Propagator,
+    flights: &[FlightInput],
+    progress: &mut dyn FnMut(&str),
+) -> Result<(Vec<Flight>, Vec<SkippedFlight>), CalibrationError> {
     let mut prepared = Vec::new();
     let mut skipped = Vec::new();
     progress(&format!(
@@ -489,7 +541,7 @@ pub fn calibrate(
             continue;
         }
         let fit = fit_from_guess(
-            &propagator,
+            propagator,
             &observations,
             &input.detections,
             config.gravity,
@@ -514,83 +566,86 @@ pub fn calibrate(
             found: prepared.len(),
         });
     }
-    let before: Vec<FlightCost> = prepared
-        .iter()
-        .map(|f| flight_cost(&propagator, f, &f.state, true))
-        .collect();
+    Ok((prepared, skipped))
+}
 
-    // First at the configured orders (or the given ones), with the friction restarts: the
-    // flights' states and the bounce constants are then in the right basin for every other
-    // order tried, each started from these polynomials refitted to it.
-    let first_orders = (
-        options.drag_order.unwrap_or(configured.0),
-        options.magnus_order.unwrap_or(configured.1),
-    );
-    if options.aero {
-        progress(&format!(
-            "C_D order {}, C_M order {}",
-            first_orders.0, first_orders.1
-        ));
+/// The polynomial orders by Akaike's criterion, from the fit at the first orders: C_D's order
+/// with C_M's fixed, then C_M's with the best C_D (an order the options fix is not searched).
+/// Returns the chosen fit, every order tried, and the iterations of all of them.
+fn choose_orders(
+    config: &Config,
+    options: &Options,
+    first: Candidate,
+    progress: &mut dyn FnMut(&str),
+) -> Result<(Candidate, Vec<OrderTrial>, usize), CalibrationError> {
+    let first_orders = first.orders();
+    let mut iterations = first.solution.iterations;
+    let start = Model {
+        base: config,
+        parameters: parameters(options, first_orders),
+        robust: true,
     }
-    let (mut solution, mut prepared) =
-        fit_at_orders(config, config, options, first_orders, prepared, progress)?;
-    let mut iterations = solution.iterations;
-    let mut orders = first_orders;
-    let mut order_trials = Vec::new();
-    if options.aero && (options.drag_order.is_none() || options.magnus_order.is_none()) {
-        let start = Model {
-            base: config,
-            parameters: parameters(options, first_orders),
-            robust: true,
+    .config(&first.solution.theta);
+    let mut candidates = vec![first];
+    let mut try_orders = |orders: (usize, usize),
+                          candidates: &mut Vec<Candidate>,
+                          progress: &mut dyn FnMut(&str)|
+     -> Result<(), CalibrationError> {
+        if candidates.iter().any(|c| c.orders() == orders) {
+            return Ok(());
         }
-        .config(&solution.theta);
-        let mut candidates = vec![Candidate::new(first_orders, solution, prepared)];
-        let mut try_orders = |orders: (usize, usize),
-                              candidates: &mut Vec<Candidate>,
-                              progress: &mut dyn FnMut(&str)|
-         -> Result<(), CalibrationError> {
-            if candidates.iter().any(|c| c.orders() == orders) {
-                return Ok(());
+        progress(&format!("C_D order {}, C_M order {}", orders.0, orders.1));
+        let flights = candidates[0].flights.clone();
+        match fit_at_orders(config, &start, options, orders, flights, progress) {
+            Ok((solution, flights)) => {
+                iterations += solution.iterations;
+                candidates.push(Candidate::new(orders, solution, flights));
+                Ok(())
             }
-            progress(&format!("C_D order {}, C_M order {}", orders.0, orders.1));
-            let flights = candidates[0].flights.clone();
-            match fit_at_orders(config, &start, options, orders, flights, progress) {
-                Ok((solution, flights)) => {
-                    iterations += solution.iterations;
-                    candidates.push(Candidate::new(orders, solution, flights));
-                    Ok(())
-                }
-                // Orders the data cannot determine are not candidates.
-                Err(CalibrationError::Singular) => {
-                    progress("  the flights do not determine these orders; skipped");
-                    Ok(())
-                }
-                Err(e) => Err(e),
+            // Orders the data cannot determine are not candidates.
+            Err(CalibrationError::Singular) => {
+                progress("  the flights do not determine these orders; skipped");
+                Ok(())
             }
-        };
-        let best = |candidates: &[Candidate]| {
-            candidates
-                .iter()
-                .enumerate()
-                .min_by(|a, b| a.1.trial.aic.total_cmp(&b.1.trial.aic))
-                .map_or(0, |(i, _)| i)
-        };
-        // C_D's order with C_M's fixed, then C_M's with the best C_D.
-        if options.drag_order.is_none() {
-            for d in 0..=MAX_DRAG_ORDER {
-                try_orders((d, first_orders.1), &mut candidates, progress)?;
-            }
+            Err(e) => Err(e),
         }
-        let drag = candidates[best(&candidates)].trial.drag_order;
-        if options.magnus_order.is_none() {
-            for m in 0..=MAX_MAGNUS_ORDER {
-                try_orders((drag, m), &mut candidates, progress)?;
-            }
+    };
+    let best = |candidates: &[Candidate]| {
+        candidates
+            .iter()
+            .enumerate()
+            .min_by(|a, b| a.1.trial.aic.total_cmp(&b.1.trial.aic))
+            .map_or(0, |(i, _)| i)
+    };
+    if options.drag_order.is_none() {
+        for d in 0..=MAX_DRAG_ORDER {
+            try_orders((d, first_orders.1), &mut candidates, progress)?;
         }
-        order_trials = candidates.iter().map(|c| c.trial).collect();
-        let chosen = candidates.swap_remove(best(&candidates));
-        (orders, solution, prepared) = (chosen.orders(), chosen.solution, chosen.flights);
     }
+    let drag = candidates[best(&candidates)].trial.drag_order;
+    if options.magnus_order.is_none() {
+        for m in 0..=MAX_MAGNUS_ORDER {
+            try_orders((drag, m), &mut candidates, progress)?;
+        }
+    }
+    let order_trials = candidates.iter().map(|c| c.trial).collect();
+    let chosen = candidates.swap_remove(best(&candidates));
+    Ok((chosen, order_trials, iterations))
+}
+
+/// The calibration as reported: the fitted configuration, each constant with its standard
+/// error, each flight's residuals before and after, and the spin parameters the flights span.
+fn report(
+    config: &Config,
+    options: &Options,
+    chosen: Candidate,
+    before: &[FlightCost],
+    skipped: Vec<SkippedFlight>,
+    order_trials: Vec<OrderTrial>,
+    iterations: usize,
+) -> Calibration {
+    let orders = chosen.orders();
+    let (solution, prepared) = (chosen.solution, chosen.flights);
     let model = Model {
         base: config,
         parameters: parameters(options, orders),
@@ -614,7 +669,7 @@ pub fn calibrate(
     let mut flights_out = Vec::with_capacity(prepared.len());
     let mut spin_parameters = Vec::new();
     let model_flight = FlightModel::new(&fitted);
-    for (f, b) in prepared.iter().zip(&before) {
+    for (f, b) in prepared.iter().zip(before) {
         let after = flight_cost(&fitted_propagator, f, &f.state, true);
         flights_out.push(FlightResidual {
             label: f.label,
@@ -639,7 +694,7 @@ pub fn calibrate(
             .copied()
             .unwrap_or(0.0)
     };
-    Ok(Calibration {
+    Calibration {
         config: fitted,
         parameters: parameters_out,
         covariance: solution.covariance * scale,
@@ -647,12 +702,12 @@ pub fn calibrate(
         order_trials,
         flights: flights_out,
         skipped,
-        position_rms_before: before.into_iter().sum::<FlightCost>().position_rms(),
+        position_rms_before: before.iter().copied().sum::<FlightCost>().position_rms(),
         position_rms: solution.cost.position_rms(),
         reduced_chi_square: scale,
         spin_parameter: [quantile(0.05), quantile(0.5), quantile(0.95)],
         iterations,
-    })
+    }
 }
 
 /// The fit at fixed polynomial orders: least squares from the `start` configuration's constants
