@@ -130,9 +130,45 @@ pub struct Plan {
 /// Why no racket command was found.
 #[derive(Debug, Clone, PartialEq, Error)]
 pub enum PlanError {
-    /// The request itself is invalid.
-    #[error("{0}")]
-    BadRequest(String),
+    /// The target has a non-finite coordinate.
+    #[error("the target has a non-finite coordinate")]
+    TargetNotFinite,
+    /// The target is not on the opponent's half.
+    #[error(
+        "target ({x:.3}, {y:.3}) m is not on the opponent's half: give 0 < x < {half_length:.3} and |y| < {half_width:.4} (table frame, metres)"
+    )]
+    TargetOffTable {
+        /// The target's x [m].
+        x: f64,
+        /// The target's y [m].
+        y: f64,
+        /// Half the table's length [m].
+        half_length: f64,
+        /// Half the table's width [m].
+        half_width: f64,
+    },
+    /// The net clearance asked for is outside 0 to 3 m.
+    #[error("net clearance {0} m is out of range: give 0 to 3 m")]
+    NetClearance(f64),
+    /// The flight time asked for is not positive or beyond the prediction horizon.
+    #[error(
+        "flight time {time} s is out of range: give more than 0 and at most the prediction horizon, {horizon} s"
+    )]
+    FlightTime {
+        /// The flight time asked for [s].
+        time: f64,
+        /// The prediction horizon [s].
+        horizon: f64,
+    },
+    /// The brush speed or the impact offset is NaN or infinite.
+    #[error("the brush speed or impact offset is not finite")]
+    AimNotFinite,
+    /// The ball is not on the robot's side of the net.
+    #[error("the ball at x = {0:.3} m is not on the robot's side of the net")]
+    BallBeyondNet(f64),
+    /// The ball already flies to the target.
+    #[error("the ball already flies to the target: no hit needed")]
+    NoHitNeeded,
     /// The ball state cannot be hit (e.g. non-finite).
     #[error(transparent)]
     Impact(#[from] ImpactError),
@@ -360,31 +396,29 @@ impl Stroke {
     fn check_aim(&self, aim: &Aim) -> Result<(), PlanError> {
         let t = aim.target;
         if !(t.x.is_finite() && t.y.is_finite()) {
-            return Err(PlanError::BadRequest(
-                "the target has a non-finite coordinate".into(),
-            ));
+            return Err(PlanError::TargetNotFinite);
         }
         if !(t.x > 0.0 && t.x < self.half_length && t.y.abs() < self.half_width) {
-            return Err(PlanError::BadRequest(format!(
-                "target ({:.3}, {:.3}) m is not on the opponent's half: give 0 < x < {:.3} and |y| < {:.4} (table frame, metres)",
-                t.x, t.y, self.half_length, self.half_width
-            )));
+            return Err(PlanError::TargetOffTable {
+                x: t.x,
+                y: t.y,
+                half_length: self.half_length,
+                half_width: self.half_width,
+            });
         }
         match aim.condition {
             ReturnCondition::NetClearance(c) if !(0.0..=3.0).contains(&c) => {
-                Err(PlanError::BadRequest(format!(
-                    "net clearance {c} m is out of range: give 0 to 3 m"
-                )))
+                Err(PlanError::NetClearance(c))
             }
             ReturnCondition::FlightTime(t) if !(t > 0.0 && t <= self.horizon) => {
-                Err(PlanError::BadRequest(format!(
-                    "flight time {t} s is out of range: give more than 0 and at most the prediction horizon, {} s",
-                    self.horizon
-                )))
+                Err(PlanError::FlightTime {
+                    time: t,
+                    horizon: self.horizon,
+                })
             }
-            _ if !aim.brush_speed.is_finite() || !aim.impact_offset.is_finite() => Err(
-                PlanError::BadRequest("the brush speed or impact offset is not finite".into()),
-            ),
+            _ if !aim.brush_speed.is_finite() || !aim.impact_offset.is_finite() => {
+                Err(PlanError::AimNotFinite)
+            }
             _ => Ok(()),
         }
     }
@@ -448,10 +482,7 @@ impl Stroke {
                 // and the landing point, both reached at horizontal speed u.
                 let fraction = -start.x / (aim.target.x - start.x);
                 if !(fraction > 0.0 && fraction < 1.0) {
-                    return Err(PlanError::BadRequest(format!(
-                        "the ball at x = {:.3} m is not on the robot's side of the net",
-                        start.x
-                    )));
+                    return Err(PlanError::BallBeyondNet(start.x));
                 }
                 let d1 = fraction * distance;
                 let rise = self.net_height + self.radius + c - start.z;
@@ -485,9 +516,7 @@ impl Stroke {
         let change = outgoing - ball.velocity;
         let magnitude = change.norm();
         if magnitude == 0.0 {
-            return Err(PlanError::BadRequest(
-                "the ball already flies to the target: no hit needed".into(),
-            ));
+            return Err(PlanError::NoHitNeeded);
         }
         let normal = change / magnitude;
         let mut approach = magnitude / 1.7;

@@ -12,7 +12,7 @@ use crate::model::frames::{FrameError, Frames};
 use crate::online::estimator::{
     Counters, Estimator, InterceptEstimate, Output, Rejection, Verdict,
 };
-use crate::online::stroke::{Aim, Stroke};
+use crate::online::stroke::{Aim, PlanError, Stroke};
 use crate::physics::{self, StateMatrix};
 use crate::ros::msgs::builtin_interfaces::Time;
 use crate::ros::msgs::convert::{
@@ -215,9 +215,9 @@ impl Pipeline {
                 message: String::new(),
                 trajectory,
             },
-            Err(message) => PredictTrajectoryResponse {
+            Err(e) => PredictTrajectoryResponse {
                 success: false,
-                message,
+                message: e.to_string(),
                 trajectory: PredictedTrajectory::default(),
             },
         }
@@ -226,7 +226,7 @@ impl Pipeline {
     fn answer_predict_trajectory(
         &self,
         request: &PredictTrajectoryRequest,
-    ) -> Result<PredictedTrajectory, String> {
+    ) -> Result<PredictedTrajectory, ServiceError> {
         let horizon = if request.horizon == 0.0 {
             self.horizon
         } else {
@@ -238,30 +238,32 @@ impl Pipeline {
             request.dt
         };
         if !(horizon > 0.0 && horizon <= MAX_HORIZON) {
-            return Err(format!(
-                "horizon {horizon} s is out of range: give 0 < horizon <= {MAX_HORIZON} s (0 = the configured {} s)",
-                self.horizon
-            ));
+            return Err(ServiceError::Horizon {
+                horizon,
+                configured: self.horizon,
+            });
         }
         if !(dt > 0.0 && dt <= horizon && horizon / dt <= MAX_SAMPLES) {
-            return Err(format!(
-                "dt {dt} s is out of range: give 0 < dt <= horizon with at most {MAX_SAMPLES} samples (0 = the configured {} s)",
-                self.trajectory_dt
-            ));
+            return Err(ServiceError::Step {
+                dt,
+                configured: self.trajectory_dt,
+            });
         }
         if request.track_id == 0 {
             let (stamp, _, start) = state_from_msg(&request.initial);
             if !start.to_vector().iter().all(|v| v.is_finite()) {
-                return Err("the initial state has a non-finite value".to_owned());
+                return Err(ServiceError::NonFiniteState);
             }
             let trajectory = self.estimator.predict_flight(&start, dt, horizon);
             return Ok(trajectory_msg(stamp, 0, &trajectory, self.frames.fixed()));
         }
         let live = self.live_track(request.track_id, "an initial state")?;
-        let (stamp, trajectory) = self
-            .estimator
-            .predicted_trajectory(dt, horizon)
-            .ok_or_else(|| format!("track {} ended", request.track_id))?;
+        let (stamp, trajectory) =
+            self.estimator
+                .predicted_trajectory(dt, horizon)
+                .ok_or(ServiceError::TrackEnded {
+                    track_id: request.track_id,
+                })?;
         Ok(trajectory_msg(
             stamp,
             live,
@@ -279,16 +281,18 @@ impl Pipeline {
 
     /// `track_id` when it is the live track's id; otherwise why not, pointing at track 0 and
     /// `alternative` (what the request gives instead of a track).
-    fn live_track(&self, track_id: u32, alternative: &str) -> Result<u32, String> {
+    fn live_track(&self, track_id: u32, alternative: &'static str) -> Result<u32, ServiceError> {
         match self.estimator.estimate() {
             Some(e) if e.track_id == track_id => Ok(track_id),
-            Some(e) => Err(format!(
-                "track {track_id} is not live; the live track is {} (or use track_id 0 with {alternative})",
-                e.track_id
-            )),
-            None => Err(format!(
-                "track {track_id} is not live: no ball is tracked now (use track_id 0 with {alternative})"
-            )),
+            Some(e) => Err(ServiceError::NotLive {
+                track_id,
+                live: e.track_id,
+                alternative,
+            }),
+            None => Err(ServiceError::NothingTracked {
+                track_id,
+                alternative,
+            }),
         }
     }
 
@@ -319,9 +323,9 @@ impl Pipeline {
     pub fn plan_return(&self, request: &PlanReturnRequest) -> PlanReturnResponse {
         match self.answer_plan_return(request) {
             Ok(response) => response,
-            Err(message) => PlanReturnResponse {
+            Err(e) => PlanReturnResponse {
                 success: false,
-                message,
+                message: e.to_string(),
                 ..PlanReturnResponse::default()
             },
         }
@@ -330,12 +334,12 @@ impl Pipeline {
     fn answer_plan_return(
         &self,
         request: &PlanReturnRequest,
-    ) -> Result<PlanReturnResponse, String> {
+    ) -> Result<PlanReturnResponse, ServiceError> {
         let (impact_stamp, ball, covariance) = if request.track_id == 0 {
             let (_, _, ball) = state_from_msg(&request.ball);
             let covariance = StateMatrix::from_row_slice(&request.ball.covariance);
             if covariance.iter().any(|v| !v.is_finite()) {
-                return Err("the ball's covariance has a non-finite value".to_owned());
+                return Err(ServiceError::NonFiniteCovariance);
             }
             (request.ball.header.stamp, ball, covariance)
         } else {
@@ -351,7 +355,7 @@ impl Pipeline {
             impact_offset: request.impact_offset,
             brush_speed: request.brush_speed,
         };
-        let plan = stroke.plan(&ball, &aim).map_err(|e| e.to_string())?;
+        let plan = stroke.plan(&ball, &aim)?;
         let landing_covariance =
             if covariance.iter().all(|v| *v == 0.0) && !stroke.racket().is_uncertain() {
                 None
@@ -366,24 +370,103 @@ impl Pipeline {
     fn interception(
         &self,
         track_id: u32,
-    ) -> Result<(Time, physics::BallState, StateMatrix), String> {
+    ) -> Result<(Time, physics::BallState, StateMatrix), ServiceError> {
         self.live_track(track_id, "a ball state")?;
         let intercept = self
             .last_intercept
             .filter(|i| i.track_id == track_id)
-            .ok_or_else(|| format!("track {track_id} has no interception prediction yet"))?;
+            .ok_or(ServiceError::NoInterceptionYet { track_id })?;
         match intercept.intercept.crossing {
             Ok(crossing) => Ok((
                 offset(intercept.stamp, crossing.time),
                 crossing.state,
                 crossing.covariance,
             )),
-            Err(why) => Err(format!(
-                "track {track_id} has no valid interception: {} (use track_id 0 with a ball state)",
-                why.describe()
-            )),
+            Err(why) => Err(ServiceError::NoValidInterception { track_id, why }),
         }
     }
+}
+
+/// Why a service request (`~/predict_trajectory`, `~/plan_return`) is refused; its `Display` is
+/// the response's `message`.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum ServiceError {
+    /// The horizon asked for is out of range.
+    #[error(
+        "horizon {horizon} s is out of range: give 0 < horizon <= {} s (0 = the configured {configured} s)",
+        MAX_HORIZON
+    )]
+    Horizon {
+        /// The horizon asked for [s].
+        horizon: f64,
+        /// The configured horizon [s].
+        configured: f64,
+    },
+    /// The sample step asked for is out of range.
+    #[error(
+        "dt {dt} s is out of range: give 0 < dt <= horizon with at most {} samples (0 = the configured {configured} s)",
+        MAX_SAMPLES
+    )]
+    Step {
+        /// The step asked for [s].
+        dt: f64,
+        /// The configured step [s].
+        configured: f64,
+    },
+    /// The request's state has a NaN or infinite value.
+    #[error("the initial state has a non-finite value")]
+    NonFiniteState,
+    /// The request's covariance has a NaN or infinite value.
+    #[error("the ball's covariance has a non-finite value")]
+    NonFiniteCovariance,
+    /// The track ended while the request was answered.
+    #[error("track {track_id} ended")]
+    TrackEnded {
+        /// The track asked for.
+        track_id: u32,
+    },
+    /// Another track is live.
+    #[error(
+        "track {track_id} is not live; the live track is {live} (or use track_id 0 with {alternative})"
+    )]
+    NotLive {
+        /// The track asked for.
+        track_id: u32,
+        /// The live track.
+        live: u32,
+        /// What the request can give instead of a track.
+        alternative: &'static str,
+    },
+    /// No ball is tracked.
+    #[error(
+        "track {track_id} is not live: no ball is tracked now (use track_id 0 with {alternative})"
+    )]
+    NothingTracked {
+        /// The track asked for.
+        track_id: u32,
+        /// What the request can give instead of a track.
+        alternative: &'static str,
+    },
+    /// The live track has not predicted an interception yet.
+    #[error("track {track_id} has no interception prediction yet")]
+    NoInterceptionYet {
+        /// The track asked for.
+        track_id: u32,
+    },
+    /// The live track's interception is not valid.
+    #[error(
+        "track {track_id} has no valid interception: {} (use track_id 0 with a ball state)",
+        .why.describe()
+    )]
+    NoValidInterception {
+        /// The track asked for.
+        track_id: u32,
+        /// Why its interception is not valid.
+        why: crate::online::intercept::NoIntercept,
+    },
+    /// No racket command answers the request.
+    #[error(transparent)]
+    Plan(#[from] PlanError),
 }
 
 /// Longest horizon `~/predict_trajectory` accepts [s] (as `prediction.horizon`).
@@ -397,6 +480,7 @@ mod tests {
     use crate::eval::sim::{SimOptions, simulate};
     use crate::model::detection::seconds_to_ns;
     use crate::physics::PhysicsParams;
+    use crate::physics::racket::ImpactError;
     use crate::ros::msgs::convert::detection_to_msg;
     use crate::ros::msgs::geometry_msgs::{Point, Vector3};
 
@@ -436,11 +520,14 @@ mod tests {
         );
         // No track yet.
         let none = pipeline.predict_trajectory(&request(1, 0.5, 0.01));
+        let why = pipeline
+            .answer_predict_trajectory(&request(1, 0.5, 0.01))
+            .unwrap_err();
         assert!(
-            !none.success && none.message.contains("no ball is tracked"),
-            "{}",
-            none.message
+            matches!(why, ServiceError::NothingTracked { track_id: 1, .. }),
+            "{why}"
         );
+        assert!(!none.success && none.message == why.to_string());
         // A live track: its id gives the same prediction as the published trajectory's model.
         let options = SimOptions {
             shots: 1,
@@ -458,37 +545,45 @@ mod tests {
         let r = pipeline.predict_trajectory(&request(track, 0.3, 0.01));
         assert!(r.success, "{}", r.message);
         assert_eq!(r.trajectory.track_id, track);
-        let other = pipeline.predict_trajectory(&request(track + 1, 0.3, 0.01));
-        assert!(
-            !other.success
-                && other
-                    .message
-                    .contains(&format!("the live track is {track}"))
+        let other = pipeline.answer_predict_trajectory(&request(track + 1, 0.3, 0.01));
+        assert_eq!(
+            other,
+            Err(ServiceError::NotLive {
+                track_id: track + 1,
+                live: track,
+                alternative: "an initial state"
+            })
         );
     }
 
     #[test]
     fn predict_trajectory_refuses_bad_requests_with_a_reason() {
         let pipeline = Pipeline::new(&Config::default());
-        for (horizon, dt, words) in [
-            (-1.0, 0.01, "horizon"),
-            (20.0, 0.01, "horizon"),
-            (f64::NAN, 0.01, "horizon"),
-            (0.5, 1.0, "dt"),
-            (10.0, 1e-6, "dt"),
+        for (horizon, dt, horizon_refused) in [
+            (-1.0, 0.01, true),
+            (20.0, 0.01, true),
+            (f64::NAN, 0.01, true),
+            (0.5, 1.0, false),
+            (10.0, 1e-6, false),
         ] {
+            let why = pipeline
+                .answer_predict_trajectory(&request(0, horizon, dt))
+                .unwrap_err();
+            if horizon_refused {
+                assert!(matches!(why, ServiceError::Horizon { .. }), "{why}");
+            } else {
+                assert!(matches!(why, ServiceError::Step { .. }), "{why}");
+            }
             let r = pipeline.predict_trajectory(&request(0, horizon, dt));
-            assert!(
-                !r.success && r.message.contains(words),
-                "{horizon} {dt}: {}",
-                r.message
-            );
+            assert!(!r.success && r.message == why.to_string());
             assert!(r.trajectory.stamps.is_empty());
         }
         let mut bad = request(0, 0.5, 0.01);
         bad.initial.velocity.y = f64::INFINITY;
-        let r = pipeline.predict_trajectory(&bad);
-        assert!(!r.success && r.message.contains("non-finite"));
+        assert_eq!(
+            pipeline.answer_predict_trajectory(&bad),
+            Err(ServiceError::NonFiniteState)
+        );
     }
 
     /// The ball of the racket tests (tests/core/racket.rs), just before impact, at 2 s.
@@ -714,17 +809,39 @@ mod tests {
         let plan = |change: &dyn Fn(&mut PlanReturnRequest)| {
             let mut request = plan_request(0.9, 0.3);
             change(&mut request);
-            pipeline.plan_return(&request)
+            let why = pipeline.answer_plan_return(&request).unwrap_err();
+            (pipeline.plan_return(&request), why)
         };
-        for (r, words) in [
-            (plan(&|r| r.impact_offset = 0.3), "off the face"),
-            (plan(&|r| r.target.x = -0.5), "opponent's half"),
-            (plan(&|r| r.flight_time = -1.0), "flight time"),
-            (plan(&|r| r.net_clearance = 5.0), "net clearance"),
-            (plan(&|r| r.ball.velocity.x = f64::INFINITY), "non-finite"),
-            (plan(&|r| r.track_id = 5), "no ball is tracked"),
-        ] {
-            assert!(!r.success && r.message.contains(words), "{words}: {r:?}");
+        type Expected = fn(&ServiceError) -> bool;
+        let refusals: [(_, Expected); 6] = [
+            (plan(&|r| r.impact_offset = 0.3), |e| {
+                matches!(
+                    e,
+                    ServiceError::Plan(PlanError::Impact(ImpactError::OffFace { .. }))
+                )
+            }),
+            (plan(&|r| r.target.x = -0.5), |e| {
+                matches!(e, ServiceError::Plan(PlanError::TargetOffTable { .. }))
+            }),
+            (plan(&|r| r.flight_time = -1.0), |e| {
+                matches!(e, ServiceError::Plan(PlanError::FlightTime { .. }))
+            }),
+            (plan(&|r| r.net_clearance = 5.0), |e| {
+                matches!(e, ServiceError::Plan(PlanError::NetClearance(_)))
+            }),
+            (plan(&|r| r.ball.velocity.x = f64::INFINITY), |e| {
+                matches!(
+                    e,
+                    ServiceError::Plan(PlanError::Impact(ImpactError::NotFinite { .. }))
+                )
+            }),
+            (plan(&|r| r.track_id = 5), |e| {
+                matches!(e, ServiceError::NothingTracked { track_id: 5, .. })
+            }),
+        ];
+        for ((r, why), expected) in refusals {
+            assert!(expected(&why), "{why}");
+            assert!(!r.success && r.message == why.to_string(), "{r:?}");
             assert_eq!(
                 r,
                 PlanReturnResponse {
