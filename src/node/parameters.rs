@@ -242,7 +242,7 @@ impl Parameters {
                     changed.push(p.clone());
                     accepted()
                 }
-                Err(reason) => refused(reason),
+                Err(why) => refused(&why),
             })
             .collect();
         let change = (!changed.is_empty()).then_some(Change { previous, changed });
@@ -263,29 +263,27 @@ impl Parameters {
                 });
                 (accepted(), change)
             }
-            Err(reason) => (refused(reason), None),
+            Err(why) => (refused(&why), None),
         }
     }
 
     /// The configuration with `parameters` set, or why not.
-    fn checked(&self, parameters: &[Parameter]) -> Result<Config, String> {
+    fn checked(&self, parameters: &[Parameter]) -> Result<Config, Refusal> {
         let mut values = Vec::with_capacity(parameters.len());
         for p in parameters {
             let Some(declared) = self.declared_type(&p.name) else {
-                return Err(format!(
-                    "parameter '{}' is not declared: `ros2 param list` shows the node's parameters",
-                    p.name
-                ));
+                return Err(Refusal::NotDeclared {
+                    name: p.name.clone(),
+                });
             };
             if !is_live(&p.name) {
-                return Err(format!(
-                    "parameter '{}' is read-only: it takes effect when the node starts; restart it with -p {}:=VALUE",
-                    p.name, p.name
-                ));
+                return Err(Refusal::ReadOnly {
+                    name: p.name.clone(),
+                });
             }
             values.push((p.name.clone(), to_yaml(&p.name, &p.value, declared)?));
         }
-        yaml::with_values(&self.config, &values).map_err(|e| e.to_string())
+        yaml::with_values(&self.config, &values).map_err(Refusal::Invalid)
     }
 
     /// The event that announces every parameter (`new_parameters`), when the node starts.
@@ -332,11 +330,49 @@ fn accepted() -> SetParametersResult {
     }
 }
 
-fn refused(reason: String) -> SetParametersResult {
+fn refused(why: &Refusal) -> SetParametersResult {
     SetParametersResult {
         successful: false,
-        reason,
+        reason: why.to_string(),
     }
+}
+
+/// Why a parameter change is refused; its `Display` is the `reason` the caller gets.
+#[derive(Debug, thiserror::Error)]
+pub enum Refusal {
+    /// No parameter has this name.
+    #[error("parameter '{name}' is not declared: `ros2 param list` shows the node's parameters")]
+    NotDeclared {
+        /// The name.
+        name: String,
+    },
+    /// The parameter takes effect only when the node starts.
+    #[error(
+        "parameter '{name}' is read-only: it takes effect when the node starts; restart it with -p {name}:=VALUE"
+    )]
+    ReadOnly {
+        /// The name.
+        name: String,
+    },
+    /// A parameter cannot be unset.
+    #[error("parameter '{name}' cannot be unset: every parameter of ttball has a value")]
+    Unset {
+        /// The name.
+        name: String,
+    },
+    /// The value is of another type than the parameter's.
+    #[error("parameter '{name}' is {declared}, not {found}")]
+    WrongType {
+        /// The name.
+        name: String,
+        /// The parameter's type, in words ("a double").
+        declared: &'static str,
+        /// The value's type, in words.
+        found: &'static str,
+    },
+    /// The configuration with the new values is not valid.
+    #[error(transparent)]
+    Invalid(yaml::LoadError),
 }
 
 /// Calls `f(dotted name, leaf)` for every leaf under `value`.
@@ -413,7 +449,7 @@ fn to_parameter_value(leaf: &Value, ptype: u8) -> ParameterValue {
 
 /// A value set on parameter `name` of type `declared` as the configuration's YAML, or why it is
 /// refused. An integer is taken for a real (`ros2 param set /ttball intercept.plane_x -1`).
-fn to_yaml(name: &str, value: &ParameterValue, declared: u8) -> Result<Value, String> {
+fn to_yaml(name: &str, value: &ParameterValue, declared: u8) -> Result<Value, Refusal> {
     let real = |x: f64| Value::Number(x.into());
     match (declared, value.ptype) {
         (ParameterType::BOOL, ParameterType::BOOL) => Ok(Value::Bool(value.boolean_value)),
@@ -431,14 +467,14 @@ fn to_yaml(name: &str, value: &ParameterValue, declared: u8) -> Result<Value, St
         (ParameterType::DOUBLE_ARRAY, ParameterType::INTEGER_ARRAY) => Ok(Value::Sequence(
             value.int_array.iter().map(|x| real(*x as f64)).collect(),
         )),
-        (_, ParameterType::NOT_SET) => Err(format!(
-            "parameter '{name}' cannot be unset: every parameter of ttball has a value"
-        )),
-        (declared, found) => Err(format!(
-            "parameter '{name}' is {}, not {}",
-            type_name(declared),
-            type_name(found)
-        )),
+        (_, ParameterType::NOT_SET) => Err(Refusal::Unset {
+            name: name.to_owned(),
+        }),
+        (declared, found) => Err(Refusal::WrongType {
+            name: name.to_owned(),
+            declared: type_name(declared),
+            found: type_name(found),
+        }),
     }
 }
 
@@ -576,6 +612,36 @@ mod tests {
         ]);
         let ok: Vec<bool> = results.iter().map(|r| r.successful).collect();
         assert_eq!(ok, [true, false, false, false, false, true]);
+        // Why each was refused, as a variant; the reason the caller gets is its text.
+        let why = |name: &str, value: ParameterValue| {
+            Parameters::new(&Config::default())
+                .checked(&[param(name, value)])
+                .unwrap_err()
+        };
+        assert!(matches!(
+            why("table.restitution", double(0.8)),
+            Refusal::ReadOnly { name } if name == "table.restitution"
+        ));
+        assert!(matches!(
+            why("gating.probability", double(2.0)),
+            Refusal::Invalid(_)
+        ));
+        assert!(matches!(
+            why("ekf.init_detections", double(5.0)),
+            Refusal::WrongType {
+                declared: "an integer",
+                found: "a double",
+                ..
+            }
+        ));
+        assert!(matches!(
+            why("nope", double(1.0)),
+            Refusal::NotDeclared { name } if name == "nope"
+        ));
+        assert_eq!(
+            results[1].reason,
+            why("table.restitution", double(0.8)).to_string()
+        );
         assert!(
             results[1].reason.contains("read-only"),
             "{}",
