@@ -127,7 +127,10 @@ impl Observations {
         let thresholds = [threshold(3), threshold(6)];
         for index in order {
             let d = &detections[index];
-            let whitened = model.measure(d).and_then(|m| whiten(&m));
+            let whitened = model
+                .measure(d)
+                .map_err(Rejection::from)
+                .and_then(|m| whiten(&m));
             match whitened {
                 Ok((z, white, dims)) => list.push(Observation {
                     index,

@@ -8,11 +8,26 @@ use nalgebra::{Matrix3, Matrix6, SVector, Vector3};
 
 use crate::config::{Config, SourceIndex, SourceParams};
 use crate::model::detection::{Detection, Source};
-use crate::online::estimator::Rejection;
 
 /// Farthest a detection may be from the table's centre [m] (the table is 2.74 m long; a ball in
 /// play stays within a few metres of it).
 pub const MAX_RANGE: f64 = 10.0;
+
+/// Why a detection cannot be a measurement (the estimator counts each as its
+/// [`Rejection`](crate::online::estimator::Rejection) of the same name).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Unusable {
+    /// A position, spin or covariance value is NaN or infinite.
+    NonFinite,
+    /// The position is more than [`MAX_RANGE`] from the table's centre.
+    OutOfRange,
+    /// The confidence is outside [0, 1].
+    BadConfidence,
+    /// The confidence is below `ekf.min_confidence`.
+    LowConfidence,
+    /// A covariance is not symmetric positive definite.
+    BadCovariance,
+}
 
 /// Measurement noise of one source, as variances.
 #[derive(Debug, Clone, PartialEq)]
@@ -76,7 +91,7 @@ impl MeasurementModel {
 
     /// A detection as a measurement with its noise (its own covariance, else its source's), or why
     /// it is rejected.
-    pub fn measure(&self, d: &Detection) -> Result<Measurement, Rejection> {
+    pub fn measure(&self, d: &Detection) -> Result<Measurement, Unusable> {
         let finite = d.position.iter().all(|v| v.is_finite())
             && d.spin.is_none_or(|w| w.iter().all(|v| v.is_finite()))
             && d.position_covariance
@@ -84,28 +99,28 @@ impl MeasurementModel {
             && d.spin_covariance
                 .is_none_or(|c| c.iter().all(|v| v.is_finite()));
         if !finite {
-            return Err(Rejection::NonFinite);
+            return Err(Unusable::NonFinite);
         }
         if d.position.norm() > MAX_RANGE {
-            return Err(Rejection::OutOfRange);
+            return Err(Unusable::OutOfRange);
         }
         let confidence = f64::from(d.confidence);
         if !(0.0..=1.0).contains(&confidence) {
-            return Err(Rejection::BadConfidence);
+            return Err(Unusable::BadConfidence);
         }
         if confidence < self.min_confidence {
-            return Err(Rejection::LowConfidence);
+            return Err(Unusable::LowConfidence);
         }
         let noise = self.source(d.source);
         let r_position = match d.position_covariance {
-            Some(c) if !is_spd(&c) => return Err(Rejection::BadCovariance),
+            Some(c) if !is_spd(&c) => return Err(Unusable::BadCovariance),
             Some(c) => c,
             None => Matrix3::identity() * noise.position_var,
         };
         let spin = d.spin.filter(|_| !claims_placeholder_spin(d));
         let r_spin = match (spin, d.spin_covariance, noise.spin_var) {
             (None, _, _) => None,
-            (Some(_), Some(c), _) if !is_spd(&c) => return Err(Rejection::BadCovariance),
+            (Some(_), Some(c), _) if !is_spd(&c) => return Err(Unusable::BadCovariance),
             (Some(_), Some(c), _) => Some(c),
             (Some(_), None, Some(var)) => Some(Matrix3::identity() * var),
             // A source that does not measure spin: its spin values are ignored.

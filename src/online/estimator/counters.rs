@@ -1,5 +1,7 @@
 //! What the estimator did with each detection, and the counts of it by outcome and by reason.
 
+use crate::online::measurement::Unusable;
+
 /// Why a detection was not fused.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub enum Rejection {
@@ -119,6 +121,18 @@ impl Counters {
             .filter(|r| self.rejected(**r) > 0)
             .map(|r| format!("{} {}", r.name(), self.rejected(*r)))
             .collect()
+    }
+}
+
+impl From<Unusable> for Rejection {
+    fn from(why: Unusable) -> Self {
+        match why {
+            Unusable::NonFinite => Self::NonFinite,
+            Unusable::OutOfRange => Self::OutOfRange,
+            Unusable::BadConfidence => Self::BadConfidence,
+            Unusable::LowConfidence => Self::LowConfidence,
+            Unusable::BadCovariance => Self::BadCovariance,
+        }
     }
 }
 
