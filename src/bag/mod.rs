@@ -157,8 +157,9 @@ pub struct BagContents {
     pub channels: Vec<ChannelInfo>,
     /// Every message read, in log-time order (file order among equal times).
     pub messages: Vec<BagMessage>,
-    /// Why reading stopped early (a truncated or corrupt file), when it did.
-    pub damage: Option<String>,
+    /// What was skipped and why reading stopped early (a truncated or corrupt file); empty when
+    /// the file was whole.
+    pub damage: Vec<Damage>,
 }
 
 impl BagContents {
@@ -178,6 +179,150 @@ pub fn channel_of(channels: &[ChannelInfo], topic: &str) -> Option<usize> {
 /// Messages come back in log-time order (file order among equal times).
 pub fn read_bag_file(path: &Path) -> Result<BagContents, BagError> {
     collect(BagReader::open(path)?)
+}
+
+/// Damage found while reading a bag: a chunk skipped, a chunk cut off by the end of the file, or
+/// why reading stopped. Its `Display` is the sentence the summaries print.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum Damage {
+    /// A whole chunk that could not be read was skipped; reading went on after it.
+    #[error("the chunk at byte {at} ({why}) was skipped")]
+    ChunkSkipped {
+        /// The chunk record's offset in the file.
+        at: u64,
+        /// What is wrong with it.
+        why: ChunkDamage,
+    },
+    /// The file ends inside a chunk, of which the complete messages were read.
+    #[error("the file ends inside the chunk at byte {at} ({found} messages of it read)")]
+    CutChunk {
+        /// The chunk record's offset in the file.
+        at: u64,
+        /// Messages read from it.
+        found: usize,
+    },
+    /// Reading stopped: nothing after this point could be read.
+    #[error("reading stopped after {messages} messages: {why}")]
+    Stopped {
+        /// Messages read before.
+        messages: u64,
+        /// Why.
+        why: StopReason,
+    },
+    /// The next file of a split bag cannot be opened.
+    #[error("{0}")]
+    NextFile(String),
+    /// Damage in one file of a split bag.
+    #[error("{}: {damage}", .path.display())]
+    InFile {
+        /// The file.
+        path: PathBuf,
+        /// What was found in it.
+        damage: Box<Damage>,
+    },
+}
+
+/// Why a chunk was skipped.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum ChunkDamage {
+    /// It declares more uncompressed bytes than any record may have.
+    #[error("{size} bytes uncompressed: too large")]
+    TooLarge {
+        /// The declared size.
+        size: u64,
+    },
+    /// Its compression is neither zstd nor lz4.
+    #[error("unknown compression `{0}`")]
+    UnknownCompression(String),
+    /// The decompressor failed (`codec: what it said`).
+    #[error("{codec}: {reason}")]
+    Decompression {
+        /// `zstd` or `lz4`.
+        codec: &'static str,
+        /// What the decompressor said.
+        reason: String,
+    },
+    /// It decompressed to another size than it declares.
+    #[error("{got} bytes decompressed, {declared} declared")]
+    SizeMismatch {
+        /// Bytes it decompressed to.
+        got: usize,
+        /// Bytes it declares.
+        declared: u64,
+    },
+    /// Its records do not match its CRC.
+    #[error("its CRC does not match: corrupt")]
+    CrcMismatch,
+}
+
+/// Why reading a file stopped.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum StopReason {
+    /// The file ends inside a record.
+    #[error("the file ends inside a record at byte {at}")]
+    EndsInsideRecord {
+        /// The record's offset.
+        at: u64,
+    },
+    /// The file ends inside a record's header.
+    #[error("the file ends inside a record header at byte {at}")]
+    EndsInsideHeader {
+        /// The record's offset.
+        at: u64,
+    },
+    /// A record claims a length no record may have.
+    #[error("the record at byte {at} claims {len} bytes: corrupt")]
+    RecordTooLong {
+        /// The record's offset.
+        at: u64,
+        /// The length it claims.
+        len: u64,
+    },
+    /// A record does not parse.
+    #[error("the record at byte {at}: {reason}")]
+    BadRecord {
+        /// The record's offset.
+        at: u64,
+        /// What the parser said.
+        reason: String,
+    },
+    /// A chunk's header does not parse.
+    #[error("the chunk at byte {at} has a corrupt header")]
+    ChunkHeader {
+        /// The chunk's offset.
+        at: u64,
+    },
+    /// A record inside a chunk does not parse.
+    #[error("a record in the chunk at byte {at}: {reason}")]
+    BadChunkRecord {
+        /// The chunk's offset.
+        at: u64,
+        /// What the parser said.
+        reason: String,
+    },
+    /// A chunk's records end inside a record.
+    #[error("the chunk at byte {at} ends inside a record")]
+    ChunkEndsInsideRecord {
+        /// The chunk's offset.
+        at: u64,
+    },
+    /// A message names a channel no record declared.
+    #[error("a message on unknown channel {0}")]
+    UnknownChannel(u16),
+    /// Reading the file failed.
+    #[error("{0}")]
+    Io(String),
+}
+
+/// The damages as one sentence (`; ` between them), or `None` when there is none.
+pub fn damage_text(damages: &[Damage]) -> Option<String> {
+    (!damages.is_empty()).then(|| {
+        damages
+            .iter()
+            .map(ToString::to_string)
+            .collect::<Vec<_>>()
+            .join("; ")
+    })
 }
 
 /// Reads every message of MCAP bytes in memory, in log-time order. Bytes that do not start as
@@ -218,7 +363,7 @@ pub struct BagReader {
     files: std::vec::IntoIter<PathBuf>,
     file: Option<FileStream>,
     channels: Vec<ChannelInfo>,
-    damage: Option<String>,
+    damage: Vec<Damage>,
     window: BinaryHeap<Reverse<Held>>,
     sequence: u64,
     read: u64,
@@ -260,8 +405,8 @@ struct FileStream {
     records: Records,
     /// The messages of the chunk being read, in file order.
     chunk: std::collections::VecDeque<BagMessage>,
-    /// Chunks skipped as corrupt (CRC mismatch, undecompressible), each with why.
-    skipped: Vec<String>,
+    /// Chunks skipped as corrupt (CRC mismatch, undecompressible) or cut off, each with why.
+    skipped: Vec<Damage>,
     /// The data section has ended (a data end or footer record).
     finished: bool,
 }
@@ -406,7 +551,7 @@ impl BagReader {
             files: Vec::new().into_iter(),
             file: None,
             channels: Vec::new(),
-            damage: None,
+            damage: Vec::new(),
             window: BinaryHeap::with_capacity(REORDER_WINDOW + 1),
             sequence: 0,
             read: 0,
@@ -435,8 +580,8 @@ impl BagReader {
 
     /// What was damaged, when anything was: corrupt chunks skipped, and why reading stopped
     /// early (a truncated or corrupt file).
-    pub fn damage(&self) -> Option<&str> {
-        self.damage.as_deref()
+    pub fn damage(&self) -> &[Damage] {
+        &self.damage
     }
 
     /// Bytes read so far and the bag's size in bytes (for progress).
@@ -455,13 +600,6 @@ impl BagReader {
                 .push(Reverse(Held(message.log_time, self.sequence, message)));
         }
         self.window.pop().map(|Reverse(Held(_, _, m))| m)
-    }
-
-    fn add_damage(&mut self, note: String) {
-        self.damage = Some(match self.damage.take() {
-            Some(before) => format!("{before}; {note}"),
-            None => note,
-        });
     }
 
     fn open_next(&mut self) -> Result<bool, BagError> {
@@ -485,26 +623,27 @@ impl BagReader {
         loop {
             let stream = self.file.as_mut()?;
             let result = stream.next(&mut self.channels, &mut self.read);
-            let name = if self.several_files {
-                format!("{}: ", stream.path.display())
-            } else {
-                String::new()
+            let path = self.several_files.then(|| stream.path.clone());
+            let in_file = |damage: Damage| match &path {
+                Some(path) => Damage::InFile {
+                    path: path.clone(),
+                    damage: Box::new(damage),
+                },
+                None => damage,
             };
-            let skipped: Vec<String> = stream.skipped.drain(..).collect();
-            for note in skipped {
-                self.add_damage(format!("{name}{note}"));
-            }
+            let skipped: Vec<Damage> = stream.skipped.drain(..).collect();
+            self.damage.extend(skipped.into_iter().map(&in_file));
             match result {
                 Ok(Some(message)) => {
                     self.messages += 1;
                     return Some(message);
                 }
                 Ok(None) => {}
-                Err(reason) => {
-                    self.add_damage(format!(
-                        "{name}reading stopped after {} messages: {reason}",
-                        self.messages
-                    ));
+                Err(why) => {
+                    self.damage.push(in_file(Damage::Stopped {
+                        messages: self.messages,
+                        why,
+                    }));
                     self.file = None;
                     return None;
                 }
@@ -513,7 +652,7 @@ impl BagReader {
                 Ok(true) => {}
                 Ok(false) => return None,
                 Err(e) => {
-                    self.add_damage(e.to_string());
+                    self.damage.push(Damage::NextFile(e.to_string()));
                     return None;
                 }
             }
@@ -554,7 +693,7 @@ impl FileStream {
         &mut self,
         channels: &mut Vec<ChannelInfo>,
         read: &mut u64,
-    ) -> Result<Option<BagMessage>, String> {
+    ) -> Result<Option<BagMessage>, StopReason> {
         loop {
             if let Some(message) = self.chunk.pop_front() {
                 return Ok(Some(message));
@@ -574,20 +713,21 @@ impl FileStream {
                     let found = self.chunk.len();
                     self.finished = true;
                     if found > 0 {
-                        self.skipped.push(format!(
-                            "the file ends inside the chunk at byte {at} ({found} messages of it read)"
-                        ));
+                        self.skipped.push(Damage::CutChunk { at, found });
                         continue;
                     }
                 }
-                return Err(format!("the file ends inside a record at byte {at}"));
+                return Err(StopReason::EndsInsideRecord { at });
             }
             match opcode {
                 op::CHUNK => self.take_chunk(&body, at, true, channels)?,
                 op::DATA_END | op::FOOTER => self.finished = true,
                 _ => {
-                    let record = mcap::parse_record(opcode, &body)
-                        .map_err(|e| format!("the record at byte {at}: {e}"))?;
+                    let record =
+                        mcap::parse_record(opcode, &body).map_err(|e| StopReason::BadRecord {
+                            at,
+                            reason: e.to_string(),
+                        })?;
                     if let mcap::records::Record::Message { header, data } = record {
                         let data = data.into_owned();
                         return self.message(&header, data).map(Some);
@@ -600,30 +740,29 @@ impl FileStream {
 
     /// The next record: opcode, body, and whether the body is whole (false when the file ends
     /// inside it); `None` at the end of the file.
-    fn next_record(&mut self) -> Result<Option<(u8, Vec<u8>, bool)>, String> {
+    fn next_record(&mut self) -> Result<Option<(u8, Vec<u8>, bool)>, StopReason> {
         let at = self.offset;
         let mut head = [0u8; 9];
-        let got = read_up_to(&mut self.source, &mut head).map_err(|e| e.to_string())?;
+        let got =
+            read_up_to(&mut self.source, &mut head).map_err(|e| StopReason::Io(e.to_string()))?;
         self.offset += got as u64;
         match got {
             0 => return Ok(None),
             9 => {}
-            _ => return Err(format!("the file ends inside a record header at byte {at}")),
+            _ => return Err(StopReason::EndsInsideHeader { at }),
         }
         let opcode = head[0];
         let mut len_bytes = [0u8; 8];
         len_bytes.copy_from_slice(&head[1..]);
         let len = u64::from_le_bytes(len_bytes);
         if len > RECORD_LENGTH_LIMIT {
-            return Err(format!(
-                "the record at byte {at} claims {len} bytes: corrupt"
-            ));
+            return Err(StopReason::RecordTooLong { at, len });
         }
         let mut body = Vec::new();
         Read::by_ref(&mut self.source)
             .take(len)
             .read_to_end(&mut body)
-            .map_err(|e| e.to_string())?;
+            .map_err(|e| StopReason::Io(e.to_string()))?;
         self.offset += body.len() as u64;
         let complete = body.len() as u64 == len;
         Ok(Some((opcode, body, complete)))
@@ -639,21 +778,22 @@ impl FileStream {
         at: u64,
         complete: bool,
         channels: &mut Vec<ChannelInfo>,
-    ) -> Result<(), String> {
+    ) -> Result<(), StopReason> {
         let Some(chunk) = ChunkParts::parse(body) else {
-            return Err(format!("the chunk at byte {at} has a corrupt header"));
+            return Err(StopReason::ChunkHeader { at });
         };
-        let skip = |why: String| format!("the chunk at byte {at} ({why}) was skipped");
         let data = match decompress(&chunk, complete) {
             Ok(data) => data,
             Err(why) => {
-                self.skipped.push(skip(why));
+                self.skipped.push(Damage::ChunkSkipped { at, why });
                 return Ok(());
             }
         };
         if complete && chunk.crc != 0 && crc32fast::hash(&data) != chunk.crc {
-            self.skipped
-                .push(skip("its CRC does not match: corrupt".to_string()));
+            self.skipped.push(Damage::ChunkSkipped {
+                at,
+                why: ChunkDamage::CrcMismatch,
+            });
             return Ok(());
         }
         let mut records = RecordSlices { rest: &data };
@@ -664,11 +804,16 @@ impl FileStream {
                     self.chunk.push_back(message);
                 }
                 Ok(other) => self.records.take(other, channels),
-                Err(e) => return Err(format!("a record in the chunk at byte {at}: {e}")),
+                Err(e) => {
+                    return Err(StopReason::BadChunkRecord {
+                        at,
+                        reason: e.to_string(),
+                    });
+                }
             }
         }
         if complete && !records.rest.is_empty() {
-            return Err(format!("the chunk at byte {at} ends inside a record"));
+            return Err(StopReason::ChunkEndsInsideRecord { at });
         }
         Ok(())
     }
@@ -678,12 +823,9 @@ impl FileStream {
         &self,
         header: &mcap::records::MessageHeader,
         data: Vec<u8>,
-    ) -> Result<BagMessage, String> {
+    ) -> Result<BagMessage, StopReason> {
         let Some(&channel) = self.records.ids.get(&header.channel_id) else {
-            return Err(format!(
-                "a message on unknown channel {}",
-                header.channel_id
-            ));
+            return Err(StopReason::UnknownChannel(header.channel_id));
         };
         Ok(BagMessage {
             channel,
@@ -813,10 +955,10 @@ fn check_magic(start: &[u8], path: &Path) -> Result<(), BagError> {
 
 /// The records of a chunk, decompressed; of a chunk cut short (`complete` false), as much as
 /// decompresses.
-fn decompress(chunk: &ChunkParts<'_>, complete: bool) -> Result<Vec<u8>, String> {
+fn decompress(chunk: &ChunkParts<'_>, complete: bool) -> Result<Vec<u8>, ChunkDamage> {
     let size = chunk.uncompressed_size;
     if size > RECORD_LENGTH_LIMIT {
-        return Err(format!("{size} bytes uncompressed: too large"));
+        return Err(ChunkDamage::TooLarge { size });
     }
     let mut out = Vec::new();
     let result = match chunk.compression {
@@ -826,16 +968,25 @@ fn decompress(chunk: &ChunkParts<'_>, complete: bool) -> Result<Vec<u8>, String>
         }
         "zstd" => zstd::stream::read::Decoder::new(chunk.records)
             .and_then(|d| d.take(size).read_to_end(&mut out))
-            .map_err(|e| format!("zstd: {e}")),
+            .map_err(|e| ChunkDamage::Decompression {
+                codec: "zstd",
+                reason: e.to_string(),
+            }),
         "lz4" => lz4::Decoder::new(chunk.records)
             .and_then(|d| d.take(size).read_to_end(&mut out))
-            .map_err(|e| format!("lz4: {e}")),
-        other => return Err(format!("unknown compression `{other}`")),
+            .map_err(|e| ChunkDamage::Decompression {
+                codec: "lz4",
+                reason: e.to_string(),
+            }),
+        other => return Err(ChunkDamage::UnknownCompression(other.to_owned())),
     };
     if complete {
         result?;
         if out.len() as u64 != size {
-            return Err(format!("{} bytes decompressed, {size} declared", out.len()));
+            return Err(ChunkDamage::SizeMismatch {
+                got: out.len(),
+                declared: size,
+            });
         }
     }
     Ok(out)

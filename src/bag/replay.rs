@@ -15,8 +15,8 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
 use crate::bag::{
-    BagContents, BagError, BagMessage, BagReader, BagWriter, ChannelInfo, channel_of, decode,
-    read_bag_file,
+    BagContents, BagError, BagMessage, BagReader, BagWriter, ChannelInfo, Damage, channel_of,
+    decode, read_bag_file,
 };
 use crate::config::Config;
 use crate::eval::{EvalReport, Scorer, ShotTruth};
@@ -125,8 +125,8 @@ pub struct ReplaySummary {
     pub recorded_seconds: f64,
     /// Time spent processing them [s].
     pub processing_seconds: f64,
-    /// Why the input was read only in part (truncated or corrupt), if it was.
-    pub damage: Option<String>,
+    /// Why the input was read only in part (truncated or corrupt); empty when it was whole.
+    pub damage: Vec<Damage>,
     /// True when the replay was interrupted (the output holds what was done, finished).
     pub interrupted: bool,
     /// Accuracy against the bag's truth, when it has one.
@@ -457,7 +457,7 @@ pub fn replay_observed(
         processing_p99_ns: timing.p99,
         recorded_seconds: first_last.map_or(0.0, |(a, b)| (b - a) as f64 * 1e-9),
         processing_seconds: timing.total * 1e-9,
-        damage: reader.damage().map(str::to_owned),
+        damage: reader.damage().to_vec(),
         interrupted,
         accuracy: scorer.map(|s| s.report(counters)),
     })
@@ -540,8 +540,8 @@ pub struct SmoothSummary {
     pub smoothing: Smoothing,
     /// Messages written to the output bag.
     pub written: u64,
-    /// Why the input was read only in part, if it was.
-    pub damage: Option<String>,
+    /// Why the input was read only in part; empty when it was whole.
+    pub damage: Vec<Damage>,
     /// Errors of the smoothed states against the bag's truth, when it has one.
     pub truth_errors: Option<TruthErrors>,
 }

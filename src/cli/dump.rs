@@ -8,7 +8,7 @@ use std::process::ExitCode;
 use anyhow::Context;
 use clap::Args;
 use serde_json::{Value, json};
-use ttball::bag::{DecodeError, decode, read_bag_file};
+use ttball::bag::{DecodeError, damage_text, decode, read_bag_file};
 use ttball::ros::msgs::nav_msgs::Odometry;
 use ttball::ros::msgs::ttball_msgs::msg::{
     BallDetection, BallState, InterceptPrediction, PredictedTrajectory,
@@ -54,7 +54,7 @@ impl DumpArgs {
     /// Prints the messages.
     pub fn run(self) -> anyhow::Result<ExitCode> {
         let contents = read_bag_file(&self.bag)?;
-        if let Some(damage) = &contents.damage {
+        if let Some(damage) = damage_text(&contents.damage) {
             eprintln!("warning: {}: {damage}", self.bag.display());
         }
         let stdout = std::io::stdout();

@@ -9,6 +9,7 @@ use std::time::Instant;
 
 use anyhow::{Context, bail};
 use clap::Args;
+use ttball::bag::damage_text;
 use ttball::bag::live_view::LiveView;
 use ttball::bag::replay::{ReplaySummary, replay, replay_observed};
 use ttball::online::ekf::NoiseScales;
@@ -243,7 +244,7 @@ type Finished = (anyhow::Result<ReplaySummary>, f64);
 pub fn summary_text(s: &ReplaySummary, whole_seconds: Option<f64>) -> String {
     let c = &s.counters;
     let mut out = format!("{} -> {}\n", s.input.display(), s.output.display());
-    if let Some(damage) = &s.damage {
+    if let Some(damage) = damage_text(&s.damage) {
         let _ = writeln!(out, "  warning: the input is damaged; {damage}");
     }
     if s.interrupted {
@@ -442,7 +443,7 @@ fn summary_json(s: &ReplaySummary, whole_seconds: f64) -> serde_json::Value {
     serde_json::json!({
         "input": s.input,
         "output": s.output,
-        "damage": s.damage,
+        "damage": damage_text(&s.damage),
         "interrupted": s.interrupted,
         "detections": s.detections,
         "undecodable": s.undecodable,

@@ -6,6 +6,7 @@ use std::process::ExitCode;
 
 use anyhow::{Context, bail};
 use clap::Args;
+use ttball::bag::damage_text;
 use ttball::bag::replay::{SmoothSummary, smooth_bag};
 
 use super::{BadUsage, ConfigArgs, cancel_on_interrupt, progress_bar, write_stdout};
@@ -63,7 +64,7 @@ fn summary_text(s: &SmoothSummary, topic: &str) -> String {
     let m = &s.smoothing;
     let c = &m.counters;
     let mut out = format!("{} -> {}\n", s.input.display(), s.output.display());
-    if let Some(damage) = &s.damage {
+    if let Some(damage) = damage_text(&s.damage) {
         let _ = writeln!(out, "  warning: the input is damaged; {damage}");
     }
     if m.skipped > 0 {
