@@ -12,7 +12,7 @@
 //! encapsulation header, then little-endian CDR from `cdr-encoding`, the serialiser ros2-client
 //! uses), log and publish times in nanoseconds.
 //!
-//! [`BagReader`] (and [`read_bag`], [`read_bag_file`] on it) reads what it can: a corrupt chunk is
+//! [`BagReader`] (and [`read_bag_file`] on it) reads what it can: a corrupt chunk is
 //! skipped, a truncated file yields its complete records, and the damage says where. Messages come back in log-time order. [`BagWriter`] writes
 //! zstd-compressed chunks with the summary and indexes; [`BagWriter::finish`] must be called to
 //! finish the file (the caller does it on every path, Ctrl-C included).
@@ -323,17 +323,6 @@ pub fn damage_text(damages: &[Damage]) -> Option<String> {
             .collect::<Vec<_>>()
             .join("; ")
     })
-}
-
-/// Reads every message of MCAP bytes in memory, in log-time order. Bytes that do not start as
-/// MCAP are an error; damage later on ends the reading with what was read and the reason.
-pub fn read_bag(bytes: &[u8]) -> Result<BagContents, String> {
-    let reader =
-        BagReader::from_bytes(bytes.to_vec(), Path::new("<bytes>")).map_err(|e| match e {
-            BagError::NotMcap { reason, .. } => reason,
-            other => other.to_string(),
-        })?;
-    collect(reader).map_err(|e| e.to_string())
 }
 
 fn collect(mut reader: BagReader) -> Result<BagContents, BagError> {
