@@ -36,7 +36,7 @@ impl Estimator {
     /// Fuses a measurement into a snapshot at the detection's stamp, carrying the covariance's
     /// `sensitivity` to the noise scales along when given.
     pub(super) fn fuse(
-        &self,
+        &mut self,
         snapshot: &mut Snapshot,
         d: &Detection,
         m: &Measurement,
@@ -44,18 +44,19 @@ impl Estimator {
     ) -> Result<f64, Rejection> {
         let prior = *snapshot;
         let scoring = sensitivity.is_some();
-        let (mut result, innovation) =
+        let (mut result, innovation, spin_reset) =
             self.predict_and_update(&self.propagator, snapshot, d, m, sensitivity);
-        self.innovation.set(innovation);
+        self.innovation = innovation;
+        self.counters.spin_resets += u64::from(spin_reset);
         if self.near_table_edge(snapshot) {
             // An edge ball: estimate and ball may land on either side of the table's edge. The
             // hypothesis that explains the detection best wins.
             for alternative in &self.edge_alternatives {
                 let mut other = prior;
-                let Ok(fused) = self
-                    .predict_and_update(alternative, &mut other, d, m, None)
-                    .0
-                else {
+                let (fused, _, spin_reset) =
+                    self.predict_and_update(alternative, &mut other, d, m, None);
+                self.counters.spin_resets += u64::from(spin_reset);
+                let Ok(fused) = fused else {
                     continue;
                 };
                 let better = match result {
@@ -64,7 +65,7 @@ impl Estimator {
                 };
                 if better {
                     *snapshot = other;
-                    self.edge_retries.set(self.edge_retries.get() + 1);
+                    self.counters.edge_retries += 1;
                     result = Ok(fused);
                 }
             }
@@ -73,7 +74,7 @@ impl Estimator {
             Ok(fused) => {
                 snapshot.last_fused = d.stamp;
                 snapshot.nis = fused.nis;
-                self.score.set(scoring.then_some(fused.score));
+                self.score = scoring.then_some(fused.score);
                 Ok(fused.nis)
             }
             Err(UpdateError::Gated { .. }) => Err(Rejection::Gated),
@@ -89,7 +90,7 @@ impl Estimator {
         d: &Detection,
         m: &Measurement,
         mut sensitivity: Option<&mut NoiseSensitivity>,
-    ) -> (Result<Fused, UpdateError>, Option<noise::Innovation>) {
+    ) -> (Result<Fused, UpdateError>, Option<noise::Innovation>, bool) {
         self.advance_with(propagator, snapshot, d.stamp, sensitivity.as_deref_mut());
         let x = &snapshot.ekf.x;
         let velocity = x.fixed_rows::<3>(3).into_owned();
@@ -123,19 +124,22 @@ impl Estimator {
             velocity,
             spin,
         });
-        let result = match &m {
-            Measurement::Position { z, r, .. } => snapshot.ekf.update(
-                z,
-                &position_H(),
-                r,
-                self.settings.gate_position,
-                sensitivity,
+        let (result, spin_reset) = match &m {
+            Measurement::Position { z, r, .. } => (
+                snapshot.ekf.update(
+                    z,
+                    &position_H(),
+                    r,
+                    self.settings.gate_position,
+                    sensitivity,
+                ),
+                false,
             ),
             Measurement::PositionSpin { z, r, .. } => {
                 self.fuse_position_spin(snapshot, z, r, sensitivity)
             }
         };
-        (result, innovation)
+        (result, innovation, spin_reset)
     }
 
     /// True when the estimate is within `band` [m] of its contact height over the table: a few
@@ -155,44 +159,46 @@ impl Estimator {
 
     /// A position + spin measurement. The position is gated on its own; when it fits but the
     /// spin does not, the filter's spin (learned from curvature, where the EKF can be
-    /// overconfident at high spin parameters) is forgotten in favour of the camera's, and counted.
+    /// overconfident at high spin parameters) is forgotten in favour of the camera's; the flag says
+    /// whether it was, for the counters.
     pub(super) fn fuse_position_spin(
         &self,
         snapshot: &mut Snapshot,
         z: &SVector<f64, 6>,
         r: &Matrix6<f64>,
         mut sensitivity: Option<&mut NoiseSensitivity>,
-    ) -> Result<Fused, UpdateError> {
+    ) -> (Result<Fused, UpdateError>, bool) {
         let z_position = z.fixed_rows::<3>(0).into_owned();
         let r_position = r.fixed_view::<3, 3>(0, 0).into_owned();
         let gate = self.settings.gate_position;
         if let Some(nis) = snapshot.ekf.nis(&z_position, &position_H(), &r_position)
             && nis > gate
         {
-            return Err(UpdateError::Gated { nis, gate });
+            return (Err(UpdateError::Gated { nis, gate }), false);
         }
         let h = position_spin_H();
-        match snapshot.ekf.update(
+        let first = snapshot.ekf.update(
             z,
             &h,
             r,
             self.settings.gate_position_spin,
             sensitivity.as_deref_mut(),
-        ) {
+        );
+        match first {
             // At the table the measured spin may be of the other side of the bounce (the
             // bounce's time is uncertain by a millisecond or two, and it changes the spin by
             // hundreds of rad/s): the position alone.
-            Err(UpdateError::Gated { .. }) if self.at_the_table(snapshot, BOUNCE_SPIN_MARGIN) => {
+            Err(UpdateError::Gated { .. }) if self.at_the_table(snapshot, BOUNCE_SPIN_MARGIN) => (
                 snapshot
                     .ekf
-                    .update(&z_position, &position_H(), &r_position, gate, sensitivity)
-            }
+                    .update(&z_position, &position_H(), &r_position, gate, sensitivity),
+                false,
+            ),
             Err(UpdateError::Gated { .. }) => {
                 snapshot
                     .ekf
                     .reset_spin(self.settings.spin_prior_var, sensitivity.as_deref_mut());
-                self.spin_resets.set(self.spin_resets.get() + 1);
-                match snapshot.ekf.update(
+                let refit = match snapshot.ekf.update(
                     z,
                     &h,
                     r,
@@ -207,9 +213,10 @@ impl Estimator {
                         gate,
                         sensitivity,
                     ),
-                }
+                };
+                (refit, true)
             }
-            other => other,
+            other => (other, false),
         }
     }
 

@@ -286,12 +286,8 @@ pub struct Estimator {
     history_capacity: usize,
     /// The history buffer of the next track, allocated once.
     spare_history: VecDeque<Entry>,
-    /// Spin measurements that overruled the filter's spin (see `fuse_position_spin`).
-    spin_resets: std::cell::Cell<u64>,
     /// The propagator with the table grown and shrunk by [`EDGE_MARGIN`].
     edge_alternatives: [Propagator; 2],
-    /// Detections fused under the other edge hypothesis.
-    edge_retries: std::cell::Cell<u64>,
     /// A detection that jumped more than `tracking.timeout` off the current stamps, held until
     /// the next detection confirms the jump or shows it was a glitch (see [`Self::update`]).
     held: Option<(Detection, Measurement)>,
@@ -303,11 +299,11 @@ pub struct Estimator {
     /// What the estimator has learned of each source's noise.
     noise: NoiseLearner,
     /// The prior innovation of the detection `fuse` just fused (or gated), for the noise.
-    innovation: std::cell::Cell<Option<noise::Innovation>>,
+    innovation: Option<noise::Innovation>,
     /// What the estimator has learned of how far the flights stray from the model.
     model_noise: ModelNoiseLearner,
     /// The score of the noise scales of the detection `fuse` just fused.
-    score: std::cell::Cell<Option<NoiseScore>>,
+    score: Option<NoiseScore>,
     /// How the live track's covariance depends on the noise scales, when they are learned:
     /// carried along the track's newest detections (a late one, fused by rolling back, neither
     /// moves it nor teaches the scales), allocated once.
@@ -478,19 +474,17 @@ impl Estimator {
             counters: Counters::default(),
             history_capacity,
             spare_history: VecDeque::with_capacity(history_capacity),
-            spin_resets: std::cell::Cell::new(0),
             edge_alternatives: [EDGE_MARGIN, -EDGE_MARGIN].map(|m| propagator.with_edge_margin(m)),
-            edge_retries: std::cell::Cell::new(0),
             held: None,
             intercepts: InterceptTracker::new(config.intercept.refresh.clone()),
             continuation: None,
             noise: NoiseLearner::new(config),
-            innovation: std::cell::Cell::new(None),
+            innovation: None,
             model_noise: ModelNoiseLearner::new(
                 config.ekf.learn_model_noise,
                 config.ekf.model_noise_memory,
             ),
-            score: std::cell::Cell::new(None),
+            score: None,
             sensitivity: config
                 .ekf
                 .learn_model_noise
@@ -584,8 +578,6 @@ impl Estimator {
         let next_track_id = self.next_track_id;
         *self = Self::new(config);
         self.counters = counters;
-        self.spin_resets.set(counters.spin_resets);
-        self.edge_retries.set(counters.edge_retries);
         self.next_track_id = next_track_id;
     }
 
@@ -638,11 +630,7 @@ impl Estimator {
 
     /// What happened to the detections so far.
     pub fn counters(&self) -> Counters {
-        Counters {
-            spin_resets: self.spin_resets.get(),
-            edge_retries: self.edge_retries.get(),
-            ..self.counters
-        }
+        self.counters
     }
 
     /// How many interceptions were predicted in full and how many moved to first order from the
