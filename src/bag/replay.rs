@@ -36,7 +36,7 @@ pub use crate::ros::msgs::type_names::{
     DETECTION_TYPE, INTERCEPT_TYPE, MARKERS_TYPE, ODOMETRY_TYPE, ROBOT_HIT_TYPE, STATE_TYPE,
     TF_MESSAGE_TYPE, TRAJECTORY_TYPE,
 };
-use crate::ros::pipeline::Pipeline;
+use crate::ros::pipeline::{Pipeline, Published};
 
 /// The static transforms' topic (tf2), read by the node and, when a bag has it, by the replay.
 pub const TF_STATIC_TOPIC: &str = "/tf_static";
@@ -152,6 +152,58 @@ struct Outputs {
     markers: u16,
     /// When `topics.odometry` is set.
     odometry: Option<u16>,
+}
+
+impl Outputs {
+    /// The output channels of `config`'s topics, added to `writer`.
+    fn new<W: std::io::Write + std::io::Seek>(
+        writer: &mut BagWriter<W>,
+        config: &Config,
+    ) -> Result<Self, BagError> {
+        let topics = config.resolved_topics();
+        Ok(Self {
+            state: writer.channel(&topics.state, STATE_TYPE)?,
+            intercept: writer.channel(&topics.intercept, INTERCEPT_TYPE)?,
+            trajectory: writer.channel(&topics.trajectory, TRAJECTORY_TYPE)?,
+            markers: writer.channel(&topics.markers, MARKERS_TYPE)?,
+            odometry: match topics.odometry.as_str() {
+                "" => None,
+                topic => Some(writer.channel(topic, ODOMETRY_TYPE)?),
+            },
+        })
+    }
+
+    /// Writes what the pipeline published for one detection, at its log time `t`; returns how
+    /// many messages.
+    fn write<W: std::io::Write + std::io::Seek>(
+        &self,
+        writer: &mut BagWriter<W>,
+        t: u64,
+        p: &Published,
+    ) -> Result<u64, BagError> {
+        let mut written = 0;
+        if let Some(s) = &p.state {
+            writer.write(self.state, STATE_TYPE, t, s)?;
+            written += 1;
+        }
+        if let Some(i) = &p.intercept {
+            writer.write(self.intercept, INTERCEPT_TYPE, t, i)?;
+            written += 1;
+        }
+        if let Some(tr) = &p.trajectory {
+            writer.write(self.trajectory, TRAJECTORY_TYPE, t, tr)?;
+            written += 1;
+        }
+        if let Some(mk) = &p.markers {
+            writer.write(self.markers, MARKERS_TYPE, t, mk)?;
+            written += 1;
+        }
+        if let (Some(channel), Some(o)) = (self.odometry, &p.odometry) {
+            writer.write(channel, ODOMETRY_TYPE, t, o)?;
+            written += 1;
+        }
+        Ok(written)
+    }
 }
 
 /// The truth a bag carries, indexed for scoring.
@@ -284,7 +336,7 @@ pub fn replay_observed(
     let topic = &config.resolved_topics().detections;
     // A finished bag names its channels in its summary: the detection topic is checked before
     // anything is written. A bag without a summary (cut off) is checked as its channels appear.
-    let mut detections_on = if !reader.has_summary() {
+    let detections_on = if !reader.has_summary() {
         None
     } else {
         Some(detection_channel(reader.channels(), topic, input)?)
@@ -300,7 +352,7 @@ pub fn replay_observed(
         None => None,
     };
     // Truth channels without a shot in them: nothing to score against.
-    let mut scorer = truth
+    let scorer = truth
         .as_ref()
         .filter(|t| !t.shots.is_empty())
         .map(|t| Scorer::new(t.shots.clone()));
@@ -309,124 +361,39 @@ pub fn replay_observed(
     if let Some(observer) = observer {
         writer.observe(observer);
     }
-    let outputs = Outputs {
-        state: writer.channel(&config.resolved_topics().state, STATE_TYPE)?,
-        intercept: writer.channel(&config.resolved_topics().intercept, INTERCEPT_TYPE)?,
-        trajectory: writer.channel(&config.resolved_topics().trajectory, TRAJECTORY_TYPE)?,
-        markers: writer.channel(&config.resolved_topics().markers, MARKERS_TYPE)?,
-        odometry: match config.resolved_topics().odometry.as_str() {
-            "" => None,
-            topic => Some(writer.channel(topic, ODOMETRY_TYPE)?),
-        },
+    let outputs = Outputs::new(&mut writer, config)?;
+    let mut session = Session {
+        pipeline: Pipeline::new(config),
+        outputs,
+        copied: Vec::new(),
+        detections_on,
+        tf_static_on: None,
+        robot_hits_on: None,
+        robot_hits_topic: config.resolved_topics().robot_hits,
+        truth,
+        scorer,
+        messages: 0,
+        detections: 0,
+        undecodable: 0,
+        robot_hits_refused: 0,
+        written: 0,
+        times: DurationHistogram::new(),
+        first_last: None,
     };
-    let mut copied: Vec<u16> = Vec::new();
-
-    let mut pipeline = Pipeline::new(config);
-    let mut messages = 0usize;
-    let mut detections = 0u64;
-    let mut undecodable = 0u64;
-    let mut robot_hits_refused = 0u64;
-    let mut written = 0u64;
-    let mut times = DurationHistogram::new();
-    let mut first_last: Option<(u64, u64)> = None;
     let mut interrupted = false;
-    let mut tf_static_on: Option<usize> = None;
-    let mut robot_hits_on: Option<usize> = None;
-    let robot_hits_topic = config.resolved_topics().robot_hits;
     let result = (|| -> Result<(), ReplayError> {
         while let Some(m) = reader.next_message() {
             if cancel.load(Ordering::Relaxed) {
                 interrupted = true;
                 break;
             }
-            messages += 1;
-            while copied.len() < reader.channels().len() {
-                let info = &reader.channels()[copied.len()];
-                copied.push(writer.add_channel(info)?);
-            }
-            writer.write_raw(copied[m.channel], m.log_time, m.publish_time, &m.data)?;
-            written += 1;
-            if detections_on.is_none() && reader.channel(topic).is_some() {
-                detections_on = Some(detection_channel(reader.channels(), topic, input)?);
-            }
-            if tf_static_on.is_none() {
-                tf_static_on = reader.channel(TF_STATIC_TOPIC);
-            }
-            // Static transforms bring detections in other frames into `table`, as in the node.
-            if Some(m.channel) == tf_static_on {
-                if let Ok(msg) = decode::<TFMessage>(&m.data) {
-                    pipeline.on_static_transforms(&msg);
-                }
-                continue;
-            }
-            // The robot's announced hits seed the return's track, as in the node.
-            if robot_hits_on.is_none() {
-                robot_hits_on = reader
-                    .channel(&robot_hits_topic)
-                    .filter(|&c| reader.channels()[c].schema_name == ROBOT_HIT_TYPE);
-            }
-            if Some(m.channel) == robot_hits_on {
-                match decode::<RobotHit>(&m.data) {
-                    Ok(msg) => {
-                        if pipeline.on_robot_hit(&msg).is_err() {
-                            robot_hits_refused += 1;
-                        }
-                    }
-                    Err(_) => robot_hits_refused += 1,
-                }
-                continue;
-            }
-            if Some(m.channel) != detections_on {
-                continue;
-            }
-            detections += 1;
-            let Ok(msg) = decode::<BallDetection>(&m.data) else {
-                undecodable += 1;
-                continue;
-            };
-            let started = Instant::now();
-            let step = pipeline.on_detection(&msg);
-            times.record(u64::try_from(started.elapsed().as_nanos()).unwrap_or(u64::MAX));
-            first_last =
-                Some(first_last.map_or((m.log_time, m.log_time), |(a, _)| (a, m.log_time)));
-            let t = m.log_time;
-            let p = &step.published;
-            if let Some(s) = &p.state {
-                writer.write(outputs.state, STATE_TYPE, t, s)?;
-                written += 1;
-            }
-            if let Some(i) = &p.intercept {
-                writer.write(outputs.intercept, INTERCEPT_TYPE, t, i)?;
-                written += 1;
-            }
-            if let Some(tr) = &p.trajectory {
-                writer.write(outputs.trajectory, TRAJECTORY_TYPE, t, tr)?;
-                written += 1;
-            }
-            if let Some(mk) = &p.markers {
-                writer.write(outputs.markers, MARKERS_TYPE, t, mk)?;
-                written += 1;
-            }
-            if let (Some(channel), Some(o)) = (outputs.odometry, &p.odometry) {
-                writer.write(channel, ODOMETRY_TYPE, t, o)?;
-                written += 1;
-            }
-            if let (Some(scorer), Some(truth), Some(out), Some(d)) = (
-                scorer.as_mut(),
-                truth.as_ref(),
-                step.output.as_ref(),
-                step.detection.as_ref(),
-            ) && let Some((shot, state)) = truth.states.get(&d.stamp)
-            {
-                let outlier = (d.position - state.position).norm() > OUTLIER_DISTANCE;
-                scorer.score(*shot, d, state, outlier, out);
-            }
-            if detections.is_multiple_of(1024) {
+            session.on_message(&reader, &mut writer, &m, topic, input)?;
+            if session.detections.is_multiple_of(1024) && Some(m.channel) == session.detections_on {
                 let (done, total) = reader.progress();
                 progress(done, total);
             }
         }
-        if detections_on.is_none() && !interrupted {
+        if session.detections_on.is_none() && !interrupted {
             detection_channel(reader.channels(), topic, input)?;
         }
         Ok(())
@@ -437,30 +404,140 @@ pub fn replay_observed(
     finished?;
     let (done, total) = reader.progress();
     progress(done, total);
+    Ok(session.summary(input, output, reader.damage().to_vec(), interrupted))
+}
 
-    let timing = times.summary();
-    let counters = pipeline.counters();
-    Ok(ReplaySummary {
-        input: input.to_path_buf(),
-        output: output.to_path_buf(),
-        messages,
-        detections,
-        undecodable,
-        robot_hits_refused,
-        counters,
-        intercepts: pipeline.estimator().intercept_counts(),
-        learned: pipeline.estimator().learned_params(),
-        learned_noise: pipeline.estimator().learned_noise(),
-        learned_model_noise: pipeline.estimator().learned_model_noise(),
-        written,
-        processing_mean_ns: timing.mean,
-        processing_p99_ns: timing.p99,
-        recorded_seconds: first_last.map_or(0.0, |(a, b)| (b - a) as f64 * 1e-9),
-        processing_seconds: timing.total * 1e-9,
-        damage: reader.damage().to_vec(),
-        interrupted,
-        accuracy: scorer.map(|s| s.report(counters)),
-    })
+/// One replay in progress: the node's pipeline, the output channels, where the inputs are, and
+/// what is counted. Each input message goes through [`Session::on_message`], in log-time order.
+struct Session {
+    pipeline: Pipeline,
+    outputs: Outputs,
+    /// The output channel of each input channel copied so far, by the input's index.
+    copied: Vec<u16>,
+    detections_on: Option<usize>,
+    tf_static_on: Option<usize>,
+    robot_hits_on: Option<usize>,
+    robot_hits_topic: String,
+    truth: Option<BagTruth>,
+    scorer: Option<Scorer>,
+    messages: usize,
+    detections: u64,
+    undecodable: u64,
+    robot_hits_refused: u64,
+    written: u64,
+    times: DurationHistogram,
+    /// Log times of the first and the latest detection [ns].
+    first_last: Option<(u64, u64)>,
+}
+
+impl Session {
+    /// Copies one input message to the output and, as the node would, feeds it to the pipeline
+    /// (a detection, a static transform or an announced robot hit), writing what it publishes.
+    fn on_message(
+        &mut self,
+        reader: &BagReader,
+        writer: &mut BagWriter<std::io::BufWriter<std::fs::File>>,
+        m: &BagMessage,
+        topic: &str,
+        input: &Path,
+    ) -> Result<(), ReplayError> {
+        self.messages += 1;
+        while self.copied.len() < reader.channels().len() {
+            let info = &reader.channels()[self.copied.len()];
+            self.copied.push(writer.add_channel(info)?);
+        }
+        writer.write_raw(self.copied[m.channel], m.log_time, m.publish_time, &m.data)?;
+        self.written += 1;
+        if self.detections_on.is_none() && reader.channel(topic).is_some() {
+            self.detections_on = Some(detection_channel(reader.channels(), topic, input)?);
+        }
+        if self.tf_static_on.is_none() {
+            self.tf_static_on = reader.channel(TF_STATIC_TOPIC);
+        }
+        // Static transforms bring detections in other frames into `table`, as in the node.
+        if Some(m.channel) == self.tf_static_on {
+            if let Ok(msg) = decode::<TFMessage>(&m.data) {
+                self.pipeline.on_static_transforms(&msg);
+            }
+            return Ok(());
+        }
+        // The robot's announced hits seed the return's track, as in the node.
+        if self.robot_hits_on.is_none() {
+            self.robot_hits_on = reader
+                .channel(&self.robot_hits_topic)
+                .filter(|&c| reader.channels()[c].schema_name == ROBOT_HIT_TYPE);
+        }
+        if Some(m.channel) == self.robot_hits_on {
+            let refused = match decode::<RobotHit>(&m.data) {
+                Ok(msg) => self.pipeline.on_robot_hit(&msg).is_err(),
+                Err(_) => true,
+            };
+            self.robot_hits_refused += u64::from(refused);
+            return Ok(());
+        }
+        if Some(m.channel) != self.detections_on {
+            return Ok(());
+        }
+        self.detections += 1;
+        let Ok(msg) = decode::<BallDetection>(&m.data) else {
+            self.undecodable += 1;
+            return Ok(());
+        };
+        let started = Instant::now();
+        let step = self.pipeline.on_detection(&msg);
+        self.times
+            .record(u64::try_from(started.elapsed().as_nanos()).unwrap_or(u64::MAX));
+        self.first_last = Some(
+            self.first_last
+                .map_or((m.log_time, m.log_time), |(a, _)| (a, m.log_time)),
+        );
+        self.written += self.outputs.write(writer, m.log_time, &step.published)?;
+        if let (Some(scorer), Some(truth), Some(out), Some(d)) = (
+            self.scorer.as_mut(),
+            self.truth.as_ref(),
+            step.output.as_ref(),
+            step.detection.as_ref(),
+        ) && let Some((shot, state)) = truth.states.get(&d.stamp)
+        {
+            let outlier = (d.position - state.position).norm() > OUTLIER_DISTANCE;
+            scorer.score(*shot, d, state, outlier, out);
+        }
+        Ok(())
+    }
+
+    /// What the replay did.
+    fn summary(
+        self,
+        input: &Path,
+        output: &Path,
+        damage: Vec<Damage>,
+        interrupted: bool,
+    ) -> ReplaySummary {
+        let timing = self.times.summary();
+        let counters = self.pipeline.counters();
+        let estimator = self.pipeline.estimator();
+        ReplaySummary {
+            input: input.to_path_buf(),
+            output: output.to_path_buf(),
+            messages: self.messages,
+            detections: self.detections,
+            undecodable: self.undecodable,
+            robot_hits_refused: self.robot_hits_refused,
+            counters,
+            intercepts: estimator.intercept_counts(),
+            learned: estimator.learned_params(),
+            learned_noise: estimator.learned_noise(),
+            learned_model_noise: estimator.learned_model_noise(),
+            written: self.written,
+            processing_mean_ns: timing.mean,
+            processing_p99_ns: timing.p99,
+            recorded_seconds: self.first_last.map_or(0.0, |(a, b)| (b - a) as f64 * 1e-9),
+            processing_seconds: timing.total * 1e-9,
+            damage,
+            interrupted,
+            accuracy: self.scorer.map(|s| s.report(counters)),
+        }
+    }
 }
 
 /// The detections of a bag, decoded.
