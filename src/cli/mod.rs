@@ -2,7 +2,6 @@
 //! shared between commands ([`ConfigArgs`]). Commands are thin adapters around the library.
 
 pub mod calibrate;
-mod calibrate_rubber;
 pub mod config_cmd;
 pub mod dump;
 pub mod evaluate;

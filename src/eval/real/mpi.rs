@@ -285,7 +285,7 @@ impl LauncherFlights {
             .iter()
             .map(|f| f.to_table(&estimate.transform))
             .collect();
-        let noise = estimate_noise(&flights, gravity);
+        let noise = estimate_noise(flights.iter().map(|f| f.samples.as_slice()), gravity);
         Ok(Self {
             raw,
             estimate,

@@ -12,7 +12,6 @@
 
 use nalgebra::{Matrix3, Vector3};
 
-use super::mpi::Flight;
 use crate::offline::ballistic::{Sample, detect_bounce};
 
 /// Samples per local fit [-] (odd; the residual of the centre sample is used).
@@ -92,15 +91,18 @@ impl NoiseEstimate {
 /// Time scale of the local fit's polynomial [s]: keeps its normal matrix well conditioned.
 const TIME_SCALE: f64 = 0.01;
 
-/// Estimates the noise of `flights` (see the module doc); `gravity` [m/s^2] is used to find
-/// their bounces.
-pub fn estimate_noise(flights: &[Flight], gravity: f64) -> NoiseEstimate {
+/// Estimates the noise of recorded flights, each given by its samples (see the module doc);
+/// `gravity` [m/s^2] is used to find their bounces.
+pub fn estimate_noise<'a>(
+    flights: impl IntoIterator<Item = &'a [Sample]>,
+    gravity: f64,
+) -> NoiseEstimate {
     let mut axes: [Vec<f64>; 3] = Default::default();
     let mut along = Vec::new();
     let mut across = Vec::new();
-    for flight in flights {
-        let bounce = detect_bounce(&flight.samples, gravity).map(|b| b.time);
-        for window in flight.samples.windows(WINDOW) {
+    for samples in flights {
+        let bounce = detect_bounce(samples, gravity).map(|b| b.time);
+        for window in samples.windows(WINDOW) {
             let (Some(first), Some(last)) = (window.first(), window.last()) else {
                 continue;
             };
@@ -168,7 +170,6 @@ fn centre_residual(window: &[Sample]) -> Option<(Vector3<f64>, Vector3<f64>)> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::eval::real::mpi::SpinKind;
 
     #[test]
     fn recovers_the_noise_of_a_smooth_flight() {
@@ -188,12 +189,7 @@ mod tests {
                 (t, Vector3::new(1.0 - 4.0 * t, noise, 0.3 + t - 4.9 * t * t))
             })
             .collect();
-        let flight = Flight {
-            id: 0,
-            spin_kind: SpinKind::NoSpin,
-            samples,
-        };
-        let n = estimate_noise(&[flight], 9.81);
+        let n = estimate_noise([samples.as_slice()], 9.81);
         assert!(n.axes[0].rms < 1e-9 && n.axes[2].rms < 1e-9, "{n:?}");
         assert!((n.axes[1].rms / sigma - 1.0).abs() < 0.05, "{n:?}");
         assert_eq!(n.axes[1].outliers, 0);

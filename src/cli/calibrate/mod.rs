@@ -17,6 +17,8 @@ use ttball::plot::ChartOptions;
 
 use super::{BadUsage, ConfigArgs, write_stdout};
 
+mod rubber;
+
 /// A group of constants to fit.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
 pub enum Group {
@@ -135,7 +137,7 @@ impl CalibrateArgs {
                         .map_or_else(String::new, |v| v.get_name().to_owned())
                 )));
             }
-            return super::calibrate_rubber::run(&self, &config);
+            return rubber::run(&self, &config);
         }
         if let Some(g) = self.fit.iter().find(|g| rubber_groups.contains(g)) {
             bail!(BadUsage(format!(

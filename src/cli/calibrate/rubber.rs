@@ -11,8 +11,8 @@ use ttball::offline::rebound_calibration::{
 };
 use ttball::plot::ChartOptions;
 
-use super::calibrate::{CalibrateArgs, Group};
-use super::{BadUsage, write_stdout};
+use super::{CalibrateArgs, Group};
+use crate::cli::{BadUsage, write_stdout};
 
 /// Reads the hits, calibrates the rubber and writes the outputs.
 pub(super) fn run(args: &CalibrateArgs, config: &Config) -> anyhow::Result<ExitCode> {
