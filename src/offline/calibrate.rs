@@ -953,83 +953,11 @@ fn solve(
     let mut reduced_normal = DMatrix::<f64>::zeros(p, p);
     for iteration in 1..=MAX_ITERATIONS {
         iterations = iteration;
-        let nominal = Propagator::new(&model.config(&theta));
-        let steps: Vec<f64> = model
-            .parameters
-            .iter()
-            .zip(&theta)
-            .map(|(q, v)| q.step(*v))
-            .collect();
-        let perturbed: Vec<(Propagator, Propagator)> = (0..p)
-            .map(|j| {
-                let mut plus = theta.clone();
-                plus[j] += steps[j];
-                let mut minus = theta.clone();
-                minus[j] -= steps[j];
-                (
-                    Propagator::new(&model.config(&plus)),
-                    Propagator::new(&model.config(&minus)),
-                )
-            })
-            .collect();
-        let indices: Vec<usize> = (0..flights.len()).collect();
-        let blocks = parallel_map(&indices, |&i| {
-            flight_blocks(
-                &nominal,
-                &perturbed,
-                &steps,
-                &flights[i],
-                &states[i],
-                model.robust,
-            )
-        });
-        let mut u = DMatrix::<f64>::zeros(p, p);
-        let mut gt = DVector::<f64>::zeros(p);
-        for b in &blocks {
-            u += b.u.view((0, 0), (p, p));
-            gt += b.gt.rows(0, p);
-        }
-        // The undamped reduced matrix, for the covariance at the end.
-        let mut reduced = u.clone();
-        for b in &blocks {
-            if let Some(vi) = b.v.try_inverse() {
-                let w = b.w.view((0, 0), (p, 9));
-                reduced -= w * vi * w.transpose();
-            }
-        }
-        reduced_normal = reduced;
+        let normal = NormalEquations::at(model, &theta, flights, &states);
+        reduced_normal = normal.reduced();
         let taken = damping.step(|lambda| {
-            let mut s = u.clone();
-            for k in 0..p {
-                s[(k, k)] += lambda * u[(k, k)].max(1e-12);
-            }
-            let mut rhs = gt.clone();
-            let mut damped_inverses = Vec::with_capacity(blocks.len());
-            for b in &blocks {
-                let mut v = b.v;
-                for k in 0..9 {
-                    v[(k, k)] += lambda * b.v[(k, k)].max(1e-12);
-                }
-                let vi = v.try_inverse()?;
-                let w = b.w.view((0, 0), (p, 9));
-                s -= w * vi * w.transpose();
-                rhs -= w * (vi * b.g);
-                damped_inverses.push(vi);
-            }
-            let step = s.cholesky()?.solve(&rhs);
-            let candidate: Vec<f64> = theta.iter().zip(step.iter()).map(|(a, d)| a + d).collect();
-            if !model.admits(&candidate) {
-                return None;
-            }
-            let candidate_states: Vec<StateVector> = blocks
-                .iter()
-                .zip(&damped_inverses)
-                .zip(&states)
-                .map(|((b, vi), x)| {
-                    let w = b.w.view((0, 0), (p, 9));
-                    x + vi * (b.g - w.transpose() * &step)
-                })
-                .collect();
+            let (candidate, candidate_states) =
+                normal.damped_step(model, &theta, &states, lambda)?;
             let next = total_cost(model, &candidate, &candidate_states, flights);
             (next.cost.is_finite() && next.cost <= current.cost).then_some((
                 candidate,
@@ -1074,6 +1002,119 @@ fn solve(
         reduced_chi_square: current.squares / dof.max(1.0),
         iterations,
     })
+}
+
+/// The Gauss-Newton normal equations of all flights at (theta, states), in their arrow shape:
+/// theta's block `u` and right-hand side `gt`, and each flight's blocks (its own 9 x 9 `v`, its
+/// coupling `w` to theta, its right-hand side `g`).
+struct NormalEquations {
+    blocks: Vec<Blocks>,
+    u: DMatrix<f64>,
+    gt: DVector<f64>,
+}
+
+impl NormalEquations {
+    /// Linearises every flight at `theta` and its state: Jacobians from the transition matrix
+    /// for the states and central differences through the flights for the constants.
+    fn at(model: &Model, theta: &[f64], flights: &[Flight], states: &[StateVector]) -> Self {
+        let p = model.parameters.len();
+        let nominal = Propagator::new(&model.config(theta));
+        let steps: Vec<f64> = model
+            .parameters
+            .iter()
+            .zip(theta)
+            .map(|(q, v)| q.step(*v))
+            .collect();
+        let perturbed: Vec<(Propagator, Propagator)> = (0..p)
+            .map(|j| {
+                let mut plus = theta.to_vec();
+                plus[j] += steps[j];
+                let mut minus = theta.to_vec();
+                minus[j] -= steps[j];
+                (
+                    Propagator::new(&model.config(&plus)),
+                    Propagator::new(&model.config(&minus)),
+                )
+            })
+            .collect();
+        let indices: Vec<usize> = (0..flights.len()).collect();
+        let blocks = parallel_map(&indices, |&i| {
+            flight_blocks(
+                &nominal,
+                &perturbed,
+                &steps,
+                &flights[i],
+                &states[i],
+                model.robust,
+            )
+        });
+        let mut u = DMatrix::<f64>::zeros(p, p);
+        let mut gt = DVector::<f64>::zeros(p);
+        for b in &blocks {
+            u += b.u.view((0, 0), (p, p));
+            gt += b.gt.rows(0, p);
+        }
+        Self { blocks, u, gt }
+    }
+
+    /// The undamped reduced matrix (the states eliminated), for the covariance at the end.
+    fn reduced(&self) -> DMatrix<f64> {
+        let p = self.u.nrows();
+        let mut reduced = self.u.clone();
+        for b in &self.blocks {
+            if let Some(vi) = b.v.try_inverse() {
+                let w = b.w.view((0, 0), (p, 9));
+                reduced -= w * vi * w.transpose();
+            }
+        }
+        reduced
+    }
+
+    /// The step damped by `lambda` (Marquardt's scaling on theta's and every state's block):
+    /// theta from the reduced system, then each flight's state back-substituted; `None` when a
+    /// block is singular or theta leaves the model's domain.
+    fn damped_step(
+        &self,
+        model: &Model,
+        theta: &[f64],
+        states: &[StateVector],
+        lambda: f64,
+    ) -> Option<(Vec<f64>, Vec<StateVector>)> {
+        let p = self.u.nrows();
+        let mut s = self.u.clone();
+        for k in 0..p {
+            s[(k, k)] += lambda * self.u[(k, k)].max(1e-12);
+        }
+        let mut rhs = self.gt.clone();
+        let mut damped_inverses = Vec::with_capacity(self.blocks.len());
+        for b in &self.blocks {
+            let mut v = b.v;
+            for k in 0..9 {
+                v[(k, k)] += lambda * b.v[(k, k)].max(1e-12);
+            }
+            let vi = v.try_inverse()?;
+            let w = b.w.view((0, 0), (p, 9));
+            s -= w * vi * w.transpose();
+            rhs -= w * (vi * b.g);
+            damped_inverses.push(vi);
+        }
+        let step = s.cholesky()?.solve(&rhs);
+        let candidate: Vec<f64> = theta.iter().zip(step.iter()).map(|(a, d)| a + d).collect();
+        if !model.admits(&candidate) {
+            return None;
+        }
+        let candidate_states = self
+            .blocks
+            .iter()
+            .zip(&damped_inverses)
+            .zip(states)
+            .map(|((b, vi), x)| {
+                let w = b.w.view((0, 0), (p, 9));
+                x + vi * (b.g - w.transpose() * &step)
+            })
+            .collect();
+        Some((candidate, candidate_states))
+    }
 }
 
 /// How well `config` forecasts a flight: its state fitted to the detections of the first
