@@ -209,7 +209,10 @@ fn a_bag_written_by_mcap_ros2_support_replays_in_ttball() {
 /// ttball's reader gives each file's channels (with their schemas) and messages as the JSON
 /// lists them (messages in log-time order, file order among equal times), undamaged; the
 /// records ttball does not use (attachments, metadata, indexes, statistics) are read past
-/// without error. The padded variants cannot be written by McapWriter and are not checked.
+/// without error. The padded variants (every record that may have them carries extra trailing
+/// bytes, as a newer writer's fields would be) are laid out by `@mcap/core`'s record builder,
+/// which McapWriter does not expose, and read like the others: the reader skips what it does not
+/// know inside a record.
 #[test]
 fn the_mcap_conformance_corpus_reads_as_its_json_lists() {
     use serde_json::Value;
@@ -228,7 +231,7 @@ fn the_mcap_conformance_corpus_reads_as_its_json_lists() {
         .unwrap();
     let log = String::from_utf8_lossy(&generate.stdout);
     assert!(
-        generate.status.success() && log.contains("written 208, skipped 208 padded variants"),
+        generate.status.success() && log.contains("written 416, 208 of them padded"),
         "{log}{}",
         String::from_utf8_lossy(&generate.stderr)
     );
@@ -258,9 +261,6 @@ fn the_mcap_conformance_corpus_reads_as_its_json_lists() {
         specs.sort();
         for spec in specs {
             let path = written.join(spec.with_extension("mcap").file_name().unwrap());
-            if !path.exists() {
-                continue; // a padded variant
-            }
             let name = path.display().to_string();
             let listed: Value =
                 serde_json::from_str(&std::fs::read_to_string(&spec).unwrap()).unwrap();
@@ -340,9 +340,9 @@ fn the_mcap_conformance_corpus_reads_as_its_json_lists() {
             messages += read.len();
         }
     }
-    // Every variant written was read, with every message its JSON lists.
-    assert_eq!(files, 208);
-    assert!(messages > 400, "{messages}");
+    // Every variant was written and read, with every message its JSON lists.
+    assert_eq!(files, 416);
+    assert!(messages > 800, "{messages}");
 }
 
 /// Foxglove's own WebSocket client (`live_client.mjs`, `@foxglove/ws-protocol`) watching
