@@ -17,7 +17,7 @@ use ttball::eval::{
 use ttball::physics::PhysicsParams;
 
 use super::report::accuracy_table;
-use super::{ConfigArgs, write_stdout};
+use super::{ConfigArgs, write_json, write_stdout};
 
 /// Which camera setups to evaluate.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
@@ -140,9 +140,7 @@ impl EvaluateArgs {
             );
         }
         if let Some(path) = &self.json {
-            let text = serde_json::to_string_pretty(&reports)?;
-            std::fs::write(path, text + "\n")
-                .with_context(|| format!("cannot write {}", path.display()))?;
+            write_json(path, &reports)?;
         }
         Ok(ExitCode::SUCCESS)
     }
@@ -295,8 +293,7 @@ learned physics at the end (relative error against the truth):
                     })
                 })
                 .collect();
-            std::fs::write(path, serde_json::to_string_pretty(&json)? + "\n")
-                .with_context(|| format!("cannot write {}", path.display()))?;
+            write_json(path, &json)?;
         }
         Ok(ExitCode::SUCCESS)
     }

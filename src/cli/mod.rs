@@ -386,3 +386,13 @@ pub fn write_stdout(text: &str) -> anyhow::Result<()> {
         other => other.context("cannot write to standard output"),
     }
 }
+
+/// Writes `bytes` to the file at `path` (created or replaced); the error names the file.
+pub fn write_file(path: &std::path::Path, bytes: impl AsRef<[u8]>) -> anyhow::Result<()> {
+    std::fs::write(path, bytes).with_context(|| format!("cannot write {}", path.display()))
+}
+
+/// Writes `value` to the file at `path` as indented JSON ending in a newline.
+pub fn write_json(path: &std::path::Path, value: &impl serde::Serialize) -> anyhow::Result<()> {
+    write_file(path, serde_json::to_string_pretty(value)? + "\n")
+}

@@ -22,7 +22,7 @@ use ttball::plot::{
 use ttball::ros::msgs::convert::state_from_msg;
 use ttball::ros::msgs::ttball_msgs::msg::BallState;
 
-use super::{ConfigArgs, write_stdout};
+use super::{ConfigArgs, write_file, write_stdout};
 
 /// Arguments of `ttball plot`.
 #[derive(Debug, Args)]
@@ -170,8 +170,7 @@ impl PlotArgs {
                 output.display()
             ),
         };
-        std::fs::write(output, bytes)
-            .with_context(|| format!("cannot write {}", output.display()))?;
+        write_file(output, bytes)?;
         write_stdout(&format!("{}: {}\n", output.display(), selection.describe()))?;
         Ok(ExitCode::SUCCESS)
     }

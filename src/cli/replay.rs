@@ -17,7 +17,7 @@ use ttball::online::estimator::{LearnedModelNoise, LearnedParams, LearnedSourceN
 use ttball::physics::PhysicsParams;
 
 use super::report::accuracy_table;
-use super::{ConfigArgs, cancel_on_interrupt, progress_bar, write_stdout};
+use super::{ConfigArgs, cancel_on_interrupt, progress_bar, write_json, write_stdout};
 
 /// Arguments of `ttball replay`.
 #[derive(Debug, Args)]
@@ -138,8 +138,7 @@ impl ReplayArgs {
                 .iter()
                 .map(|(summary, whole_seconds)| summary_json(summary, *whole_seconds))
                 .collect();
-            std::fs::write(path, serde_json::to_string_pretty(&json)? + "\n")
-                .with_context(|| format!("cannot write {}", path.display()))?;
+            write_json(path, &json)?;
         }
         Ok(if failed || cancel.load(Ordering::Relaxed) {
             ExitCode::FAILURE

@@ -15,7 +15,7 @@ use ttball::offline::calibrate::{
 use ttball::offline::smooth::split_flights;
 use ttball::plot::ChartOptions;
 
-use super::{BadUsage, ConfigArgs, write_stdout};
+use super::{BadUsage, ConfigArgs, write_file, write_json, write_stdout};
 
 mod rubber;
 
@@ -204,8 +204,7 @@ impl CalibrateArgs {
             .iter()
             .map(|p| p.display().to_string())
             .collect();
-        std::fs::write(&self.output, snippet(&calibration, &inputs))
-            .with_context(|| format!("cannot write {}", self.output.display()))?;
+        write_file(&self.output, snippet(&calibration, &inputs))?;
         if let Some(path) = &self.plot {
             let options = ChartOptions {
                 width: 1800,
@@ -216,8 +215,7 @@ impl CalibrateArgs {
             } else {
                 ttball::plot::render_calibration_png(&calibration, &config, &options)?
             };
-            std::fs::write(path, bytes)
-                .with_context(|| format!("cannot write {}", path.display()))?;
+            write_file(path, bytes)?;
         }
         if let Some(path) = &self.json {
             let json = serde_json::json!({
@@ -232,8 +230,7 @@ impl CalibrateArgs {
                 "spin_parameter_5_50_95": calibration.spin_parameter,
                 "holdout": held_out,
             });
-            std::fs::write(path, serde_json::to_string_pretty(&json)? + "\n")
-                .with_context(|| format!("cannot write {}", path.display()))?;
+            write_json(path, &json)?;
         }
         write_stdout(&report(&calibration, held_out.as_ref(), &self.output))?;
         Ok(ExitCode::SUCCESS)

@@ -12,7 +12,7 @@ use ttball::offline::rebound_calibration::{
 use ttball::plot::ChartOptions;
 
 use super::{CalibrateArgs, Group};
-use crate::cli::{BadUsage, write_stdout};
+use crate::cli::{BadUsage, write_file, write_json, write_stdout};
 
 /// Reads the hits, calibrates the rubber and writes the outputs.
 pub(super) fn run(args: &CalibrateArgs, config: &Config) -> anyhow::Result<ExitCode> {
@@ -55,8 +55,7 @@ pub(super) fn run(args: &CalibrateArgs, config: &Config) -> anyhow::Result<ExitC
         .iter()
         .map(|p| p.display().to_string())
         .collect();
-    std::fs::write(&args.output, snippet(&calibration, &inputs))
-        .with_context(|| format!("cannot write {}", args.output.display()))?;
+    write_file(&args.output, snippet(&calibration, &inputs))?;
     if let Some(path) = &args.plot {
         let options = ChartOptions {
             width: 1800,
@@ -64,7 +63,7 @@ pub(super) fn run(args: &CalibrateArgs, config: &Config) -> anyhow::Result<ExitC
         };
         let png = path.extension().is_some_and(|e| e == "png");
         let bytes = ttball::plot::render_rubber_calibration(&calibration, &options, png)?;
-        std::fs::write(path, bytes).with_context(|| format!("cannot write {}", path.display()))?;
+        write_file(path, bytes)?;
     }
     if let Some(path) = &args.json {
         let json = serde_json::json!({
@@ -76,8 +75,7 @@ pub(super) fn run(args: &CalibrateArgs, config: &Config) -> anyhow::Result<ExitC
             "rejected": set.rejected,
             "iterations": calibration.iterations,
         });
-        std::fs::write(path, serde_json::to_string_pretty(&json)? + "\n")
-            .with_context(|| format!("cannot write {}", path.display()))?;
+        write_json(path, &json)?;
     }
     write_stdout(&report(&calibration, &args.output))?;
     Ok(ExitCode::SUCCESS)
