@@ -353,7 +353,7 @@ pub struct BagReader {
     file: Option<FileStream>,
     channels: Vec<ChannelInfo>,
     damage: Vec<Damage>,
-    window: BinaryHeap<Reverse<Held>>,
+    window: ReorderWindow,
     sequence: u64,
     read: u64,
     messages: u64,
@@ -380,6 +380,51 @@ impl PartialOrd for Held {
 impl Ord for Held {
     fn cmp(&self, other: &Self) -> Ordering {
         (self.0, self.1).cmp(&(other.0, other.1))
+    }
+}
+
+/// The messages held back to be put in order: those that arrived in order (the usual case, a
+/// bag written in log-time order) queue as they came, the others wait in a heap; the next out
+/// is the earlier of the two fronts. The same order as one heap of them all, without a heap's
+/// work for every message.
+struct ReorderWindow {
+    in_order: std::collections::VecDeque<Held>,
+    late: BinaryHeap<Reverse<Held>>,
+}
+
+impl ReorderWindow {
+    fn new() -> Self {
+        Self {
+            in_order: std::collections::VecDeque::with_capacity(REORDER_WINDOW + 1),
+            late: BinaryHeap::new(),
+        }
+    }
+
+    fn len(&self) -> usize {
+        self.in_order.len() + self.late.len()
+    }
+
+    fn push(&mut self, held: Held) {
+        if self.in_order.back().is_none_or(|last| *last < held) {
+            self.in_order.push_back(held);
+        } else {
+            self.late.push(Reverse(held));
+        }
+    }
+
+    /// The earliest message held.
+    fn pop(&mut self) -> Option<BagMessage> {
+        let late_first = match (self.in_order.front(), self.late.peek()) {
+            (Some(queued), Some(Reverse(late))) => late < queued,
+            (None, Some(_)) => true,
+            (_, None) => false,
+        };
+        let held = if late_first {
+            self.late.pop().map(|Reverse(h)| h)
+        } else {
+            self.in_order.pop_front()
+        };
+        held.map(|Held(_, _, m)| m)
     }
 }
 
@@ -541,7 +586,7 @@ impl BagReader {
             file: None,
             channels: Vec::new(),
             damage: Vec::new(),
-            window: BinaryHeap::with_capacity(REORDER_WINDOW + 1),
+            window: ReorderWindow::new(),
             sequence: 0,
             read: 0,
             messages: 0,
@@ -586,9 +631,9 @@ impl BagReader {
             };
             self.sequence += 1;
             self.window
-                .push(Reverse(Held(message.log_time, self.sequence, message)));
+                .push(Held(message.log_time, self.sequence, message));
         }
-        self.window.pop().map(|Reverse(Held(_, _, m))| m)
+        self.window.pop()
     }
 
     fn open_next(&mut self) -> Result<bool, BagError> {

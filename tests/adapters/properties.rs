@@ -1,6 +1,7 @@
 //! Properties over random input: the filter's covariance stays symmetric positive definite
 //! whatever the detections, decoding arbitrary bytes as a message never panics, and neither does
-//! reading arbitrary bytes, or a real bag with bytes flipped, cut or inserted, as MCAP.
+//! reading arbitrary bytes, or a real bag with bytes flipped, cut or inserted, as MCAP; messages
+//! written in any order of log time are read in log-time order, file order among equal times.
 //!
 //! `PROPTEST_CASES=N cargo test --release --test adapters properties::` runs N cases of each (the longer
 //! fuzzing run in the README).
@@ -204,6 +205,39 @@ proptest! {
         let read = read_all(bytes);
         // Never more than the bag holds, give or take a flipped length that splits a record.
         prop_assert!(read <= total + 8, "{read} of {total}");
+    }
+
+    #[test]
+    fn messages_are_read_in_log_time_order_whatever_order_they_were_written_in(
+        steps in prop::collection::vec(-3i64..6, 1..600),
+    ) {
+        // Log times that mostly rise (as a recorder writes them) with steps back and repeats.
+        let mut t = 1_000i64;
+        let written: Vec<(u64, u16)> = steps
+            .iter()
+            .enumerate()
+            .map(|(i, step)| {
+                t = (t + step).max(0);
+                (t as u64, i as u16)
+            })
+            .collect();
+        let path = std::path::Path::new(env!("CARGO_TARGET_TMPDIR"))
+            .join(format!("order-{}.mcap", std::process::id()));
+        let mut writer = ttball::bag::BagWriter::create(&path).unwrap();
+        let channel = writer.channel("/ball/detections", "ttball_msgs/msg/BallDetection").unwrap();
+        for (log_time, i) in &written {
+            writer.write_raw(channel, *log_time, *log_time, &i.to_le_bytes()).unwrap();
+        }
+        writer.finish().unwrap();
+        let mut reader = BagReader::open(&path).unwrap();
+        let mut read = Vec::new();
+        while let Some(m) = reader.next_message() {
+            read.push((m.log_time, u16::from_le_bytes([m.data[0], m.data[1]])));
+        }
+        let _ = std::fs::remove_file(&path);
+        let mut expected = written;
+        expected.sort_by_key(|(log_time, _)| *log_time); // stable: file order among equal times
+        prop_assert_eq!(read, expected);
     }
 
     #[test]
