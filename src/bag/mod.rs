@@ -42,12 +42,12 @@ const CDR_LE: [u8; 4] = [0x00, 0x01, 0x00, 0x00];
 #[derive(Debug, thiserror::Error)]
 pub enum BagError {
     /// The file cannot be read or written.
-    #[error("{path}: {source}")]
+    #[error("{path}: {error}")]
     Io {
         /// The file.
         path: PathBuf,
-        /// What the system said.
-        source: std::io::Error,
+        /// What the system said (in the message, not its source: said once in a chain).
+        error: std::io::Error,
     },
     /// The file is not an MCAP file at all.
     #[error("{path}: not an MCAP file ({reason})")]
@@ -495,9 +495,9 @@ pub fn rosbag2_files(dir: &Path) -> Result<Vec<PathBuf>, BagError> {
             return Ok(files);
         }
     }
-    let entries = std::fs::read_dir(dir).map_err(|source| BagError::Io {
+    let entries = std::fs::read_dir(dir).map_err(|error| BagError::Io {
         path: dir.to_path_buf(),
-        source,
+        error,
     })?;
     let mut files: Vec<PathBuf> = entries
         .filter_map(|entry| entry.ok().map(|e| e.path()))
@@ -549,9 +549,9 @@ impl BagReader {
         let mut size = 0;
         let mut reader = Self::empty();
         for file in &files {
-            let mut f = File::open(file).map_err(|source| BagError::Io {
+            let mut f = File::open(file).map_err(|error| BagError::Io {
                 path: file.clone(),
-                source,
+                error,
             })?;
             size += f.metadata().map(|m| m.len()).unwrap_or(0);
             let mut start = Vec::with_capacity(8);
@@ -641,9 +641,9 @@ impl BagReader {
             self.file = None;
             return Ok(false);
         };
-        let f = File::open(&path).map_err(|source| BagError::Io {
+        let f = File::open(&path).map_err(|error| BagError::Io {
             path: path.clone(),
-            source,
+            error,
         })?;
         self.file = Some(FileStream::new(
             path,
@@ -1067,9 +1067,9 @@ pub type Observer = Box<dyn FnMut(&ChannelInfo, u64, &[u8])>;
 impl BagWriter<BufWriter<File>> {
     /// Creates (or replaces) a bag file.
     pub fn create(path: &Path) -> Result<Self, BagError> {
-        let file = File::create(path).map_err(|source| BagError::Io {
+        let file = File::create(path).map_err(|error| BagError::Io {
             path: path.to_path_buf(),
-            source,
+            error,
         })?;
         Self::new(BufWriter::new(file), path)
     }
@@ -1217,9 +1217,9 @@ impl<W: Write + Seek> BagWriter<W> {
     pub fn finish(mut self) -> Result<(), BagError> {
         self.writer.finish().map_err(|e| self.write_error(e))?;
         let mut out = self.writer.into_inner();
-        out.flush().map_err(|source| BagError::Io {
+        out.flush().map_err(|error| BagError::Io {
             path: self.path.clone(),
-            source,
+            error,
         })
     }
 }

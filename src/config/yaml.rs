@@ -148,12 +148,12 @@ pub enum LoadError {
         path: PathBuf,
     },
     /// The configuration file could not be read.
-    #[error("cannot read configuration file `{}`: {source}", .path.display())]
+    #[error("cannot read configuration file `{}`: {error}", .path.display())]
     Read {
         /// The path as given.
         path: PathBuf,
-        /// The I/O error.
-        source: std::io::Error,
+        /// The I/O error (in the message, not its source: said once in a chain).
+        error: std::io::Error,
     },
     /// The configuration file is not valid YAML.
     #[error("{}: not valid YAML: {message}", .path.display())]
@@ -280,7 +280,7 @@ fn read_file(path: &Path) -> Result<String, LoadError> {
         } else {
             LoadError::Read {
                 path: path.to_owned(),
-                source,
+                error: source,
             }
         }
     })

@@ -1,5 +1,6 @@
 //! `ttball replay` as a user runs it: Ctrl-C (SIGINT) or SIGTERM (a supervisor stopping it) in
-//! the middle of a long replay leaves a properly finished output bag and says so.
+//! the middle of a long replay leaves a properly finished output bag and says so; the summary
+//! reports the whole run; a file that cannot be opened or created is named, with why.
 #![cfg(all(feature = "cli", unix))]
 #![allow(
     clippy::unwrap_used,
@@ -114,5 +115,37 @@ fn the_summary_reports_the_whole_run_beside_the_processing() {
     assert!(
         factor <= summary["real_time_factor"].as_f64().unwrap(),
         "{summary}"
+    );
+}
+
+/// A file that cannot be opened or created: the error names it and says why once, and the exit
+/// code is the failure's.
+#[test]
+fn a_missing_input_or_output_is_named_with_the_reason_said_once() {
+    let dir = common::scratch("missing-files");
+    let missing = dir.join("no-such-bag.mcap");
+    let out = common::run(&["replay", missing.to_str().unwrap()]);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success(), "{stderr}");
+    assert!(stderr.contains("no-such-bag.mcap"), "{stderr}");
+    assert_eq!(
+        stderr.matches("No such file or directory").count(),
+        1,
+        "{stderr}"
+    );
+    let unwritable = dir.join("no-such-dir").join("out.mcap");
+    let out = common::run(&[
+        "replay",
+        "bags/sim_rally_wide.mcap",
+        "-o",
+        unwritable.to_str().unwrap(),
+    ]);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success(), "{stderr}");
+    assert!(stderr.contains("no-such-dir/out.mcap"), "{stderr}");
+    assert_eq!(
+        stderr.matches("No such file or directory").count(),
+        1,
+        "{stderr}"
     );
 }
