@@ -371,6 +371,11 @@ impl FlightModel {
         self.radius
     }
 
+    /// Gravity's acceleration [m/s^2].
+    pub fn gravity(&self) -> f64 {
+        self.gravity
+    }
+
     /// C_D(Sp), with Sp clamped to [0, Sp_max].
     pub fn drag_coefficient(&self, spin_parameter: f64) -> f64 {
         self.drag
