@@ -380,7 +380,11 @@ fn a_bounce_on_the_side_edge_between_two_frames_is_found() {
         last = out.estimate.or(last);
     }
     let counters = estimator.counters();
-    assert_eq!((counters.tracks, counters.reanchored), (1, 0), "{counters:?}");
+    assert_eq!(
+        (counters.tracks, counters.reanchored),
+        (1, 0),
+        "{counters:?}"
+    );
     assert_eq!(last.unwrap().bounces, 1);
     assert!(counters.edge_retries >= 1, "{counters:?}");
 }
