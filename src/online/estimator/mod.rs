@@ -458,6 +458,10 @@ pub const CONTACT_BAND: f64 = 0.02;
 /// edge is sharp).
 const EDGE_MARGIN: f64 = 0.02;
 
+/// Most detections re-applied when an edge ball's bounce hypothesis is tried again
+/// (`retry_edge_bounce`): 9 ms of the 900 fps camera.
+const EDGE_RETRY_LIMIT: usize = 8;
+
 impl Estimator {
     /// An estimator with the given configuration (assumed validated).
     pub fn new(config: &Config) -> Self {
