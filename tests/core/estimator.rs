@@ -399,29 +399,7 @@ fn a_bounce_on_the_side_edge_between_two_frames_is_found() {
 fn a_bounce_on_the_edge_line_seen_at_900_fps_keeps_its_track() {
     let start = shot([0.3, -0.2056, 0.25], [-6.9, -3.9, -1.0], [0.0, 0.0, 110.0]);
     for seed in 1..9 {
-        let mut rng = Rng::new(seed);
-        let mut detections: Vec<Detection> = camera(
-            &start,
-            150.0,
-            0.0,
-            0.25,
-            0.002,
-            Source::WIDE_150FPS,
-            &mut rng,
-        )
-        .into_iter()
-        .chain(camera(
-            &start,
-            900.0,
-            0.0005,
-            0.25,
-            0.001,
-            Source::HIGHSPEED_900FPS,
-            &mut rng,
-        ))
-        .map(|(d, _)| d)
-        .collect();
-        detections.sort_by_key(|d| d.stamp);
+        let detections = both_cameras(&start, 0.25, &mut Rng::new(seed));
         let mut estimator = Estimator::new(&wide_config());
         for d in &detections {
             estimator.handle(d);
@@ -527,28 +505,26 @@ fn every_detection_is_accounted_for() {
 /// in stamp order.
 fn two_cameras(seed: u64) -> Vec<Detection> {
     let start = shot([1.3, 0.0, 0.30], [-4.5, 0.0, 1.6], [0.0, -80.0, 0.0]);
-    let mut rng = Rng::new(seed);
-    let mut all: Vec<Detection> = camera(
-        &start,
-        150.0,
-        0.0,
-        0.6,
-        0.002,
-        Source::WIDE_150FPS,
-        &mut rng,
-    )
-    .into_iter()
-    .chain(camera(
-        &start,
-        900.0,
-        0.0005,
-        0.6,
-        0.001,
-        Source::HIGHSPEED_900FPS,
-        &mut rng,
-    ))
-    .map(|(d, _)| d)
-    .collect();
+    both_cameras(&start, 0.6, &mut Rng::new(seed))
+}
+
+/// The flight from `start` for `duration` s seen by both cameras (2 mm at 150 fps, 1 mm at 900
+/// fps), merged in stamp order.
+fn both_cameras(start: &BallState, duration: f64, rng: &mut Rng) -> Vec<Detection> {
+    let mut all: Vec<Detection> =
+        camera(start, 150.0, 0.0, duration, 0.002, Source::WIDE_150FPS, rng)
+            .into_iter()
+            .chain(camera(
+                start,
+                900.0,
+                0.0005,
+                duration,
+                0.001,
+                Source::HIGHSPEED_900FPS,
+                rng,
+            ))
+            .map(|(d, _)| d)
+            .collect();
     all.sort_by_key(|d| d.stamp);
     all
 }
