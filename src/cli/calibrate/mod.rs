@@ -105,6 +105,11 @@ pub struct CalibrateArgs {
     pub config: ConfigArgs,
 }
 
+/// The paths as the configuration snippet's comment names its inputs.
+fn display_names(paths: &[PathBuf]) -> Vec<String> {
+    paths.iter().map(|p| p.display().to_string()).collect()
+}
+
 /// Fraction of a held-out flight fitted before forecasting the rest.
 const HOLDOUT_FRACTION: f64 = 0.5;
 
@@ -199,12 +204,10 @@ impl CalibrateArgs {
             .holdout
             .then(|| holdout(&config, &calibration.config, &held, HOLDOUT_FRACTION));
 
-        let inputs: Vec<String> = self
-            .inputs
-            .iter()
-            .map(|p| p.display().to_string())
-            .collect();
-        write_file(&self.output, snippet(&calibration, &inputs))?;
+        write_file(
+            &self.output,
+            snippet(&calibration, &display_names(&self.inputs)),
+        )?;
         if let Some(path) = &self.plot {
             let options = ChartOptions {
                 width: 1800,

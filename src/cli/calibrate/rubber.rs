@@ -11,7 +11,7 @@ use ttball::offline::rebound_calibration::{
 };
 use ttball::plot::ChartOptions;
 
-use super::{CalibrateArgs, Group};
+use super::{CalibrateArgs, Group, display_names};
 use crate::cli::{BadUsage, write_file, write_json, write_stdout};
 
 /// Reads the hits, calibrates the rubber and writes the outputs.
@@ -50,12 +50,10 @@ pub(super) fn run(args: &CalibrateArgs, config: &Config) -> anyhow::Result<ExitC
     };
     let calibration = calibrate_rubber(config, &set, &options)
         .map_err(|e| BadUsage(format!("cannot calibrate the rubber: {e}")))?;
-    let inputs: Vec<String> = args
-        .rebound
-        .iter()
-        .map(|p| p.display().to_string())
-        .collect();
-    write_file(&args.output, snippet(&calibration, &inputs))?;
+    write_file(
+        &args.output,
+        snippet(&calibration, &display_names(&args.rebound)),
+    )?;
     if let Some(path) = &args.plot {
         let options = ChartOptions {
             width: 1800,
