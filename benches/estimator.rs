@@ -10,7 +10,7 @@ use criterion::{BatchSize, Criterion, criterion_group, criterion_main};
 use nalgebra::{Matrix3, Matrix6, SVector};
 use ttball::config::Config;
 use ttball::eval::sim::{Cameras, SimOptions, simulate};
-use ttball::online::ekf::{Ekf, position_H, position_spin_H};
+use ttball::online::ekf::{BounceNoise, Ekf, position_H, position_spin_H};
 use ttball::online::estimator::Estimator;
 use ttball::online::intercept::{InterceptQuery, predict_intercept};
 use ttball::physics::{BallState, Propagator, StateMatrix};
@@ -66,6 +66,7 @@ fn benches(c: &mut Criterion) {
             plane_x: config.intercept.plane_x,
             horizon: 1.5,
             bounced_on_robot_half: false,
+            bounce_noise: BounceNoise::from_config(&config),
         };
         let full = predict_intercept(&propagator, &x, &p, &query);
         let to_plane = full.crossing.map(|c| c.time).unwrap_or(0.6);

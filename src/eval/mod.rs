@@ -20,6 +20,7 @@ use crate::eval::sim::Session;
 use crate::model::detection::{Detection, Source, seconds_to_ns};
 use crate::model::stats::ErrorStats;
 use crate::offline::batch::fit_whole_flight;
+use crate::online::ekf::BounceNoise;
 use crate::online::estimator::{
     Counters, Estimate, Estimator, Output, Rejection, TrackStatus, Verdict,
 };
@@ -214,9 +215,12 @@ impl Scorer {
         else {
             return;
         };
+        // The interception scored at a lead is the latest of a track that took this shot's
+        // detections (not the previous ball's, still flying when this one is launched).
+        let own_track = record.tracks.contains(&estimate.track_id);
         for (slot, lead) in LEADS.iter().enumerate() {
             let deadline = truth_shot.intercept_stamp - seconds_to_ns(*lead);
-            if estimate.stamp <= deadline {
+            if own_track && estimate.stamp <= deadline {
                 record.at_lead[slot] = Some((self.detections, *out));
             }
         }
@@ -531,6 +535,7 @@ pub fn efficiency(config: &Config, session: &Session) -> [Efficiency; 2] {
         plane_x: config.intercept.plane_x,
         horizon: config.prediction.horizon,
         bounced_on_robot_half: bounced,
+        bounce_noise: BounceNoise::default(),
     };
     [BatchPhysics::Configured, BatchPhysics::Learned].map(|physics| {
         let physics_of = |index: usize| -> Config {
@@ -644,4 +649,93 @@ pub fn efficiency(config: &Config, session: &Session) -> [Efficiency; 2] {
             spin_before_high_speed: state_errors(&|r| r.before_high_speed, &spin_across),
         }
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::online::estimator::{Estimate, InterceptEstimate, TrackStatus};
+    use crate::online::intercept::{Crossing, Intercept};
+    use crate::physics::StateMatrix;
+
+    /// The output after a detection at `stamp` whose estimate is of track `track_id`, with a
+    /// valid crossing at y = `y`.
+    fn output(verdict: Verdict, track_id: u32, stamp: i64, y: f64) -> Output {
+        let state = BallState::new(
+            Vector3::new(-1.6, y, 0.2),
+            Vector3::new(-5.0, 0.0, 0.0),
+            Vector3::zeros(),
+        );
+        Output {
+            verdict,
+            estimate: Some(Estimate {
+                stamp,
+                track_id,
+                status: TrackStatus::Tracking,
+                state,
+                covariance: StateMatrix::identity() * 1e-4,
+                bounces: 0,
+                nis: 1.0,
+            }),
+            intercept: Some(InterceptEstimate {
+                stamp,
+                track_id,
+                intercept: Intercept {
+                    crossing: Ok(Crossing {
+                        time: 0.4,
+                        time_sigma: 1e-3,
+                        state,
+                        covariance: StateMatrix::identity() * 1e-4,
+                    }),
+                    bounce: None,
+                },
+            }),
+        }
+    }
+
+    /// A new ball launched while the previous one still flies: until one of its detections is
+    /// fused, the estimator's output is the previous ball's track, whose interception is not
+    /// this shot's (it crosses elsewhere, earlier) and must not be scored as its prediction.
+    #[test]
+    fn a_lead_is_scored_only_from_a_track_that_took_the_shot_s_detections() {
+        let truth = ShotTruth {
+            bounce_stamp: 800_000_000,
+            intercept_stamp: 1_000_000_000,
+            intercept_position: Vector3::new(-1.6, 0.0, 0.2),
+            intercept_spin: Vector3::zeros(),
+        };
+        let detection = |stamp: i64| Detection {
+            stamp,
+            source: Source::WIDE_150FPS,
+            position: Vector3::new(1.0, 0.0, 0.3),
+            position_covariance: None,
+            spin: None,
+            spin_covariance: None,
+            confidence: 1.0,
+        };
+        let state = BallState::new(
+            Vector3::new(1.0, 0.0, 0.3),
+            Vector3::zeros(),
+            Vector3::zeros(),
+        );
+        let mut scorer = Scorer::new(vec![truth]);
+        // The previous ball's track (7), 1.2 m off, while the new shot initialises.
+        let previous = output(Verdict::Initializing, 7, 500_000_000, 1.2);
+        scorer.score(0, &detection(500_000_000), &state, false, &previous);
+        let report = scorer.report(Counters::default());
+        assert!(
+            report.leads.iter().all(|l| l.valid_fraction == 0.0),
+            "{report:?}"
+        );
+        // The shot's own track (8): scored.
+        let own = output(Verdict::Fused { nis: 1.0 }, 8, 600_000_000, 0.01);
+        scorer.score(0, &detection(600_000_000), &state, false, &own);
+        let report = scorer.report(Counters::default());
+        let at_300 = &report.leads[0];
+        assert_eq!(at_300.valid_fraction, 1.0);
+        assert!(
+            (at_300.position_error.median - 0.01).abs() < 1e-9,
+            "{at_300:?}"
+        );
+    }
 }

@@ -29,12 +29,13 @@
 
 use nalgebra::{SMatrix, SVector};
 
+use crate::config::Config;
 use crate::model::stats::normal_cdf;
 pub use crate::physics::params::{AUGMENTED, AugmentedMatrix, ParamCovariance};
 use crate::physics::params::{FRICTION, RESTITUTION, with_known_params};
 use crate::physics::{
-    Cursor, Event, EventKind, Flow, Observer, PARAMS, ParamVector, PhysicsParams, Propagator,
-    StateMatrix, StateVector, Watch,
+    Cursor, Event, EventKind, EventSensitivity, Flow, Observer, PARAMS, ParamVector, PhysicsParams,
+    Propagator, StateMatrix, StateVector, Watch,
 };
 
 /// Dimensions of the bounce's unscented transform: velocity, spin, e_t and mu_t before it.
@@ -108,6 +109,28 @@ pub struct BounceNoise {
     /// Whether the bounce's outcome over the state's uncertainty is found by sigma points
     /// (its spread beyond the linearised one added).
     pub unscented: bool,
+}
+
+impl BounceNoise {
+    /// The bounce scatter the configuration sets (`ekf.bounce_*`).
+    pub fn from_config(config: &Config) -> Self {
+        Self {
+            impulse_sigma: config.ekf.bounce_impulse_sigma,
+            restitution_sigma: config.ekf.bounce_restitution_sigma,
+            unscented: config.ekf.bounce_unscented,
+        }
+    }
+
+    /// This scatter with its variances times `scale` (the learned scale,
+    /// [`NoiseScales::bounce`]).
+    pub fn scaled(&self, scale: f64) -> Self {
+        let sigma_scale = scale.max(0.0).sqrt();
+        Self {
+            impulse_sigma: self.impulse_sigma * sigma_scale,
+            restitution_sigma: self.restitution_sigma * sigma_scale,
+            unscented: self.unscented,
+        }
+    }
 }
 
 /// How many noise scales the estimator learns ([`NoiseScales`]).
@@ -252,32 +275,11 @@ impl BounceWatch<'_> {
     /// spread of its outcome beyond the linearisation, and the probability that it slid.
     fn bounce_scatter(&self, event: &Event) -> (StateMatrix, StateMatrix, f64) {
         let bounce = self.propagator.bounce();
-        let r = self.propagator.flight().radius();
-        let spin_gain = 1.5 / r;
-        let mut q = StateMatrix::zeros();
-        let si2 = self.noise.impulse_sigma * self.noise.impulse_sigma;
-        if si2 > 0.0 {
-            // An impulse error d along x moves v_x by -d and w_y by +3/(2r) d; along y, v_y by
-            // -d and w_x by -3/(2r) d.
-            for (v, w, sign) in [(3, 7, 1.0), (4, 6, -1.0)] {
-                let mut column = StateVector::zeros();
-                column[v] = -1.0;
-                column[w] = sign * spin_gain;
-                q += column * column.transpose() * si2;
-            }
-        }
-        let se = self.noise.restitution_sigma * event.before[5];
-        q[(5, 5)] += se * se;
+        let q = bounce_scatter(self.propagator, self.noise, &event.before);
         let Some(s) = event.sensitivity else {
             return (q, StateMatrix::zeros(), 1.0);
         };
-        // The covariance of (state, parameters) at the bounce: [[T, S], [0, I]] P [.]'.
-        let mut a = SMatrix::<f64, AUGMENTED, AUGMENTED>::identity();
-        a.fixed_view_mut::<9, 9>(0, 0).copy_from(&s.before);
-        if let Some(p) = &s.params {
-            a.fixed_view_mut::<9, PARAMS>(0, 9).copy_from(&p.before);
-        }
-        let at_bounce = a * self.start * a.transpose();
+        let at_bounce = covariance_at_event(&s, self.start);
         // The probability that it slid, from the margin that decides the regime (rolling when
         // positive; Gaussian, its variance g C g' over state and parameters).
         let (margin, gradient) = bounce.regime_margin(&event.before);
@@ -296,86 +298,125 @@ impl BounceWatch<'_> {
             0.0
         };
         let excess = if self.noise.unscented {
-            self.unscented_excess(&event.before, &event.after, &at_bounce)
+            unscented_excess(self.propagator, &event.before, &event.after, &at_bounce)
         } else {
             StateMatrix::zeros()
         };
         (q, excess, p_sliding)
     }
+}
 
-    /// How much the bounce's outcome really spreads beyond its linearisation: the covariance
-    /// of (v, w) after the bounce over sigma points of (v, w, e_t, mu_t) before it (the
-    /// unscented transform, [`BOUNCE_SIGMA_DIMENSIONS`] dimensions, kappa = 1), less the
-    /// linearised J C J', its positive part. Both regimes, and the spin's uncertainty along the
-    /// directions the linearisation misses, are in it.
-    fn unscented_excess(
-        &self,
-        before: &StateVector,
-        after: &StateVector,
-        at_bounce: &AugmentedMatrix,
-    ) -> StateMatrix {
-        const N: usize = BOUNCE_SIGMA_DIMENSIONS;
-        // (v, w, e, mu): state indices 3..9 and the table's two parameters.
-        let index = |k: usize| {
-            if k < 6 {
-                3 + k
-            } else {
-                9 + RESTITUTION + (k - 6)
-            }
-        };
-        let c = SMatrix::<f64, N, N>::from_fn(|i, j| at_bounce[(index(i), index(j))]);
-        let jitter = SMatrix::<f64, N, N>::identity() * (1e-12 * c.diagonal().amax() + 1e-18);
-        let Some(chol) = (c + jitter).cholesky() else {
-            return StateMatrix::zeros();
-        };
-        let kappa = 1.0;
-        let spread = (N as f64 + kappa).sqrt();
-        let (w0, wi) = (kappa / (N as f64 + kappa), 0.5 / (N as f64 + kappa));
-        let l = chol.l();
-        let bounce = self.propagator.bounce();
-        let (e, mu) = bounce.table();
-        let outcome = |offset: &SVector<f64, N>| -> SVector<f64, 6> {
-            let mut x = *before;
-            for k in 0..6 {
-                x[3 + k] += offset[k];
-            }
-            let table =
-                bounce.with_table((e + offset[6]).clamp(0.05, 1.0), (mu + offset[7]).max(0.0));
-            table.apply(&x).state.fixed_rows::<6>(3).into_owned()
-        };
-        let mut outcomes = [SVector::<f64, 6>::zeros(); 2 * N + 1];
-        outcomes[0] = outcome(&SVector::zeros());
-        for k in 0..N {
-            let column = l.column(k) * spread;
-            outcomes[1 + k] = outcome(&column.into_owned());
-            outcomes[1 + N + k] = outcome(&(-column).into_owned());
-        }
-        let mean = outcomes[0] * w0 + outcomes[1..].iter().sum::<SVector<f64, 6>>() * wi;
-        let mut spread_cov = SMatrix::<f64, 6, 6>::zeros();
-        for (k, y) in outcomes.iter().enumerate() {
-            let d = y - mean;
-            spread_cov += d * d.transpose() * if k == 0 { w0 } else { wi };
-        }
-        // The linearised covariance of the same outcome: G C G' with G = d(v', w')/d(v, w, e,
-        // mu) at the mean.
-        let b = bounce.apply(before);
-        let mut gm = SMatrix::<f64, 6, N>::zeros();
-        gm.fixed_view_mut::<6, 6>(0, 0)
-            .copy_from(&b.jacobian.fixed_view::<6, 6>(3, 3));
-        gm.fixed_view_mut::<6, 2>(0, 6)
-            .copy_from(&b.table_jacobian.fixed_view::<6, 2>(3, 0));
-        let linear = gm * c * gm.transpose();
-        // The mean's own offset from the linearised outcome counts too.
-        let offset = mean - after.fixed_rows::<6>(3);
-        let excess = spread_cov - linear + offset * offset.transpose();
-        let eigen = nalgebra::SymmetricEigen::new((excess + excess.transpose()) * 0.5);
-        let positive = eigen.eigenvectors
-            * SMatrix::<f64, 6, 6>::from_diagonal(&eigen.eigenvalues.map(|v| v.max(0.0)))
-            * eigen.eigenvectors.transpose();
-        let mut q = StateMatrix::zeros();
-        q.fixed_view_mut::<6, 6>(3, 3).copy_from(&positive);
-        q
+/// The covariance of (state, parameters) at an event, from the covariance `start` of the
+/// propagation's start and the event's sensitivities: [[T, S], [0, I]] P [.]'.
+pub(crate) fn covariance_at_event(
+    s: &EventSensitivity,
+    start: &AugmentedMatrix,
+) -> AugmentedMatrix {
+    let mut a = SMatrix::<f64, AUGMENTED, AUGMENTED>::identity();
+    a.fixed_view_mut::<9, 9>(0, 0).copy_from(&s.before);
+    if let Some(p) = &s.params {
+        a.fixed_view_mut::<9, PARAMS>(0, 9).copy_from(&p.before);
     }
+    a * start * a.transpose()
+}
+
+/// The scatter of one bounce from state `before`, in the state just after it, at the
+/// configured sigmas of `noise`: the tangential impulse's and the restitution's.
+pub(crate) fn bounce_scatter(
+    propagator: &Propagator,
+    noise: &BounceNoise,
+    before: &StateVector,
+) -> StateMatrix {
+    let r = propagator.flight().radius();
+    let spin_gain = 1.5 / r;
+    let mut q = StateMatrix::zeros();
+    let si2 = noise.impulse_sigma * noise.impulse_sigma;
+    if si2 > 0.0 {
+        // An impulse error d along x moves v_x by -d and w_y by +3/(2r) d; along y, v_y by
+        // -d and w_x by -3/(2r) d.
+        for (v, w, sign) in [(3, 7, 1.0), (4, 6, -1.0)] {
+            let mut column = StateVector::zeros();
+            column[v] = -1.0;
+            column[w] = sign * spin_gain;
+            q += column * column.transpose() * si2;
+        }
+    }
+    let se = noise.restitution_sigma * before[5];
+    q[(5, 5)] += se * se;
+    q
+}
+
+/// How much the bounce's outcome really spreads beyond its linearisation: the covariance
+/// of (v, w) after the bounce over sigma points of (v, w, e_t, mu_t) before it (the
+/// unscented transform, [`BOUNCE_SIGMA_DIMENSIONS`] dimensions, kappa = 1), less the
+/// linearised J C J', its positive part. Both regimes, and the spin's uncertainty along the
+/// directions the linearisation misses, are in it.
+pub(crate) fn unscented_excess(
+    propagator: &Propagator,
+    before: &StateVector,
+    after: &StateVector,
+    at_bounce: &AugmentedMatrix,
+) -> StateMatrix {
+    const N: usize = BOUNCE_SIGMA_DIMENSIONS;
+    // (v, w, e, mu): state indices 3..9 and the table's two parameters.
+    let index = |k: usize| {
+        if k < 6 {
+            3 + k
+        } else {
+            9 + RESTITUTION + (k - 6)
+        }
+    };
+    let c = SMatrix::<f64, N, N>::from_fn(|i, j| at_bounce[(index(i), index(j))]);
+    let jitter = SMatrix::<f64, N, N>::identity() * (1e-12 * c.diagonal().amax() + 1e-18);
+    let Some(chol) = (c + jitter).cholesky() else {
+        return StateMatrix::zeros();
+    };
+    let kappa = 1.0;
+    let spread = (N as f64 + kappa).sqrt();
+    let (w0, wi) = (kappa / (N as f64 + kappa), 0.5 / (N as f64 + kappa));
+    let l = chol.l();
+    let bounce = propagator.bounce();
+    let (e, mu) = bounce.table();
+    let outcome = |offset: &SVector<f64, N>| -> SVector<f64, 6> {
+        let mut x = *before;
+        for k in 0..6 {
+            x[3 + k] += offset[k];
+        }
+        let table = bounce.with_table((e + offset[6]).clamp(0.05, 1.0), (mu + offset[7]).max(0.0));
+        table.apply(&x).state.fixed_rows::<6>(3).into_owned()
+    };
+    let mut outcomes = [SVector::<f64, 6>::zeros(); 2 * N + 1];
+    outcomes[0] = outcome(&SVector::zeros());
+    for k in 0..N {
+        let column = l.column(k) * spread;
+        outcomes[1 + k] = outcome(&column.into_owned());
+        outcomes[1 + N + k] = outcome(&(-column).into_owned());
+    }
+    let mean = outcomes[0] * w0 + outcomes[1..].iter().sum::<SVector<f64, 6>>() * wi;
+    let mut spread_cov = SMatrix::<f64, 6, 6>::zeros();
+    for (k, y) in outcomes.iter().enumerate() {
+        let d = y - mean;
+        spread_cov += d * d.transpose() * if k == 0 { w0 } else { wi };
+    }
+    // The linearised covariance of the same outcome: G C G' with G = d(v', w')/d(v, w, e,
+    // mu) at the mean.
+    let b = bounce.apply(before);
+    let mut gm = SMatrix::<f64, 6, N>::zeros();
+    gm.fixed_view_mut::<6, 6>(0, 0)
+        .copy_from(&b.jacobian.fixed_view::<6, 6>(3, 3));
+    gm.fixed_view_mut::<6, 2>(0, 6)
+        .copy_from(&b.table_jacobian.fixed_view::<6, 2>(3, 0));
+    let linear = gm * c * gm.transpose();
+    // The mean's own offset from the linearised outcome counts too.
+    let offset = mean - after.fixed_rows::<6>(3);
+    let excess = spread_cov - linear + offset * offset.transpose();
+    let eigen = nalgebra::SymmetricEigen::new((excess + excess.transpose()) * 0.5);
+    let positive = eigen.eigenvectors
+        * SMatrix::<f64, 6, 6>::from_diagonal(&eigen.eigenvalues.map(|v| v.max(0.0)))
+        * eigen.eigenvectors.transpose();
+    let mut q = StateMatrix::zeros();
+    q.fixed_view_mut::<6, 6>(3, 3).copy_from(&positive);
+    q
 }
 
 /// The filter's estimate: state, parameters and their joint covariance.

@@ -446,6 +446,12 @@ impl Propagator {
         }
     }
 
+    /// The same propagator with another largest step [s] (e.g. a sensitivity that needs less
+    /// accuracy than the state).
+    pub fn with_max_step(&self, max_step: f64) -> Self {
+        Self { max_step, ..*self }
+    }
+
     /// The same propagator with the table outline grown by `margin` [m] on every side (shrunk
     /// when negative): the other hypothesis for a ball that lands on the table's edge.
     pub fn with_edge_margin(&self, margin: f64) -> Self {

@@ -29,7 +29,7 @@
 //! valid fraction. The predicted bounce is compared with the measured one too, which separates
 //! errors of the flight model (already in the bounce) from those of the bounce model.
 
-use nalgebra::Vector3;
+use nalgebra::{Vector2, Vector3};
 
 use super::mpi::{Flight, SpinKind, flight_detections};
 use crate::config::Config;
@@ -231,6 +231,10 @@ pub enum LeadOutcome {
         time_error: f64,
         /// Velocity error at the crossing [m/s].
         velocity_error: Vector3<f64>,
+        /// The crossing point's error normalised by its predicted covariance (y, z), per
+        /// dimension [-]: about 1 when the covariance is honest (the measured crossing's own
+        /// error, about a millimetre, is not in it); `None` when the covariance is singular.
+        nees: Option<f64>,
         /// Predicted minus measured bounce point (x, y, z) [m] and time [s], when the bounce
         /// was still ahead.
         bounce_error: Option<(Vector3<f64>, f64)>,
@@ -302,6 +306,9 @@ pub struct LeadSummary {
     pub mean_error: [f64; 3],
     /// Mean velocity error (bias) at the crossing [m/s].
     pub mean_velocity_error: Vector3<f64>,
+    /// Mean NEES per dimension of the crossing point (y, z) [-] (see
+    /// [`LeadOutcome::Predicted`]); NaN with no valid prediction.
+    pub crossing_nees: f64,
     /// Distance in the table plane (x, y) between predicted and measured bounce points [m].
     pub bounce_position_error: ErrorStats,
     /// Mean predicted minus measured bounce x [m] (positive: the prediction bounces short of
@@ -354,8 +361,8 @@ impl RealReport {
         let mut s = String::from(
             "| flights | lead | scored | valid | crossing RMS / median [mm] | time RMS / median \
              [ms] | bias y / z [mm], t [ms] | bounce RMS [mm], x bias [mm], time RMS [ms] | \
-             not valid |\n\
-             |---|---|---|---|---|---|---|---|---|\n",
+             NEES/dim | not valid |\n\
+             |---|---|---|---|---|---|---|---|---|---|\n",
         );
         for g in &self.groups {
             let name = g.spin_kind.map_or("all", SpinKind::name);
@@ -372,7 +379,7 @@ impl RealReport {
                 };
                 s.push_str(&format!(
                     "| {name} ({}) | {:.0} ms | {} | {:.0} % | {:.1} / {:.1} | {:.1} / {:.1} | \
-                     {:+.1} / {:+.1}, {:+.1} | {} | {} |\n",
+                     {:+.1} / {:+.1}, {:+.1} | {} | {:.2} | {} |\n",
                     g.flights,
                     l.lead * 1e3,
                     l.flights,
@@ -385,6 +392,7 @@ impl RealReport {
                     l.mean_error[1] * 1e3,
                     l.mean_error[2] * 1e3,
                     bounce,
+                    l.crossing_nees,
                     not_valid(l),
                 ));
             }
@@ -575,6 +583,16 @@ fn outcome(p: &InterceptEstimate, measured: &MeasuredCrossing, epoch: i64) -> Le
             z_error: c.state.position.z - measured.position.z,
             time_error: since_epoch + c.time - measured.time,
             velocity_error: c.state.velocity - measured.velocity,
+            nees: {
+                let error = Vector2::new(
+                    c.state.position.y - measured.position.y,
+                    c.state.position.z - measured.position.z,
+                );
+                let covariance = c.covariance.fixed_view::<2, 2>(1, 1).into_owned();
+                covariance
+                    .cholesky()
+                    .map(|chol| error.dot(&chol.solve(&error)) / 2.0)
+            },
             bounce_error: p.intercept.bounce.map(|b| {
                 (
                     b.position - measured.bounce.position,
@@ -607,6 +625,7 @@ fn summarise(
             let mut bounce_position = Vec::new();
             let mut bounce_x = Vec::new();
             let mut bounce_time = Vec::new();
+            let mut nees = Vec::new();
             let mut no_track = 0;
             let mut invalid = [0; 5];
             for r in &scored {
@@ -624,11 +643,13 @@ fn summarise(
                     z_error,
                     time_error,
                     velocity_error,
+                    nees: crossing_nees,
                     bounce_error,
                 }) = r.leads.get(slot)
                 else {
                     continue;
                 };
+                nees.extend(crossing_nees);
                 velocity_sum += velocity_error;
                 position.push(y_error.hypot(*z_error));
                 time.push(*time_error);
@@ -658,6 +679,7 @@ fn summarise(
                 time_error: ErrorStats::of(&time),
                 mean_error: sums.map(|s| mean(s, valid)),
                 mean_velocity_error: velocity_sum / valid.max(1) as f64,
+                crossing_nees: mean(nees.iter().sum(), nees.len()),
                 bounce_position_error: ErrorStats::of(&bounce_position),
                 bounce_x_bias: mean(bounce_x.iter().sum(), bounce_x.len()),
                 bounce_time_error: ErrorStats::of(&bounce_time),

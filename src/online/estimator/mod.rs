@@ -167,11 +167,7 @@ impl Settings {
                     param_density: param_prior_var
                         * (adaptation.drift_per_hour * adaptation.drift_per_hour / 3600.0),
                 },
-                bounce: BounceNoise {
-                    impulse_sigma: config.ekf.bounce_impulse_sigma,
-                    restitution_sigma: config.ekf.bounce_restitution_sigma,
-                    unscented: config.ekf.bounce_unscented,
-                },
+                bounce: BounceNoise::from_config(config),
                 spin_spread: config.ekf.spin_parameter_spread,
             },
             contact_var: config.ekf.contact_position_sigma * config.ekf.contact_position_sigma,
@@ -748,6 +744,11 @@ impl Estimator {
             plane_x: self.settings.plane_x,
             horizon: self.settings.horizon,
             bounced_on_robot_half: snapshot.robot_half_bounces > 0,
+            bounce_noise: self
+                .settings
+                .filter
+                .bounce
+                .scaled(self.model_noise.scales().bounce),
         };
         let intercept = self.intercepts.predict(
             &self.propagator_of(&snapshot),
