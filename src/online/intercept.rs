@@ -6,14 +6,18 @@
 //! moving with the state (J = Phi + f dtau/dx, the event sensitivity of the propagation), so the
 //! timing uncertainty is included: the x row is zero (the ball is on the plane by definition) and
 //! the spread of the crossing time shows in y, z and the velocity; its own variance is
-//! dtau/dx P dtau/dx'.
+//! dtau/dx P dtau/dx'. A bounce still ahead adds what the filter adds at a bounce
+//! ([`crate::online::ekf`]): its scatter and its outcome's spread beyond the linearisation (the
+//! bounce map over sigma points at the bounce), as J_b Q J_b' with J_b the crossing's sensitivity
+//! to the state just after the bounce (docs/estimator.md, "Interception").
 //!
 //! [`InterceptTracker`] keeps the interception up to date detection by detection: between full
 //! predictions it flies the last full prediction's start state along (its "anchor") and moves the
 //! crossing to first order in the estimate's drift from it, d = x - anchor: crossing state
-//! y + J d, time tau + dtau/dx d, covariance J P J', where J, the crossing's sensitivity to the
-//! anchor, is carried along by the inverse of the anchor's own flight transition
-//! (J_now = J_then Phi^-1; free-flight transitions form a group, [`crate::physics::FlightMatrix`]).
+//! y + J d, time tau + dtau/dx d, covariance J P J' (plus the full prediction's bounce spread),
+//! where J, the crossing's sensitivity to the anchor, is carried along by the inverse of the
+//! anchor's own flight transition (J_now = J_then Phi^-1; free-flight transitions form a group,
+//! [`crate::physics::FlightMatrix`]).
 //! It predicts in full again at any event on the anchor's way (a bounce, the net, the plane, a near
 //! miss of the table), when the drift could change a branch of the prediction (each branch point
 //! recorded as a margin with its gradient: a bounce's sliding/rolling regime, where it lands
