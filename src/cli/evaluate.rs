@@ -67,8 +67,9 @@ pub struct EvaluateArgs {
     /// from each file's name, e.g. `tests/data/mpi_launcher/*.csv`). Every flight runs through
     /// its own estimator, which starts from what the flights before it taught; its crossing of
     /// a plane 20 ms after its measured bounce is predicted 200 and 100 ms ahead and compared
-    /// with the measured one. The 150 fps source's noise is set to the noise measured from the
-    /// flights.
+    /// with the measured one (the error, its bias, and its NEES per dimension: about 1 when the
+    /// predicted covariance is honest). The 150 fps source's noise is set to the noise measured
+    /// from the flights.
     #[arg(long, value_name = "FILE.csv", num_args = 1.., conflicts_with_all = ["sets", "efficiency", "json"])]
     pub real: Vec<PathBuf>,
 
