@@ -298,7 +298,12 @@ impl BounceWatch<'_> {
             0.0
         };
         let excess = if self.noise.unscented {
-            unscented_excess(self.propagator, &event.before, &event.after, &at_bounce)
+            unscented_excess(
+                self.propagator,
+                &event.before,
+                &event.after,
+                &bounce_inputs_of(&at_bounce),
+            )
         } else {
             StateMatrix::zeros()
         };
@@ -308,7 +313,7 @@ impl BounceWatch<'_> {
 
 /// The covariance of (state, parameters) at an event, from the covariance `start` of the
 /// propagation's start and the event's sensitivities: [[T, S], [0, I]] P [.]'.
-pub(crate) fn covariance_at_event(
+fn covariance_at_event(
     s: &EventSensitivity,
     start: &AugmentedMatrix,
 ) -> AugmentedMatrix {
@@ -346,27 +351,61 @@ pub(crate) fn bounce_scatter(
     q
 }
 
+/// The covariance of what a bounce's outcome depends on, (v, w, e_t, mu_t): state indices 3..9
+/// and the table's two parameters.
+pub(crate) type BounceInputs = SMatrix<f64, BOUNCE_SIGMA_DIMENSIONS, BOUNCE_SIGMA_DIMENSIONS>;
+
+/// The index in (state, parameters) of each of (v, w, e_t, mu_t).
+fn bounce_input_index(k: usize) -> usize {
+    if k < 6 {
+        3 + k
+    } else {
+        9 + RESTITUTION + (k - 6)
+    }
+}
+
+/// The bounce's inputs' covariance from that of (state, parameters) at the bounce.
+fn bounce_inputs_of(at_bounce: &AugmentedMatrix) -> BounceInputs {
+    BounceInputs::from_fn(|i, j| at_bounce[(bounce_input_index(i), bounce_input_index(j))])
+}
+
+/// The bounce's inputs' covariance at an event, from the covariance `start` of the
+/// propagation's start and the event's sensitivities: the rows of [[T, S], [0, I]] P [.]' that
+/// it needs (a quarter of the arithmetic of [`covariance_at_event`]).
+pub(crate) fn bounce_inputs_at_event(
+    s: &EventSensitivity,
+    start: &AugmentedMatrix,
+) -> BounceInputs {
+    let mut a = SMatrix::<f64, BOUNCE_SIGMA_DIMENSIONS, AUGMENTED>::zeros();
+    for k in 0..BOUNCE_SIGMA_DIMENSIONS {
+        let i = bounce_input_index(k);
+        if i < 9 {
+            a.fixed_view_mut::<1, 9>(k, 0).copy_from(&s.before.row(i));
+            if let Some(p) = &s.params {
+                a.fixed_view_mut::<1, PARAMS>(k, 9)
+                    .copy_from(&p.before.row(i));
+            }
+        } else {
+            a[(k, i)] = 1.0;
+        }
+    }
+    let a_start = a * start;
+    a_start * a.transpose()
+}
+
 /// How much the bounce's outcome really spreads beyond its linearisation: the covariance
 /// of (v, w) after the bounce over sigma points of (v, w, e_t, mu_t) before it (the
-/// unscented transform, [`BOUNCE_SIGMA_DIMENSIONS`] dimensions, kappa = 1), less the
-/// linearised J C J', its positive part. Both regimes, and the spin's uncertainty along the
+/// unscented transform, [`BOUNCE_SIGMA_DIMENSIONS`] dimensions, kappa = 1; `c` their
+/// covariance), less the linearised J C J', its positive part. Both regimes, and the spin's uncertainty along the
 /// directions the linearisation misses, are in it.
 pub(crate) fn unscented_excess(
     propagator: &Propagator,
     before: &StateVector,
     after: &StateVector,
-    at_bounce: &AugmentedMatrix,
+    c: &BounceInputs,
 ) -> StateMatrix {
     const N: usize = BOUNCE_SIGMA_DIMENSIONS;
-    // (v, w, e, mu): state indices 3..9 and the table's two parameters.
-    let index = |k: usize| {
-        if k < 6 {
-            3 + k
-        } else {
-            9 + RESTITUTION + (k - 6)
-        }
-    };
-    let c = SMatrix::<f64, N, N>::from_fn(|i, j| at_bounce[(index(i), index(j))]);
+    let c = *c;
     let jitter = SMatrix::<f64, N, N>::identity() * (1e-12 * c.diagonal().amax() + 1e-18);
     let Some(chol) = (c + jitter).cholesky() else {
         return StateMatrix::zeros();

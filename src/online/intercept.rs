@@ -28,7 +28,7 @@
 use nalgebra::{SMatrix, SVector, Vector3};
 
 use crate::config::RefreshParams;
-use crate::online::ekf::{BounceNoise, bounce_scatter, covariance_at_event, unscented_excess};
+use crate::online::ekf::{BounceNoise, bounce_inputs_at_event, bounce_scatter, unscented_excess};
 use crate::physics::params::{FRICTION, RESTITUTION, with_known_params};
 use crate::physics::{
     AUGMENTED, AugmentedMatrix, BallState, Cursor, Event, EventKind, EventSensitivity, Flow,
@@ -411,8 +411,8 @@ fn bounce_spread_at_crossing(
     let noise = &query.bounce_noise;
     let mut q = bounce_scatter(propagator, noise, before);
     if noise.unscented {
-        let at_bounce = covariance_at_event(sensitivity, p);
-        q += unscented_excess(propagator, before, after, &at_bounce);
+        let inputs = bounce_inputs_at_event(sensitivity, p);
+        q += unscented_excess(propagator, before, after, &inputs);
     }
     if q == StateMatrix::zeros() {
         return None;
