@@ -313,10 +313,7 @@ impl BounceWatch<'_> {
 
 /// The covariance of (state, parameters) at an event, from the covariance `start` of the
 /// propagation's start and the event's sensitivities: [[T, S], [0, I]] P [.]'.
-fn covariance_at_event(
-    s: &EventSensitivity,
-    start: &AugmentedMatrix,
-) -> AugmentedMatrix {
+fn covariance_at_event(s: &EventSensitivity, start: &AugmentedMatrix) -> AugmentedMatrix {
     let mut a = SMatrix::<f64, AUGMENTED, AUGMENTED>::identity();
     a.fixed_view_mut::<9, 9>(0, 0).copy_from(&s.before);
     if let Some(p) = &s.params {
