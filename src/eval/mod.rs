@@ -13,7 +13,7 @@
 //!
 //! Estimates within [`BOUNCE_WINDOW`] of the true bounce are scored on their own.
 
-use nalgebra::{Matrix2, Vector2, Vector3};
+use nalgebra::{Vector2, Vector3};
 
 use crate::config::Config;
 use crate::eval::sim::Session;
@@ -360,15 +360,7 @@ impl Scorer {
             position.push(error.norm());
             let predicted = stamp as f64 * 1e-9 + crossing.time;
             time.push(predicted - shot.intercept_stamp as f64 * 1e-9);
-            let cov = Matrix2::new(
-                crossing.covariance[(1, 1)],
-                crossing.covariance[(1, 2)],
-                crossing.covariance[(2, 1)],
-                crossing.covariance[(2, 2)],
-            );
-            if let Some(chol) = cov.cholesky() {
-                nees.push(error.dot(&chol.solve(&error)) / 2.0);
-            }
+            nees.extend(crossing.point_nees(&truth));
         }
         let shots = self.shots.len();
         LeadReport {
@@ -654,7 +646,7 @@ pub fn efficiency(config: &Config, session: &Session) -> [Efficiency; 2] {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::online::estimator::{Estimate, InterceptEstimate, TrackStatus};
+    use crate::online::estimator::InterceptEstimate;
     use crate::online::intercept::{Crossing, Intercept};
     use crate::physics::StateMatrix;
 

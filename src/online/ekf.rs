@@ -393,8 +393,8 @@ pub(crate) fn bounce_inputs_at_event(
 /// How much the bounce's outcome really spreads beyond its linearisation: the covariance
 /// of (v, w) after the bounce over sigma points of (v, w, e_t, mu_t) before it (the
 /// unscented transform, [`BOUNCE_SIGMA_DIMENSIONS`] dimensions, kappa = 1; `c` their
-/// covariance), less the linearised J C J', its positive part. Both regimes, and the spin's uncertainty along the
-/// directions the linearisation misses, are in it.
+/// covariance), less the linearised J C J', its positive part. Both regimes, and the spin's
+/// uncertainty along the directions the linearisation misses, are in it.
 pub(crate) fn unscented_excess(
     propagator: &Propagator,
     before: &StateVector,

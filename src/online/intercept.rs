@@ -25,7 +25,7 @@
 //! crossing or the bounce coming due), when the drift exceeds its limits, and when the last full
 //! prediction is older than its age limit (`intercept.refresh`, [`RefreshParams`]).
 
-use nalgebra::{SMatrix, SVector, Vector3};
+use nalgebra::{SMatrix, SVector, Vector2, Vector3};
 
 use crate::config::RefreshParams;
 use crate::online::ekf::{BounceNoise, bounce_inputs_at_event, bounce_scatter, unscented_excess};
@@ -75,6 +75,21 @@ pub struct Crossing {
     pub state: BallState,
     /// Covariance of the state at the crossing, timing uncertainty included.
     pub covariance: StateMatrix,
+}
+
+impl Crossing {
+    /// The crossing point's error from `point` in the plane (y, z) normalised by its predicted
+    /// covariance, per dimension (the NEES: about 1 when the covariance is honest); `None` when
+    /// that covariance is singular.
+    pub fn point_nees(&self, point: &Vector3<f64>) -> Option<f64> {
+        let error = Vector2::new(
+            self.state.position.y - point.y,
+            self.state.position.z - point.z,
+        );
+        let covariance = self.covariance.fixed_view::<2, 2>(1, 1).into_owned();
+        let chol = covariance.cholesky()?;
+        Some(error.dot(&chol.solve(&error)) / 2.0)
+    }
 }
 
 /// The predicted bounce on the robot's half.

@@ -29,7 +29,7 @@
 //! valid fraction. The predicted bounce is compared with the measured one too, which separates
 //! errors of the flight model (already in the bounce) from those of the bounce model.
 
-use nalgebra::{Vector2, Vector3};
+use nalgebra::Vector3;
 
 use super::mpi::{Flight, SpinKind, flight_detections};
 use crate::config::Config;
@@ -583,16 +583,7 @@ fn outcome(p: &InterceptEstimate, measured: &MeasuredCrossing, epoch: i64) -> Le
             z_error: c.state.position.z - measured.position.z,
             time_error: since_epoch + c.time - measured.time,
             velocity_error: c.state.velocity - measured.velocity,
-            nees: {
-                let error = Vector2::new(
-                    c.state.position.y - measured.position.y,
-                    c.state.position.z - measured.position.z,
-                );
-                let covariance = c.covariance.fixed_view::<2, 2>(1, 1).into_owned();
-                covariance
-                    .cholesky()
-                    .map(|chol| error.dot(&chol.solve(&error)) / 2.0)
-            },
+            nees: c.point_nees(&measured.position),
             bounce_error: p.intercept.bounce.map(|b| {
                 (
                     b.position - measured.bounce.position,
