@@ -565,7 +565,7 @@ impl Default for EkfParams {
             init_max_span: 0.1,
             spin_prior_sigma: 300.0,
             min_confidence: 0.0,
-            bounce_impulse_sigma: 0.05,
+            bounce_impulse_sigma: 0.1,
             bounce_restitution_sigma: 0.01,
             contact_position_sigma: 0.003,
             spin_parameter_spread: 0.5,

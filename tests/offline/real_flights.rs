@@ -305,10 +305,11 @@ fn the_estimator_predicts_real_flights_through_their_bounce() {
     // The targets: at most 15 mm RMS at 200 ms lead, 10 mm at 100 ms.
     assert!(lead200.position_error.rms <= 0.015, "{lead200:?}");
     assert!(lead100.position_error.rms <= 0.010, "{lead100:?}");
-    // The predicted covariance is about honest on the crossing (NEES per dimension 0.89 at 200
-    // ms, 1.58 at 100 ms; 1.14 and 1.87 before the bounce ahead entered it).
-    assert!(lead200.crossing_nees < 1.1, "{lead200:?}");
-    assert!(lead100.crossing_nees < 1.75, "{lead100:?}");
+    // The predicted covariance is about honest on the crossing (NEES per dimension 0.62 at 200
+    // ms, 1.23 at 100 ms; 0.89 and 1.58 with the bounce's impulse scatter at 0.05 m/s, 1.14 and
+    // 1.87 before the bounce ahead entered it).
+    assert!(lead200.crossing_nees < 0.8, "{lead200:?}");
+    assert!(lead100.crossing_nees < 1.4, "{lead100:?}");
     // Within a racket's sweet spot at 100 ms, for every kind.
     assert!(lead100.valid_fraction >= 0.9, "{lead100:?}");
     assert!(lead100.time_error.rms < 0.005, "{lead100:?}");
