@@ -217,6 +217,12 @@ impl EvaluateArgs {
                 super::replay::learned_text(learned)
             ));
         }
+        if let Some(model_noise) = &report.model_noise {
+            text.push_str(&format!(
+                "            {}\n",
+                super::replay::model_noise_text(model_noise)
+            ));
+        }
         write_stdout(&text)?;
         Ok(ExitCode::SUCCESS)
     }

@@ -554,6 +554,10 @@ pub struct EkfParams {
     /// How many detections the information behind the learned model noise remembers [-] (older
     /// ones fade).
     pub model_noise_memory: u32,
+    /// The learned model noise's horizon [s]: 0 learns it from each detection's innovation (the
+    /// prediction to the next detection); a horizon learns it from how far the predictions this
+    /// far ahead miss, so that the covariance is honest where a controller uses it.
+    pub model_noise_horizon: f64,
 }
 
 impl Default for EkfParams {
@@ -572,8 +576,9 @@ impl Default for EkfParams {
             bounce_unscented: true,
             learn_noise: true,
             noise_memory: 2000,
-            learn_model_noise: false,
+            learn_model_noise: true,
             model_noise_memory: 20000,
+            model_noise_horizon: 0.1,
         }
     }
 }

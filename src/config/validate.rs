@@ -761,6 +761,11 @@ impl Config {
             e.contact_position_sigma,
             Range::between(0.0, 0.05).note("m"),
         );
+        c.real(
+            "ekf.model_noise_horizon",
+            e.model_noise_horizon,
+            Range::between(0.0, 1.0).note("seconds"),
+        );
 
         c.count(
             "ekf.noise_memory",

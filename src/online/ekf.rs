@@ -311,6 +311,35 @@ impl BounceWatch<'_> {
     }
 }
 
+/// The score of the noise scales for an innovation y of covariance S (its Cholesky factor `chol`
+/// and NIS `nis`) of a measurement H x, given D = dP/ds of each scale: with A = H D H',
+/// d log N(y; 0, S) / ds = -1/2 (tr(S^-1 A) - y' S^-1 A S^-1 y), information
+/// 1/2 tr(S^-1 A S^-1 A) (Mehra 1970); y is cut to a NIS of `SCORE_NIS_LIMIT` per dimension.
+#[expect(non_snake_case, reason = "matrix notation")]
+fn noise_score<const M: usize>(
+    y: &SVector<f64, M>,
+    chol: &nalgebra::Cholesky<f64, nalgebra::Const<M>>,
+    nis: f64,
+    H: &SMatrix<f64, M, 9>,
+    sensitivity: &NoiseSensitivity,
+) -> NoiseScore {
+    let limit = SCORE_NIS_LIMIT * M as f64;
+    let w = chol.solve(y)
+        * if nis > limit {
+            (limit / nis).sqrt()
+        } else {
+            1.0
+        };
+    let mut score = NoiseScore::default();
+    for (j, dp) in sensitivity.iter().enumerate() {
+        let A = H * dp * H.transpose();
+        let SiA = chol.solve(&A);
+        score.gradient[j] = -0.5 * (SiA.trace() - w.dot(&(A * w)));
+        score.information[j] = 0.5 * (SiA * SiA).trace();
+    }
+    score
+}
+
 /// The covariance of (state, parameters) at an event, from the covariance `start` of the
 /// propagation's start and the event's sensitivities: [[T, S], [0, I]] P [.]'.
 fn covariance_at_event(s: &EventSensitivity, start: &AugmentedMatrix) -> AugmentedMatrix {
@@ -675,20 +704,10 @@ impl Ekf {
             return Err(UpdateError::Gated { nis, gate });
         }
         // The score of the noise scales, before the update moves D.
-        let limit = SCORE_NIS_LIMIT * M as f64;
-        let w = chol.solve(&y)
-            * if nis > limit {
-                (limit / nis).sqrt()
-            } else {
-                1.0
-            };
-        let mut score = NoiseScore::default();
-        for (j, dp) in sensitivity.iter().flat_map(|d| d.iter()).enumerate() {
-            let A = H * dp * H.transpose();
-            let SiA = chol.solve(&A);
-            score.gradient[j] = -0.5 * (SiA.trace() - w.dot(&(A * w)));
-            score.information[j] = 0.5 * (SiA * SiA).trace();
-        }
+        let score = sensitivity
+            .as_deref()
+            .map(|d| noise_score(&y, &chol, nis, H, d))
+            .unwrap_or_default();
         // K = P H' S^-1 = (S^-1 H P)'.
         let K = chol.solve(&PHt.transpose()).transpose();
         let dx = K * y;
@@ -726,6 +745,32 @@ impl Ekf {
                 }
             }
         }
+    }
+
+    /// What a measurement z = H x + noise(R) says of the noise scales, without fusing it: its NIS
+    /// and the score of the scales given the covariance's `sensitivity` to them (as
+    /// [`Ekf::update`] computes it); None when its innovation's covariance is not positive
+    /// definite or anything is not finite. For the innovation of a prediction further ahead than
+    /// the next measurement (`ekf.model_noise_horizon`).
+    #[expect(non_snake_case, reason = "matrix notation")]
+    pub fn score<const M: usize>(
+        &self,
+        z: &SVector<f64, M>,
+        H: &SMatrix<f64, M, 9>,
+        R: &SMatrix<f64, M, M>,
+        sensitivity: &NoiseSensitivity,
+    ) -> Option<Fused> {
+        if !z.iter().chain(R.iter()).all(|v| v.is_finite()) {
+            return None;
+        }
+        let y = z - H * self.x;
+        let S = H * self.state_covariance() * H.transpose() + R;
+        let chol = symmetrise(&S).cholesky()?;
+        let nis = y.dot(&chol.solve(&y));
+        nis.is_finite().then(|| Fused {
+            nis,
+            score: noise_score(&y, &chol, nis, H, sensitivity),
+        })
     }
 
     /// The normalised innovation squared of a measurement, without fusing it.
@@ -871,6 +916,46 @@ mod tests {
         assert!(ekf.x[5] > 0.0);
         assert!(ekf.P[(3, 3)] > 1e-6);
         assert_eq!(ekf.P, ekf.P.transpose());
+    }
+
+    /// `Ekf::score` (a prediction further ahead, not fused) gives the NIS and the score of the
+    /// noise scales that `Ekf::update` gives for the same measurement.
+    #[test]
+    #[expect(non_snake_case, reason = "matrix notation")]
+    fn a_prediction_is_scored_as_an_update_scores_it() {
+        let config = Config::default();
+        let propagator = Propagator::new(&config);
+        let start = crate::physics::BallState::new(
+            Vector3::new(1.0, 0.1, 0.3),
+            Vector3::new(-5.0, 0.3, 1.0),
+            Vector3::new(10.0, 120.0, -20.0),
+        )
+        .to_vector();
+        let mut ekf = Ekf::with_known_params(start, StateMatrix::identity() * 1e-4, &propagator);
+        let mut d = [StateMatrix::zeros(); NOISE_SCALES];
+        let model = FilterNoise {
+            process: ProcessNoise {
+                acceleration_density: config.ekf.acceleration_noise_density,
+                spin_density: config.ekf.spin_noise_density,
+                param_density: ParamVector::zeros(),
+            },
+            bounce: BounceNoise::from_config(&config),
+            spin_spread: 0.0,
+        };
+        ekf.predict(
+            &propagator,
+            &model,
+            &NoiseScales::default(),
+            Some(&mut d),
+            0.1,
+        );
+        let (H, R) = (position_H(), Matrix3::identity() * 4e-6);
+        let z = ekf.x.fixed_rows::<3>(0) + Vector3::new(0.004, -0.002, 0.003);
+        let scored = ekf.score(&z, &H, &R, &d).expect("scored");
+        let fused = ekf.update(&z, &H, &R, 1e9, Some(&mut d)).expect("fused");
+        // The same arithmetic: equal to the last bit.
+        assert_eq!(scored, fused);
+        assert!(scored.score.information[0] > 0.0, "{scored:?}");
     }
 
     /// The filter's dP/ds of each noise scale, carried through flight, a bounce and updates,

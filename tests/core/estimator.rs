@@ -230,10 +230,12 @@ fn out_of_order_fusion_equals_in_order_fusion() {
         "the streams interleave out of order ({late} late)"
     );
 
-    // With the sources' noise fixed the two orders are the same filter; learning it, they
-    // learn from the same innovations in another order, and agree to a fraction of the noise.
+    // With the sources' and the model's noise fixed the two orders are the same filter;
+    // learning them, they learn from the same innovations in another order (a late detection
+    // teaches neither), and agree to a fraction of the noise.
     let mut fixed_noise = wide_config();
     fixed_noise.ekf.learn_noise = false;
+    fixed_noise.ekf.learn_model_noise = false;
     for (config, position, velocity, spin) in [
         (fixed_noise, 1e-9, 1e-9, 1e-9),
         (wide_config(), 1e-4, 1e-3, 0.05),

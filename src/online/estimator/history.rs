@@ -268,12 +268,57 @@ impl Estimator {
         if let (Some(kept), Some(moved)) = (self.sensitivity.as_deref_mut(), sensitivity) {
             *kept = moved;
         }
+        self.learn_ahead(d, &m, &snapshot);
         self.push_history(Entry {
             detection: *d,
             measurement: m,
             after: snapshot,
         });
         Ok(nis)
+    }
+
+    /// With a horizon (`ekf.model_noise_horizon`): once the newest fused detection `d` is that
+    /// far past the held estimate, the estimate is predicted to it and the model noise learns
+    /// from how far the prediction misses it (its position; the same score as an update's, of
+    /// an innovation a horizon ahead); then the estimate just after `d` is held instead.
+    fn learn_ahead(&mut self, d: &Detection, m: &Measurement, after: &Snapshot) {
+        let Some(probe) = self.probe.as_deref() else {
+            return;
+        };
+        // Each fused detection fades what was learned, as without a horizon.
+        self.model_noise.fade();
+        let from = probe.from;
+        if from.is_some_and(|from| d.stamp - from.stamp < self.settings.model_noise_horizon) {
+            return;
+        }
+        if let Some(mut ahead) = from {
+            let mut sensitivity = [StateMatrix::zeros(); NOISE_SCALES];
+            self.advance_with(
+                &self.propagator,
+                &mut ahead,
+                d.stamp,
+                Some(&mut sensitivity),
+            );
+            let m = if self.settings.contact_var > 0.0 && self.at_the_table(&ahead, CONTACT_BAND) {
+                m.with_extra_position_variance(self.settings.contact_var)
+            } else {
+                *m
+            };
+            let velocity = ahead.ekf.x.fixed_rows::<3>(3).into_owned();
+            let (z, r) = match m.at_velocity(&velocity) {
+                Measurement::Position { z, r, .. } => (z, r),
+                Measurement::PositionSpin { z, r, .. } => (
+                    z.fixed_rows::<3>(0).into_owned(),
+                    r.fixed_view::<3, 3>(0, 0).into_owned(),
+                ),
+            };
+            if let Some(fused) = ahead.ekf.score(&z, &position_H(), &r, &sensitivity) {
+                self.model_noise.learn_ahead(&fused.score);
+            }
+        }
+        if let Some(held) = self.probe.as_deref_mut() {
+            held.from = Some(*after);
+        }
     }
 
     /// An edge ball whose kept bounce hypothesis fails a detection: the other hypotheses are

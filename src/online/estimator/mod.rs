@@ -146,6 +146,8 @@ pub(crate) struct Settings {
     plane_x: f64,
     horizon: f64,
     gravity: f64,
+    /// The learned model noise's horizon [ns]; 0 for each detection's own innovation.
+    model_noise_horizon: i64,
 }
 
 impl Settings {
@@ -196,6 +198,7 @@ impl Settings {
             plane_x: config.intercept.plane_x,
             horizon: config.prediction.horizon,
             gravity: config.gravity,
+            model_noise_horizon: seconds_to_ns(config.ekf.model_noise_horizon),
         }
     }
 }
@@ -242,6 +245,31 @@ struct Snapshot {
     robot_half_bounces: u32,
     last_fused: i64,
     nis: f64,
+}
+
+/// An estimate held to be predicted `ekf.model_noise_horizon` ahead and scored against the
+/// detection there: what the model noise is learned from with a horizon. The score counts what
+/// the scales add over the horizon (the held estimate's own covariance is taken as it is, so the
+/// live track carries no sensitivity: the score is still zero in expectation at the right
+/// scales, with a little less information).
+#[derive(Debug, Clone, Copy)]
+struct HorizonProbe {
+    /// The estimate it predicts from; None until the live track's next fused detection.
+    from: Option<Snapshot>,
+}
+
+impl HorizonProbe {
+    fn for_config(config: &Config) -> Option<Box<Self>> {
+        (config.ekf.learn_model_noise && config.ekf.model_noise_horizon > 0.0)
+            .then(|| Box::new(Self { from: None }))
+    }
+}
+
+/// The live track's sensitivity to the noise scales, carried when the model noise is learned
+/// from each detection's innovation (no horizon).
+fn live_sensitivity(config: &Config) -> Option<Box<NoiseSensitivity>> {
+    (config.ekf.learn_model_noise && config.ekf.model_noise_horizon == 0.0)
+        .then(|| Box::new([StateMatrix::zeros(); NOISE_SCALES]))
 }
 
 /// A fused detection and the estimate just after it.
@@ -304,6 +332,9 @@ pub struct Estimator {
     /// carried along the track's newest detections (a late one, fused by rolling back, neither
     /// moves it nor teaches the scales), allocated once.
     sensitivity: Option<Box<NoiseSensitivity>>,
+    /// The prediction held to learn the model noise from, with a horizon
+    /// (`ekf.model_noise_horizon`), allocated once.
+    probe: Option<Box<HorizonProbe>>,
     /// What the estimator knows of the physical parameters between tracks.
     learned: Learned,
     /// The racket-impact model, for the robot's announced hits.
@@ -365,6 +396,11 @@ pub struct LearnedPhysics {
 }
 
 impl LearnedPhysics {
+    /// How far the flights stray from the model, as learned.
+    pub fn model_noise(&self) -> LearnedModelNoise {
+        self.model_noise.learned()
+    }
+
     /// The ball's and table's parameters it holds, with their uncertainty.
     pub fn params(&self) -> LearnedParams {
         let (theta, covariance) = self.params.global();
@@ -485,10 +521,8 @@ impl Estimator {
                 config.ekf.model_noise_memory,
             ),
             score: None,
-            sensitivity: config
-                .ekf
-                .learn_model_noise
-                .then(|| Box::new([StateMatrix::zeros(); NOISE_SCALES])),
+            sensitivity: live_sensitivity(config),
+            probe: HorizonProbe::for_config(config),
             learned: Learned::new(
                 settings.param_prior,
                 settings.param_prior_var,
@@ -542,13 +576,12 @@ impl Estimator {
         }
         if previous.ekf.learn_model_noise != config.ekf.learn_model_noise
             || previous.ekf.model_noise_memory != config.ekf.model_noise_memory
+            || previous.ekf.model_noise_horizon != config.ekf.model_noise_horizon
         {
             self.model_noise =
                 ModelNoiseLearner::new(config.ekf.learn_model_noise, config.ekf.model_noise_memory);
-            self.sensitivity = config
-                .ekf
-                .learn_model_noise
-                .then(|| Box::new([StateMatrix::zeros(); NOISE_SCALES]));
+            self.sensitivity = live_sensitivity(config);
+            self.probe = HorizonProbe::for_config(config);
         }
         let history_capacity = history_capacity(config);
         if history_capacity != self.history_capacity {
@@ -848,13 +881,7 @@ impl Estimator {
     /// What the estimator has learned of how far the flights stray from its model: the scales on
     /// its configured process noise and bounce scatter.
     pub fn learned_model_noise(&self) -> LearnedModelNoise {
-        LearnedModelNoise {
-            scales: self.model_noise.scales(),
-            log_sigma: self
-                .model_noise
-                .information()
-                .map(|i| 1.0 / i.max(f64::MIN_POSITIVE).sqrt()),
-        }
+        self.model_noise.learned()
     }
 
     /// What the estimator has learned of each source's noise, in the order of

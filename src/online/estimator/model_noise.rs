@@ -23,6 +23,7 @@
 //! mostly measurement noise); thousands do, which is why the estimate is carried from track to
 //! track.
 
+use super::LearnedModelNoise;
 use crate::online::ekf::{NOISE_SCALES, NoiseScales, NoiseScore};
 
 /// The information [1/log-scale^2] the configured scales start with: a standard deviation of 0.5
@@ -64,12 +65,40 @@ impl ModelNoiseLearner {
     }
 
     /// The information behind each scale [1/log-scale^2].
+    #[cfg(test)]
     pub(crate) fn information(&self) -> [f64; NOISE_SCALES] {
         self.information
     }
 
-    /// Learns from the score of one update at the current scales.
+    /// The scales and the sigma of each one's log.
+    pub(crate) fn learned(&self) -> LearnedModelNoise {
+        LearnedModelNoise {
+            scales: self.scales(),
+            log_sigma: self
+                .information
+                .map(|i| 1.0 / i.max(f64::MIN_POSITIVE).sqrt()),
+        }
+    }
+
+    /// Learns from the score of one update at the current scales: one detection's fading, then
+    /// the score.
     pub(crate) fn learn(&mut self, score: &NoiseScore) {
+        self.learn_faded(score, self.fading);
+    }
+
+    /// One detection's fading of the information, nothing learned (a detection whose score is
+    /// not the one learned from: with a horizon, the prediction's further ahead are).
+    pub(crate) fn fade(&mut self) {
+        self.learn_faded(&NoiseScore::default(), self.fading);
+    }
+
+    /// Learns from the score of a prediction further ahead, at the current scales, with no
+    /// fading of its own (its detection has faded the information already).
+    pub(crate) fn learn_ahead(&mut self, score: &NoiseScore) {
+        self.learn_faded(score, 1.0);
+    }
+
+    fn learn_faded(&mut self, score: &NoiseScore, fading: f64) {
         if !self.enabled {
             return;
         }
@@ -82,7 +111,7 @@ impl ModelNoiseLearner {
             if !(gradient.is_finite() && information.is_finite()) {
                 continue;
             }
-            self.information[j] = self.information[j] * self.fading + information;
+            self.information[j] = self.information[j] * fading + information;
             let step = (gradient / self.information[j]).clamp(-MAX_STEP, MAX_STEP);
             self.log_scales[j] = (self.log_scales[j] + step).clamp(low, high);
         }

@@ -127,6 +127,9 @@ impl Estimator {
         if let Some(d) = self.sensitivity.as_deref_mut() {
             *d = [StateMatrix::zeros(); NOISE_SCALES];
         }
+        if let Some(probe) = self.probe.as_deref_mut() {
+            probe.from = None;
+        }
         let history = std::mem::take(&mut self.spare_history);
         self.track = Some(Track {
             id,
@@ -171,6 +174,9 @@ impl Estimator {
         self.counters.seeded_by_hit += 1;
         if let Some(s) = self.sensitivity.as_deref_mut() {
             *s = [StateMatrix::zeros(); NOISE_SCALES];
+        }
+        if let Some(probe) = self.probe.as_deref_mut() {
+            probe.from = None;
         }
         let mut history = std::mem::take(&mut self.spare_history);
         history.push_back(Entry {
