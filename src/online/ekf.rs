@@ -763,10 +763,7 @@ impl Ekf {
         if !z.iter().chain(R.iter()).all(|v| v.is_finite()) {
             return None;
         }
-        let y = z - H * self.x;
-        let S = H * self.state_covariance() * H.transpose() + R;
-        let chol = symmetrise(&S).cholesky()?;
-        let nis = y.dot(&chol.solve(&y));
+        let (y, chol, nis) = self.innovation(z, H, R)?;
         nis.is_finite().then(|| Fused {
             nis,
             score: noise_score(&y, &chol, nis, H, sensitivity),
@@ -781,10 +778,27 @@ impl Ekf {
         H: &SMatrix<f64, M, 9>,
         R: &SMatrix<f64, M, M>,
     ) -> Option<f64> {
+        self.innovation(z, H, R).map(|(_, _, nis)| nis)
+    }
+
+    /// The innovation y = z - H x of a measurement, the Cholesky factor of its covariance
+    /// S = H P H' + R, and its NIS y' S^-1 y; None when S is not positive definite.
+    #[expect(non_snake_case, reason = "matrix notation")]
+    fn innovation<const M: usize>(
+        &self,
+        z: &SVector<f64, M>,
+        H: &SMatrix<f64, M, 9>,
+        R: &SMatrix<f64, M, M>,
+    ) -> Option<(
+        SVector<f64, M>,
+        nalgebra::Cholesky<f64, nalgebra::Const<M>>,
+        f64,
+    )> {
         let y = z - H * self.x;
         let S = H * self.state_covariance() * H.transpose() + R;
         let chol = symmetrise(&S).cholesky()?;
-        Some(y.dot(&chol.solve(&y)))
+        let nis = y.dot(&chol.solve(&y));
+        Some((y, chol, nis))
     }
 }
 
