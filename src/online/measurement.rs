@@ -185,6 +185,17 @@ impl Measurement {
         self
     }
 
+    /// Its position and the position's covariance.
+    pub(crate) fn position(&self) -> (Vector3<f64>, Matrix3<f64>) {
+        match self {
+            Self::Position { z, r, .. } => (*z, *r),
+            Self::PositionSpin { z, r, .. } => (
+                z.fixed_rows::<3>(0).into_owned(),
+                r.fixed_view::<3, 3>(0, 0).into_owned(),
+            ),
+        }
+    }
+
     /// The measurement at a predicted velocity `v` [m/s]: the timing noise added to the
     /// position covariance along it (timing v v').
     pub(crate) fn at_velocity(mut self, v: &Vector3<f64>) -> Self {

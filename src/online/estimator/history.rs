@@ -96,16 +96,7 @@ impl Estimator {
         let velocity = x.fixed_rows::<3>(3).into_owned();
         let p = snapshot.ekf.state_covariance();
         let hph = p.fixed_view::<3, 3>(0, 0).into_owned();
-        // A ball at the table: its detection's own extra noise, which teaches nothing of its
-        // camera's.
-        let at_contact =
-            self.settings.contact_var > 0.0 && self.at_the_table(snapshot, CONTACT_BAND);
-        let m = if at_contact {
-            m.with_extra_position_variance(self.settings.contact_var)
-        } else {
-            *m
-        };
-        let m = m.at_velocity(&velocity);
+        let (m, at_contact) = self.measurement_at(snapshot, m);
         let (y, spin) = match &m {
             Measurement::Position { z, .. } => (z - x.fixed_rows::<3>(0), None),
             Measurement::PositionSpin { z, .. } => (
@@ -140,6 +131,21 @@ impl Estimator {
             }
         };
         (result, innovation, spin_reset)
+    }
+
+    /// The measurement as the estimate `snapshot` sees it: with the extra noise of a ball at the
+    /// table (which teaches nothing of its camera's: the flag), and its stamp's timing noise
+    /// along the estimate's velocity.
+    fn measurement_at(&self, snapshot: &Snapshot, m: &Measurement) -> (Measurement, bool) {
+        let at_contact =
+            self.settings.contact_var > 0.0 && self.at_the_table(snapshot, CONTACT_BAND);
+        let m = if at_contact {
+            m.with_extra_position_variance(self.settings.contact_var)
+        } else {
+            *m
+        };
+        let velocity = snapshot.ekf.x.fixed_rows::<3>(3).into_owned();
+        (m.at_velocity(&velocity), at_contact)
     }
 
     /// True when the estimate is within `band` [m] of its contact height over the table: a few
@@ -299,19 +305,7 @@ impl Estimator {
                 d.stamp,
                 Some(&mut sensitivity),
             );
-            let m = if self.settings.contact_var > 0.0 && self.at_the_table(&ahead, CONTACT_BAND) {
-                m.with_extra_position_variance(self.settings.contact_var)
-            } else {
-                *m
-            };
-            let velocity = ahead.ekf.x.fixed_rows::<3>(3).into_owned();
-            let (z, r) = match m.at_velocity(&velocity) {
-                Measurement::Position { z, r, .. } => (z, r),
-                Measurement::PositionSpin { z, r, .. } => (
-                    z.fixed_rows::<3>(0).into_owned(),
-                    r.fixed_view::<3, 3>(0, 0).into_owned(),
-                ),
-            };
+            let (z, r) = self.measurement_at(&ahead, m).0.position();
             if let Some(fused) = ahead.ekf.score(&z, &position_H(), &r, &sensitivity) {
                 self.model_noise.learn_ahead(&fused.score);
             }
