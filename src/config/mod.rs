@@ -546,10 +546,11 @@ pub struct EkfParams {
     pub learn_noise: bool,
     /// How many detections of a source the learned noise averages over [-] (older ones fade).
     pub noise_memory: u32,
-    /// Learn how far the flights really stray from the model, from the innovations: a scale on
-    /// the process noise (`acceleration_noise_density`, `spin_noise_density`) and one on the
-    /// bounce's scatter (`bounce_impulse_sigma`, `bounce_restitution_sigma`, as variances),
-    /// starting from 1, by recursive maximum likelihood.
+    /// Learn how far the flights really stray from the model, from the innovations of the
+    /// predictions `model_noise_horizon` ahead: a scale on the process noise
+    /// (`acceleration_noise_density`, `spin_noise_density`) and one on the bounce's scatter
+    /// (`bounce_impulse_sigma`, `bounce_restitution_sigma`, as variances), starting from 1, by
+    /// recursive maximum likelihood.
     pub learn_model_noise: bool,
     /// How many detections the information behind the learned model noise remembers [-] (older
     /// ones fade).

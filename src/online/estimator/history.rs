@@ -291,13 +291,17 @@ impl Estimator {
         let Some(probe) = self.probe.as_deref() else {
             return;
         };
+        let due = probe
+            .from
+            .as_ref()
+            .is_none_or(|from| d.stamp - from.stamp >= self.settings.model_noise_horizon);
+        let held = if due { probe.from } else { None };
         // Each fused detection fades what was learned, as without a horizon.
         self.model_noise.fade();
-        let from = probe.from;
-        if from.is_some_and(|from| d.stamp - from.stamp < self.settings.model_noise_horizon) {
+        if !due {
             return;
         }
-        if let Some(mut ahead) = from {
+        if let Some(mut ahead) = held {
             let mut sensitivity = [StateMatrix::zeros(); NOISE_SCALES];
             self.advance_with(
                 &self.propagator,

@@ -15,6 +15,13 @@
 //! ([`crate::online::ekf::NoiseScore`]) (Mehra, "On the identification of variances and adaptive
 //! Kalman filtering", IEEE TAC 1970: the innovations' likelihood as a function of the noise).
 //!
+//! Which innovations (`ekf.model_noise_horizon`): with a horizon h (0.1 s by default) the score
+//! is that of a prediction h ahead, held from the estimate after a fused detection and scored
+//! against the first newest detection at least h later (`Estimator::learn_ahead`; D then counts
+//! what the scales add over the prediction). A prediction a few milliseconds ahead hardly feels
+//! the process noise, and learned from each detection's own innovation (h = 0: D carried along
+//! the live track) the scales came out too small for real flights (docs/estimator.md).
+//!
 //! Each log-scale follows a recursive Newton (Fisher scoring) step, log s += s g / I, where I is
 //! the information accumulated with a fading memory of `ekf.model_noise_memory` detections,
 //! starting from [`PRIOR_INFORMATION`] (the configured value counts as that much evidence). A
