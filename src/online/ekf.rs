@@ -196,6 +196,10 @@ pub struct NoiseScore {
 pub struct Fused {
     /// y' S^-1 y.
     pub nis: f64,
+    /// The NIS of the whole measurement against the prediction, even where only part of it was
+    /// fused (a spin that did not fit, see the estimator): what tells two hypotheses of one
+    /// detection apart, compared over the same dimensions.
+    pub whole_nis: f64,
     /// The score of the noise scales.
     pub score: NoiseScore,
 }
@@ -725,7 +729,11 @@ impl Ekf {
         for d in sensitivity.iter_mut().flat_map(|d| d.iter_mut()) {
             *d = symmetrise(&(I_KH * *d * I_KH.transpose()));
         }
-        Ok(Fused { nis, score })
+        Ok(Fused {
+            nis,
+            whole_nis: nis,
+            score,
+        })
     }
 
     /// Forgets what the filter learned about the spin: its covariance goes back to `variance`
@@ -766,6 +774,7 @@ impl Ekf {
         let (y, chol, nis) = self.innovation(z, H, R)?;
         nis.is_finite().then(|| Fused {
             nis,
+            whole_nis: nis,
             score: noise_score(&y, &chol, nis, H, sensitivity),
         })
     }

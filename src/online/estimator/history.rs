@@ -60,7 +60,9 @@ impl Estimator {
                     continue;
                 };
                 let better = match result {
-                    Ok(current) => fused.nis < current.nis && other.bounces != snapshot.bounces,
+                    Ok(current) => {
+                        fused.whole_nis < current.whole_nis && other.bounces != snapshot.bounces
+                    }
                     Err(_) => true,
                 };
                 if better {
@@ -74,6 +76,7 @@ impl Estimator {
             Ok(fused) => {
                 snapshot.last_fused = d.stamp;
                 snapshot.nis = fused.nis;
+                snapshot.whole_nis = fused.whole_nis;
                 self.score = scoring.then_some(fused.score);
                 Ok(fused.nis)
             }
@@ -212,17 +215,33 @@ impl Estimator {
             self.settings.gate_position_spin,
             sensitivity.as_deref_mut(),
         );
+        // A fallback below fuses part of the measurement; the spin's misfit still counts
+        // against this hypothesis when two are compared (an edge ball).
+        let whole = |fused: Result<Fused, UpdateError>, whole_nis: f64| {
+            fused.map(|f| Fused { whole_nis, ..f })
+        };
         match first {
             // At the table the measured spin may be of the other side of the bounce (the
             // bounce's time is uncertain by a millisecond or two, and it changes the spin by
             // hundreds of rad/s): the position alone.
-            Err(UpdateError::Gated { .. }) if self.at_the_table(snapshot, BOUNCE_SPIN_MARGIN) => (
-                snapshot
-                    .ekf
-                    .update(&z_position, &position_H(), &r_position, gate, sensitivity),
-                false,
-            ),
-            Err(UpdateError::Gated { .. }) => {
+            Err(UpdateError::Gated { nis, .. })
+                if self.at_the_table(snapshot, BOUNCE_SPIN_MARGIN) =>
+            {
+                (
+                    whole(
+                        snapshot.ekf.update(
+                            &z_position,
+                            &position_H(),
+                            &r_position,
+                            gate,
+                            sensitivity,
+                        ),
+                        nis,
+                    ),
+                    false,
+                )
+            }
+            Err(UpdateError::Gated { nis: whole_nis, .. }) => {
                 snapshot
                     .ekf
                     .reset_spin(self.settings.spin_prior_var, sensitivity.as_deref_mut());
@@ -242,7 +261,7 @@ impl Estimator {
                         sensitivity,
                     ),
                 };
-                (refit, true)
+                (whole(refit, whole_nis), true)
             }
             other => (other, false),
         }
@@ -325,7 +344,8 @@ impl Estimator {
     /// come too soon after it to tell landing on the table from passing beside it (0.3 ms at
     /// 900 fps), and a hypothesis chosen on it leaves the other, tried one detection later, to
     /// start from a ball already below the table's height. Taken when the newest detection fuses
-    /// and the detections re-applied fit better (lower NIS in sum) than they did; the history is
+    /// and the detections re-applied fit better (lower NIS of their whole measurements in sum)
+    /// than they did; the history is
     /// rewritten with it. Returns the estimate at `d` and its NIS.
     fn retry_edge_bounce(&mut self, d: &Detection, m: &Measurement) -> Option<(Snapshot, f64)> {
         let track = self.track.as_ref()?;
@@ -349,7 +369,11 @@ impl Estimator {
         if again == 0 || again > EDGE_RETRY_LIMIT {
             return None;
         }
-        let kept: f64 = history.iter().skip(from + 1).map(|e| e.after.nis).sum();
+        let kept: f64 = history
+            .iter()
+            .skip(from + 1)
+            .map(|e| e.after.whole_nis)
+            .sum();
         let mut best: Option<([Snapshot; EDGE_RETRY_LIMIT], Snapshot, f64, f64)> = None;
         for alternative in &self.edge_alternatives {
             let mut snapshot = history[from].after;
@@ -367,12 +391,13 @@ impl Estimator {
                     Ok(f) => {
                         snapshot.last_fused = entry.detection.stamp;
                         snapshot.nis = f.nis;
-                        total += f.nis;
+                        snapshot.whole_nis = f.whole_nis;
+                        total += f.whole_nis;
                     }
                     // A detection the hypothesis cannot explain counts as at the gate.
                     Err(_) => {
                         self.advance_with(alternative, &mut snapshot, entry.detection.stamp, None);
-                        total += self.settings.gate_position;
+                        total += self.whole_gate(&entry.measurement);
                     }
                 }
                 *slot = snapshot;
@@ -384,6 +409,7 @@ impl Estimator {
             if total < kept && best.as_ref().is_none_or(|b| total < b.3) {
                 snapshot.last_fused = d.stamp;
                 snapshot.nis = fused.nis;
+                snapshot.whole_nis = fused.whole_nis;
                 best = Some((afters, snapshot, fused.nis, total));
             }
         }
@@ -394,6 +420,15 @@ impl Estimator {
         }
         self.counters.edge_retries += 1;
         Some((snapshot, nis))
+    }
+
+    /// The gate of a measurement's every dimension: what a detection a hypothesis cannot explain
+    /// counts as when hypotheses are compared.
+    fn whole_gate(&self, m: &Measurement) -> f64 {
+        match m {
+            Measurement::Position { .. } => self.settings.gate_position,
+            Measurement::PositionSpin { .. } => self.settings.gate_position_spin,
+        }
     }
 
     /// Fuses a detection older than the newest fused one: roll back, fuse, re-apply the newer.

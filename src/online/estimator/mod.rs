@@ -244,7 +244,10 @@ struct Snapshot {
     bounces: u32,
     robot_half_bounces: u32,
     last_fused: i64,
+    /// The NIS of the last fused update.
     nis: f64,
+    /// That detection's whole measurement's NIS ([`Fused::whole_nis`]).
+    whole_nis: f64,
 }
 
 /// An estimate held to be predicted `ekf.model_noise_horizon` ahead and scored against the

@@ -101,6 +101,7 @@ impl Estimator {
             robot_half_bounces: u32::from(already_bounced(&fit.x)),
             last_fused: fit.stamp,
             nis: 0.0,
+            whole_nis: 0.0,
         };
         let first_seen = self.pending.first().map_or(fit.stamp, |d| d.stamp);
         let continued = self
@@ -219,6 +220,7 @@ impl Estimator {
             robot_half_bounces: 0,
             last_fused: hit.stamp,
             nis: 0.0,
+            whole_nis: 0.0,
         })
     }
 
