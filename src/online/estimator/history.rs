@@ -74,9 +74,7 @@ impl Estimator {
         }
         match result {
             Ok(fused) => {
-                snapshot.last_fused = d.stamp;
-                snapshot.nis = fused.nis;
-                snapshot.whole_nis = fused.whole_nis;
+                snapshot.record(d.stamp, &fused);
                 self.score = scoring.then_some(fused.score);
                 Ok(fused.nis)
             }
@@ -345,8 +343,7 @@ impl Estimator {
     /// 900 fps), and a hypothesis chosen on it leaves the other, tried one detection later, to
     /// start from a ball already below the table's height. Taken when the newest detection fuses
     /// and the detections re-applied fit better (lower NIS of their whole measurements in sum)
-    /// than they did; the history is
-    /// rewritten with it. Returns the estimate at `d` and its NIS.
+    /// than they did; the history is rewritten with it. Returns the estimate at `d` and its NIS.
     fn retry_edge_bounce(&mut self, d: &Detection, m: &Measurement) -> Option<(Snapshot, f64)> {
         let track = self.track.as_ref()?;
         if !self.near_table_edge(&track.now) {
@@ -389,9 +386,7 @@ impl Estimator {
                 );
                 match fused {
                     Ok(f) => {
-                        snapshot.last_fused = entry.detection.stamp;
-                        snapshot.nis = f.nis;
-                        snapshot.whole_nis = f.whole_nis;
+                        snapshot.record(entry.detection.stamp, &f);
                         total += f.whole_nis;
                     }
                     // A detection the hypothesis cannot explain counts as at the gate.
@@ -407,9 +402,7 @@ impl Estimator {
                 continue;
             };
             if total < kept && best.as_ref().is_none_or(|b| total < b.3) {
-                snapshot.last_fused = d.stamp;
-                snapshot.nis = fused.nis;
-                snapshot.whole_nis = fused.whole_nis;
+                snapshot.record(d.stamp, &fused);
                 best = Some((afters, snapshot, fused.nis, total));
             }
         }

@@ -250,6 +250,15 @@ struct Snapshot {
     whole_nis: f64,
 }
 
+impl Snapshot {
+    /// Records the detection at `stamp` just fused into it.
+    fn record(&mut self, stamp: i64, fused: &Fused) {
+        self.last_fused = stamp;
+        self.nis = fused.nis;
+        self.whole_nis = fused.whole_nis;
+    }
+}
+
 /// An estimate held to be predicted `ekf.model_noise_horizon` ahead and scored against the
 /// detection there: what the model noise is learned from with a horizon. The score counts what
 /// the scales add over the horizon (the held estimate's own covariance is taken as it is, so the
