@@ -286,14 +286,11 @@ fn the_estimator_predicts_real_flights_through_their_bounce() {
         .map(|f| (f.id, f.gated_after_bounce))
         .collect();
     println!("flights with detections gated within 50 ms after the bounce (id, count): {gated:?}");
-    // The issue asks for none in 99 % of flights (all 40 here). The frames next to a contact
-    // get its extra noise (`ekf.contact_position_sigma`; without it 4 flights). One flight is
-    // left: backspin 14, whose frames around the bounce (three gaps of 11-16 ms) fit no bounce
-    // together (docs/real_flights.md). No worse than that.
-    assert!(
-        gated.len() <= 1 && gated.iter().all(|(_, n)| *n == 1),
-        "{gated:?}"
-    );
+    // The issue asks for none in 99 % of flights (all 40 here). The frames within a ball
+    // diameter of a contact get its extra noise (`ekf.contact_position_sigma`; without it 4
+    // flights; within half a diameter 1, backspin 14, whose first frame after a 16 ms gap, 3.6
+    // cm above the contact height, sits 6 mm off: docs/real_flights.md).
+    assert!(gated.is_empty(), "{gated:?}");
     // The table's friction is learned from these bounces, though most of them may have rolled
     // out or slid (each teaches in proportion to the probability that it slid).
     let learned = full.learned.expect("learned physics");
