@@ -1,7 +1,8 @@
 //! Cost of the per-detection path: one EKF update, the estimator's update of a detection in order
 //! and of a late one (rollback), one interception prediction with covariance at several horizons,
 //! and the whole `Estimator::handle` (update + interception), on states and detections from a
-//! simulated 150 + 900 fps session. `cargo bench --bench estimator`; the distribution over a whole
+//! simulated 150 + 900 fps session; and the batch fit of a flight so far, the cost an online
+//! refit would pay. `cargo bench --bench estimator`; the distribution over a whole
 //! stream is `cargo bench --bench per_detection`.
 
 use std::hint::black_box;
@@ -10,6 +11,7 @@ use criterion::{BatchSize, Criterion, criterion_group, criterion_main};
 use nalgebra::{Matrix3, Matrix6, SVector};
 use ttball::config::Config;
 use ttball::eval::sim::{Cameras, SimOptions, simulate};
+use ttball::offline::batch::fit_flight;
 use ttball::online::ekf::{BounceNoise, Ekf, position_H, position_spin_H};
 use ttball::online::estimator::Estimator;
 use ttball::online::intercept::{InterceptQuery, predict_intercept};
@@ -106,6 +108,37 @@ fn benches(c: &mut Criterion) {
         for d in &session.stream[..midway] {
             estimator.handle(&d.detection);
         }
+        // The batch fit of the flight so far (what an online refit would solve): the shot's
+        // detections up to 100 ms before its bounce, and up to 50 ms after it, from the true
+        // state at the first one (its seven spin starts included).
+        let mut group = c.benchmark_group("batch_fit");
+        group.sample_size(20);
+        for (name, until) in [
+            ("before_bounce", shot.bounce.stamp - 100_000_000),
+            ("through_bounce", shot.bounce.stamp + 50_000_000),
+        ] {
+            let flight: Vec<_> = session
+                .stream
+                .iter()
+                .filter(|d| d.shot == 0 && !d.outlier && d.detection.stamp <= until)
+                .collect();
+            let Some(first) = flight.iter().min_by_key(|d| d.detection.stamp) else {
+                continue;
+            };
+            let initial = first.truth;
+            let detections: Vec<_> = flight.iter().map(|d| d.detection).collect();
+            if let Ok(fit) = fit_flight(&config, &detections, &initial) {
+                println!(
+                    "batch_fit/{name}: {} detections, {} Levenberg-Marquardt iterations",
+                    fit.used, fit.iterations
+                );
+            }
+            group.bench_function(name, |b| {
+                b.iter(|| fit_flight(&config, black_box(&detections), &initial))
+            });
+        }
+        group.finish();
+
         let next = session.stream[midway..]
             .iter()
             .find(|d| d.detection.spin.is_some())
