@@ -49,6 +49,29 @@ fn handling_detections_allocates_nothing() {
     assert_eq!(info.count_total, 0, "{info:?}");
 }
 
+/// With the track refitted every 50 ms (`ekf.refit_interval`): its detections kept in a
+/// buffer allocated once, each refit on fixed-size matrices.
+#[test]
+fn refitting_the_track_allocates_nothing() {
+    let mut config = Config::default();
+    config.ekf.refit_interval = 0.05;
+    let session = session(&config);
+    let mut estimator = Estimator::new(&config);
+    let first_of_second = session.stream.iter().position(|d| d.shot == 1).unwrap();
+    for sim in &session.stream[..first_of_second] {
+        estimator.handle(&sim.detection);
+    }
+    let refits_before = estimator.counters().refits;
+    let rest = &session.stream[first_of_second..];
+    let info = allocation_counter::measure(|| {
+        for sim in rest {
+            estimator.handle(&sim.detection);
+        }
+    });
+    assert!(estimator.counters().refits > refits_before + 2);
+    assert_eq!(info.count_total, 0, "{info:?}");
+}
+
 /// The node's whole per-detection path, `Pipeline::on_detection`: the message converted, the
 /// filter updated, the interception predicted and the `/ball/state` and `/ball/intercept`
 /// messages built (their `frame_id` borrowed from a constant) allocate nothing. The

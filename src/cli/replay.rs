@@ -287,6 +287,13 @@ pub fn summary_text(s: &ReplaySummary, whole_seconds: Option<f64>) -> String {
         "  late detections rolled back and re-applied {}; interceptions predicted in full {}, moved from the last full one {}",
         c.rollbacks, s.intercepts.full, s.intercepts.moved
     );
+    if c.refits > 0 {
+        let _ = writeln!(
+            out,
+            "  tracks refitted {} times (ekf.refit_interval)",
+            c.refits
+        );
+    }
     let _ = writeln!(out, "  {}", learned_text(&s.learned));
     if let Some(line) = noise_text(&s.learned_noise) {
         let _ = writeln!(out, "  {line}");
@@ -452,6 +459,7 @@ fn summary_json(s: &ReplaySummary, whole_seconds: f64) -> serde_json::Value {
         "tracks": c.tracks,
         "reanchored": c.reanchored,
         "rollbacks": c.rollbacks,
+        "refits": c.refits,
         "intercepts_full": s.intercepts.full,
         "intercepts_moved": s.intercepts.moved,
         "learned_physics": learned_json(&s.learned),

@@ -559,6 +559,13 @@ pub struct EkfParams {
     /// prediction to the next detection); a horizon learns it from how far the predictions this
     /// far ahead miss, so that the covariance is honest where a controller uses it.
     pub model_noise_horizon: f64,
+    /// How often the track is refitted [s of track]: the maximum a posteriori fit of its
+    /// detections so far and its flight's parameters, relinearised at every iteration, whose
+    /// mean replaces the filter's (`crate::online::refit`); 0 never.
+    pub refit_interval: f64,
+    /// The most detections a track is refitted with [-]: past them the filter goes on alone
+    /// (each refit costs about a microsecond per detection and iteration).
+    pub refit_max_detections: u32,
 }
 
 impl Default for EkfParams {
@@ -580,6 +587,8 @@ impl Default for EkfParams {
             learn_model_noise: true,
             model_noise_memory: 20000,
             model_noise_horizon: 0.1,
+            refit_interval: 0.0,
+            refit_max_detections: 128,
         }
     }
 }

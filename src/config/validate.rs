@@ -229,6 +229,23 @@ impl Checker {
         }
     }
 
+    fn count_between(
+        &mut self,
+        key: &str,
+        value: u32,
+        (min, max): (u32, u32),
+        allowed: &'static str,
+    ) {
+        self.rule(key, allowed);
+        if !(min..=max).contains(&value) {
+            self.violations.push(Violation::CountOutOfRange {
+                key: key.to_owned(),
+                value: u64::from(value),
+                allowed,
+            });
+        }
+    }
+
     fn polynomial(&mut self, key: &str, coefficients: &[f64]) {
         self.rule(key, "1 to 8 finite coefficients, lowest order first");
         if coefficients.is_empty() {
@@ -766,6 +783,11 @@ impl Config {
             e.model_noise_horizon,
             Range::between(0.0, 1.0).note("seconds"),
         );
+        c.real(
+            "ekf.refit_interval",
+            e.refit_interval,
+            Range::between(0.0, 1.0).note("seconds"),
+        );
 
         c.count(
             "ekf.noise_memory",
@@ -778,6 +800,12 @@ impl Config {
             e.model_noise_memory,
             100,
             "at least 100 (detections)",
+        );
+        c.count_between(
+            "ekf.refit_max_detections",
+            e.refit_max_detections,
+            (8, 4096),
+            "between 8 and 4096 (detections)",
         );
 
         let ad = &self.adaptation;

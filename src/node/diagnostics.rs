@@ -177,6 +177,7 @@ pub fn diagnostics_msg(snapshot: &Snapshot<'_>, window: &mut Window) -> Diagnost
             c.reanchored.to_string(),
         ),
         kv("late detections fused by rollback", c.rollbacks.to_string()),
+        kv("track refits", c.refits.to_string()),
         kv("all-zero spins ignored", c.zero_spin_ignored.to_string()),
         kv(
             "tracks seeded by the robot's announced hits",

@@ -26,19 +26,17 @@ use thiserror::Error;
 use crate::config::Config;
 use crate::model::detection::Detection;
 use crate::model::least_squares::{Damping, damped_step};
-use crate::model::stats::chi_square_quantile;
 use crate::offline::ballistic::fit_ballistic;
 use crate::online::ekf::PredictReport;
 use crate::online::estimator::Rejection;
-use crate::online::measurement::{Measurement, MeasurementModel};
+use crate::online::measurement::MeasurementModel;
+pub(crate) use crate::online::refit::Observation;
 use crate::physics::propagate::{Cursor, Propagator, Watch};
 use crate::physics::state::{BallState, SPIN, StateMatrix, StateVector};
 
 /// Nanoseconds per second.
 const NS_PER_S: f64 = 1e9;
-/// Probability of a correct detection's whitened residual within the Huber threshold (that of
-/// 3 sigma in one dimension); beyond it the detection's weight falls.
-pub const HUBER_PROBABILITY: f64 = 0.9973;
+pub use crate::online::refit::HUBER_PROBABILITY;
 /// Largest number of Levenberg-Marquardt iterations.
 const MAX_ITERATIONS: usize = 60;
 /// Relative cost change at which the fit has converged.
@@ -85,24 +83,6 @@ pub enum FitError {
     Singular,
 }
 
-/// One usable detection, whitened: its time since the flight's start and measurement vector
-/// (position, then spin when measured) with the inverse Cholesky factor of its noise.
-#[derive(Debug, Clone, PartialEq)]
-pub(crate) struct Observation {
-    /// Index of the detection in the caller's slice.
-    pub index: usize,
-    /// Time since the flight's first detection [s].
-    pub t: f64,
-    /// Measured position [m] and spin [rad/s] (zero when not measured).
-    z: SVector<f64, 6>,
-    /// L^-1, zero outside the measured dimensions: the whitened residual is `white (z - h)`.
-    white: SMatrix<f64, 6, 6>,
-    /// Measured dimensions: 3 (position) or 6 (position and spin).
-    pub dims: usize,
-    /// Whitened residual length where Huber's loss turns linear.
-    pub threshold: f64,
-}
-
 /// The usable detections of one flight, in stamp order, and the rejected ones' reasons.
 #[derive(Debug, Clone, PartialEq)]
 pub(crate) struct Observations {
@@ -123,23 +103,15 @@ impl Observations {
         let start_stamp = order.first().map_or(0, |&i| detections[i].stamp);
         let mut list = Vec::with_capacity(order.len());
         let mut rejected = Vec::new();
-        let threshold = |dims: usize| chi_square_quantile(HUBER_PROBABILITY, dims as u32).sqrt();
-        let thresholds = [threshold(3), threshold(6)];
         for index in order {
             let d = &detections[index];
-            let whitened = model
+            let t = (d.stamp - start_stamp) as f64 / NS_PER_S;
+            let observation = model
                 .measure(d)
                 .map_err(Rejection::from)
-                .and_then(|m| whiten(&m));
-            match whitened {
-                Ok((z, white, dims)) => list.push(Observation {
-                    index,
-                    t: (d.stamp - start_stamp) as f64 / NS_PER_S,
-                    z,
-                    white,
-                    dims,
-                    threshold: thresholds[usize::from(dims == 6)],
-                }),
+                .and_then(|m| Observation::new(index, t, &m));
+            match observation {
+                Ok(o) => list.push(o),
                 Err(why) => rejected.push(why),
             }
         }
@@ -149,29 +121,6 @@ impl Observations {
             rejected,
         }
     }
-}
-
-/// A measurement as (z, L^-1) padded to six dimensions, and its dimensions.
-fn whiten(m: &Measurement) -> Result<(SVector<f64, 6>, SMatrix<f64, 6, 6>, usize), Rejection> {
-    match m {
-        Measurement::Position { z: p, r, .. } => {
-            let mut z = SVector::<f64, 6>::zeros();
-            let mut white = SMatrix::<f64, 6, 6>::zeros();
-            z.fixed_rows_mut::<3>(0).copy_from(p);
-            white
-                .fixed_view_mut::<3, 3>(0, 0)
-                .copy_from(&inverse_factor(r)?);
-            Ok((z, white, 3))
-        }
-        Measurement::PositionSpin { z, r, .. } => Ok((*z, inverse_factor(r)?, 6)),
-    }
-}
-
-/// L^-1 of a noise covariance R = L L^T.
-fn inverse_factor<const D: usize>(r: &SMatrix<f64, D, D>) -> Result<SMatrix<f64, D, D>, Rejection> {
-    r.cholesky()
-        .and_then(|c| c.l().try_inverse())
-        .ok_or(Rejection::BadCovariance)
 }
 
 /// One observation's whitened residual and its Jacobian with respect to the start state.
@@ -224,34 +173,6 @@ pub(crate) fn residuals(
             jacobian: o.white * h,
             miss: difference.fixed_rows::<3>(0).into_owned(),
         });
-    }
-}
-
-/// Huber's loss on a whitened residual of length `length`: the IRLS weight and the cost
-/// (quadratic within `threshold`, linear beyond).
-fn huber(length: f64, threshold: f64) -> (f64, f64) {
-    if length <= threshold {
-        (1.0, length * length)
-    } else {
-        (
-            threshold / length,
-            2.0 * threshold * length - threshold * threshold,
-        )
-    }
-}
-
-impl Observation {
-    /// The IRLS weight and cost of this observation's whitened residual of length `length`:
-    /// Huber's loss at its threshold when `robust`, else least squares.
-    pub fn loss(&self, length: f64, robust: bool) -> (f64, f64) {
-        huber(
-            length,
-            if robust {
-                self.threshold
-            } else {
-                f64::INFINITY
-            },
-        )
     }
 }
 

@@ -88,6 +88,8 @@ pub struct Counters {
     pub reanchored: u64,
     /// Late detections fused by rolling back.
     pub rollbacks: u64,
+    /// Refits of a track that moved its estimate (`ekf.refit_interval`).
+    pub refits: u64,
     /// Spin measurements that disagreed with the filter's spin and replaced it.
     pub spin_resets: u64,
     /// Detections near the table's edge that the other bounce hypothesis explained better.

@@ -297,6 +297,8 @@ impl Estimator {
             measurement: m,
             after: snapshot,
         });
+        self.keep_for_refit(d, &m);
+        self.refit_when_due();
         Ok(nis)
     }
 
@@ -477,6 +479,7 @@ impl Estimator {
         track.now = snapshot;
         self.track = Some(track);
         self.counters.rollbacks += 1;
+        self.keep_for_refit(d, &m);
         Ok(nis)
     }
 

@@ -26,6 +26,7 @@ mod jumps;
 mod learning;
 mod model_noise;
 mod noise;
+mod refitting;
 mod tracking;
 
 use std::collections::VecDeque;
@@ -148,6 +149,10 @@ pub(crate) struct Settings {
     gravity: f64,
     /// The learned model noise's horizon [ns]; 0 for each detection's own innovation.
     model_noise_horizon: i64,
+    /// How often the track is refitted [ns of track]; 0 never.
+    refit_interval: i64,
+    /// The most detections a track is refitted with.
+    refit_max: usize,
 }
 
 impl Settings {
@@ -197,6 +202,8 @@ impl Settings {
             coast: seconds_to_ns(config.tracking.coast_after),
             plane_x: config.intercept.plane_x,
             horizon: config.prediction.horizon,
+            refit_interval: seconds_to_ns(config.ekf.refit_interval),
+            refit_max: config.ekf.refit_max_detections.clamp(8, 4096) as usize,
             gravity: config.gravity,
             model_noise_horizon: seconds_to_ns(config.ekf.model_noise_horizon),
         }
@@ -355,6 +362,8 @@ pub struct Estimator {
     /// at the first detection after its impact (kept for the detections after it until one fits
     /// or `tracking.timeout` has passed since the impact).
     expected_hit: Option<(RobotHit, Option<Snapshot>)>,
+    /// The live track's detections for its refits, and the last refit.
+    refit: refitting::TrackRefit,
 }
 
 /// The robot's own hit, announced to the estimator: when and with what racket state it meets
@@ -545,6 +554,11 @@ impl Estimator {
             ),
             racket: RacketModel::new(config),
             expected_hit: None,
+            refit: refitting::TrackRefit::new(if settings.refit_interval > 0 {
+                settings.refit_max
+            } else {
+                0
+            }),
             propagator,
             settings,
         }
