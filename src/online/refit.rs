@@ -233,7 +233,7 @@ fn linearise(
 }
 
 /// Relative cost change at which the refit has converged.
-const COST_TOLERANCE: f64 = 1e-10;
+const COST_TOLERANCE: f64 = 1e-6;
 
 /// A solved refit.
 #[derive(Debug, Clone, Copy, PartialEq)]

@@ -36,8 +36,9 @@ pub(super) struct TrackRefit {
     solution: Option<AugmentedVector>,
     /// The track age of the next refit [ns].
     next: i64,
-    /// A detection did not fit in the buffer: no more refits of this track.
-    full: bool,
+    /// No more refits of this track: a detection did not fit in the buffer, or a spin was
+    /// measured (the filter then linearises at a measured spin).
+    done: bool,
 }
 
 impl TrackRefit {
@@ -52,7 +53,7 @@ impl TrackRefit {
             start_bounces: 0,
             solution: None,
             next: 0,
-            full: false,
+            done: false,
         }
     }
 }
@@ -80,14 +81,15 @@ impl Estimator {
             kept.start_bounces = track.base.bounces;
             kept.solution = None;
             kept.next = interval;
-            kept.full = false;
+            kept.done = false;
             kept.observations.clear();
         }
-        if d.stamp < kept.start || kept.full {
-            return;
+        if matches!(m, Measurement::PositionSpin { .. })
+            || kept.observations.len() >= self.settings.refit_max
+        {
+            kept.done = true;
         }
-        if kept.observations.len() >= self.settings.refit_max {
-            kept.full = true;
+        if d.stamp < kept.start || kept.done {
             return;
         }
         let t = (d.stamp - kept.start) as f64 * 1e-9;
@@ -102,7 +104,7 @@ impl Estimator {
             return;
         };
         let kept = &mut self.refit;
-        if interval <= 0 || kept.track != track.id || kept.full {
+        if interval <= 0 || kept.track != track.id || kept.done {
             return;
         }
         let age = track.now.stamp - kept.start;
