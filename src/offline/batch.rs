@@ -31,6 +31,7 @@ use crate::online::ekf::PredictReport;
 use crate::online::estimator::Rejection;
 use crate::online::measurement::MeasurementModel;
 pub(crate) use crate::online::refit::Observation;
+use crate::online::refit::measured;
 use crate::physics::propagate::{Cursor, Propagator, Watch};
 use crate::physics::state::{BallState, SPIN, StateMatrix, StateVector};
 
@@ -152,14 +153,7 @@ pub(crate) fn residuals(
     for o in observations {
         let duration = o.t - cursor.t;
         propagator.advance(&mut cursor, duration, Watch::BOUNCES, &mut ());
-        let state = cursor.state;
-        let mut predicted = SVector::<f64, 6>::zeros();
-        predicted
-            .fixed_rows_mut::<3>(0)
-            .copy_from(&state.fixed_rows::<3>(0));
-        predicted
-            .fixed_rows_mut::<3>(3)
-            .copy_from(&state.fixed_rows::<3>(SPIN));
+        let predicted = measured(&cursor.state);
         let mut h = SMatrix::<f64, 6, 9>::zeros();
         if let Some(tangent) = &cursor.tangent {
             let phi = tangent.transition();

@@ -134,6 +134,16 @@ fn huber(length: f64, threshold: f64) -> (f64, f64) {
     }
 }
 
+/// What a detection measures of a state: its position and spin, as (z) of an [`Observation`].
+pub fn measured(state: &StateVector) -> SVector<f64, 6> {
+    let mut z = SVector::<f64, 6>::zeros();
+    z.fixed_rows_mut::<3>(0)
+        .copy_from(&state.fixed_rows::<3>(0));
+    z.fixed_rows_mut::<3>(3)
+        .copy_from(&state.fixed_rows::<3>(SPIN));
+    z
+}
+
 /// What the refit knows before the detections.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Prior {
@@ -180,14 +190,7 @@ fn linearise(
     for o in observations {
         let duration = o.t - cursor.t;
         propagator.advance(&mut cursor, duration, Watch::BOUNCES, &mut ());
-        let state = &cursor.state;
-        let mut predicted = SVector::<f64, 6>::zeros();
-        predicted
-            .fixed_rows_mut::<3>(0)
-            .copy_from(&state.fixed_rows::<3>(0));
-        predicted
-            .fixed_rows_mut::<3>(3)
-            .copy_from(&state.fixed_rows::<3>(SPIN));
+        let predicted = measured(&cursor.state);
         // H [Phi, S]: the position's and the spin's rows.
         let mut h = SMatrix::<f64, 6, AUGMENTED>::zeros();
         if let Some(tangent) = &cursor.tangent {
