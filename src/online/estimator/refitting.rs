@@ -1,5 +1,6 @@
 //! The live track refitted on a schedule of its own age (`ekf.refit_interval`): its fused
-//! detections are kept whitened ([`TrackRefit`]), and every interval the maximum a posteriori
+//! detections are kept with their measurements ([`TrackRefit`]; whitened at each refit, with
+//! the process noise over their lag), and every interval the maximum a posteriori
 //! fit of them and of the flight's parameters ([`crate::online::refit`]) replaces the mean of
 //! the track's estimate and of every snapshot in its history (so that a late detection rolled
 //! back into the history meets the refitted flight); the covariances stay the filter's. The
