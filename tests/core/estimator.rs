@@ -984,3 +984,37 @@ fn a_refitted_track_reads_a_fast_spin_the_filter_reads_too_small() {
         "{with_refits:.1} against {alone:.1}"
     );
 }
+
+/// A clone of an estimator, fresh or midway through a stream, runs on exactly as the original:
+/// its buffers' bounds are the configuration's, not the allocation a clone happens to get (a
+/// fresh estimator's clone used to panic on its first detection).
+#[test]
+fn a_cloned_estimator_runs_on_as_the_original() {
+    let config = Config::default();
+    let session = simulate(
+        &config,
+        &SimOptions {
+            shots: 3,
+            seed: 8,
+            ..SimOptions::default()
+        },
+    )
+    .unwrap();
+    let fresh = Estimator::new(&config);
+    let mut original = fresh.clone();
+    let mut clone = fresh.clone();
+    let midway = session.stream.len() / 2;
+    for sim in &session.stream[..midway] {
+        assert_eq!(
+            original.handle(&sim.detection),
+            clone.handle(&sim.detection)
+        );
+    }
+    let mut later = original.clone();
+    for sim in &session.stream[midway..] {
+        let out = original.handle(&sim.detection);
+        assert_eq!(out, clone.handle(&sim.detection));
+        assert_eq!(out, later.handle(&sim.detection));
+    }
+    assert_eq!(original.counters(), later.counters());
+}

@@ -156,6 +156,17 @@ pub(crate) struct Settings {
 }
 
 impl Settings {
+    /// The most detections kept waiting to initialise a track (the buffer's length, not its
+    /// allocation: a cloned estimator's buffers are allocated to their contents only).
+    fn pending_limit(&self) -> usize {
+        self.init_count.max(self.max_rejections as usize) + 8
+    }
+
+    /// The most rejected detections kept to seed a new track.
+    fn rejected_run_limit(&self) -> usize {
+        self.max_rejections as usize + 1
+    }
+
     pub(crate) fn new(config: &Config) -> Self {
         let p = config.gating.probability;
         let adaptation = &config.adaptation;
@@ -521,13 +532,12 @@ impl Estimator {
     pub fn new(config: &Config) -> Self {
         let settings = Settings::new(config);
         let history_capacity = history_capacity(config);
-        let pending_capacity = settings.init_count.max(settings.max_rejections as usize) + 8;
         let propagator = Propagator::new(config);
         Self {
             flight: FlightModel::new(config),
             track: None,
-            pending: Vec::with_capacity(pending_capacity),
-            rejected_run: VecDeque::with_capacity(settings.max_rejections as usize + 1),
+            pending: Vec::with_capacity(settings.pending_limit()),
+            rejected_run: VecDeque::with_capacity(settings.rejected_run_limit()),
             next_track_id: 1,
             counters: Counters::default(),
             history_capacity,
@@ -968,7 +978,7 @@ impl Estimator {
 
     /// A gated detection; a run of them ends the track and seeds a new one.
     fn count_gated(&mut self, d: &Detection) -> Verdict {
-        if self.rejected_run.len() == self.rejected_run.capacity() {
+        if self.rejected_run.len() >= self.settings.rejected_run_limit() {
             self.rejected_run.pop_front();
         }
         self.rejected_run.push_back(*d);

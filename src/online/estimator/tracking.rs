@@ -6,7 +6,7 @@ use super::*;
 
 impl Estimator {
     pub(super) fn insert_pending(&mut self, d: &Detection) {
-        if self.pending.len() == self.pending.capacity() {
+        if self.pending.len() >= self.settings.pending_limit() {
             self.pending.remove(0);
         }
         let index = self.pending.partition_point(|p| p.stamp <= d.stamp);
