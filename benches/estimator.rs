@@ -1,8 +1,8 @@
 //! Cost of the per-detection path: one EKF update, the estimator's update of a detection in order
 //! and of a late one (rollback), one interception prediction with covariance at several horizons,
 //! and the whole `Estimator::handle` (update + interception), on states and detections from a
-//! simulated 150 + 900 fps session; the batch fit of a flight so far and one refit of a track
-//! (`ekf.refit_interval`). `cargo bench --bench estimator`; the distribution over a whole
+//! simulated 150 + 900 fps session; the batch fit of a flight so far, and a shot with its track
+//! refitted (`ekf.refit_interval`) and without. `cargo bench --bench estimator`; the distribution over a whole
 //! stream is `cargo bench --bench per_detection`.
 
 use std::hint::black_box;
@@ -15,8 +15,6 @@ use ttball::offline::batch::fit_flight;
 use ttball::online::ekf::{BounceNoise, Ekf, position_H, position_spin_H};
 use ttball::online::estimator::Estimator;
 use ttball::online::intercept::{InterceptQuery, predict_intercept};
-use ttball::online::measurement::MeasurementModel;
-use ttball::online::refit::{AugmentedVector, Observation, Prior, solve};
 use ttball::physics::{BallState, Propagator, StateMatrix};
 
 fn incoming() -> BallState {
@@ -141,52 +139,50 @@ fn benches(c: &mut Criterion) {
         }
         group.finish();
 
-        // One refit of the track (`ekf.refit_interval`): the first 64 and 128 detections of the
-        // shot (150 + 900 fps), from a warm start (the truth with its spin 10 % off, as a
-        // refit 50 ms before leaves it), at most six iterations, as the estimator runs it.
-        let mut group = c.benchmark_group("track_refit");
-        let model = MeasurementModel::new(&config);
-        let mut flight: Vec<_> = session
-            .stream
-            .iter()
-            .filter(|d| d.shot == 0 && !d.outlier)
-            .collect();
-        flight.sort_by_key(|d| d.detection.stamp);
-        for count in [64usize, 128] {
-            let (Some(first), true) = (flight.first(), flight.len() >= count) else {
-                continue;
-            };
-            let observations: Vec<Observation> = flight[..count]
-                .iter()
-                .enumerate()
-                .filter_map(|(i, d)| {
-                    let t = (d.detection.stamp - first.detection.stamp) as f64 * 1e-9;
-                    let m = model.measure(&d.detection).ok()?;
-                    Observation::new(i, t, &m).ok()
-                })
-                .collect();
-            let mut start = AugmentedVector::zeros();
-            start
-                .fixed_rows_mut::<9>(0)
-                .copy_from(&first.truth.to_vector());
-            for k in 6..9 {
-                start[k] *= 1.1;
+        // The track refitted (`ekf.refit_interval`): one shot seen by the 150 fps camera alone
+        // (where a track is refitted longest, up to its bounce and beyond) through
+        // `Estimator::handle`, with refits every 50 ms of track and without: the difference over
+        // the refits is what one costs.
+        let mut refitting = config.clone();
+        refitting.ekf.refit_interval = 0.05;
+        let wide = simulate(
+            &config,
+            &SimOptions {
+                cameras: Cameras::WideOnly,
+                shots: 1,
+                seed: 5,
+                ..SimOptions::default()
+            },
+        );
+        if let Ok(wide) = wide {
+            let detections: Vec<_> = wide.stream.iter().map(|d| d.detection).collect();
+            let mut group = c.benchmark_group("track_refit");
+            group.sample_size(20);
+            for (name, config) in [("without", &config), ("every_50ms", &refitting)] {
+                let fresh = Estimator::new(config);
+                let mut counted = fresh.clone();
+                for d in &detections {
+                    counted.handle(d);
+                }
+                println!(
+                    "track_refit/{name}: {} detections, {} refits",
+                    detections.len(),
+                    counted.counters().refits
+                );
+                group.bench_function(name, |b| {
+                    b.iter_batched(
+                        || fresh.clone(),
+                        |mut e| {
+                            for d in &detections {
+                                e.handle(black_box(d));
+                            }
+                        },
+                        BatchSize::SmallInput,
+                    )
+                });
             }
-            let theta = propagator.params().to_vector();
-            start.fixed_rows_mut::<4>(9).copy_from(&theta);
-            let prior = Prior {
-                spin_sigma: config.ekf.spin_prior_sigma,
-                params: theta,
-                param_information: ttball::physics::ParamCovariance::from_diagonal_element(1e4),
-            };
-            if let Some(solution) = solve(&propagator, &observations, &start, &prior, 6) {
-                println!("track_refit/{count}: {} iterations", solution.iterations);
-            }
-            group.bench_function(format!("{count}_detections"), |b| {
-                b.iter(|| solve(&propagator, black_box(&observations), &start, &prior, 6))
-            });
+            group.finish();
         }
-        group.finish();
 
         let next = session.stream[midway..]
             .iter()

@@ -49,8 +49,8 @@ fn handling_detections_allocates_nothing() {
     assert_eq!(info.count_total, 0, "{info:?}");
 }
 
-/// With the track refitted every 50 ms (`ekf.refit_interval`): its detections kept in a
-/// buffer allocated once, each refit on fixed-size matrices.
+/// With the track refitted every 50 ms (`ekf.refit_interval`): its detections, the passes and
+/// the smoothed flight kept in buffers allocated once, each step on fixed-size matrices.
 #[test]
 fn refitting_the_track_allocates_nothing() {
     let mut config = Config::default();

@@ -26,24 +26,130 @@ use thiserror::Error;
 use crate::config::Config;
 use crate::model::detection::Detection;
 use crate::model::least_squares::{Damping, damped_step};
+use crate::model::stats::chi_square_quantile;
 use crate::offline::ballistic::fit_ballistic;
 use crate::online::ekf::PredictReport;
 use crate::online::estimator::Rejection;
+use crate::online::measurement::Measurement;
 use crate::online::measurement::MeasurementModel;
-pub(crate) use crate::online::refit::Observation;
-use crate::online::refit::measured;
 use crate::physics::propagate::{Cursor, Propagator, Watch};
 use crate::physics::state::{BallState, SPIN, StateMatrix, StateVector};
 
 /// Nanoseconds per second.
 const NS_PER_S: f64 = 1e9;
-pub use crate::online::refit::HUBER_PROBABILITY;
 /// Largest number of Levenberg-Marquardt iterations.
 const MAX_ITERATIONS: usize = 60;
 /// Relative cost change at which the fit has converged.
 const COST_TOLERANCE: f64 = 1e-12;
 /// Detections the first guess of a flight is fitted to ([`initial_guess`]).
 const GUESS_DETECTIONS: usize = 8;
+
+/// Probability of a correct detection's whitened residual within the Huber threshold (that of
+/// 3 sigma in one dimension); beyond it the detection's weight falls.
+pub const HUBER_PROBABILITY: f64 = 0.9973;
+
+/// One usable detection, whitened: its time since the flight's start and measurement vector
+/// (position, then spin when measured) with the inverse Cholesky factor of its noise.
+#[derive(Debug, Clone, PartialEq)]
+pub(crate) struct Observation {
+    /// Index of the detection in the caller's list.
+    pub index: usize,
+    /// Time since the flight's first detection [s].
+    pub t: f64,
+    /// Measured position [m] and spin [rad/s] (zero when not measured).
+    pub z: SVector<f64, 6>,
+    /// L^-1, zero outside the measured dimensions: the whitened residual is `white (z - h)`.
+    pub white: SMatrix<f64, 6, 6>,
+    /// Measured dimensions: 3 (position) or 6 (position and spin).
+    pub dims: usize,
+    /// Whitened residual length where Huber's loss turns linear.
+    pub threshold: f64,
+}
+
+impl Observation {
+    /// The measurement `m` at `t` seconds into the flight, whitened; a covariance that is not
+    /// positive definite is [`Rejection::BadCovariance`].
+    pub(crate) fn new(index: usize, t: f64, m: &Measurement) -> Result<Self, Rejection> {
+        let (z, white, dims) = whiten(m)?;
+        Ok(Self {
+            index,
+            t,
+            z,
+            white,
+            dims,
+            threshold: huber_threshold(dims),
+        })
+    }
+
+    /// The IRLS weight and cost of this observation's whitened residual of length `length`:
+    /// Huber's loss at its threshold when `robust`, else least squares.
+    pub(crate) fn loss(&self, length: f64, robust: bool) -> (f64, f64) {
+        huber(
+            length,
+            if robust {
+                self.threshold
+            } else {
+                f64::INFINITY
+            },
+        )
+    }
+}
+
+/// The Huber threshold of a whitened residual of `dims` dimensions: the [`HUBER_PROBABILITY`]
+/// quantile of its chi distribution (3.76 sigma for a position, 4.48 with a spin).
+fn huber_threshold(dims: usize) -> f64 {
+    // The two sizes a measurement has, computed once.
+    static THRESHOLDS: std::sync::OnceLock<[f64; 2]> = std::sync::OnceLock::new();
+    let [position, with_spin] = *THRESHOLDS
+        .get_or_init(|| [3, 6].map(|d| chi_square_quantile(HUBER_PROBABILITY, d).sqrt()));
+    if dims == 6 { with_spin } else { position }
+}
+
+/// A measurement as (z, L^-1) padded to six dimensions, and its dimensions.
+fn whiten(m: &Measurement) -> Result<(SVector<f64, 6>, SMatrix<f64, 6, 6>, usize), Rejection> {
+    match m {
+        Measurement::Position { z: p, r, .. } => {
+            let mut z = SVector::<f64, 6>::zeros();
+            let mut white = SMatrix::<f64, 6, 6>::zeros();
+            z.fixed_rows_mut::<3>(0).copy_from(p);
+            white
+                .fixed_view_mut::<3, 3>(0, 0)
+                .copy_from(&inverse_factor(r)?);
+            Ok((z, white, 3))
+        }
+        Measurement::PositionSpin { z, r, .. } => Ok((*z, inverse_factor(r)?, 6)),
+    }
+}
+
+/// L^-1 of a noise covariance R = L L^T.
+fn inverse_factor<const D: usize>(r: &SMatrix<f64, D, D>) -> Result<SMatrix<f64, D, D>, Rejection> {
+    r.cholesky()
+        .and_then(|c| c.l().try_inverse())
+        .ok_or(Rejection::BadCovariance)
+}
+
+/// Huber's loss on a whitened residual of length `length`: the IRLS weight and the cost
+/// (quadratic within `threshold`, linear beyond).
+fn huber(length: f64, threshold: f64) -> (f64, f64) {
+    if length <= threshold {
+        (1.0, length * length)
+    } else {
+        (
+            threshold / length,
+            2.0 * threshold * length - threshold * threshold,
+        )
+    }
+}
+
+/// What a detection measures of a state: its position and spin, as (z) of an [`Observation`].
+fn measured(state: &StateVector) -> SVector<f64, 6> {
+    let mut z = SVector::<f64, 6>::zeros();
+    z.fixed_rows_mut::<3>(0)
+        .copy_from(&state.fixed_rows::<3>(0));
+    z.fixed_rows_mut::<3>(3)
+        .copy_from(&state.fixed_rows::<3>(SPIN));
+    z
+}
 
 /// A fitted flight.
 #[derive(Debug, Clone, PartialEq)]

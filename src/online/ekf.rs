@@ -565,7 +565,6 @@ impl Ekf {
     /// filter's parameters in `propagator`'s model and its `model` of what the physics leaves
     /// out, the noise times `scales`; `sensitivity`, the covariance's dependence on the scales,
     /// is carried along when given.
-    #[expect(non_snake_case, reason = "matrix notation")]
     pub fn predict(
         &mut self,
         propagator: &Propagator,
@@ -573,6 +572,49 @@ impl Ekf {
         scales: &NoiseScales,
         sensitivity: Option<&mut NoiseSensitivity>,
         dt: f64,
+    ) -> PredictReport {
+        self.propagate(propagator, model, scales, sensitivity, dt, None)
+    }
+
+    /// [`Self::predict`] linearised at a nominal `(x, theta)` rather than at the estimate (the
+    /// forward pass of an iterated smoother, Bell 1994): the nominal is flown through the model,
+    /// the estimate's deviation from it by the nominal's transition, `x' = f(x_n) + Phi (x -
+    /// x_n) + S (theta - theta_n)`, and the covariance by the same `[Phi, S]`.
+    /// Returns the report and the transition of (state, parameters), `[[Phi, S], [0, I]]`.
+    #[expect(non_snake_case, reason = "matrix notation")]
+    pub fn predict_about(
+        &mut self,
+        nominal: (&StateVector, &ParamVector),
+        propagator: &Propagator,
+        model: &FilterNoise,
+        scales: &NoiseScales,
+        dt: f64,
+    ) -> (PredictReport, AugmentedMatrix) {
+        let deviation = (self.x - nominal.0, self.theta - nominal.1);
+        self.x = *nominal.0;
+        self.theta = *nominal.1;
+        let mut transition = AugmentedMatrix::identity();
+        let report = self.propagate(propagator, model, scales, None, dt, Some(&mut transition));
+        self.theta += deviation.1;
+        let (Phi, S) = (
+            transition.fixed_view::<9, 9>(0, 0).into_owned(),
+            transition.fixed_view::<9, PARAMS>(0, 9).into_owned(),
+        );
+        self.x += Phi * deviation.0 + S * deviation.1;
+        (report, transition)
+    }
+
+    /// [`Self::predict`], writing the transition of (state, parameters) into `transition` when
+    /// given.
+    #[expect(non_snake_case, reason = "matrix notation")]
+    fn propagate(
+        &mut self,
+        propagator: &Propagator,
+        model: &FilterNoise,
+        scales: &NoiseScales,
+        sensitivity: Option<&mut NoiseSensitivity>,
+        dt: f64,
+        transition: Option<&mut AugmentedMatrix>,
     ) -> PredictReport {
         if dt <= 0.0 {
             return PredictReport::default();
@@ -669,6 +711,13 @@ impl Ekf {
             }
         }
         self.x = cursor.state;
+        if let (Some(out), Some(tangent)) = (transition, &cursor.tangent) {
+            out.fixed_view_mut::<9, 9>(0, 0)
+                .copy_from(&tangent.transition());
+            if let Some(S) = tangent.params() {
+                out.fixed_view_mut::<9, PARAMS>(0, 9).copy_from(&S);
+            }
+        }
         self.P = symmetrise(&next);
         report
     }
@@ -939,6 +988,70 @@ mod tests {
         assert!(ekf.x[5] > 0.0);
         assert!(ekf.P[(3, 3)] > 1e-6);
         assert_eq!(ekf.P, ekf.P.transpose());
+    }
+
+    /// A prediction linearised at a nominal: at the estimate itself it is the prediction; at a
+    /// nominal off the estimate its mean is the nominal's flight plus the transition times the
+    /// offset (first order: within a small fraction of the offset's effect of the prediction
+    /// from the estimate), its covariance the prediction's at the nominal, and the parameters
+    /// keep the estimate's.
+    #[test]
+    fn a_prediction_about_a_nominal_is_the_linearised_one() {
+        let config = Config::default();
+        let propagator = Propagator::new(&config);
+        let x = crate::physics::BallState::new(
+            Vector3::new(0.6, 0.1, 0.25),
+            Vector3::new(-6.0, 0.2, -1.0),
+            Vector3::new(0.0, 300.0, 20.0),
+        )
+        .to_vector();
+        let theta = propagator.params().to_vector();
+        let ekf = Ekf::new(
+            x,
+            StateMatrix::identity() * 1e-4,
+            theta,
+            ParamCovariance::from_diagonal_element(1e-3),
+        );
+        let model = FilterNoise {
+            process: ProcessNoise {
+                acceleration_density: 1.0,
+                spin_density: 1.0,
+                param_density: ParamVector::zeros(),
+            },
+            bounce: BounceNoise::default(),
+            spin_spread: 0.5,
+        };
+        let scales = NoiseScales::default();
+        // Through a bounce.
+        let dt = 0.3;
+        let mut plain = ekf;
+        plain.predict(&propagator, &model, &scales, None, dt);
+        let mut about = ekf;
+        about.predict_about((&x, &theta), &propagator, &model, &scales, dt);
+        assert!((about.x - plain.x).amax() < 1e-12, "{}", about.x - plain.x);
+        assert!((about.P - plain.P).amax() < 1e-12 * plain.P.amax());
+
+        let mut offset = StateVector::zeros();
+        offset[6] = 30.0;
+        offset[4] = 0.05;
+        let nominal = x + offset;
+        let mut nominal_flight = ekf;
+        nominal_flight.x = nominal;
+        nominal_flight.predict(&propagator, &model, &scales, None, dt);
+        let mut about = ekf;
+        let (report, transition) =
+            about.predict_about((&nominal, &theta), &propagator, &model, &scales, dt);
+        assert_eq!(report.bounces, 1);
+        let linear = nominal_flight.x - transition.fixed_view::<9, 9>(0, 0) * offset;
+        assert!((about.x - linear).amax() < 1e-9, "{}", about.x - linear);
+        assert!((about.P - nominal_flight.P).amax() < 1e-12 * plain.P.amax());
+        assert_eq!(about.theta, theta);
+        let effect = (nominal_flight.x - plain.x).fixed_rows::<3>(0).norm();
+        let miss = (about.x - plain.x).fixed_rows::<3>(0).norm();
+        assert!(
+            effect > 5e-3 && miss < 0.05 * effect,
+            "{miss} against {effect}"
+        );
     }
 
     /// `Ekf::score` (a prediction further ahead, not fused) gives the NIS and the score of the

@@ -15,5 +15,4 @@ pub mod ekf;
 pub mod estimator;
 pub mod intercept;
 pub mod measurement;
-pub mod refit;
 pub mod stroke;

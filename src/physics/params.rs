@@ -39,6 +39,8 @@ pub type ParamCovariance = SMatrix<f64, PARAMS, PARAMS>;
 pub const AUGMENTED: usize = 9 + PARAMS;
 /// A covariance over the augmented state (ball, parameters).
 pub type AugmentedMatrix = SMatrix<f64, AUGMENTED, AUGMENTED>;
+/// The state and the parameters together, (x, theta).
+pub type AugmentedVector = SVector<f64, AUGMENTED>;
 
 /// The covariance over (state, parameters) of a state of covariance `p` and parameters known
 /// exactly.

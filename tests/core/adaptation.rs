@@ -180,8 +180,9 @@ fn the_model_noise_and_the_dispersion_are_learned() {
 
 /// A position-only tracker on play whose Magnus force is 40 % below the model's (`a-lab`): the
 /// filter, linearising the product k_M C_M(Sp) |w| at its estimate early in each track, learns
-/// the Magnus scale low; with the track refitted (`ekf.refit_interval`) the parameters are
-/// fitted with the flight's state, relinearised at every iteration, and land near the truth.
+/// the Magnus scale low; with the track refitted (`ekf.refit_interval`: the filter run again
+/// over the track linearised along the flight its detections smooth to) they land near the
+/// truth.
 #[test]
 fn a_refitted_track_learns_the_magnus_scale_a_position_only_tracker_leans_low_on() {
     let filter = Config::default();

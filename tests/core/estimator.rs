@@ -964,9 +964,9 @@ fn spin_across_at_the_end(config: &Config, shots: usize, seed: u64) -> f64 {
 
 /// The filter learns a spin from the curvature linearised at its own estimate, which starts at
 /// zero: where C_M(Sp) is steep a small spin explains the curvature, so a fast spin is read too
-/// small and then believed. Refitting the track (`ekf.refit_interval`) relinearises at every
-/// iteration: with the 150 fps camera alone the spin across the flight at each shot's last
-/// detection is less than half as far off.
+/// small and then believed. Refitting the track (`ekf.refit_interval`) runs the filter again
+/// linearised along the flight the detections smooth to: with the 150 fps camera alone the spin
+/// across the flight at each shot's last detection is less than half as far off.
 #[test]
 fn a_refitted_track_reads_a_fast_spin_the_filter_reads_too_small() {
     let filter = Config::default();

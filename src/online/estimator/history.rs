@@ -137,7 +137,11 @@ impl Estimator {
     /// The measurement as the estimate `snapshot` sees it: with the extra noise of a ball at the
     /// table (which teaches nothing of its camera's: the flag), and its stamp's timing noise
     /// along the estimate's velocity.
-    fn measurement_at(&self, snapshot: &Snapshot, m: &Measurement) -> (Measurement, bool) {
+    pub(super) fn measurement_at(
+        &self,
+        snapshot: &Snapshot,
+        m: &Measurement,
+    ) -> (Measurement, bool) {
         let at_contact =
             self.settings.contact_var > 0.0 && self.at_the_table(snapshot, CONTACT_BAND);
         let m = if at_contact {

@@ -1,43 +1,60 @@
-//! The live track refitted on a schedule of its own age (`ekf.refit_interval`): its fused
-//! detections are kept with their measurements ([`TrackRefit`]; whitened at each refit, with
-//! the process noise over their lag), and every interval the maximum a posteriori
-//! fit of them and of the flight's parameters ([`crate::online::refit`]) replaces the mean of
-//! the track's estimate and of every snapshot in its history (so that a late detection rolled
-//! back into the history meets the refitted flight); the covariances stay the filter's. The
-//! schedule is the track's own stamps, so a replay refits exactly where the node did.
+//! The live track smoothed on a schedule of its own age (`ekf.refit_interval`): its fused
+//! detections are kept with their measurements ([`TrackRefit`]), and every interval the filter
+//! is run again over them from the track's first estimate, linearised along the last smoothed
+//! flight rather than at its own estimates, and smoothed back (Rauch-Tung-Striebel): the
+//! iterated extended Kalman smoother (Bell, "The iterated Kalman smoother as a Gauss-Newton
+//! method", SIAM J. Optim. 1994), one Gauss-Newton step of the maximum a posteriori flight
+//! *with the filter's process noise* per iteration. Its filtered estimates (mean and
+//! covariance) replace the track's estimate and every snapshot in its history at the same
+//! stamps (so that a late detection rolled back into the history meets them). The schedule is
+//! the track's own stamps, so a replay refits exactly where the node did.
 
 use super::*;
-use crate::online::refit::{self, AugmentedVector, Flight, Observation, Prior};
-use crate::physics::state::SPIN;
+use crate::physics::params::{AUGMENTED, AugmentedMatrix, AugmentedVector};
 
-/// Fewest detections a refit is made from.
+/// Fewest detections a track is smoothed from.
 const MIN_DETECTIONS: usize = 8;
-/// Most Levenberg-Marquardt iterations of one refit (from the last refit's solution, two or
-/// three suffice).
-const MAX_ITERATIONS: usize = 6;
+/// Iterations (a pass forward and one back) of each smoothing: on the real launcher flights a
+/// third makes the crossing worse, one alone is unstable (docs/estimator.md).
+const ITERATIONS: usize = 2;
+/// Variance added to each parameter's in the smoother's inverse of a prediction's covariance.
+const PARAM_VARIANCE_FLOOR: f64 = 1e-12;
 
-/// The live track's detections, kept for its refits, and the last refit's solution.
+/// One step of the pass: the estimate predicted to a detection and after it.
+#[derive(Debug, Clone, Copy)]
+struct Step {
+    /// Time from the track's first estimate [s].
+    t: f64,
+    /// Predicted mean and covariance of (state, parameters).
+    predicted: (AugmentedVector, AugmentedMatrix),
+    /// The transition from the step before.
+    transition: AugmentedMatrix,
+    /// The estimate after the detection.
+    filtered: Ekf,
+    /// Table bounces since the track's first estimate.
+    bounces: u32,
+}
+
+/// The live track's detections, kept for its smoothing, and the last smoothed flight.
 #[derive(Debug, Clone)]
 pub(super) struct TrackRefit {
     /// The fused detections' times from `start` [s] and measurements, in stamp order;
     /// allocated once.
     observations: Vec<(f64, Measurement)>,
-    /// Them whitened for one refit; allocated once.
-    whitened: Vec<Observation>,
+    /// The last pass, one step per observation after the first estimate's; allocated once.
+    steps: Vec<Step>,
+    /// The smoothed (state, parameters) at each step's time (the first estimate's first): the
+    /// next pass's nominal; allocated once.
+    smoothed: Vec<(f64, AugmentedVector)>,
     /// The track they belong to (0: none).
     track: u32,
-    /// The stamp of the refit's time 0: the track's first estimate [ns].
+    /// The stamp of time 0: the track's first estimate [ns].
     start: i64,
-    /// The track's first estimate, the first refit's starting point with the spin of the
-    /// moment.
-    guess: AugmentedVector,
-    /// The table bounces the track had made at `start`.
-    start_bounces: u32,
-    /// The last refit's (x_0, theta).
-    solution: Option<AugmentedVector>,
-    /// The track age of the next refit [ns].
+    /// The track's first estimate, where each pass starts.
+    base: Option<Snapshot>,
+    /// The track age of the next smoothing [ns].
     next: i64,
-    /// No more refits of this track: a detection did not fit in the buffer, or a spin was
+    /// No more smoothing of this track: a detection did not fit in the buffer, or a spin was
     /// measured (the filter then linearises at a measured spin).
     done: bool,
 }
@@ -47,23 +64,22 @@ impl TrackRefit {
     pub(super) fn new(capacity: usize) -> Self {
         Self {
             observations: Vec::with_capacity(capacity),
-            whitened: Vec::with_capacity(capacity),
+            steps: Vec::with_capacity(capacity),
+            smoothed: Vec::with_capacity(capacity + 1),
             track: 0,
             start: 0,
-            guess: AugmentedVector::zeros(),
-            start_bounces: 0,
-            solution: None,
+            base: None,
             next: 0,
             done: false,
         }
     }
 }
 
-/// (x, theta) of a snapshot.
-fn augmented(snapshot: &Snapshot) -> AugmentedVector {
+/// (x, theta) of an estimate.
+fn augmented(ekf: &Ekf) -> AugmentedVector {
     let mut y = AugmentedVector::zeros();
-    y.fixed_rows_mut::<9>(0).copy_from(&snapshot.ekf.x);
-    y.fixed_rows_mut::<PARAMS>(9).copy_from(&snapshot.ekf.theta);
+    y.fixed_rows_mut::<9>(0).copy_from(&ekf.x);
+    y.fixed_rows_mut::<PARAMS>(9).copy_from(&ekf.theta);
     y
 }
 
@@ -78,9 +94,8 @@ impl Estimator {
         if kept.track != track.id {
             kept.track = track.id;
             kept.start = track.base.stamp;
-            kept.guess = augmented(&track.base);
-            kept.start_bounces = track.base.bounces;
-            kept.solution = None;
+            kept.base = Some(track.base);
+            kept.smoothed.clear();
             kept.next = interval;
             kept.done = false;
             kept.observations.clear();
@@ -98,7 +113,8 @@ impl Estimator {
         kept.observations.insert(at, (t, *m));
     }
 
-    /// Refits the live track when its age has reached the next refit's (see the module doc).
+    /// Smooths the live track when its age has reached the next smoothing's (see the module
+    /// doc).
     pub(super) fn refit_when_due(&mut self) {
         let interval = self.settings.refit_interval;
         let Some(track) = &self.track else {
@@ -118,100 +134,217 @@ impl Estimator {
         if kept.observations.len() < MIN_DETECTIONS {
             return;
         }
-        // The flight strays from the model by the white acceleration the filter assumes: a
-        // detection tau before the newest is that much less sure of the flight now, q tau^3 / 3
-        // per axis (its correlation with the others' left out).
-        let density = self.settings.filter.process.acceleration_density
-            * self.model_noise.scales().acceleration;
-        let newest = kept.observations.last().map_or(0.0, |(t, _)| *t);
-        kept.whitened.clear();
-        for (index, (t, m)) in kept.observations.iter().enumerate() {
-            let lag = newest - t;
-            let m = m.with_extra_position_variance(density * lag * lag * lag / 3.0);
-            if let Ok(o) = Observation::new(index, *t, &m) {
-                kept.whitened.push(o);
-            }
+        for _ in 0..ITERATIONS {
+            self.pass_forward();
+            smooth_back(&mut self.refit);
         }
-        let start = kept.solution.unwrap_or_else(|| {
-            let mut y = kept.guess;
-            y.fixed_rows_mut::<3>(SPIN)
-                .copy_from(&track.now.ekf.x.fixed_rows::<3>(SPIN));
-            y
-        });
-        let (params, covariance) = track.param_prior;
-        // Parameters the adaptation keeps fixed have no variance: their information is huge.
-        let Some(param_information) =
-            (covariance + ParamCovariance::identity() * 1e-12).try_inverse()
-        else {
-            return;
-        };
-        let prior = Prior {
-            spin_sigma: self.settings.spin_prior_var.sqrt(),
-            params,
-            param_information,
-        };
-        let Some(solution) = refit::solve(
-            &self.propagator,
-            &kept.whitened,
-            &start,
-            &prior,
-            MAX_ITERATIONS,
-        ) else {
-            return;
-        };
-        kept.solution = Some(solution.y);
-        let (start_stamp, start_bounces) = (kept.start, kept.start_bounces);
-        if let Some(track) = self.track.as_mut()
-            && refitted(
-                &self.propagator,
-                &solution.y,
-                start_stamp,
-                start_bounces,
-                track,
-            )
-        {
+        if self.take_pass() {
             self.counters.refits += 1;
         }
     }
-}
 
-/// Moves the means of the track's snapshots (its base, its history's, its estimate) from
-/// `start` on to the refitted flight `y`; false, and nothing moved, when the refitted flight
-/// bounces on the table at another time than the track's estimates do (a bounce the filter has
-/// yet to see, or has seen that the fit puts elsewhere: the filter's bookkeeping of bounces
-/// stays its own).
-fn refitted(
-    propagator: &Propagator,
-    y: &AugmentedVector,
-    start: i64,
-    start_bounces: u32,
-    track: &mut Track,
-) -> bool {
-    let theta = y.fixed_rows::<PARAMS>(9).into_owned();
-    let time = |stamp: i64| (stamp - start) as f64 * 1e-9;
-    // First check, then move.
-    let mut flight = Flight::new(propagator, y);
-    let snapshots = std::iter::once(&track.base)
-        .chain(track.history.iter().map(|e| &e.after))
-        .chain(std::iter::once(&track.now));
-    for s in snapshots.filter(|s| s.stamp >= start) {
-        let (_, bounces) = flight.at(time(s.stamp));
-        if s.bounces != start_bounces + bounces {
+    /// The filter run over the kept detections from the track's first estimate, each
+    /// prediction linearised at the last smoothed flight where it has one (a detection it has
+    /// not seen: at the pass's own estimate, as the filter does).
+    fn pass_forward(&mut self) {
+        let Some(mut snapshot) = self.refit.base else {
+            return;
+        };
+        let scales = self.model_noise.scales();
+        let mut steps = std::mem::take(&mut self.refit.steps);
+        steps.clear();
+        let (mut previous, mut bounces) = (0.0, 0);
+        for (t, m) in &self.refit.observations {
+            let smoothed = &self.refit.smoothed;
+            let at = smoothed.partition_point(|(k, _)| *k < previous);
+            let nominal = match smoothed.get(at) {
+                Some((k, y)) if *k == previous => *y,
+                _ => augmented(&snapshot.ekf),
+            };
+            let (report, transition) = snapshot.ekf.predict_about(
+                (
+                    &nominal.fixed_rows::<9>(0).into_owned(),
+                    &nominal.fixed_rows::<PARAMS>(9).into_owned(),
+                ),
+                &self.propagator,
+                &self.settings.filter,
+                &scales,
+                t - previous,
+            );
+            bounces += report.bounces;
+            let predicted = (augmented(&snapshot.ekf), snapshot.ekf.P);
+            let (m, _) = self.measurement_at(&snapshot, m);
+            // Kept detections were fused once: no gate.
+            match &m {
+                Measurement::Position { z, r, .. } => {
+                    let _ = snapshot
+                        .ekf
+                        .update(z, &position_H(), r, f64::INFINITY, None);
+                }
+                Measurement::PositionSpin { z, r, .. } => {
+                    let _ = snapshot
+                        .ekf
+                        .update(z, &position_spin_H(), r, f64::INFINITY, None);
+                }
+            }
+            steps.push(Step {
+                t: *t,
+                predicted,
+                transition,
+                filtered: snapshot.ekf,
+                bounces,
+            });
+            previous = *t;
+        }
+        self.refit.steps = steps;
+    }
+
+    /// Puts the last pass's estimates into the track's snapshots at the same stamps; false,
+    /// and nothing moved, when the pass bounces on the table at another time than the track's
+    /// estimates do (the filter's bookkeeping of bounces stays its own).
+    fn take_pass(&mut self) -> bool {
+        let kept = &self.refit;
+        let (Some(track), Some(base)) = (self.track.as_mut(), kept.base.as_ref()) else {
+            return false;
+        };
+        let step_at = |stamp: i64| {
+            let t = (stamp - kept.start) as f64 * 1e-9;
+            let at = kept.steps.partition_point(|step| step.t < t);
+            kept.steps.get(at).filter(|step| step.t == t)
+        };
+        let agrees = |s: &Snapshot| {
+            step_at(s.stamp).is_none_or(|step| s.bounces == base.bounces + step.bounces)
+        };
+        let snapshots = std::iter::once(&track.base)
+            .chain(track.history.iter().map(|e| &e.after))
+            .chain(std::iter::once(&track.now));
+        if !snapshots.into_iter().all(agrees) {
             return false;
         }
-    }
-    let mut flight = Flight::new(propagator, y);
-    let mut move_to = |s: &mut Snapshot| {
-        if s.stamp >= start {
-            let (x, _) = flight.at(time(s.stamp));
-            s.ekf.x = x;
-            s.ekf.theta = theta;
+        let place = |s: &mut Snapshot| {
+            if let Some(step) = step_at(s.stamp) {
+                s.ekf = step.filtered;
+            }
+        };
+        place(&mut track.base);
+        for entry in track.history.iter_mut() {
+            place(&mut entry.after);
         }
-    };
-    move_to(&mut track.base);
-    for entry in track.history.iter_mut() {
-        move_to(&mut entry.after);
+        place(&mut track.now);
+        // The estimate held to learn the model noise from meets the pass too: the filter's
+        // earlier miss is not the flight straying from the model.
+        if let Some(from) = self.probe.as_deref_mut().and_then(|p| p.from.as_mut()) {
+            place(from);
+        }
+        true
     }
-    move_to(&mut track.now);
-    true
+}
+
+/// The Rauch-Tung-Striebel smoother back over the last pass: the smoothed (state, parameters)
+/// at the first estimate's time and every step's, the next pass's nominal.
+#[expect(non_snake_case, reason = "matrix notation")]
+fn smooth_back(kept: &mut TrackRefit) {
+    let Some(base) = kept.base.as_ref() else {
+        return;
+    };
+    let Some(last) = kept.steps.last() else {
+        return;
+    };
+    kept.smoothed.clear();
+    let mut later = augmented(&last.filtered);
+    kept.smoothed.push((last.t, later));
+    // Step k's filtered estimate with step k + 1's prediction and transition.
+    for k in (0..kept.steps.len()).rev() {
+        let next = &kept.steps[k];
+        let (t, filtered) = match k.checked_sub(1) {
+            Some(j) => (kept.steps[j].t, &kept.steps[j].filtered),
+            None => (0.0, &base.ekf),
+        };
+        // Parameters held fixed (no adaptation) have no variance: a trace of it keeps the
+        // prediction's covariance invertible without moving the state's gain.
+        let mut predicted = next.predicted.1;
+        for i in 9..AUGMENTED {
+            predicted[(i, i)] += PARAM_VARIANCE_FLOOR;
+        }
+        let Some(chol) = predicted.cholesky() else {
+            break;
+        };
+        // C = P_k Phi' P_{k+1|k}^-1 = (P_{k+1|k}^-1 Phi P_k)'.
+        let C = chol.solve(&(next.transition * filtered.P)).transpose();
+        later = augmented(filtered) + C * (later - next.predicted.0);
+        kept.smoothed.push((t, later));
+    }
+    kept.smoothed.reverse();
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::model::detection::Source;
+    use crate::physics::{BallState, PredictOptions, predict};
+    use nalgebra::Vector3;
+
+    /// A pass linearised at its own estimates (no smoothed flight yet) is the filter itself:
+    /// the same predictions and updates, the same estimates at every stamp the track holds. So
+    /// whatever a refit changes, it changes by where it linearises.
+    #[test]
+    fn a_pass_at_its_own_estimates_is_the_filter() {
+        let mut config = Config::default();
+        // Refits due only after a second of track: the detections are kept, nothing refitted.
+        config.ekf.refit_interval = 1.0;
+        // Noise held as configured, so that the filter then and the pass now see the same.
+        config.ekf.learn_model_noise = false;
+        config.ekf.learn_noise = false;
+        // A topspin serve seen by the 150 fps camera, with a few millimetres of noise.
+        let start = BallState::new(
+            Vector3::new(1.6, 0.1, 0.3),
+            Vector3::new(-5.0, 0.2, 1.0),
+            Vector3::new(0.0, 250.0, 10.0),
+        );
+        let flight = predict(
+            &Propagator::new(&config),
+            &start,
+            &PredictOptions {
+                horizon: 0.4,
+                sample_interval: 1.0 / 150.0,
+                plane_x: None,
+                stop_at_plane: false,
+            },
+        );
+        let mut estimator = Estimator::new(&config);
+        for (k, sample) in flight.samples.iter().enumerate() {
+            let k = k as f64;
+            let noise = Vector3::new((1.7 * k).sin(), (2.3 * k).cos(), (0.9 * k).sin()) * 1e-3;
+            estimator.handle(&Detection {
+                stamp: 1_000_000_000 + (sample.t * 1e9).round() as i64,
+                source: Source::WIDE_150FPS,
+                position: sample.state.position + noise,
+                position_covariance: None,
+                spin: None,
+                spin_covariance: None,
+                confidence: 0.9,
+            });
+        }
+        assert_eq!(estimator.counters().refits, 0);
+        let kept = estimator.refit.observations.len();
+        assert!(kept > 40, "{kept} detections kept");
+        estimator.pass_forward();
+        let track = estimator.track.as_ref().unwrap();
+        let start = estimator.refit.start;
+        let mut compared = 0;
+        for snapshot in track
+            .history
+            .iter()
+            .map(|e| &e.after)
+            .chain(std::iter::once(&track.now))
+        {
+            let t = (snapshot.stamp - start) as f64 * 1e-9;
+            let step = estimator.refit.steps.iter().find(|s| s.t == t).unwrap();
+            let x = (step.filtered.x - snapshot.ekf.x).norm() / snapshot.ekf.x.norm();
+            let p = (step.filtered.P - snapshot.ekf.P).norm() / snapshot.ekf.P.norm();
+            assert!(x < 1e-9 && p < 1e-9, "at {t} s: {x:e} {p:e}");
+            compared += 1;
+        }
+        assert!(compared >= 5, "{compared} estimates compared");
+    }
 }
