@@ -580,6 +580,7 @@ impl Ekf {
     /// forward pass of an iterated smoother, Bell 1994): the nominal is flown through the model,
     /// the estimate's deviation from it by the nominal's transition, `x' = f(x_n) + Phi (x -
     /// x_n) + S (theta - theta_n)`, and the covariance by the same `[Phi, S]`.
+    ///
     /// Returns the report and the transition of (state, parameters), `[[Phi, S], [0, I]]`.
     #[expect(non_snake_case, reason = "matrix notation")]
     pub fn predict_about(
