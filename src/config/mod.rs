@@ -563,8 +563,8 @@ pub struct EkfParams {
     /// so far, linearised along the flight they smooth to, and smoothed back (an iterated
     /// extended Kalman smoother, two iterations); its estimates replace the filter's; 0 never.
     pub refit_interval: f64,
-    /// The most detections a track is refitted with [-]: past them the filter goes on alone
-    /// (each refit costs about 10 us per detection, 5 us per iteration).
+    /// The most detections a refit runs over [-]: older ones are kept in the estimate it
+    /// starts from (each refit costs about 10 us per detection, 5 us per iteration).
     pub refit_max_detections: u32,
 }
 
