@@ -379,6 +379,17 @@ mod tests {
             .collect()
     }
 
+    /// Refits due only after a second of track (the detections are kept, nothing refitted
+    /// unless asked), the noise held as configured (so that the filter then and a pass now see
+    /// the same: a pass at its own estimates is the filter exactly).
+    fn keeping_detections() -> Config {
+        let mut config = Config::default();
+        config.ekf.refit_interval = 1.0;
+        config.ekf.learn_model_noise = false;
+        config.ekf.learn_noise = false;
+        config
+    }
+
     /// With a window of 16 detections the track is refitted through the whole flight, the
     /// window sliding along it (its oldest detections kept in the estimate it starts from), and
     /// the estimate stays on the flight.
@@ -415,11 +426,7 @@ mod tests {
     /// smoothing that fails is dropped, so the next pass linearises at its own estimates.
     #[test]
     fn a_refit_along_a_wild_flight_leaves_the_track_on_its_flight() {
-        let mut config = Config::default();
-        config.ekf.refit_interval = 1.0;
-        // Noise held as configured: a pass at its own estimates is then the filter exactly.
-        config.ekf.learn_model_noise = false;
-        config.ekf.learn_noise = false;
+        let config = keeping_detections();
         let detections = serve(&config, 0.3);
         let (last, truth) = detections.last().unwrap();
         for wild in [1e6, f64::NAN] {
@@ -460,12 +467,7 @@ mod tests {
     /// whatever a refit changes, it changes by where it linearises.
     #[test]
     fn a_pass_at_its_own_estimates_is_the_filter() {
-        let mut config = Config::default();
-        // Refits due only after a second of track: the detections are kept, nothing refitted.
-        config.ekf.refit_interval = 1.0;
-        // Noise held as configured, so that the filter then and the pass now see the same.
-        config.ekf.learn_model_noise = false;
-        config.ekf.learn_noise = false;
+        let config = keeping_detections();
         let mut estimator = Estimator::new(&config);
         for (d, _) in serve(&config, 0.4) {
             estimator.handle(&d);
