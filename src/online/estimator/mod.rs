@@ -151,7 +151,7 @@ pub(crate) struct Settings {
     model_noise_horizon: i64,
     /// How often the track is refitted [ns of track]; 0 never.
     refit_interval: i64,
-    /// The most detections a track is refitted with.
+    /// The most detections a refit runs over (its window).
     refit_max: usize,
 }
 
@@ -373,7 +373,7 @@ pub struct Estimator {
     /// at the first detection after its impact (kept for the detections after it until one fits
     /// or `tracking.timeout` has passed since the impact).
     expected_hit: Option<(RobotHit, Option<Snapshot>)>,
-    /// The live track's detections for its refits, and the last refit.
+    /// The live track's detections for its refits, and the last smoothed flight.
     refit: refitting::TrackRefit,
 }
 
