@@ -30,8 +30,7 @@ use crate::model::stats::chi_square_quantile;
 use crate::offline::ballistic::fit_ballistic;
 use crate::online::ekf::PredictReport;
 use crate::online::estimator::Rejection;
-use crate::online::measurement::Measurement;
-use crate::online::measurement::MeasurementModel;
+use crate::online::measurement::{Measurement, MeasurementModel};
 use crate::physics::propagate::{Cursor, Propagator, Watch};
 use crate::physics::state::{BallState, SPIN, StateMatrix, StateVector};
 
@@ -57,9 +56,9 @@ pub(crate) struct Observation {
     /// Time since the flight's first detection [s].
     pub t: f64,
     /// Measured position [m] and spin [rad/s] (zero when not measured).
-    pub z: SVector<f64, 6>,
+    z: SVector<f64, 6>,
     /// L^-1, zero outside the measured dimensions: the whitened residual is `white (z - h)`.
-    pub white: SMatrix<f64, 6, 6>,
+    white: SMatrix<f64, 6, 6>,
     /// Measured dimensions: 3 (position) or 6 (position and spin).
     pub dims: usize,
     /// Whitened residual length where Huber's loss turns linear.

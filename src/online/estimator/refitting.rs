@@ -22,6 +22,9 @@ const MIN_DETECTIONS: usize = 8;
 const ITERATIONS: usize = 2;
 /// Variance added to each parameter's in the smoother's inverse of a prediction's covariance.
 const PARAM_VARIANCE_FLOOR: f64 = 1e-12;
+/// The kept detections' buffer, in windows: a window and the detections of the intervals until
+/// the next refit slides it.
+const BUFFER_WINDOWS: usize = 2;
 
 /// One step of the pass: the estimate predicted to a detection and after it.
 #[derive(Debug, Clone, Copy)]
@@ -67,10 +70,9 @@ impl TrackRefit {
     /// Room for `capacity` detections.
     pub(super) fn new(capacity: usize) -> Self {
         Self {
-            // A window and the detections of one interval beyond it.
-            observations: Vec::with_capacity(2 * capacity),
-            steps: Vec::with_capacity(2 * capacity),
-            smoothed: Vec::with_capacity(2 * capacity + 1),
+            observations: Vec::with_capacity(BUFFER_WINDOWS * capacity),
+            steps: Vec::with_capacity(BUFFER_WINDOWS * capacity),
+            smoothed: Vec::with_capacity(BUFFER_WINDOWS * capacity + 1),
             track: 0,
             start: 0,
             base: None,
@@ -114,7 +116,7 @@ impl Estimator {
         if d.stamp <= window_start || kept.done {
             return;
         }
-        if kept.observations.len() >= 2 * self.settings.refit_max {
+        if kept.observations.len() >= BUFFER_WINDOWS * self.settings.refit_max {
             kept.done = true;
             return;
         }
@@ -217,19 +219,12 @@ impl Estimator {
             );
             bounces += report.bounces;
             let predicted = (augmented(&snapshot.ekf), snapshot.ekf.P);
-            let (m, _) = self.measurement_at(&snapshot, m);
-            // Kept detections were fused once: no gate.
-            match &m {
-                Measurement::Position { z, r, .. } => {
-                    let _ = snapshot
-                        .ekf
-                        .update(z, &position_H(), r, f64::INFINITY, None);
-                }
-                Measurement::PositionSpin { z, r, .. } => {
-                    let _ = snapshot
-                        .ekf
-                        .update(z, &position_spin_H(), r, f64::INFINITY, None);
-                }
+            // Kept detections are positions (a measured spin ends the smoothing), each fused
+            // once already: no gate.
+            if let (Measurement::Position { z, r, .. }, _) = self.measurement_at(&snapshot, m) {
+                let _ = snapshot
+                    .ekf
+                    .update(&z, &position_H(), &r, f64::INFINITY, None);
             }
             steps.push(Step {
                 stamp: *stamp,
@@ -258,7 +253,7 @@ impl Estimator {
         let agrees = |s: &Snapshot| {
             step_at(s.stamp).is_none_or(|step| s.bounces == base.bounces + step.bounces)
         };
-        let snapshots = std::iter::once(&track.base)
+        let mut snapshots = std::iter::once(&track.base)
             .chain(track.history.iter().map(|e| &e.after))
             .chain(std::iter::once(&track.now));
         let finite = |ekf: &Ekf| {
@@ -268,7 +263,7 @@ impl Estimator {
                 .chain(ekf.P.iter())
                 .all(|v| v.is_finite())
         };
-        if !snapshots.into_iter().all(agrees) || !kept.steps.iter().all(|s| finite(&s.filtered)) {
+        if !snapshots.all(agrees) || !kept.steps.iter().all(|s| finite(&s.filtered)) {
             return false;
         }
         let place = |s: &mut Snapshot| {
