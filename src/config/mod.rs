@@ -568,6 +568,9 @@ pub struct EkfParams {
     pub refit_max_detections: u32,
 }
 
+/// The range of `ekf.refit_max_detections` [detections]: (fewest, most).
+pub const REFIT_MAX_DETECTIONS: (u32, u32) = (8, 4096);
+
 impl Default for EkfParams {
     fn default() -> Self {
         Self {

@@ -6,7 +6,7 @@
 
 use thiserror::Error;
 
-use super::{Config, MAX_POLYNOMIAL_COEFFICIENTS, SourceParams};
+use super::{Config, MAX_POLYNOMIAL_COEFFICIENTS, REFIT_MAX_DETECTIONS, SourceParams};
 use crate::config::range::Range;
 
 /// One configuration value outside its allowed range. `key` is the dotted parameter name, as in
@@ -804,7 +804,7 @@ impl Config {
         c.count_between(
             "ekf.refit_max_detections",
             e.refit_max_detections,
-            (8, 4096),
+            REFIT_MAX_DETECTIONS,
             "between 8 and 4096 (detections)",
         );
 
@@ -1017,6 +1017,34 @@ mod tests {
             .iter()
             .map(|v| v.key().to_owned())
             .collect()
+    }
+
+    /// The refit window's range is checked at its bounds and described by them.
+    #[test]
+    fn the_refit_window_is_checked_against_its_range() {
+        let (fewest, most) = REFIT_MAX_DETECTIONS;
+        let mut c = Config::default();
+        for ok in [fewest, most] {
+            c.ekf.refit_max_detections = ok;
+            assert!(violations(&c).is_empty(), "{ok}");
+        }
+        for bad in [fewest - 1, most + 1] {
+            c.ekf.refit_max_detections = bad;
+            match violations(&c).as_slice() {
+                [
+                    Violation::CountOutOfRange {
+                        key,
+                        value,
+                        allowed,
+                    },
+                ] => {
+                    assert_eq!(key, "ekf.refit_max_detections");
+                    assert_eq!(*value, u64::from(bad));
+                    assert!(allowed.contains(&format!("between {fewest} and {most}")));
+                }
+                other => panic!("{other:?}"),
+            }
+        }
     }
 
     #[test]

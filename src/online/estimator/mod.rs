@@ -33,7 +33,7 @@ use std::collections::VecDeque;
 
 use nalgebra::{Matrix3, Matrix6, SVector};
 
-use crate::config::Config;
+use crate::config::{Config, REFIT_MAX_DETECTIONS};
 use crate::model::detection::{Detection, seconds_to_ns};
 use crate::model::stats::chi_square_quantile;
 use crate::online::ekf::{
@@ -214,7 +214,11 @@ impl Settings {
             plane_x: config.intercept.plane_x,
             horizon: config.prediction.horizon,
             refit_interval: seconds_to_ns(config.ekf.refit_interval),
-            refit_max: config.ekf.refit_max_detections.clamp(8, 4096) as usize,
+            refit_max: config
+                .ekf
+                .refit_max_detections
+                .clamp(REFIT_MAX_DETECTIONS.0, REFIT_MAX_DETECTIONS.1)
+                as usize,
             gravity: config.gravity,
             model_noise_horizon: seconds_to_ns(config.ekf.model_noise_horizon),
         }
