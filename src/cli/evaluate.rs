@@ -6,7 +6,9 @@ use std::process::ExitCode;
 
 use anyhow::Context;
 use clap::{Args, ValueEnum};
-use ttball::eval::real::{LauncherFlights, RealEvalOptions, SpinKind, evaluate_flights};
+use ttball::eval::real::{
+    LauncherFlights, LeadOutcome, RealEvalOptions, RealReport, SpinKind, evaluate_flights,
+};
 use ttball::eval::sets::{
     LeadComparison, SETTLE_FLIGHTS, SetReport, TrialSet, run_set, standard_sets,
 };
@@ -70,7 +72,7 @@ pub struct EvaluateArgs {
     /// with the measured one (the error, its bias, and its NEES per dimension: about 1 when the
     /// predicted covariance is honest). The 150 fps source's noise is set to the noise measured
     /// from the flights.
-    #[arg(long, value_name = "FILE.csv", num_args = 1.., conflicts_with_all = ["sets", "efficiency", "json"])]
+    #[arg(long, value_name = "FILE.csv", num_args = 1.., conflicts_with_all = ["sets", "efficiency"])]
     pub real: Vec<PathBuf>,
 
     /// With `--real`: every flight starts from the configuration, not from what the flights
@@ -78,7 +80,8 @@ pub struct EvaluateArgs {
     #[arg(long, requires = "real")]
     pub each_alone: bool,
 
-    /// Also write the report as JSON to this file.
+    /// Also write the report as JSON to this file (with `--real`: the summaries and every
+    /// flight's outcome at each lead, in SI units).
     #[arg(long, value_name = "FILE")]
     pub json: Option<PathBuf>,
 
@@ -224,6 +227,11 @@ impl EvaluateArgs {
             ));
         }
         write_stdout(&text)?;
+        if let Some(path) = &self.json {
+            let json =
+                real_report_json(&report, &options, config.sources.wide_150fps.position_sigma);
+            write_json(path, &json)?;
+        }
         Ok(ExitCode::SUCCESS)
     }
 
@@ -391,4 +399,102 @@ fn efficiency_table(efficiencies: &[Efficiency]) -> String {
         );
     }
     out
+}
+
+/// `ttball evaluate --real --json`: the measured noise, the summaries of the table, every
+/// flight's outcome at each lead (SI units: m, s, rad/s; a number that is not one, such as the
+/// NEES of a lead without a valid prediction, is null) and what was learned.
+fn real_report_json(
+    report: &RealReport,
+    options: &RealEvalOptions,
+    position_sigma: f64,
+) -> serde_json::Value {
+    let kind_name = |k: Option<SpinKind>| k.map_or("all", SpinKind::name);
+    let groups: Vec<serde_json::Value> = report
+        .groups
+        .iter()
+        .map(|g| {
+            let leads: Vec<serde_json::Value> = g
+                .leads
+                .iter()
+                .map(|l| {
+                    serde_json::json!({
+                        "lead": l.lead,
+                        "flights": l.flights,
+                        "valid": l.valid,
+                        "no_track": l.no_track,
+                        "position_error": l.position_error,
+                        "time_error": l.time_error,
+                        "bias_y": l.mean_error[0],
+                        "bias_z": l.mean_error[1],
+                        "bias_time": l.mean_error[2],
+                        "crossing_nees": l.crossing_nees,
+                    })
+                })
+                .collect();
+            serde_json::json!({
+                "spin_kind": kind_name(g.spin_kind),
+                "flights": g.flights,
+                "scored": g.scored,
+                "leads": leads,
+            })
+        })
+        .collect();
+    let flights: Vec<serde_json::Value> = report
+        .flights
+        .iter()
+        .map(|f| {
+            let leads: Vec<serde_json::Value> = options
+                .leads
+                .iter()
+                .zip(&f.leads)
+                .map(|(lead, outcome)| match outcome {
+                    LeadOutcome::Predicted {
+                        y_error,
+                        z_error,
+                        time_error,
+                        nees,
+                        ..
+                    } => serde_json::json!({
+                        "lead": lead,
+                        "outcome": "predicted",
+                        "position_error": y_error.hypot(*z_error),
+                        "y_error": y_error,
+                        "z_error": z_error,
+                        "time_error": time_error,
+                        "nees": nees,
+                    }),
+                    LeadOutcome::NoTrack => {
+                        serde_json::json!({"lead": lead, "outcome": "no_track"})
+                    }
+                    LeadOutcome::Invalid(why) => serde_json::json!({
+                        "lead": lead,
+                        "outcome": "invalid",
+                        "reason": why.describe(),
+                    }),
+                })
+                .collect();
+            serde_json::json!({
+                "id": f.id,
+                "spin_kind": f.spin_kind.name(),
+                "scored": f.crossing.is_ok(),
+                "not_scored_because": f.crossing.err().map(|why| why.describe()),
+                "leads": leads,
+                "topspin_before_bounce": f.topspin_before_bounce(),
+                "tracks": f.counters.tracks,
+                "reanchored": f.counters.reanchored,
+                "gated_after_bounce": f.gated_after_bounce,
+            })
+        })
+        .collect();
+    serde_json::json!({
+        "flights_evaluated": report.flights.len(),
+        "carry_over": options.carry_over,
+        "plane": options.plane.describe(),
+        "position_sigma": position_sigma,
+        "groups": groups,
+        "flights": flights,
+        "learned": report.learned.as_ref().map(super::replay::learned_json),
+        "learned_model_noise": report.model_noise.as_ref().map(super::replay::model_noise_json),
+    })
 }

@@ -445,7 +445,9 @@ fn the_command_line_evaluates_the_real_flights() {
         .iter()
         .map(|k| format!("tests/data/mpi_launcher/{}", k.file_name()))
         .collect();
-    let mut args = vec!["evaluate", "--real"];
+    let json_path = common::scratch("real_flights_cli").join("real.json");
+    let json_arg = json_path.to_string_lossy().into_owned();
+    let mut args = vec!["evaluate", "--json", &json_arg, "--real"];
     args.extend(files.iter().map(String::as_str));
     let out = common::ok(&args);
     let data = data().unwrap();
@@ -463,6 +465,41 @@ fn the_command_line_evaluates_the_real_flights() {
     for kind in SpinKind::ALL {
         assert!(out.contains(&format!("  {:<9} ", kind.name())), "{out}");
     }
+    // The JSON: every flight's outcome at each lead, whose errors make the table's RMS, and
+    // the summaries as the table has them.
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&json_path).unwrap()).unwrap();
+    let flights = json["flights"].as_array().unwrap();
+    assert_eq!(flights.len(), data.flights.len());
+    let all = report.overall().unwrap();
+    for (i, lead) in all.leads.iter().enumerate() {
+        let errors: Vec<f64> = flights
+            .iter()
+            .filter_map(|f| f["leads"].as_array()?.get(i))
+            .filter(|l| l["outcome"] == "predicted")
+            .map(|l| l["position_error"].as_f64().unwrap())
+            .collect();
+        assert_eq!(errors.len(), lead.valid);
+        let rms = (errors.iter().map(|e| e * e).sum::<f64>() / errors.len() as f64).sqrt();
+        approx::assert_relative_eq!(rms, lead.position_error.rms, max_relative = 1e-9);
+        let group = json["groups"].as_array().unwrap().last().unwrap();
+        assert_eq!(group["spin_kind"], "all");
+        let summary = &group["leads"][i];
+        approx::assert_relative_eq!(
+            summary["position_error"]["rms"].as_f64().unwrap(),
+            lead.position_error.rms
+        );
+    }
+    let unscored = flights.iter().filter(|f| f["scored"] == false).count();
+    assert_eq!(unscored, data.flights.len() - all.scored);
+    assert!(
+        flights
+            .iter()
+            .filter(|f| f["scored"] == false)
+            .all(|f| f["not_scored_because"].is_string()),
+        "{flights:?}"
+    );
+    assert!(json["learned"]["params"]["magnus_scale"]["value"].is_f64());
     let bad = common::run(&["evaluate", "--real", "Cargo.toml"]);
     assert_eq!(bad.status.code(), Some(1));
     let stderr = String::from_utf8_lossy(&bad.stderr);
