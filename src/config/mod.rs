@@ -20,7 +20,7 @@ mod validate;
 #[cfg(feature = "interface")]
 pub mod yaml;
 
-pub use range::Range;
+pub use range::{CountRange, Range};
 pub use validate::{ConfigError, Violation};
 
 /// The ball (ITTF 40+ ball by default; docs/models.md "Frames, units and time").
@@ -568,8 +568,8 @@ pub struct EkfParams {
     pub refit_max_detections: u32,
 }
 
-/// The range of `ekf.refit_max_detections` [detections]: (fewest, most).
-pub const REFIT_MAX_DETECTIONS: (u32, u32) = (8, 4096);
+/// The range of `ekf.refit_max_detections`: the validation's and the estimator's.
+pub const REFIT_MAX_DETECTIONS: CountRange = CountRange::between(8, 4096).note("detections");
 
 impl Default for EkfParams {
     fn default() -> Self {

@@ -162,9 +162,91 @@ impl fmt::Display for Range {
     }
 }
 
+/// The whole numbers a count (detections, a queue's depth, an id) may take, said in words the
+/// same way: [`CountRange::contains`] for the check, its `Display` for the message, and
+/// [`CountRange::interval`] for the node's integer parameter descriptors.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct CountRange {
+    min: u32,
+    max: Option<u32>,
+    note: Option<&'static str>,
+}
+
+impl CountRange {
+    /// `min` or more.
+    pub const fn at_least(min: u32) -> Self {
+        Self {
+            min,
+            max: None,
+            note: None,
+        }
+    }
+
+    /// From `min` to `max`, both included.
+    pub const fn between(min: u32, max: u32) -> Self {
+        Self {
+            min,
+            max: Some(max),
+            note: None,
+        }
+    }
+
+    /// This range with a note after it: the unit, or why the limit is there.
+    pub const fn note(self, note: &'static str) -> Self {
+        Self {
+            note: Some(note),
+            ..self
+        }
+    }
+
+    /// Whether `value` is inside.
+    pub fn contains(&self, value: u64) -> bool {
+        value >= u64::from(self.min) && self.max.is_none_or(|max| value <= u64::from(max))
+    }
+
+    /// `value` moved into the range.
+    pub fn clamp(&self, value: u32) -> u32 {
+        value.max(self.min).min(self.max.unwrap_or(u32::MAX))
+    }
+
+    /// The least and the greatest count allowed (a count is a `u32`).
+    pub fn interval(&self) -> (u32, u32) {
+        (self.min, self.max.unwrap_or(u32::MAX))
+    }
+}
+
+impl fmt::Display for CountRange {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self.max {
+            Some(max) => write!(f, "between {} and {max}", self.min)?,
+            None => write!(f, "at least {}", self.min)?,
+        }
+        match self.note {
+            Some(note) => write!(f, " ({note})"),
+            None => Ok(()),
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
-    use super::Range;
+    use super::{CountRange, Range};
+
+    #[test]
+    fn each_count_range_says_what_it_checks() {
+        let at_least = CountRange::at_least(3).note("a third checks them");
+        assert_eq!(at_least.to_string(), "at least 3 (a third checks them)");
+        assert!(at_least.contains(3) && !at_least.contains(2) && at_least.contains(u64::MAX));
+        assert_eq!(at_least.interval(), (3, u32::MAX));
+        assert_eq!(at_least.clamp(0), 3);
+        let between = CountRange::between(8, 4096).note("detections");
+        assert_eq!(between.to_string(), "between 8 and 4096 (detections)");
+        assert!(between.contains(8) && between.contains(4096));
+        assert!(!between.contains(7) && !between.contains(4097));
+        assert_eq!(between.interval(), (8, 4096));
+        assert_eq!((between.clamp(5000), between.clamp(100)), (4096, 100));
+        assert_eq!(CountRange::at_least(1).to_string(), "at least 1");
+    }
 
     #[test]
     fn each_range_says_what_it_checks() {

@@ -7,6 +7,7 @@
 use thiserror::Error;
 
 use super::{Config, MAX_POLYNOMIAL_COEFFICIENTS, REFIT_MAX_DETECTIONS, SourceParams};
+use crate::config::range::CountRange;
 use crate::config::range::Range;
 
 /// One configuration value outside its allowed range. `key` is the dotted parameter name, as in
@@ -38,8 +39,8 @@ pub enum Violation {
         key: String,
         /// The offending count.
         value: u64,
-        /// The allowed range, in words.
-        allowed: &'static str,
+        /// The allowed range; it says itself in words.
+        allowed: CountRange,
     },
     /// A list that needs at least one element is empty.
     #[error("`{key}` is an empty list: it must hold at least one {element}")]
@@ -160,6 +161,7 @@ struct Checker {
     violations: Vec<Violation>,
     rules: Vec<(String, String)>,
     ranges: Vec<(String, Range)>,
+    count_ranges: Vec<(String, CountRange)>,
 }
 
 impl Checker {
@@ -218,9 +220,9 @@ impl Checker {
         self.real(key, value, Range::at_least(0.0));
     }
 
-    fn count(&mut self, key: &str, value: u32, min: u32, allowed: &'static str) {
-        self.rule(key, allowed);
-        if value < min {
+    fn count(&mut self, key: &str, value: u32, allowed: CountRange) {
+        self.count_rule(key, allowed);
+        if !allowed.contains(u64::from(value)) {
             self.violations.push(Violation::CountOutOfRange {
                 key: key.to_owned(),
                 value: u64::from(value),
@@ -229,21 +231,10 @@ impl Checker {
         }
     }
 
-    fn count_between(
-        &mut self,
-        key: &str,
-        value: u32,
-        (min, max): (u32, u32),
-        allowed: &'static str,
-    ) {
-        self.rule(key, allowed);
-        if !(min..=max).contains(&value) {
-            self.violations.push(Violation::CountOutOfRange {
-                key: key.to_owned(),
-                value: u64::from(value),
-                allowed,
-            });
-        }
+    /// Records the range a count is held to (checked here or where it is parsed).
+    fn count_rule(&mut self, key: &str, allowed: CountRange) {
+        self.rule(key, &allowed.to_string());
+        self.count_ranges.push((key.to_owned(), allowed));
     }
 
     fn polynomial(&mut self, key: &str, coefficients: &[f64]) {
@@ -314,9 +305,11 @@ impl Checker {
     }
 
     fn source(&mut self, key: &str, source: &SourceParams) {
-        self.rule(
+        // Parsed as a byte (`config::yaml`), unique among the sources (checked above).
+        self.count_rule(
             &format!("{key}.id"),
-            "from 0 to 255, each source's own (the BallDetection.source of its detections)",
+            CountRange::between(0, 255)
+                .note("each source's own: the BallDetection.source of its detections"),
         );
         self.real(
             &format!("{key}.stamp_sigma"),
@@ -411,6 +404,12 @@ impl Config {
     /// descriptors take their `floating_point_range` from.
     pub fn ranges(&self) -> Vec<(String, Range)> {
         self.check().ranges
+    }
+
+    /// The range each checked count is held to, by dotted key: where the node's parameter
+    /// descriptors take their `integer_range` from.
+    pub fn count_ranges(&self) -> Vec<(String, CountRange)> {
+        self.check().count_ranges
     }
 
     fn check(&self) -> Checker {
@@ -748,8 +747,8 @@ impl Config {
         c.count(
             "ekf.init_detections",
             e.init_detections,
-            3,
-            "at least 3 (position and velocity need 2 detections, a third checks them)",
+            CountRange::at_least(3)
+                .note("position and velocity need 2 detections, a third checks them"),
         );
         c.positive("ekf.init_max_span", e.init_max_span);
         c.positive("ekf.spin_prior_sigma", e.spin_prior_sigma);
@@ -792,20 +791,17 @@ impl Config {
         c.count(
             "ekf.noise_memory",
             e.noise_memory,
-            10,
-            "at least 10 (detections)",
+            CountRange::at_least(10).note("detections"),
         );
         c.count(
             "ekf.model_noise_memory",
             e.model_noise_memory,
-            100,
-            "at least 100 (detections)",
+            CountRange::at_least(100).note("detections"),
         );
-        c.count_between(
+        c.count(
             "ekf.refit_max_detections",
             e.refit_max_detections,
             REFIT_MAX_DETECTIONS,
-            "between 8 and 4096 (detections)",
         );
 
         let ad = &self.adaptation;
@@ -867,8 +863,7 @@ impl Config {
         c.count(
             "gating.max_consecutive_rejections",
             self.gating.max_consecutive_rejections,
-            1,
-            "at least 1",
+            CountRange::at_least(1),
         );
 
         let tr = &self.tracking;
@@ -903,7 +898,11 @@ impl Config {
             "namespace",
             namespace_problem(&n.namespace),
         );
-        c.count("node.queue_capacity", n.queue_capacity, 1, "at least 1");
+        c.count(
+            "node.queue_capacity",
+            n.queue_capacity,
+            CountRange::at_least(1),
+        );
         c.name(
             "node.interface_address",
             &n.interface_address,
@@ -992,10 +991,13 @@ impl Config {
         c.count(
             "qos.detections_depth",
             self.qos.detections_depth,
-            1,
-            "at least 1",
+            CountRange::at_least(1),
         );
-        c.count("qos.outputs_depth", self.qos.outputs_depth, 1, "at least 1");
+        c.count(
+            "qos.outputs_depth",
+            self.qos.outputs_depth,
+            CountRange::at_least(1),
+        );
 
         c
     }
@@ -1022,7 +1024,7 @@ mod tests {
     /// The refit window's range is checked at its bounds and described by them.
     #[test]
     fn the_refit_window_is_checked_against_its_range() {
-        let (fewest, most) = REFIT_MAX_DETECTIONS;
+        let (fewest, most) = REFIT_MAX_DETECTIONS.interval();
         let mut c = Config::default();
         for ok in [fewest, most] {
             c.ekf.refit_max_detections = ok;
@@ -1032,7 +1034,7 @@ mod tests {
             c.ekf.refit_max_detections = bad;
             match violations(&c).as_slice() {
                 [
-                    Violation::CountOutOfRange {
+                    v @ Violation::CountOutOfRange {
                         key,
                         value,
                         allowed,
@@ -1040,7 +1042,12 @@ mod tests {
                 ] => {
                     assert_eq!(key, "ekf.refit_max_detections");
                     assert_eq!(*value, u64::from(bad));
-                    assert!(allowed.contains(&format!("between {fewest} and {most}")));
+                    assert_eq!(*allowed, REFIT_MAX_DETECTIONS);
+                    assert!(
+                        v.to_string()
+                            .contains(&format!("between {fewest} and {most} (detections)")),
+                        "{v}"
+                    );
                 }
                 other => panic!("{other:?}"),
             }

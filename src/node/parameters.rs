@@ -21,7 +21,7 @@ use ros2_client::rcl_interfaces::ListParametersResult;
 use serde_norway::Value;
 
 use crate::config::yaml;
-use crate::config::{Config, Range, UNKNOWN_SOURCE};
+use crate::config::{Config, CountRange, Range, UNKNOWN_SOURCE};
 
 /// Sections (and single keys) whose parameters take effect between detections; the others are
 /// read-only, as they shape what the node was built with (its physics and what it learned of
@@ -63,6 +63,7 @@ pub struct Parameters {
     descriptions: HashMap<String, String>,
     rules: HashMap<String, String>,
     ranges: HashMap<String, Range>,
+    count_ranges: HashMap<String, CountRange>,
 }
 
 impl Parameters {
@@ -84,6 +85,7 @@ impl Parameters {
             descriptions: yaml::descriptions(),
             rules: config.rules().into_iter().collect(),
             ranges: config.ranges().into_iter().collect(),
+            count_ranges: config.count_ranges().into_iter().collect(),
         }
     }
 
@@ -170,7 +172,7 @@ impl Parameters {
                 let ptype = self.declared_type(name);
                 let (floating_point_range, integer_range) = match ptype {
                     Some(ParameterType::DOUBLE) => (self.float_range(name).into_iter().collect(), Vec::new()),
-                    Some(ParameterType::INTEGER) => (Vec::new(), integer_range(rule).into_iter().collect()),
+                    Some(ParameterType::INTEGER) => (Vec::new(), self.integer_range(name).into_iter().collect()),
                     _ => (Vec::new(), Vec::new()),
                 };
                 ParameterDescriptor {
@@ -205,6 +207,16 @@ impl Parameters {
             from_value,
             to_value,
             step: 0.0,
+        })
+    }
+
+    /// The interval a count parameter is checked against.
+    fn integer_range(&self, name: &str) -> Option<IntegerRange> {
+        let (from, to) = self.count_ranges.get(name)?.interval();
+        Some(IntegerRange {
+            from_value: i64::from(from),
+            to_value: i64::from(to),
+            step: 1,
         })
     }
 
@@ -493,29 +505,6 @@ fn type_name(ptype: u8) -> &'static str {
     }
 }
 
-/// The interval of a count's rule (`"at least 1"`, `"from 3 to 100"`).
-fn integer_range(rule: &str) -> Option<IntegerRange> {
-    let number = |text: &str| {
-        text.trim_matches(|c: char| c == ',' || c == '(')
-            .parse::<i64>()
-            .ok()
-    };
-    let words: Vec<&str> = rule.split_whitespace().collect();
-    match words.as_slice() {
-        ["at", "least", a, ..] => Some(IntegerRange {
-            from_value: number(a)?,
-            to_value: i64::from(u32::MAX),
-            step: 1,
-        }),
-        ["from", a, "to", b, ..] | ["between", a, "and", b, ..] => Some(IntegerRange {
-            from_value: number(a)?,
-            to_value: number(b)?,
-            step: 1,
-        }),
-        _ => None,
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -563,7 +552,29 @@ mod tests {
             d[0]
         );
         assert!(!d[1].read_only);
-        assert_eq!(d[1].integer_range.len(), 1);
+        assert_eq!(
+            (
+                d[1].integer_range[0].from_value,
+                d[1].integer_range[0].to_value
+            ),
+            (3, i64::from(u32::MAX))
+        );
+        // A count with both limits, and a source's id (parsed as a byte).
+        let counts = p.describe(&[
+            "ekf.refit_max_detections".to_owned(),
+            "sources.wide_150fps.id".to_owned(),
+        ]);
+        let interval =
+            |d: &ParameterDescriptor| (d.integer_range[0].from_value, d.integer_range[0].to_value);
+        assert_eq!(interval(&counts[0]), (8, 4096));
+        assert_eq!(interval(&counts[1]), (0, 255));
+        assert!(
+            counts[0]
+                .additional_constraints
+                .starts_with("between 8 and 4096 (detections)"),
+            "{:?}",
+            counts[0]
+        );
         assert!(d[2].read_only);
         assert_eq!(d[5].r#type, ParameterType::NOT_SET);
         let sigma = &p.describe(&["sources.wide_150fps.stamp_sigma".to_owned()])[0];

@@ -214,11 +214,7 @@ impl Settings {
             plane_x: config.intercept.plane_x,
             horizon: config.prediction.horizon,
             refit_interval: seconds_to_ns(config.ekf.refit_interval),
-            refit_max: config
-                .ekf
-                .refit_max_detections
-                .clamp(REFIT_MAX_DETECTIONS.0, REFIT_MAX_DETECTIONS.1)
-                as usize,
+            refit_max: REFIT_MAX_DETECTIONS.clamp(config.ekf.refit_max_detections) as usize,
             gravity: config.gravity,
             model_noise_horizon: seconds_to_ns(config.ekf.model_noise_horizon),
         }
