@@ -12,8 +12,11 @@ use clap::Args;
 use ttball::bag::damage_text;
 use ttball::bag::live_view::LiveView;
 use ttball::bag::replay::{ReplaySummary, replay, replay_observed};
+use ttball::config::yaml::changed_params_yaml;
 use ttball::online::ekf::NoiseScales;
-use ttball::online::estimator::{LearnedModelNoise, LearnedParams, LearnedSourceNoise, Rejection};
+use ttball::online::estimator::{
+    LearnedModelNoise, LearnedParams, LearnedSourceNoise, Rejection, learned_configuration,
+};
 use ttball::physics::PhysicsParams;
 
 use super::report::accuracy_table;
@@ -37,6 +40,13 @@ pub struct ReplayArgs {
     /// Write the summaries (and accuracy, when the bags carry truth) as JSON.
     #[arg(long, value_name = "FILE.json")]
     pub report: Option<PathBuf>,
+
+    /// Also write what the estimator learned, as it ended, as a configuration file to start the
+    /// node or the next replay from (pass it to --config after your own files): the ball's and
+    /// table's physics in place of the configured values, the model noise and each camera's
+    /// noise it learned in place of the configured ones (one input).
+    #[arg(long, value_name = "FILE.yaml")]
+    pub learned: Option<PathBuf>,
 
     /// Also serve the bag's topics and the outputs live to the Foxglove app, at recorded pace,
     /// over the Foxglove WebSocket protocol (one input): in Foxglove, "Open connection" to
@@ -72,6 +82,9 @@ impl ReplayArgs {
     pub fn run(self) -> anyhow::Result<ExitCode> {
         let config = self.config.load()?;
         let jobs = self.jobs()?;
+        if self.learned.is_some() && jobs.len() != 1 {
+            bail!("--learned takes one input (each bag learns on its own)");
+        }
         if let Some(address) = &self.foxglove {
             return self.run_with_live_view(address, &config, &jobs);
         }
@@ -125,6 +138,7 @@ impl ReplayArgs {
             match result {
                 Ok(summary) => {
                     write_stdout(&summary_text(&summary, Some(whole_seconds)))?;
+                    self.write_learned(&config, &summary)?;
                     summaries.push((summary, whole_seconds));
                 }
                 Err(e) => {
@@ -193,6 +207,7 @@ impl ReplayArgs {
         )
         .with_context(|| format!("cannot replay {}", input.display()))?;
         write_stdout(&summary_text(&summary, None))?;
+        self.write_learned(config, &summary)?;
         Ok(if cancel.load(Ordering::Relaxed) {
             ExitCode::FAILURE
         } else {
@@ -201,6 +216,44 @@ impl ReplayArgs {
     }
 
     /// (input, output) pairs.
+    /// With `--learned`: what the replay's estimator learned, as a configuration file.
+    fn write_learned(
+        &self,
+        config: &ttball::config::Config,
+        summary: &ReplaySummary,
+    ) -> anyhow::Result<()> {
+        let Some(path) = &self.learned else {
+            return Ok(());
+        };
+        let learned = learned_configuration(
+            config,
+            &summary.learned,
+            &summary.learned_noise,
+            &summary.learned_model_noise,
+        );
+        learned
+            .validate()
+            .context("what the estimator learned is not a valid configuration")?;
+        let mut text = format!(
+            "# Written by `ttball replay --learned` from {}: what the estimator learned, as it \
+             ended; pass it to --config\n# (after your own files) to start the node or a replay \
+             from it.\n# {}\n",
+            summary.input.display(),
+            learned_text(&summary.learned)
+        );
+        if let Some(noise) = noise_text(&summary.learned_noise) {
+            let _ = writeln!(text, "# {noise}");
+        }
+        let _ = writeln!(text, "# {}", model_noise_text(&summary.learned_model_noise));
+        text.push_str(&changed_params_yaml(config, &learned));
+        std::fs::write(path, text).with_context(|| format!("cannot write {}", path.display()))?;
+        eprintln!(
+            "what was learned written to {} (use it with --config {0})",
+            path.display()
+        );
+        Ok(())
+    }
+
     fn jobs(&self) -> anyhow::Result<Vec<(PathBuf, PathBuf)>> {
         match (&self.output, &self.output_dir, self.inputs.as_slice()) {
             (Some(out), None, [input]) => Ok(vec![(input.clone(), out.clone())]),

@@ -435,6 +435,16 @@ impl SourcesParams {
         all
     }
 
+    /// The source of that name (`sources.<name>`), to change.
+    pub fn by_name_mut(&mut self, name: &str) -> Option<&mut SourceParams> {
+        match name {
+            UNKNOWN_SOURCE => Some(&mut self.unknown),
+            "wide_150fps" => Some(&mut self.wide_150fps),
+            "highspeed_900fps" => Some(&mut self.highspeed_900fps),
+            _ => self.more.get_mut(name),
+        }
+    }
+
     /// Each detection source's place in [`SourcesParams::all`].
     pub fn index(&self) -> SourceIndex {
         let mut of_id = [0u8; 256];

@@ -364,13 +364,7 @@ pub fn to_ros_params_yaml(config: &Config) -> String {
     match serde_norway::to_value(config) {
         Ok(params) => {
             let mut out = String::new();
-            // A file that renames the node is found by the wildcard only (its sections are
-            // matched against the name before the file renames it).
-            out.push_str(if config.node_fqn() == Config::default().node_fqn() {
-                NODE_KEY
-            } else {
-                "\"/**\""
-            });
+            out.push_str(section_key(config));
             out.push_str(":\n  ");
             out.push_str(ROS_PARAMETERS);
             out.push_str(":\n");
@@ -380,6 +374,61 @@ pub fn to_ros_params_yaml(config: &Config) -> String {
         // Not reachable for plain data; written so that it cannot load as a configuration.
         Err(e) => format!("@ cannot serialise the configuration: {e}\n"),
     }
+}
+
+/// The section a parameters file for `config`'s node is headed by: the node's name, or the
+/// wildcard for a node renamed (its sections are matched against the name before a file
+/// renames it, so such a file is found by the wildcard only).
+fn section_key(config: &Config) -> &'static str {
+    if config.node_fqn() == Config::default().node_fqn() {
+        NODE_KEY
+    } else {
+        "\"/**\""
+    }
+}
+
+/// The parameters of `changed` that differ from `base`'s, as a ROS 2 parameters file (headed
+/// like [`to_ros_params_yaml`]'s): layered over `base` (`--config`), it gives `changed`.
+pub fn changed_params_yaml(base: &Config, changed: &Config) -> String {
+    match (
+        serde_norway::to_value(base),
+        serde_norway::to_value(changed),
+    ) {
+        (Ok(base_value), Ok(changed_value)) => {
+            let mut out = String::new();
+            out.push_str(section_key(changed));
+            out.push_str(":\n  ");
+            out.push_str(ROS_PARAMETERS);
+            out.push_str(":\n");
+            emit_mapping(&mut out, &difference(&base_value, &changed_value), 4);
+            out
+        }
+        (Err(e), _) | (_, Err(e)) => format!("@ cannot serialise the configuration: {e}\n"),
+    }
+}
+
+/// The leaves of `changed` whose values differ from `base`'s, in `changed`'s order (sections
+/// with nothing changed left out).
+fn difference(base: &Value, changed: &Value) -> Value {
+    let (Value::Mapping(base), Value::Mapping(changed)) = (base, changed) else {
+        return changed.clone();
+    };
+    let mut out = serde_norway::Mapping::new();
+    for (key, value) in changed {
+        match (base.get(key), value) {
+            (Some(was), _) if was == value => {}
+            (Some(was @ Value::Mapping(_)), Value::Mapping(_)) => {
+                let inner = difference(was, value);
+                if inner.as_mapping().is_some_and(|m| !m.is_empty()) {
+                    out.insert(key.clone(), inner);
+                }
+            }
+            _ => {
+                out.insert(key.clone(), value.clone());
+            }
+        }
+    }
+    Value::Mapping(out)
 }
 
 /// Every parameter's dotted name (`table.restitution`), in the order of the configuration;
@@ -1095,6 +1144,37 @@ mod tests {
             let back: f64 = serde_norway::from_str(text).unwrap();
             assert_eq!(back, f, "{text}");
         }
+    }
+
+    /// The changed parameters alone, loaded over the defaults, give the changed configuration;
+    /// nothing changed loads as the defaults.
+    #[test]
+    fn changed_parameters_load_back_over_their_base() {
+        let base = Config::default();
+        let mut changed = base.clone();
+        changed.aero.drag_scale = 0.93;
+        changed.table.friction = 0.31;
+        changed.sources.wide_150fps.position_sigma = 0.00074;
+        changed.ekf.init_detections = 5;
+        let text = changed_params_yaml(&base, &changed);
+        assert!(
+            !text.contains("length") && !text.contains("topics") && text.contains("drag_scale"),
+            "{text}"
+        );
+        let loaded = load_str::<&str>(&text, Path::new("changed.yaml"), &[]).unwrap();
+        assert_eq!(loaded, changed);
+        // A file for a renamed node is headed by the wildcard, as `to_ros_params_yaml`'s is.
+        let mut renamed = base.clone();
+        renamed.node.name = "left_robot".to_owned();
+        let mut renamed_changed = renamed.clone();
+        renamed_changed.aero.drag_scale = 0.93;
+        assert!(changed_params_yaml(&renamed, &renamed_changed).starts_with("\"/**\":\n"));
+        let nothing = changed_params_yaml(&base, &base);
+        assert_eq!(
+            load_str::<&str>(&nothing, Path::new("nothing.yaml"), &[]).unwrap(),
+            base,
+            "{nothing}"
+        );
     }
 
     #[test]

@@ -151,3 +151,88 @@ fn a_missing_input_or_output_is_named_with_the_reason_said_once() {
         );
     }
 }
+
+/// `--learned` writes what the replay's estimator learned as a configuration file: loaded, it
+/// holds the report's learned physics, the camera noise and the model noise in place of the
+/// configured values, and a replay started from it starts from them; it takes one input.
+#[test]
+fn what_a_replay_learned_is_a_configuration_to_start_from() {
+    let dir = common::scratch("learned-config");
+    let learned = dir.join("learned.yaml");
+    let report = dir.join("report.json");
+    common::ok(&[
+        "replay",
+        "bags/real_launcher.mcap",
+        "-o",
+        dir.join("out.mcap").to_str().unwrap(),
+        "--report",
+        report.to_str().unwrap(),
+        "--learned",
+        learned.to_str().unwrap(),
+    ]);
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&report).unwrap()).unwrap();
+    let summary = &json[0];
+    let config = ttball::config::yaml::load::<&str>(Some(&learned), &[]).unwrap();
+    let physics = &summary["learned_physics"]["params"];
+    for (name, value) in [
+        ("drag_scale", config.aero.drag_scale),
+        ("magnus_scale", config.aero.magnus_scale),
+        ("restitution", config.table.restitution),
+        ("friction", config.table.friction),
+    ] {
+        // (A decimal's last digit may round either way through two parsers.)
+        approx::assert_relative_eq!(
+            value,
+            physics[name]["value"].as_f64().unwrap(),
+            max_relative = 1e-14
+        );
+    }
+    let defaults = ttball::config::Config::default();
+    // The real flights' camera is quieter than configured, and they stray from the model more.
+    let wide = &config.sources.wide_150fps;
+    assert!(wide.position_sigma < 0.5 * defaults.sources.wide_150fps.position_sigma);
+    assert!(wide.stamp_sigma > 0.0);
+    let acceleration = summary["learned_model_noise"]["acceleration"]["scale"]
+        .as_f64()
+        .unwrap();
+    approx::assert_relative_eq!(
+        config.ekf.acceleration_noise_density,
+        defaults.ekf.acceleration_noise_density * acceleration,
+        max_relative = 1e-12
+    );
+    // Only what was learned is in the file: no topic, no table size.
+    let text = std::fs::read_to_string(&learned).unwrap();
+    assert!(
+        !text.contains("topics") && !text.contains("length"),
+        "{text}"
+    );
+    assert_eq!(config.topics, defaults.topics);
+    // A replay from it starts from the learned physics.
+    let again = common::ok(&[
+        "replay",
+        "bags/sim_rally_wide.mcap",
+        "-o",
+        dir.join("again.mcap").to_str().unwrap(),
+        "--config",
+        learned.to_str().unwrap(),
+        "-p",
+        "adaptation.enabled:=false",
+    ]);
+    let drag = format!("drag_scale {:.3}", config.aero.drag_scale);
+    assert!(again.contains(&drag), "{again}");
+    let two = common::run(&[
+        "replay",
+        "bags/sim_rally_wide.mcap",
+        "bags/real_launcher.mcap",
+        "--output-dir",
+        dir.join("both").to_str().unwrap(),
+        "--learned",
+        learned.to_str().unwrap(),
+    ]);
+    assert_eq!(two.status.code(), Some(1));
+    assert!(
+        String::from_utf8_lossy(&two.stderr).contains("--learned takes one input"),
+        "{two:?}"
+    );
+}

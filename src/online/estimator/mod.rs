@@ -23,6 +23,7 @@ mod counters;
 mod history;
 mod init;
 mod jumps;
+mod learned_config;
 mod learning;
 mod model_noise;
 mod noise;
@@ -49,6 +50,7 @@ use crate::physics::{
     StateMatrix, Trajectory, predict,
 };
 pub use counters::{Counters, Rejection, Verdict};
+pub use learned_config::learned_configuration;
 use learning::Learned;
 use model_noise::ModelNoiseLearner;
 use noise::NoiseLearner;
