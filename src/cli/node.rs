@@ -8,6 +8,7 @@ use clap::Args;
 use ttball::config::yaml::{self, Layer};
 use ttball::config::{Config, names};
 use ttball::node::{NodeError, NodeSummary, Placement, start};
+use ttball::online::estimator::learned_configuration;
 
 use super::{BadUsage, ConfigArgs, write_stdout};
 
@@ -17,6 +18,12 @@ pub struct NodeArgs {
     /// The configuration: node name and namespace, topics, QoS depths, the estimator.
     #[command(flatten)]
     pub config: ConfigArgs,
+
+    /// When the node stops (SIGINT, SIGTERM), write what its estimator learned as a
+    /// configuration file to start the next run from (pass it to --config): the ball's and
+    /// table's physics, the model noise and each camera's noise (give it before --ros-args).
+    #[arg(long, value_name = "FILE.yaml")]
+    pub learned: Option<std::path::PathBuf>,
 
     /// ROS 2 arguments, as `ros2 run` and launch_ros pass them: `--ros-args [-p NAME:=VALUE]
     /// [-r FROM:=TO] [--params-file FILE]... [--log-level LEVEL] [--]`. Parameters files and
@@ -190,6 +197,25 @@ impl NodeArgs {
         }
         let summary = node.stop().map_err(node_error)?;
         write_stdout(&summary_text(&name, &summary))?;
+        if let Some(path) = &self.learned {
+            let learned = &summary.learned;
+            super::replay::write_learned_config(
+                path,
+                &config,
+                &learned_configuration(
+                    &learned.config,
+                    &learned.params,
+                    &learned.source_noise,
+                    &learned.model_noise,
+                ),
+                &format!("`ttball node --learned` ({name})"),
+                &super::replay::learned_lines(
+                    &learned.params,
+                    &learned.source_noise,
+                    &learned.model_noise,
+                ),
+            )?;
+        }
         Ok(ExitCode::SUCCESS)
     }
 }

@@ -225,33 +225,22 @@ impl ReplayArgs {
         let Some(path) = &self.learned else {
             return Ok(());
         };
-        let learned = learned_configuration(
+        write_learned_config(
+            path,
             config,
-            &summary.learned,
-            &summary.learned_noise,
-            &summary.learned_model_noise,
-        );
-        learned
-            .validate()
-            .context("what the estimator learned is not a valid configuration")?;
-        let mut text = format!(
-            "# Written by `ttball replay --learned` from {}: what the estimator learned, as it \
-             ended; pass it to --config\n# (after your own files) to start the node or a replay \
-             from it.\n# {}\n",
-            summary.input.display(),
-            learned_text(&summary.learned)
-        );
-        if let Some(noise) = noise_text(&summary.learned_noise) {
-            let _ = writeln!(text, "# {noise}");
-        }
-        let _ = writeln!(text, "# {}", model_noise_text(&summary.learned_model_noise));
-        text.push_str(&changed_params_yaml(config, &learned));
-        std::fs::write(path, text).with_context(|| format!("cannot write {}", path.display()))?;
-        eprintln!(
-            "what was learned written to {} (use it with --config {0})",
-            path.display()
-        );
-        Ok(())
+            &learned_configuration(
+                config,
+                &summary.learned,
+                &summary.learned_noise,
+                &summary.learned_model_noise,
+            ),
+            &format!("`ttball replay --learned` from {}", summary.input.display()),
+            &learned_lines(
+                &summary.learned,
+                &summary.learned_noise,
+                &summary.learned_model_noise,
+            ),
+        )
     }
 
     fn jobs(&self) -> anyhow::Result<Vec<(PathBuf, PathBuf)>> {
@@ -286,6 +275,48 @@ impl ReplayArgs {
             (Some(_), Some(_), _) => bail!("give either --output or --output-dir"),
         }
     }
+}
+
+/// What an estimator learned, in the summary's lines (the physics, the cameras' noise when
+/// learned, the model noise).
+pub fn learned_lines(
+    params: &LearnedParams,
+    noise: &[LearnedSourceNoise],
+    model: &LearnedModelNoise,
+) -> Vec<String> {
+    let mut lines = vec![learned_text(params)];
+    lines.extend(noise_text(noise));
+    lines.push(model_noise_text(model));
+    lines
+}
+
+/// Writes `learned` (what an estimator learned, on top of `base`) to `path` as a ROS 2
+/// parameters file of the values that differ from `base`, headed by comments: who wrote it
+/// (`by`) and the summary's `lines`.
+pub fn write_learned_config(
+    path: &std::path::Path,
+    base: &ttball::config::Config,
+    learned: &ttball::config::Config,
+    by: &str,
+    lines: &[String],
+) -> anyhow::Result<()> {
+    learned
+        .validate()
+        .context("what the estimator learned is not a valid configuration")?;
+    let mut text = format!(
+        "# Written by {by}: what the estimator learned, as it ended; pass it to --config (after\n\
+         # your own files) to start the node or a replay from it.\n"
+    );
+    for line in lines {
+        let _ = writeln!(text, "# {line}");
+    }
+    text.push_str(&changed_params_yaml(base, learned));
+    std::fs::write(path, text).with_context(|| format!("cannot write {}", path.display()))?;
+    eprintln!(
+        "what was learned written to {} (use it with --config {0})",
+        path.display()
+    );
+    Ok(())
 }
 
 /// One bag's replay as it ended, with the wall time of its whole run [s].

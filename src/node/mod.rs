@@ -60,7 +60,9 @@ use crate::bag::replay::{ODOMETRY_TYPE, TF_MESSAGE_TYPE, TF_STATIC_TOPIC};
 use crate::config::{Config, SourceIndex};
 use crate::model::detection::Source;
 use crate::model::stats::{DurationHistogram, DurationSummary};
-use crate::online::estimator::{Counters, Verdict};
+use crate::online::estimator::{
+    Counters, LearnedModelNoise, LearnedParams, LearnedSourceNoise, Verdict,
+};
 use crate::ros::msgs::diagnostic_msgs::DiagnosticArray;
 use crate::ros::msgs::geometry_msgs::{Quaternion, Transform, TransformStamped, Vector3};
 use crate::ros::msgs::nav_msgs::Odometry;
@@ -184,6 +186,22 @@ pub struct NodeSummary {
     pub in_node: DurationSummary,
     /// How long the node ran [s].
     pub seconds: f64,
+    /// What the estimator had learned when the node stopped.
+    pub learned: NodeLearned,
+}
+
+/// What a node's estimator had learned when it stopped, and the configuration it ran with then
+/// (its parameters as last set).
+#[derive(Debug, Clone, PartialEq)]
+pub struct NodeLearned {
+    /// The configuration the estimator ran with at the end.
+    pub config: Config,
+    /// The ball's and table's physics.
+    pub params: LearnedParams,
+    /// Each camera source's noise.
+    pub source_noise: Vec<LearnedSourceNoise>,
+    /// How far the flights stray from the model.
+    pub model_noise: LearnedModelNoise,
 }
 
 /// A running node. Dropping it without [`NodeHandle::stop`] leaves its threads running until
@@ -475,6 +493,7 @@ fn start_here(config: &Config, placement: &Placement) -> Result<NodeHandle, Node
                 processing_max_ns: estimator.processing_max_ns,
                 in_node: estimator.in_node,
                 seconds: started.elapsed().as_secs_f64(),
+                learned: estimator.learned,
             })
         })
         .map_err(|e| NodeError::Thread(e.to_string()))?;
@@ -644,6 +663,7 @@ struct EstimatorResult {
     processing_mean_ns: f64,
     processing_max_ns: f64,
     in_node: DurationSummary,
+    learned: NodeLearned,
 }
 
 /// Processing and in-node times of the detections, over a diagnostics period and the run.
@@ -756,7 +776,15 @@ impl EstimatorThread {
             &transport_before,
             0,
         );
+        let estimator = self.pipeline.estimator();
+        let learned = NodeLearned {
+            config: self.parameters.config().clone(),
+            params: estimator.learned_params(),
+            source_noise: estimator.learned_noise(),
+            model_noise: estimator.learned_model_noise(),
+        };
         EstimatorResult {
+            learned,
             counters: self.pipeline.counters(),
             processing_mean_ns: if timings.count > 0 {
                 timings.total_ns / timings.count as f64

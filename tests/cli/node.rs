@@ -126,6 +126,69 @@ wait $node
     let _ = std::fs::remove_dir_all(&dir);
 }
 
+/// `--learned`: when the node stops, what it learned from the detections it was sent is written
+/// as a configuration file: the real launcher flights' weak Magnus force and quiet camera.
+#[test]
+fn the_node_writes_what_it_learned_when_it_stops() {
+    let dir = common::scratch("node-learned");
+    let script = format!(
+        r#"
+export ROS_DOMAIN_ID=46 ROS_LOCALHOST_ONLY=1
+cd "{dir}"
+"{ttball}" node --learned learned.yaml > node.out 2> node.err &
+node=$!
+for i in $(seq 100); do grep -qs ttball-dds /proc/$node/task/*/comm && break; sleep 0.1; done
+"{ttball}" play "{bag}" --rate 8 --wait 20 > play.out 2> play.err || echo "play failed" >> play.err
+sleep 1
+kill -INT $node
+wait $node
+"#,
+        dir = dir.display(),
+        ttball = env!("CARGO_BIN_EXE_ttball"),
+        bag = common::root().join("bags/real_launcher.mcap").display(),
+    );
+    assert!(common::run_on_loopback_only(&script).success());
+    let read = |name: &str| std::fs::read_to_string(dir.join(name)).unwrap_or_default();
+    let learned = dir.join("learned.yaml");
+    assert!(
+        learned.exists(),
+        "node: {}\n{}\nplay: {}",
+        read("node.out"),
+        read("node.err"),
+        read("play.err")
+    );
+    let text = read("learned.yaml");
+    assert!(
+        text.starts_with("# Written by `ttball node --learned` (/ttball)"),
+        "{text}"
+    );
+    let config = ttball::config::yaml::load::<&str>(Some(&learned), &[]).unwrap();
+    let defaults = ttball::config::Config::default();
+    assert!(config.aero.magnus_scale < 0.8, "{text}");
+    assert!(
+        config.sources.wide_150fps.position_sigma
+            < 0.6 * defaults.sources.wide_150fps.position_sigma,
+        "{text}"
+    );
+    assert_eq!(config.topics, defaults.topics);
+    // The node runs the replay's code path: when every detection arrived, in order, it learned
+    // what a replay of the bag learns, to the bit.
+    if read("node.out").contains("detections received 4477,") {
+        let replayed = dir.join("replayed.yaml");
+        common::ok(&[
+            "replay",
+            "bags/real_launcher.mcap",
+            "-o",
+            dir.join("replayed.mcap").to_str().unwrap(),
+            "--learned",
+            replayed.to_str().unwrap(),
+        ]);
+        let replayed = ttball::config::yaml::load::<&str>(Some(&replayed), &[]).unwrap();
+        assert_eq!(config, replayed, "{text}");
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
 #[test]
 fn node_refuses_a_bad_domain_id() {
     refused(
