@@ -90,7 +90,8 @@ pub enum Command {
     #[command(after_help = "Examples:\n  \
         ttball replay bags/sim_rally_2cams.mcap --output out.mcap\n  \
         ttball replay bags/*.mcap --output-dir out/ --report out/report.json\n  \
-        ttball replay my_rally.mcap -o out.mcap -p topics.detections:=/vision/ball -p intercept.plane_x:=-1.45")]
+        ttball replay my_rally.mcap -o out.mcap -p topics.detections:=/vision/ball -p intercept.plane_x:=-1.45\n  \
+        ttball replay bags/real_launcher.mcap --learned learned.yaml   # then: ttball node --config learned.yaml")]
     Replay(replay::ReplayArgs),
 
     /// Calibrate the aero and bounce coefficients from recorded flights, or the racket's rubber
@@ -186,6 +187,7 @@ pub enum Command {
     #[command(after_help = "Examples:\n  \
         ttball node\n  \
         ttball node --config my.yaml -p intercept.plane_x:=-1.45\n  \
+        ttball node --config learned.yaml --learned learned.yaml   # start from the last run's lesson, keep this one's\n  \
         ttball node --ros-args -r __ns:=/robot1 -r /ball/detections:=/vision/ball -p node.localhost_only:=true\n  \
         ROS_DOMAIN_ID=7 ttball node -p node.service_mapping:=cyclone   # beside rmw_cyclonedds\n\n\
         Try it without ROS 2: `ttball play bags/sim_rally_2cams.mcap` in another terminal.\n\
