@@ -128,8 +128,8 @@ impl EvaluateArgs {
             write_stdout(&table(name, &report, elapsed))?;
             write_stdout(&format!(
                 "{}\n{}\n",
-                super::replay::learned_text(&learning.params),
-                super::replay::model_noise_text(&learning.model_noise)
+                ttball::online::estimator::describe_params(&learning.params),
+                ttball::online::estimator::describe_model_noise(&learning.model_noise)
             ))?;
             let efficiency = if self.efficiency {
                 eprintln!("fitting every shot as a whole at each lead...");
@@ -217,13 +217,13 @@ impl EvaluateArgs {
         if let Some(learned) = &report.learned {
             text.push_str(&format!(
                 "at the end: {}\n",
-                super::replay::learned_text(learned)
+                ttball::online::estimator::describe_params(learned)
             ));
         }
         if let Some(model_noise) = &report.model_noise {
             text.push_str(&format!(
                 "            {}\n",
-                super::replay::model_noise_text(model_noise)
+                ttball::online::estimator::describe_model_noise(model_noise)
             ));
         }
         write_stdout(&text)?;
@@ -288,7 +288,7 @@ learned physics at the end (relative error against the truth):
 ",
                 r.set.name,
                 parts.join(", "),
-                super::replay::model_noise_text(&r.model_noise)
+                ttball::online::estimator::describe_model_noise(&r.model_noise)
             ))?;
         }
         if let Some(path) = &self.json {

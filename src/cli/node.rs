@@ -8,7 +8,6 @@ use clap::Args;
 use ttball::config::yaml::{self, Layer};
 use ttball::config::{Config, names};
 use ttball::node::{NodeError, NodeSummary, Placement, start};
-use ttball::online::estimator::learned_configuration;
 
 use super::{BadUsage, ConfigArgs, write_stdout};
 
@@ -19,9 +18,10 @@ pub struct NodeArgs {
     #[command(flatten)]
     pub config: ConfigArgs,
 
-    /// When the node stops (SIGINT, SIGTERM), write what its estimator learned as a
-    /// configuration file to start the next run from (pass it to --config): the ball's and
-    /// table's physics, the model noise and each camera's noise (give it before --ros-args).
+    /// Keep what the estimator learns in this file, a configuration to start the next run from
+    /// (pass it to --config): the ball's and table's physics, the model noise and each camera's
+    /// noise. Rewritten whole as the node learns (at most once a diagnostics period) and when it
+    /// stops, so a crash loses at most a period's learning (give it before --ros-args).
     #[arg(long, value_name = "FILE.yaml")]
     pub learned: Option<std::path::PathBuf>,
 
@@ -181,6 +181,7 @@ impl NodeArgs {
         }
         let mut placement = Placement::from_env(&config).map_err(node_error)?;
         placement.live_view.clone_from(&self.foxglove);
+        placement.learned_file.clone_from(&self.learned);
 
         let (signal_tx, signal_rx) = crossbeam::channel::bounded::<()>(1);
         ctrlc::set_handler(move || {
@@ -198,23 +199,10 @@ impl NodeArgs {
         let summary = node.stop().map_err(node_error)?;
         write_stdout(&summary_text(&name, &summary))?;
         if let Some(path) = &self.learned {
-            let learned = &summary.learned;
-            super::replay::write_learned_config(
-                path,
-                &config,
-                &learned_configuration(
-                    &learned.config,
-                    &learned.params,
-                    &learned.source_noise,
-                    &learned.model_noise,
-                ),
-                &format!("`ttball node --learned` ({name})"),
-                &super::replay::learned_lines(
-                    &learned.params,
-                    &learned.source_noise,
-                    &learned.model_noise,
-                ),
-            )?;
+            eprintln!(
+                "what was learned written to {} (use it with --config {0})",
+                path.display()
+            );
         }
         Ok(ExitCode::SUCCESS)
     }

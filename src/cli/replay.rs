@@ -12,10 +12,10 @@ use clap::Args;
 use ttball::bag::damage_text;
 use ttball::bag::live_view::LiveView;
 use ttball::bag::replay::{ReplaySummary, replay, replay_observed};
-use ttball::config::yaml::changed_params_yaml;
 use ttball::online::ekf::NoiseScales;
 use ttball::online::estimator::{
-    LearnedModelNoise, LearnedParams, LearnedSourceNoise, Rejection, learned_configuration,
+    LearnedModelNoise, LearnedParams, LearnedSourceNoise, LearnedSummary, Rejection,
+    describe_model_noise, describe_params, describe_source_noise,
 };
 use ttball::physics::PhysicsParams;
 
@@ -225,22 +225,21 @@ impl ReplayArgs {
         let Some(path) = &self.learned else {
             return Ok(());
         };
-        write_learned_config(
-            path,
-            config,
-            &learned_configuration(
-                config,
-                &summary.learned,
-                &summary.learned_noise,
-                &summary.learned_model_noise,
-            ),
-            &format!("`ttball replay --learned` from {}", summary.input.display()),
-            &learned_lines(
-                &summary.learned,
-                &summary.learned_noise,
-                &summary.learned_model_noise,
-            ),
-        )
+        let learned = LearnedSummary {
+            params: summary.learned,
+            source_noise: summary.learned_noise.clone(),
+            model_noise: summary.learned_model_noise,
+        };
+        let by = format!("`ttball replay --learned` from {}", summary.input.display());
+        let text = learned
+            .file_text(config, config, &by)
+            .context("what the estimator learned is not a valid configuration")?;
+        std::fs::write(path, text).with_context(|| format!("cannot write {}", path.display()))?;
+        eprintln!(
+            "what was learned written to {} (use it with --config {0})",
+            path.display()
+        );
+        Ok(())
     }
 
     fn jobs(&self) -> anyhow::Result<Vec<(PathBuf, PathBuf)>> {
@@ -275,48 +274,6 @@ impl ReplayArgs {
             (Some(_), Some(_), _) => bail!("give either --output or --output-dir"),
         }
     }
-}
-
-/// What an estimator learned, in the summary's lines (the physics, the cameras' noise when
-/// learned, the model noise).
-pub fn learned_lines(
-    params: &LearnedParams,
-    noise: &[LearnedSourceNoise],
-    model: &LearnedModelNoise,
-) -> Vec<String> {
-    let mut lines = vec![learned_text(params)];
-    lines.extend(noise_text(noise));
-    lines.push(model_noise_text(model));
-    lines
-}
-
-/// Writes `learned` (what an estimator learned, on top of `base`) to `path` as a ROS 2
-/// parameters file of the values that differ from `base`, headed by comments: who wrote it
-/// (`by`) and the summary's `lines`.
-pub fn write_learned_config(
-    path: &std::path::Path,
-    base: &ttball::config::Config,
-    learned: &ttball::config::Config,
-    by: &str,
-    lines: &[String],
-) -> anyhow::Result<()> {
-    learned
-        .validate()
-        .context("what the estimator learned is not a valid configuration")?;
-    let mut text = format!(
-        "# Written by {by}: what the estimator learned, as it ended; pass it to --config (after\n\
-         # your own files) to start the node or a replay from it.\n"
-    );
-    for line in lines {
-        let _ = writeln!(text, "# {line}");
-    }
-    text.push_str(&changed_params_yaml(base, learned));
-    std::fs::write(path, text).with_context(|| format!("cannot write {}", path.display()))?;
-    eprintln!(
-        "what was learned written to {} (use it with --config {0})",
-        path.display()
-    );
-    Ok(())
 }
 
 /// One bag's replay as it ended, with the wall time of its whole run [s].
@@ -378,11 +335,11 @@ pub fn summary_text(s: &ReplaySummary, whole_seconds: Option<f64>) -> String {
             c.refits
         );
     }
-    let _ = writeln!(out, "  {}", learned_text(&s.learned));
-    if let Some(line) = noise_text(&s.learned_noise) {
+    let _ = writeln!(out, "  {}", describe_params(&s.learned));
+    if let Some(line) = describe_source_noise(&s.learned_noise) {
         let _ = writeln!(out, "  {line}");
     }
-    let _ = writeln!(out, "  {}", model_noise_text(&s.learned_model_noise));
+    let _ = writeln!(out, "  {}", describe_model_noise(&s.learned_model_noise));
     let _ = writeln!(
         out,
         "  processing per detection: mean {:.1} us, p99 {:.1} us; {:.1} s recorded in {:.2} s ({:.0}x real time); {} messages written",
@@ -414,40 +371,6 @@ pub fn summary_text(s: &ReplaySummary, whole_seconds: Option<f64>) -> String {
     out
 }
 
-/// The learned physical parameters in one line: "learned physics over N tracks: drag_scale
-/// 0.93 +- 0.02, ...".
-pub fn learned_text(l: &LearnedParams) -> String {
-    let values = l.params.to_vector();
-    let parts: Vec<String> = PhysicsParams::NAMES
-        .iter()
-        .enumerate()
-        .map(|(i, name)| {
-            let flights = if l.flight_sigma[i] > 0.0 {
-                format!(" (each flight +- {:.3})", l.flight_sigma[i])
-            } else {
-                String::new()
-            };
-            format!("{name} {:.3} +- {:.3}{flights}", values[i], l.sigma[i])
-        })
-        .collect();
-    format!(
-        "learned physics over {} tracks: {}",
-        l.tracks,
-        parts.join(", ")
-    )
-}
-
-/// How far the flights stray from the model, in one line: "learned model noise: acceleration
-/// 0.030x, spin 0.100x, bounce 0.090x the configured".
-pub fn model_noise_text(m: &LearnedModelNoise) -> String {
-    let parts: Vec<String> = NoiseScales::NAMES
-        .iter()
-        .zip(m.scales.to_array())
-        .map(|(name, scale)| format!("{name} {scale:.3}x"))
-        .collect();
-    format!("learned model noise: {} the configured", parts.join(", "))
-}
-
 /// The learned model noise as JSON: each scale by name with the sigma of its log.
 pub fn model_noise_json(m: &LearnedModelNoise) -> serde_json::Value {
     let scales: serde_json::Map<String, serde_json::Value> = NoiseScales::NAMES
@@ -462,26 +385,6 @@ pub fn model_noise_json(m: &LearnedModelNoise) -> serde_json::Value {
         })
         .collect();
     serde_json::Value::Object(scales)
-}
-
-/// The noise learned of the sources that sent detections, in one line: "learned noise:
-/// wide_150fps position sigma 3.0 mm (1.50x configured), stamps 0.3 ms; ...", or `None` when no
-/// source has learned anything.
-pub fn noise_text(noise: &[LearnedSourceNoise]) -> Option<String> {
-    let parts: Vec<String> = noise
-        .iter()
-        .filter(|n| n.has_learned())
-        .map(|n| {
-            format!(
-                "{} position sigma {:.2} mm ({:.2}x configured), stamps {:.2} ms",
-                n.source,
-                n.position_sigma * 1e3,
-                n.estimate.position_scale.sqrt(),
-                n.stamp_sigma * 1e3
-            )
-        })
-        .collect();
-    (!parts.is_empty()).then(|| format!("learned noise: {}", parts.join("; ")))
 }
 
 /// The learned noise of each source as JSON.

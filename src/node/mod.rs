@@ -25,6 +25,7 @@ mod affinity;
 mod dds;
 mod diagnostics;
 mod intake;
+mod keeper;
 pub mod parameters;
 mod play;
 pub mod rosout;
@@ -60,9 +61,7 @@ use crate::bag::replay::{ODOMETRY_TYPE, TF_MESSAGE_TYPE, TF_STATIC_TOPIC};
 use crate::config::{Config, SourceIndex};
 use crate::model::detection::Source;
 use crate::model::stats::{DurationHistogram, DurationSummary};
-use crate::online::estimator::{
-    Counters, LearnedModelNoise, LearnedParams, LearnedSourceNoise, Verdict,
-};
+use crate::online::estimator::{Counters, LearnedSummary, Verdict};
 use crate::ros::msgs::diagnostic_msgs::DiagnosticArray;
 use crate::ros::msgs::geometry_msgs::{Quaternion, Transform, TransformStamped, Vector3};
 use crate::ros::msgs::nav_msgs::Odometry;
@@ -138,6 +137,9 @@ pub struct Placement {
     pub interfaces: Option<Vec<std::net::IpAddr>>,
     /// Where to serve the Foxglove live view as well (`--foxglove HOST:PORT`); `None`: nowhere.
     pub live_view: Option<String>,
+    /// Where to keep what the estimator learns (`--learned FILE`), rewritten as it learns and
+    /// when the node stops; `None`: nowhere.
+    pub learned_file: Option<std::path::PathBuf>,
 }
 
 impl Placement {
@@ -153,6 +155,7 @@ impl Placement {
                 var("ROS_AUTOMATIC_DISCOVERY_RANGE").as_deref(),
             ),
             live_view: None,
+            learned_file: None,
         })
     }
 
@@ -196,12 +199,8 @@ pub struct NodeSummary {
 pub struct NodeLearned {
     /// The configuration the estimator ran with at the end.
     pub config: Config,
-    /// The ball's and table's physics.
-    pub params: LearnedParams,
-    /// Each camera source's noise.
-    pub source_noise: Vec<LearnedSourceNoise>,
-    /// How far the flights stray from the model.
-    pub model_noise: LearnedModelNoise,
+    /// What it learned.
+    pub learned: LearnedSummary,
 }
 
 /// A running node. Dropping it without [`NodeHandle::stop`] leaves its threads running until
@@ -408,7 +407,15 @@ fn start_here(config: &Config, placement: &Placement) -> Result<NodeHandle, Node
         }
         None => None,
     };
+    let keeper = match &placement.learned_file {
+        Some(path) => Some(
+            keeper::LearnedKeeper::start(path.clone(), config.clone(), fq_name.clone())
+                .map_err(|e| NodeError::Thread(e.to_string()))?,
+        ),
+        None => None,
+    };
     let estimator = EstimatorThread {
+        keeper,
         live_view,
         pipeline,
         tf_static,
@@ -609,6 +616,8 @@ struct EstimatorThread {
     _tf_publisher: Option<Publisher<TFMessage>>,
     /// The Foxglove live view, and the topics it shows the detections and outputs on.
     live_view: Option<(LiveView, crate::config::TopicsParams)>,
+    /// The keeper of what the estimator learned in a file (`--learned`).
+    keeper: Option<keeper::LearnedKeeper>,
 }
 
 /// The table's pose in `frames.table_parent` as a `/tf_static` message, if one is configured.
@@ -760,6 +769,12 @@ impl EstimatorThread {
                     );
                     period_start = now;
                     transport_before = transport;
+                    if let Some(keeper) = &mut self.keeper {
+                        keeper.offer(
+                            self.parameters.config(),
+                            self.pipeline.estimator().learned_summary(),
+                        );
+                    }
                 }
             }
         }
@@ -776,13 +791,13 @@ impl EstimatorThread {
             &transport_before,
             0,
         );
-        let estimator = self.pipeline.estimator();
         let learned = NodeLearned {
             config: self.parameters.config().clone(),
-            params: estimator.learned_params(),
-            source_noise: estimator.learned_noise(),
-            model_noise: estimator.learned_model_noise(),
+            learned: self.pipeline.estimator().learned_summary(),
         };
+        if let Some(keeper) = self.keeper.take() {
+            keeper.finish(&learned.config, learned.learned.clone());
+        }
         EstimatorResult {
             learned,
             counters: self.pipeline.counters(),

@@ -126,11 +126,13 @@ wait $node
     let _ = std::fs::remove_dir_all(&dir);
 }
 
-/// `--learned`: when the node stops, what it learned from the detections it was sent is written
-/// as a configuration file: the real launcher flights' weak Magnus force and quiet camera.
-#[test]
-fn the_node_writes_what_it_learned_when_it_stops() {
-    let dir = common::scratch("node-learned");
+/// `ttball node --learned learned.yaml` in `dir`, fed the real launcher flights over DDS by
+/// `ttball play` (loopback only, 8 times the recorded pace), then sent `signal` a second after;
+/// the learned file's text and its configuration, and the node's stdout.
+fn node_learning_the_launcher_flights(
+    dir: &std::path::Path,
+    signal: &str,
+) -> (String, ttball::config::Config, String) {
     let script = format!(
         r#"
 export ROS_DOMAIN_ID=46 ROS_LOCALHOST_ONLY=1
@@ -139,9 +141,10 @@ cd "{dir}"
 node=$!
 for i in $(seq 100); do grep -qs ttball-dds /proc/$node/task/*/comm && break; sleep 0.1; done
 "{ttball}" play "{bag}" --rate 8 --wait 20 > play.out 2> play.err || echo "play failed" >> play.err
-sleep 1
-kill -INT $node
+sleep 2
+kill -{signal} $node
 wait $node
+exit 0
 "#,
         dir = dir.display(),
         ttball = env!("CARGO_BIN_EXE_ttball"),
@@ -158,11 +161,36 @@ wait $node
         read("play.err")
     );
     let text = read("learned.yaml");
+    let config = ttball::config::yaml::load::<&str>(Some(&learned), &[]).unwrap();
+    (text, config, read("node.out"))
+}
+
+/// What a replay of the real launcher bag learns, as a configuration.
+fn replay_learned(dir: &std::path::Path) -> ttball::config::Config {
+    let replayed = dir.join("replayed.yaml");
+    common::ok(&[
+        "replay",
+        "bags/real_launcher.mcap",
+        "-o",
+        dir.join("replayed.mcap").to_str().unwrap(),
+        "--learned",
+        replayed.to_str().unwrap(),
+    ]);
+    ttball::config::yaml::load::<&str>(Some(&replayed), &[]).unwrap()
+}
+
+/// `--learned`: when the node stops, what it learned from the detections it was sent is in the
+/// file: the real launcher flights' weak Magnus force and quiet camera; and since the node runs
+/// the replay's code path, when every detection arrived it learned what a replay learns, to the
+/// bit.
+#[test]
+fn the_node_writes_what_it_learned_when_it_stops() {
+    let dir = common::scratch("node-learned");
+    let (text, config, out) = node_learning_the_launcher_flights(&dir, "INT");
     assert!(
         text.starts_with("# Written by `ttball node --learned` (/ttball)"),
         "{text}"
     );
-    let config = ttball::config::yaml::load::<&str>(Some(&learned), &[]).unwrap();
     let defaults = ttball::config::Config::default();
     assert!(config.aero.magnus_scale < 0.8, "{text}");
     assert!(
@@ -171,21 +199,28 @@ wait $node
         "{text}"
     );
     assert_eq!(config.topics, defaults.topics);
-    // The node runs the replay's code path: when every detection arrived, in order, it learned
-    // what a replay of the bag learns, to the bit.
-    if read("node.out").contains("detections received 4477,") {
-        let replayed = dir.join("replayed.yaml");
-        common::ok(&[
-            "replay",
-            "bags/real_launcher.mcap",
-            "-o",
-            dir.join("replayed.mcap").to_str().unwrap(),
-            "--learned",
-            replayed.to_str().unwrap(),
-        ]);
-        let replayed = ttball::config::yaml::load::<&str>(Some(&replayed), &[]).unwrap();
-        assert_eq!(config, replayed, "{text}");
+    if out.contains("detections received 4477,") {
+        assert_eq!(config, replay_learned(&dir), "{text}");
     }
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// A node killed outright (SIGKILL: no clean stop) has kept what it learned: the file is
+/// rewritten whole as it learns, and two seconds after the last detection it holds all of it.
+#[test]
+fn a_killed_node_has_kept_what_it_learned() {
+    let dir = common::scratch("node-learned-killed");
+    let (text, config, _) = node_learning_the_launcher_flights(&dir, "KILL");
+    assert!(config.aero.magnus_scale < 0.8, "{text}");
+    assert!(!dir.join("learned.yaml.tmp").exists());
+    let replayed = replay_learned(&dir);
+    // Every flight taught it (the node's own count of detections died with it).
+    assert!(text.contains("learned physics over 40 tracks"), "{text}");
+    approx::assert_relative_eq!(
+        config.aero.magnus_scale,
+        replayed.aero.magnus_scale,
+        max_relative = 0.05
+    );
     let _ = std::fs::remove_dir_all(&dir);
 }
 

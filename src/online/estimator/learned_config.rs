@@ -1,50 +1,160 @@
-//! What an estimator learned, as a configuration to start the next one from: the physical
-//! parameters it learned over its tracks in place of the configured ones (`aero.drag_scale`,
-//! `aero.magnus_scale`, `table.restitution`, `table.friction`), the model noise it learned folded
-//! into the configured densities and scatters (`ekf.*`), and each camera's noise it learned in
-//! place of the source's configured sigmas (`sources.*`). A node or replay started from it begins
-//! where this one ended, with the configured priors' widths around the new values (the learning
-//! goes on from there; a new ball or table is still learned as quickly).
+//! What an estimator learned ([`LearnedSummary`]), in words and as a configuration to start the
+//! next one from: the physical parameters it learned over its tracks in place of the configured
+//! ones (`aero.drag_scale`, `aero.magnus_scale`, `table.restitution`, `table.friction`), the
+//! model noise it learned folded into the configured densities and scatters (`ekf.*`), and each
+//! camera's noise it learned in place of the source's configured sigmas (`sources.*`). A node or
+//! replay started from it begins where this one ended, with the configured priors' widths around
+//! the new values (the learning goes on from there; a new ball or table is still learned as
+//! quickly).
 
-use super::{LearnedModelNoise, LearnedParams, LearnedSourceNoise, noise};
-use crate::config::Config;
+use super::{Estimator, LearnedModelNoise, LearnedParams, LearnedSourceNoise, noise};
+use crate::config::yaml::changed_params_yaml;
+use crate::config::{Config, ConfigError};
+use crate::online::ekf::NoiseScales;
+use crate::physics::PhysicsParams;
 
-/// `base` with what was learned in place of the configured values (see the module doc). A
-/// source that has learned nothing beyond its prior keeps its configured noise.
-pub fn learned_configuration(
-    base: &Config,
-    params: &LearnedParams,
-    source_noise: &[LearnedSourceNoise],
-    model_noise: &LearnedModelNoise,
-) -> Config {
-    let mut config = base.clone();
-    params.params.apply_to(&mut config);
-    let scales = &model_noise.scales;
-    let ekf = &mut config.ekf;
-    ekf.acceleration_noise_density *= scales.acceleration;
-    ekf.spin_noise_density *= scales.spin;
-    // The bounce's scale is on the scatter's variance.
-    ekf.bounce_impulse_sigma *= scales.bounce.sqrt();
-    ekf.bounce_restitution_sigma *= scales.bounce.sqrt();
-    for learned in source_noise.iter().filter(|n| n.has_learned()) {
-        let Some(source) = config.sources.by_name_mut(&learned.source) else {
-            continue;
-        };
-        source.position_sigma = learned.position_sigma;
-        source.stamp_sigma = learned.stamp_sigma;
-        if learned.estimate.spin_weight > noise::PRIOR_WEIGHT {
-            source.spin_sigma *= learned.estimate.spin_scale.sqrt();
+/// Everything an estimator has learned, as it stands.
+#[derive(Debug, Clone, PartialEq)]
+pub struct LearnedSummary {
+    /// The ball's and table's physics.
+    pub params: LearnedParams,
+    /// Each camera source's noise, in the order of the configuration's sources.
+    pub source_noise: Vec<LearnedSourceNoise>,
+    /// How far the flights stray from the model.
+    pub model_noise: LearnedModelNoise,
+}
+
+impl Estimator {
+    /// Everything it has learned so far ([`LearnedSummary`]).
+    pub fn learned_summary(&self) -> LearnedSummary {
+        LearnedSummary {
+            params: self.learned_params(),
+            source_noise: self.learned_noise(),
+            model_noise: self.learned_model_noise(),
         }
     }
-    config
+}
+
+impl LearnedSummary {
+    /// `base` with what was learned in place of the configured values (see the module doc). A
+    /// source that has learned nothing beyond its prior keeps its configured noise.
+    pub fn configuration(&self, base: &Config) -> Config {
+        let mut config = base.clone();
+        self.params.params.apply_to(&mut config);
+        let scales = &self.model_noise.scales;
+        let ekf = &mut config.ekf;
+        ekf.acceleration_noise_density *= scales.acceleration;
+        ekf.spin_noise_density *= scales.spin;
+        // The bounce's scale is on the scatter's variance.
+        ekf.bounce_impulse_sigma *= scales.bounce.sqrt();
+        ekf.bounce_restitution_sigma *= scales.bounce.sqrt();
+        for learned in self.source_noise.iter().filter(|n| n.has_learned()) {
+            let Some(source) = config.sources.by_name_mut(&learned.source) else {
+                continue;
+            };
+            source.position_sigma = learned.position_sigma;
+            source.stamp_sigma = learned.stamp_sigma;
+            if learned.estimate.spin_weight > noise::PRIOR_WEIGHT {
+                source.spin_sigma *= learned.estimate.spin_scale.sqrt();
+            }
+        }
+        config
+    }
+
+    /// What was learned, a line each: the physics, the cameras' noise (where learned), the model
+    /// noise.
+    pub fn lines(&self) -> Vec<String> {
+        let mut lines = vec![describe_params(&self.params)];
+        lines.extend(describe_source_noise(&self.source_noise));
+        lines.push(describe_model_noise(&self.model_noise));
+        lines
+    }
+
+    /// The learned configuration as a ROS 2 parameters file headed by comments (who wrote it,
+    /// `written_by`, and [`Self::lines`]): the values of [`Self::configuration`] of `running`
+    /// (the configuration the estimator ran with) that differ from `base` (the one it was
+    /// started with). An error if what was learned is not a valid configuration.
+    pub fn file_text(
+        &self,
+        base: &Config,
+        running: &Config,
+        written_by: &str,
+    ) -> Result<String, ConfigError> {
+        let learned = self.configuration(running);
+        learned.validate()?;
+        let mut text = format!(
+            "# Written by {written_by}: what the estimator learned; pass it to --config (after\n\
+             # your own files) to start the node or a replay from it.\n"
+        );
+        for line in self.lines() {
+            text.push_str("# ");
+            text.push_str(&line);
+            text.push('\n');
+        }
+        text.push_str(&changed_params_yaml(base, &learned));
+        Ok(text)
+    }
+}
+
+/// The learned physics in one line: "learned physics over 40 tracks: drag_scale 0.927 +- 0.009
+/// (each flight +- 0.030), ...".
+pub fn describe_params(l: &LearnedParams) -> String {
+    let values = l.params.to_vector();
+    let parts: Vec<String> = PhysicsParams::NAMES
+        .iter()
+        .enumerate()
+        .map(|(i, name)| {
+            let flights = if l.flight_sigma[i] > 0.0 {
+                format!(" (each flight +- {:.3})", l.flight_sigma[i])
+            } else {
+                String::new()
+            };
+            format!("{name} {:.3} +- {:.3}{flights}", values[i], l.sigma[i])
+        })
+        .collect();
+    format!(
+        "learned physics over {} tracks: {}",
+        l.tracks,
+        parts.join(", ")
+    )
+}
+
+/// How far the flights stray from the model, in one line: "learned model noise: acceleration
+/// 0.030x, spin 0.100x, bounce 0.090x the configured".
+pub fn describe_model_noise(m: &LearnedModelNoise) -> String {
+    let parts: Vec<String> = NoiseScales::NAMES
+        .iter()
+        .zip(m.scales.to_array())
+        .map(|(name, scale)| format!("{name} {scale:.3}x"))
+        .collect();
+    format!("learned model noise: {} the configured", parts.join(", "))
+}
+
+/// The noise learned of the sources that sent detections, in one line: "learned noise:
+/// wide_150fps position sigma 3.0 mm (1.50x configured), stamps 0.3 ms; ...", or `None` when no
+/// source has learned anything.
+pub fn describe_source_noise(noise: &[LearnedSourceNoise]) -> Option<String> {
+    let parts: Vec<String> = noise
+        .iter()
+        .filter(|n| n.has_learned())
+        .map(|n| {
+            format!(
+                "{} position sigma {:.2} mm ({:.2}x configured), stamps {:.2} ms",
+                n.source,
+                n.position_sigma * 1e3,
+                n.estimate.position_scale.sqrt(),
+                n.stamp_sigma * 1e3
+            )
+        })
+        .collect();
+    (!parts.is_empty()).then(|| format!("learned noise: {}", parts.join("; ")))
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::online::ekf::{NOISE_SCALES, NoiseScales};
+    use crate::online::ekf::NOISE_SCALES;
     use crate::online::estimator::SourceNoiseEstimate;
-    use crate::physics::PhysicsParams;
 
     fn source(name: &str, weight: f64, spin_weight: f64) -> LearnedSourceNoise {
         LearnedSourceNoise {
@@ -61,38 +171,44 @@ mod tests {
         }
     }
 
+    fn lesson() -> LearnedSummary {
+        LearnedSummary {
+            params: LearnedParams {
+                params: PhysicsParams {
+                    drag_scale: 0.93,
+                    magnus_scale: 0.56,
+                    restitution: 0.965,
+                    friction: 0.28,
+                },
+                sigma: [0.01; 4],
+                tracks: 40,
+                flight_sigma: [0.0; 4],
+            },
+            source_noise: vec![
+                source("wide_150fps", 2000.0, noise::PRIOR_WEIGHT),
+                source("highspeed_900fps", noise::PRIOR_WEIGHT, noise::PRIOR_WEIGHT),
+                source("not_a_source", 2000.0, 2000.0),
+            ],
+            model_noise: LearnedModelNoise {
+                scales: NoiseScales {
+                    acceleration: 1.5,
+                    spin: 0.5,
+                    bounce: 4.0,
+                },
+                log_sigma: [0.1; NOISE_SCALES],
+            },
+        }
+    }
+
     /// The learned physics replace the configured, the model noise's scales are folded into
     /// the densities (the bounce's on its variance), and a camera's noise is taken only where
     /// it learned something.
     #[test]
     fn what_was_learned_replaces_what_was_configured() {
         let base = Config::default();
-        let params = LearnedParams {
-            params: PhysicsParams {
-                drag_scale: 0.93,
-                magnus_scale: 0.56,
-                restitution: 0.965,
-                friction: 0.28,
-            },
-            sigma: [0.01; 4],
-            tracks: 40,
-            flight_sigma: [0.0; 4],
-        };
-        let model = LearnedModelNoise {
-            scales: NoiseScales {
-                acceleration: 1.5,
-                spin: 0.5,
-                bounce: 4.0,
-            },
-            log_sigma: [0.1; NOISE_SCALES],
-        };
-        let noise = [
-            source("wide_150fps", 2000.0, noise::PRIOR_WEIGHT),
-            source("highspeed_900fps", noise::PRIOR_WEIGHT, noise::PRIOR_WEIGHT),
-            source("not_a_source", 2000.0, 2000.0),
-        ];
-        let c = learned_configuration(&base, &params, &noise, &model);
-        assert_eq!(PhysicsParams::from_config(&c), params.params);
+        let learned = lesson();
+        let c = learned.configuration(&base);
+        assert_eq!(PhysicsParams::from_config(&c), learned.params.params);
         let (e, b) = (&c.ekf, &base.ekf);
         assert_eq!(
             e.acceleration_noise_density,
@@ -109,14 +225,39 @@ mod tests {
         assert_eq!(c.sources.highspeed_900fps, base.sources.highspeed_900fps);
         assert!(c.validate().is_ok());
         // Nothing learned, nothing changed.
-        let none = LearnedModelNoise {
-            scales: NoiseScales::default(),
-            log_sigma: [0.5; NOISE_SCALES],
+        let nothing = LearnedSummary {
+            params: LearnedParams {
+                params: PhysicsParams::from_config(&base),
+                ..learned.params
+            },
+            source_noise: Vec::new(),
+            model_noise: LearnedModelNoise {
+                scales: NoiseScales::default(),
+                log_sigma: [0.5; NOISE_SCALES],
+            },
         };
-        let unchanged = LearnedParams {
-            params: PhysicsParams::from_config(&base),
-            ..params
-        };
-        assert_eq!(learned_configuration(&base, &unchanged, &[], &none), base);
+        assert_eq!(nothing.configuration(&base), base);
+    }
+
+    /// The file says who wrote it and what was learned, and loads back to the learned
+    /// configuration; a lesson that is not a configuration is refused.
+    #[test]
+    fn the_file_loads_back_to_the_learned_configuration() {
+        let base = Config::default();
+        let learned = lesson();
+        let text = learned.file_text(&base, &base, "a test").unwrap();
+        assert!(text.starts_with("# Written by a test: "), "{text}");
+        assert!(
+            text.contains("# learned physics over 40 tracks: drag_scale 0.930 +- 0.010"),
+            "{text}"
+        );
+        assert!(text.contains("# learned noise: wide_150fps position sigma 0.70 mm"));
+        let loaded =
+            crate::config::yaml::load_str::<&str>(&text, std::path::Path::new("l.yaml"), &[])
+                .unwrap();
+        assert_eq!(loaded, learned.configuration(&base));
+        let mut wrong = learned;
+        wrong.params.params.friction = -1.0;
+        assert!(wrong.file_text(&base, &base, "a test").is_err());
     }
 }

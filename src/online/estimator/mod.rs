@@ -50,7 +50,9 @@ use crate::physics::{
     StateMatrix, Trajectory, predict,
 };
 pub use counters::{Counters, Rejection, Verdict};
-pub use learned_config::learned_configuration;
+pub use learned_config::{
+    LearnedSummary, describe_model_noise, describe_params, describe_source_noise,
+};
 use learning::Learned;
 use model_noise::ModelNoiseLearner;
 use noise::NoiseLearner;
