@@ -11,6 +11,9 @@ Arguments (`ros2 launch ttball ttball.launch.py --show-args`):
   service_mapping  enhanced (rmw_fastrtps, rmw_connextdds; the default) or cyclone
                    (rmw_cyclonedds), as RMW_IMPLEMENTATION of the callers
   use_sim_time     follow /clock
+  learned_file     keep what the node learns (the ball's and table's physics, the noise) in this
+                   file, rewritten as it learns; give it as params_file next time to start from
+                   it (empty, the default: not kept)
 """
 
 import os
@@ -40,14 +43,17 @@ def generate_launch_description():
         DeclareLaunchArgument("service_mapping", default_value="enhanced",
                               description="enhanced (rmw_fastrtps) or cyclone (rmw_cyclonedds)"),
         DeclareLaunchArgument("use_sim_time", default_value="false", description="follow /clock"),
+        DeclareLaunchArgument("learned_file", default_value="",
+                              description="keep what the node learns in this file (empty: not kept)"),
     ]
     node = Node(
         package="ttball",
         executable="ttball",
         name="ttball",
         namespace=LaunchConfiguration("namespace"),
-        # launch_ros runs: ttball node --ros-args -r __node:=ttball -r __ns:=... --params-file ...
-        arguments=["node"],
+        # launch_ros runs: ttball node --learned FILE --ros-args -r __node:=ttball -r __ns:=...
+        # --params-file ...
+        arguments=["node", "--learned", LaunchConfiguration("learned_file")],
         parameters=[
             LaunchConfiguration("params_file"),
             {

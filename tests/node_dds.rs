@@ -961,6 +961,7 @@ fn the_launch_file_starts_the_node_as_configured() {
             "detections:=/vision/ball",
             "service_mapping:=cyclone",
             "use_sim_time:=true",
+            "learned_file:=learned.yaml",
         ])
         .output()
         .unwrap();
@@ -1007,6 +1008,12 @@ echo $? > node.rc
     ] {
         assert!(log.contains(expected), "{expected:?} not in {log}");
     }
+    // What it learned (nothing, here: no detections) is kept where the launch said.
+    let learned = read("learned.yaml");
+    assert!(
+        learned.starts_with("# Written by `ttball node --learned` (/robot1/ttball)"),
+        "{learned}"
+    );
 }
 
 /// The Fast DDS peer (`tests/interop/fastdds/`, built by `.ci/run` with Debian's Fast DDS and

@@ -21,7 +21,8 @@ pub struct NodeArgs {
     /// Keep what the estimator learns in this file, a configuration to start the next run from
     /// (pass it to --config): the ball's and table's physics, the model noise and each camera's
     /// noise. Rewritten whole as the node learns (at most once a diagnostics period) and when it
-    /// stops, so a crash loses at most a period's learning (give it before --ros-args).
+    /// stops, so a crash loses at most a period's learning (give it before --ros-args; an empty
+    /// path keeps nothing).
     #[arg(long, value_name = "FILE.yaml")]
     pub learned: Option<std::path::PathBuf>,
 
@@ -181,7 +182,11 @@ impl NodeArgs {
         }
         let mut placement = Placement::from_env(&config).map_err(node_error)?;
         placement.live_view.clone_from(&self.foxglove);
-        placement.learned_file.clone_from(&self.learned);
+        // An empty path (a launch file's default) keeps nothing.
+        placement.learned_file = self
+            .learned
+            .clone()
+            .filter(|path| !path.as_os_str().is_empty());
 
         let (signal_tx, signal_rx) = crossbeam::channel::bounded::<()>(1);
         ctrlc::set_handler(move || {
@@ -198,7 +203,7 @@ impl NodeArgs {
         }
         let summary = node.stop().map_err(node_error)?;
         write_stdout(&summary_text(&name, &summary))?;
-        if let Some(path) = &self.learned {
+        if let Some(path) = &placement.learned_file {
             eprintln!(
                 "what was learned written to {} (use it with --config {0})",
                 path.display()
