@@ -8,8 +8,9 @@
 //! quickly).
 
 use super::{Estimator, LearnedModelNoise, LearnedParams, LearnedSourceNoise, noise};
-use crate::config::yaml::changed_params_yaml;
-use crate::config::{Config, ConfigError};
+#[cfg(feature = "interface")]
+use crate::config::ConfigError;
+use crate::config::Config;
 use crate::online::ekf::NoiseScales;
 use crate::physics::PhysicsParams;
 
@@ -74,6 +75,7 @@ impl LearnedSummary {
     /// `written_by`, and [`Self::lines`]): the values of [`Self::configuration`] of `running`
     /// (the configuration the estimator ran with) that differ from `base` (the one it was
     /// started with). An error if what was learned is not a valid configuration.
+    #[cfg(feature = "interface")]
     pub fn file_text(
         &self,
         base: &Config,
@@ -91,7 +93,7 @@ impl LearnedSummary {
             text.push_str(&line);
             text.push('\n');
         }
-        text.push_str(&changed_params_yaml(base, &learned));
+        text.push_str(&crate::config::yaml::changed_params_yaml(base, &learned));
         Ok(text)
     }
 }
@@ -242,6 +244,7 @@ mod tests {
     /// The file says who wrote it and what was learned, and loads back to the learned
     /// configuration; a lesson that is not a configuration is refused.
     #[test]
+    #[cfg(feature = "interface")]
     fn the_file_loads_back_to_the_learned_configuration() {
         let base = Config::default();
         let learned = lesson();
