@@ -8,9 +8,9 @@
 //! quickly).
 
 use super::{Estimator, LearnedModelNoise, LearnedParams, LearnedSourceNoise, noise};
+use crate::config::Config;
 #[cfg(feature = "interface")]
 use crate::config::ConfigError;
-use crate::config::Config;
 use crate::online::ekf::NoiseScales;
 use crate::physics::PhysicsParams;
 
