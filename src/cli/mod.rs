@@ -282,6 +282,25 @@ pub struct Overrides {
 #[error("{0}")]
 pub struct BadUsage(pub String);
 
+/// A `--learned FILE` whose directory does not exist is refused before any work (a node would
+/// otherwise run, and a replay finish, with nowhere to keep what was learned).
+pub fn check_learned_file(path: &std::path::Path) -> Result<(), BadUsage> {
+    let directory = match path.parent() {
+        Some(d) if !d.as_os_str().is_empty() => d,
+        _ => std::path::Path::new("."),
+    };
+    if directory.is_dir() {
+        Ok(())
+    } else {
+        Err(BadUsage(format!(
+            "--learned {}: the directory {} does not exist; create it, or give a file in an \
+             existing one",
+            path.display(),
+            directory.display()
+        )))
+    }
+}
+
 /// The exit code for a failed command: [`EXIT_BAD_CONFIG`] when the configuration could not be
 /// loaded or the command line is unusable, [`EXIT_FAILURE`] otherwise.
 pub fn exit_code_for(err: &anyhow::Error) -> ExitCode {

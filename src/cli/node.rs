@@ -187,6 +187,9 @@ impl NodeArgs {
             .learned
             .clone()
             .filter(|path| !path.as_os_str().is_empty());
+        if let Some(path) = &placement.learned_file {
+            super::check_learned_file(path)?;
+        }
 
         let (signal_tx, signal_rx) = crossbeam::channel::bounded::<()>(1);
         ctrlc::set_handler(move || {

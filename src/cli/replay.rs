@@ -82,8 +82,11 @@ impl ReplayArgs {
     pub fn run(self) -> anyhow::Result<ExitCode> {
         let config = self.config.load()?;
         let jobs = self.jobs()?;
-        if self.learned.is_some() && jobs.len() != 1 {
-            bail!("--learned takes one input (each bag learns on its own)");
+        if let Some(path) = &self.learned {
+            if jobs.len() != 1 {
+                bail!("--learned takes one input (each bag learns on its own)");
+            }
+            super::check_learned_file(path)?;
         }
         if let Some(address) = &self.foxglove {
             return self.run_with_live_view(address, &config, &jobs);

@@ -224,6 +224,16 @@ fn a_killed_node_has_kept_what_it_learned() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
+/// A `--learned` file in a directory that does not exist is refused before the node starts.
+#[test]
+fn node_refuses_a_learned_file_it_could_not_keep() {
+    refused(
+        &[],
+        &["node", "--learned", "/no/such/directory/learned.yaml"],
+        &["--learned", "/no/such/directory", "does not exist"],
+    );
+}
+
 #[test]
 fn node_refuses_a_bad_domain_id() {
     refused(

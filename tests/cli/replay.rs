@@ -235,4 +235,19 @@ fn what_a_replay_learned_is_a_configuration_to_start_from() {
         String::from_utf8_lossy(&two.stderr).contains("--learned takes one input"),
         "{two:?}"
     );
+    // Nowhere to keep it: refused before the replay.
+    let nowhere = common::run(&[
+        "replay",
+        "bags/sim_rally_wide.mcap",
+        "-o",
+        dir.join("nowhere.mcap").to_str().unwrap(),
+        "--learned",
+        "/no/such/directory/learned.yaml",
+    ]);
+    assert_eq!(nowhere.status.code(), Some(2), "{nowhere:?}");
+    assert!(
+        String::from_utf8_lossy(&nowhere.stderr).contains("does not exist"),
+        "{nowhere:?}"
+    );
+    assert!(!dir.join("nowhere.mcap").exists());
 }
