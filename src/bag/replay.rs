@@ -109,12 +109,9 @@ pub struct ReplaySummary {
     pub counters: Counters,
     /// How many interceptions were predicted in full and how many moved from the last full one.
     pub intercepts: crate::online::intercept::TrackerCounts,
-    /// The physical parameters the estimator learned, as it ended.
-    pub learned: crate::online::estimator::LearnedParams,
-    /// The noise it learned of each source (unknown, 150 fps, 900 fps), as it ended.
-    pub learned_noise: Vec<crate::online::estimator::LearnedSourceNoise>,
-    /// How far it learned the flights stray from its model, as it ended.
-    pub learned_model_noise: crate::online::estimator::LearnedModelNoise,
+    /// What the estimator learned (the physics, each source's noise, the model noise), as it
+    /// ended.
+    pub learned: crate::online::estimator::LearnedSummary,
     /// Messages written to the output bag.
     pub written: u64,
     /// Processing time per detection [ns], mean and 99th percentile.
@@ -525,9 +522,7 @@ impl Session {
             robot_hits_refused: self.robot_hits_refused,
             counters,
             intercepts: estimator.intercept_counts(),
-            learned: estimator.learned_params(),
-            learned_noise: estimator.learned_noise(),
-            learned_model_noise: estimator.learned_model_noise(),
+            learned: estimator.learned_summary(),
             written: self.written,
             processing_mean_ns: timing.mean,
             processing_p99_ns: timing.p99,

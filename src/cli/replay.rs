@@ -13,10 +13,7 @@ use ttball::bag::damage_text;
 use ttball::bag::live_view::LiveView;
 use ttball::bag::replay::{ReplaySummary, replay, replay_observed};
 use ttball::online::ekf::NoiseScales;
-use ttball::online::estimator::{
-    LearnedModelNoise, LearnedParams, LearnedSourceNoise, LearnedSummary, Rejection,
-    describe_model_noise, describe_params, describe_source_noise,
-};
+use ttball::online::estimator::{LearnedModelNoise, LearnedParams, LearnedSourceNoise, Rejection};
 use ttball::physics::PhysicsParams;
 
 use super::report::accuracy_table;
@@ -218,7 +215,6 @@ impl ReplayArgs {
         })
     }
 
-    /// (input, output) pairs.
     /// With `--learned`: what the replay's estimator learned, as a configuration file.
     fn write_learned(
         &self,
@@ -228,13 +224,9 @@ impl ReplayArgs {
         let Some(path) = &self.learned else {
             return Ok(());
         };
-        let learned = LearnedSummary {
-            params: summary.learned,
-            source_noise: summary.learned_noise.clone(),
-            model_noise: summary.learned_model_noise,
-        };
         let by = format!("`ttball replay --learned` from {}", summary.input.display());
-        let text = learned
+        let text = summary
+            .learned
             .file_text(config, config, &by)
             .context("what the estimator learned is not a valid configuration")?;
         std::fs::write(path, text).with_context(|| format!("cannot write {}", path.display()))?;
@@ -245,6 +237,7 @@ impl ReplayArgs {
         Ok(())
     }
 
+    /// (input, output) pairs.
     fn jobs(&self) -> anyhow::Result<Vec<(PathBuf, PathBuf)>> {
         match (&self.output, &self.output_dir, self.inputs.as_slice()) {
             (Some(out), None, [input]) => Ok(vec![(input.clone(), out.clone())]),
@@ -338,11 +331,9 @@ pub fn summary_text(s: &ReplaySummary, whole_seconds: Option<f64>) -> String {
             c.refits
         );
     }
-    let _ = writeln!(out, "  {}", describe_params(&s.learned));
-    if let Some(line) = describe_source_noise(&s.learned_noise) {
+    for line in s.learned.lines() {
         let _ = writeln!(out, "  {line}");
     }
-    let _ = writeln!(out, "  {}", describe_model_noise(&s.learned_model_noise));
     let _ = writeln!(
         out,
         "  processing per detection: mean {:.1} us, p99 {:.1} us; {:.1} s recorded in {:.2} s ({:.0}x real time); {} messages written",
@@ -452,9 +443,9 @@ fn summary_json(s: &ReplaySummary, whole_seconds: f64) -> serde_json::Value {
         "refits": c.refits,
         "intercepts_full": s.intercepts.full,
         "intercepts_moved": s.intercepts.moved,
-        "learned_physics": learned_json(&s.learned),
-        "learned_noise": noise_json(&s.learned_noise),
-        "learned_model_noise": model_noise_json(&s.learned_model_noise),
+        "learned_physics": learned_json(&s.learned.params),
+        "learned_noise": noise_json(&s.learned.source_noise),
+        "learned_model_noise": model_noise_json(&s.learned.model_noise),
         "zero_spin_ignored": c.zero_spin_ignored,
         "seeded_by_hit": c.seeded_by_hit,
         "hits_not_seeded": c.hits_not_seeded,

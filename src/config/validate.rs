@@ -7,8 +7,7 @@
 use thiserror::Error;
 
 use super::{Config, MAX_POLYNOMIAL_COEFFICIENTS, REFIT_MAX_DETECTIONS, SourceParams};
-use crate::config::range::CountRange;
-use crate::config::range::Range;
+use crate::config::range::{CountRange, Range};
 
 /// One configuration value outside its allowed range. `key` is the dotted parameter name, as in
 /// the ROS 2 parameters file (`table.restitution`, `aero.drag_coefficients[2]`).
