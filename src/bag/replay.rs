@@ -504,13 +504,15 @@ impl Session {
 
     /// What the replay did.
     fn summary(
-        self,
+        mut self,
         input: &Path,
         output: &Path,
         damage: Vec<Damage>,
         interrupted: bool,
     ) -> ReplaySummary {
         let timing = self.times.summary();
+        // The bag has ended: the live track's lesson is learned, as when a node stops.
+        self.pipeline.end_of_input();
         let counters = self.pipeline.counters();
         let estimator = self.pipeline.estimator();
         ReplaySummary {

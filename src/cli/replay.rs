@@ -331,6 +331,13 @@ pub fn summary_text(s: &ReplaySummary, whole_seconds: Option<f64>) -> String {
             c.refits
         );
     }
+    if c.smoothed_lessons > 0 {
+        let _ = writeln!(
+            out,
+            "  tracks that taught their flight smoothed {} (adaptation.smoothed_lessons)",
+            c.smoothed_lessons
+        );
+    }
     for line in s.learned.lines() {
         let _ = writeln!(out, "  {line}");
     }
@@ -441,6 +448,7 @@ fn summary_json(s: &ReplaySummary, whole_seconds: f64) -> serde_json::Value {
         "reanchored": c.reanchored,
         "rollbacks": c.rollbacks,
         "refits": c.refits,
+        "smoothed_lessons": c.smoothed_lessons,
         "intercepts_full": s.intercepts.full,
         "intercepts_moved": s.intercepts.moved,
         "learned_physics": learned_json(&s.learned.params),

@@ -635,6 +635,10 @@ pub struct AdaptationParams {
     /// Learn the flight-to-flight dispersion from the tracks, starting from the `*_flight_sigma`
     /// values (a parameter configured with none keeps none).
     pub learn_dispersion: bool,
+    /// What a track teaches when it ends is its flight smoothed (the iterated extended Kalman
+    /// smoother over its detections) rather than the filter's last estimate: a filter that
+    /// learns the Magnus scale from positions alone leans low (docs/estimator.md).
+    pub smoothed_lessons: bool,
     /// How far each parameter may drift in an hour, as a fraction of its prior standard
     /// deviation [-]: a random walk of variance (drift sigma)^2 t / 3600 s, capped at the prior
     /// variance (after a long pause the estimator is back at its prior uncertainty).
@@ -654,6 +658,7 @@ impl Default for AdaptationParams {
             restitution_flight_sigma: 0.02,
             friction_flight_sigma: 0.0,
             learn_dispersion: false,
+            smoothed_lessons: true,
             drift_per_hour: 0.5,
         }
     }

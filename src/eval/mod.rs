@@ -438,6 +438,7 @@ pub(crate) fn run(config: &Config, session: &Session) -> Run {
         let out = estimator.handle(&sim.detection);
         scorer.score(sim.shot, &sim.detection, &sim.truth, sim.outlier, &out);
     }
+    estimator.end_of_input();
     Run {
         scorer,
         counters: estimator.counters(),

@@ -178,6 +178,10 @@ pub fn diagnostics_msg(snapshot: &Snapshot<'_>, window: &mut Window) -> Diagnost
         ),
         kv("late detections fused by rollback", c.rollbacks.to_string()),
         kv("track refits", c.refits.to_string()),
+        kv(
+            "tracks that taught their flight smoothed",
+            c.smoothed_lessons.to_string(),
+        ),
         kv("all-zero spins ignored", c.zero_spin_ignored.to_string()),
         kv(
             "tracks seeded by the robot's announced hits",

@@ -791,6 +791,8 @@ impl EstimatorThread {
             &transport_before,
             0,
         );
+        // The stream has ended: the live track's lesson is learned before it is kept.
+        self.pipeline.end_of_input();
         let learned = NodeLearned {
             config: self.parameters.config().clone(),
             learned: self.pipeline.estimator().learned_summary(),

@@ -120,6 +120,12 @@ impl Pipeline {
         self.horizon = config.prediction.horizon;
     }
 
+    /// The input has ended: the live track teaches what it learned (see
+    /// [`Estimator::end_of_input`]).
+    pub fn end_of_input(&mut self) {
+        self.estimator.end_of_input();
+    }
+
     /// Drops the tracks and everything learned, keeping the counters (see [`Estimator::reset`]).
     pub fn reset(&mut self, config: &Config) {
         self.estimator.reset(config);

@@ -179,24 +179,35 @@ fn the_model_noise_and_the_dispersion_are_learned() {
 }
 
 /// A position-only tracker on play whose Magnus force is 40 % below the model's (`a-lab`): the
-/// filter, linearising the product k_M C_M(Sp) |w| at its estimate early in each track, learns
-/// the Magnus scale low; with the track refitted (`ekf.refit_interval`: the filter run again
-/// over the track linearised along the flight its detections smooth to) they land near the
-/// truth.
+/// filter, linearising the product k_M C_M(Sp) |w| at its estimate, learns the Magnus scale
+/// low when its own estimates teach (`adaptation.smoothed_lessons: false`); each track's flight
+/// smoothed when it ends (the default: the filter run again over the track linearised along the
+/// flight its detections smooth to) teaches a scale near the truth, as do the track's refits
+/// (`ekf.refit_interval`).
 #[test]
-fn a_refitted_track_learns_the_magnus_scale_a_position_only_tracker_leans_low_on() {
-    let filter = Config::default();
+fn a_smoothed_flight_teaches_the_magnus_scale_a_position_only_filter_leans_low_on() {
+    let smoothed = Config::default();
+    assert!(smoothed.adaptation.smoothed_lessons);
+    let mut filter = smoothed.clone();
+    filter.adaptation.smoothed_lessons = false;
     let mut refitted = filter.clone();
     refitted.ekf.refit_interval = 0.05;
     let relative = |r: &SetReport| r.learned.params.magnus_scale / r.truth.magnus_scale - 1.0;
     let alone = report(&filter, "a-lab", 60);
+    let with_lessons = report(&smoothed, "a-lab", 60);
     let with_refits = report(&refitted, "a-lab", 60);
     eprintln!(
-        "a-lab's Magnus scale: {:+.1} % alone, {:+.1} % refitted",
+        "a-lab's Magnus scale: {:+.1} % taught by the filter, {:+.1} % by the smoothed flights, {:+.1} % refitted",
         relative(&alone) * 100.0,
+        relative(&with_lessons) * 100.0,
         relative(&with_refits) * 100.0
     );
+    assert!(relative(&with_lessons).abs() < 0.05);
     assert!(relative(&with_refits).abs() < 0.05);
+    assert!(relative(&alone).abs() > 2.0 * relative(&with_lessons).abs());
     assert!(relative(&alone).abs() > 2.0 * relative(&with_refits).abs());
+    assert!(with_lessons.report.counters.smoothed_lessons >= 50);
+    assert_eq!(alone.report.counters.smoothed_lessons, 0);
+    assert_eq!(with_lessons.single_track_fraction(), 1.0);
     assert_eq!(with_refits.single_track_fraction(), 1.0);
 }

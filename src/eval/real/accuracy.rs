@@ -538,6 +538,7 @@ fn evaluate_flight(
         result.counters = estimator.counters();
         result.before_bounce = before_bounce;
         result.gated_after_bounce = gated_after_bounce;
+        estimator.end_of_input();
         return (result, estimator.learned_physics());
     };
     let deadlines: Vec<i64> = options
@@ -568,6 +569,7 @@ fn evaluate_flight(
     result.counters = estimator.counters();
     result.before_bounce = before_bounce;
     result.gated_after_bounce = gated_after_bounce;
+    estimator.end_of_input();
     let learned_after = estimator.learned_physics();
     result.leads = latest
         .iter()

@@ -90,6 +90,9 @@ pub struct Counters {
     pub rollbacks: u64,
     /// Refits of a track that moved its estimate (`ekf.refit_interval`).
     pub refits: u64,
+    /// Tracks whose lesson of the physics was their flight smoothed
+    /// (`adaptation.smoothed_lessons`).
+    pub smoothed_lessons: u64,
     /// Spin measurements that disagreed with the filter's spin and replaced it.
     pub spin_resets: u64,
     /// Detections near the table's edge that the other bounce hypothesis explained better.

@@ -157,9 +157,17 @@ pub(crate) struct Settings {
     refit_interval: i64,
     /// The most detections a refit runs over (its window).
     refit_max: usize,
+    /// A track teaches its flight smoothed when it ends (`adaptation.smoothed_lessons`, with
+    /// the adaptation on).
+    smoothed_lessons: bool,
 }
 
 impl Settings {
+    /// Whether a track's fused detections are kept: for its refits or its smoothed lesson.
+    fn keeps_detections(&self) -> bool {
+        self.refit_interval > 0 || self.smoothed_lessons
+    }
+
     /// The most detections kept waiting to initialise a track (the buffer's length, not its
     /// allocation: a cloned estimator's buffers are allocated to their contents only).
     fn pending_limit(&self) -> usize {
@@ -219,6 +227,7 @@ impl Settings {
             horizon: config.prediction.horizon,
             refit_interval: seconds_to_ns(config.ekf.refit_interval),
             refit_max: REFIT_MAX_DETECTIONS.clamp(config.ekf.refit_max_detections) as usize,
+            smoothed_lessons: config.adaptation.enabled && config.adaptation.smoothed_lessons,
             gravity: config.gravity,
             model_noise_horizon: seconds_to_ns(config.ekf.model_noise_horizon),
         }
@@ -484,12 +493,15 @@ impl LearnedParams {
 impl Track {
     /// `learned` updated with what this track has learned of the physics so far.
     fn taught(&self, learned: &Learned) -> Learned {
-        learned.absorbed(
-            &self.param_prior,
+        self.taught_by(
+            learned,
             &(self.now.ekf.theta, self.now.ekf.param_covariance()),
-            self.started,
-            self.now.stamp,
         )
+    }
+
+    /// `learned` updated with `posterior`, what this track learned of its flight's physics.
+    fn taught_by(&self, learned: &Learned, posterior: &(ParamVector, ParamCovariance)) -> Learned {
+        learned.absorbed(&self.param_prior, posterior, self.started, self.now.stamp)
     }
 }
 
@@ -568,7 +580,7 @@ impl Estimator {
             ),
             racket: RacketModel::new(config),
             expected_hit: None,
-            refit: refitting::TrackRefit::new(if settings.refit_interval > 0 {
+            refit: refitting::TrackRefit::new(if settings.keeps_detections() {
                 settings.refit_max
             } else {
                 0
@@ -653,6 +665,13 @@ impl Estimator {
         *self = Self::new(config);
         self.counters = counters;
         self.next_track_id = next_track_id;
+    }
+
+    /// The input has ended (a replayed bag, a recorded flight, a node stopping): the live track
+    /// ends here and teaches what it learned (its flight smoothed, `adaptation.smoothed_lessons`),
+    /// as when a track ends for a gap. A later detection starts a new track.
+    pub fn end_of_input(&mut self) {
+        self.end_track();
     }
 
     /// What the estimator has learned of the physical parameters, to start another estimator
@@ -1012,9 +1031,14 @@ impl Estimator {
 
     fn end_track(&mut self) {
         self.continuation = None;
+        let smoothed = self.smoothed_lesson();
         if let Some(track) = self.track.take() {
-            // What the track learned of the physics carries over to the next.
-            self.learned = track.taught(&self.learned);
+            // What the track learned of the physics carries over to the next: its flight
+            // smoothed where it could be, else the filter's estimate.
+            self.learned = match smoothed {
+                Some(posterior) => track.taught_by(&self.learned, &posterior),
+                None => track.taught(&self.learned),
+            };
             // Keep the history's buffer for the next track: no allocation per track.
             self.spare_history = track.history;
             self.spare_history.clear();
