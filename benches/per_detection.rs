@@ -65,6 +65,20 @@ fn main() {
         .map(|d| detection_to_msg(&d.detection))
         .collect();
     let runs = if quick { 1 } else { RUNS };
+    // The 150 fps camera alone: every track's lesson is its flight smoothed when it ends.
+    let wide = simulate(
+        &config,
+        &SimOptions {
+            cameras: Cameras::WideOnly,
+            shots: if quick { 2 } else { 40 },
+            seed: 11,
+            ..SimOptions::default()
+        },
+    )
+    .expect("simulate");
+    let mut filter_lessons = config.clone();
+    filter_lessons.adaptation.smoothed_lessons = false;
+    let (mut wide_smoothed, mut wide_filter) = (vec![], vec![]);
 
     let (mut all, mut without_trajectory, mut with_trajectory) = (vec![], vec![], vec![]);
     let (mut filter_only, mut handle, mut handle_learning) = (vec![], vec![], vec![]);
@@ -103,6 +117,17 @@ fn main() {
             black_box(estimator.handle(black_box(&d.detection)));
             handle_learning.push(started.elapsed().as_nanos() as u64);
         }
+        for (config, times) in [
+            (&config, &mut wide_smoothed),
+            (&filter_lessons, &mut wide_filter),
+        ] {
+            let mut estimator = Estimator::new(config);
+            for d in &wide.stream {
+                let started = Instant::now();
+                black_box(estimator.handle(black_box(&d.detection)));
+                times.push(started.elapsed().as_nanos() as u64);
+            }
+        }
     }
     println!(
         "{} detections ({} shots, 150 + 900 fps) x {runs} runs; times in us",
@@ -124,5 +149,18 @@ fn main() {
     report(
         "Estimator::handle, model noise + dispersion learned",
         handle_learning,
+    );
+    println!(
+        "the 150 fps camera alone: {} detections ({} shots) x {runs} runs",
+        wide.stream.len(),
+        wide.shots.len()
+    );
+    report(
+        "Estimator::handle (flights smoothed as they end)",
+        wide_smoothed,
+    );
+    report(
+        "  the filter's lessons (smoothed_lessons: false)",
+        wide_filter,
     );
 }
