@@ -101,7 +101,10 @@ pub enum Command {
     /// flights together, the C_D(Sp) and C_M(Sp) polynomial coefficients (orders chosen by AIC
     /// unless given), the table's restitution and friction, or the air density, with every
     /// flight's state (position, velocity, spin) as a nuisance parameter; measured spins are
-    /// used where the bags have them. With --rebound HITS.csv, fits the rubber's restitution
+    /// used where the bags have them. With --method estimator, fits the scales and the table
+    /// with the estimator's own model instead (each flight smoothed with the noise it learns,
+    /// its own parameters about the shared ones): the numbers the node learns online, and the
+    /// noise with them. With --rebound HITS.csv, fits the rubber's restitution
     /// polynomial, friction, tangential and torsional restitution to the measured outgoing
     /// velocity and spin of recorded hits, k-fold cross-validated. Writes a configuration
     /// snippet (pass it to --config) with standard errors, and optionally a chart and JSON.
@@ -109,6 +112,7 @@ pub enum Command {
         ttball calibrate my_rallies/*.mcap --output calibrated.yaml --plot calibration.png\n  \
         ttball calibrate bags/real_launcher.mcap -o launcher.yaml --holdout\n  \
         ttball calibrate rally.mcap -o table.yaml --fit bounce\n  \
+        ttball calibrate bags/real_launcher.mcap -o ball.yaml --method estimator\n  \
         ttball calibrate rally.mcap -o aero.yaml --fit aero --drag-order 2 --magnus-order 4\n  \
         ttball calibrate --rebound tests/data/tt_rackets/test/racket_01.csv -o rubber.yaml --plot rubber.svg\n\n\
         Progress goes to stderr: every iteration on a terminal or with TTBALL_VERBOSE=1, the\n\

@@ -9,10 +9,15 @@ use anyhow::{Context, bail};
 use clap::{Args, ValueEnum};
 use ttball::bag::replay::read_detections;
 use ttball::config::Config;
+use ttball::config::yaml::changed_params_yaml;
+use ttball::model::detection::Detection;
 use ttball::offline::calibrate::{
     Calibration, FlightInput, FlightLabel, Holdout, Options, Parameter, calibrate, holdout,
 };
 use ttball::offline::smooth::split_flights;
+use ttball::offline::two_level::calibrate_two_level;
+use ttball::online::estimator::describe_params;
+use ttball::physics::params::PhysicsParams;
 use ttball::plot::ChartOptions;
 
 use super::{BadUsage, ConfigArgs, write_file, write_json, write_stdout};
@@ -39,6 +44,19 @@ pub enum Group {
     Bounce,
     /// Air density (air.density); not with aero, which absorbs it.
     Density,
+}
+
+/// How the flights are fitted.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum Method {
+    /// Robust batch least squares: one deterministic trajectory per flight and the constants
+    /// shared by all, by Levenberg-Marquardt (every --fit group).
+    Batch,
+    /// The estimator's own model of many flights: each flight smoothed with the filter's
+    /// process noise and the noise it learned, its own drag, Magnus and restitution about the
+    /// shared ones, solved for the shared ones at once (--fit scales and bounce only). On real
+    /// flights these are the numbers the estimator learns online.
+    Estimator,
 }
 
 /// Arguments of `ttball calibrate`.
@@ -73,9 +91,17 @@ pub struct CalibrateArgs {
     #[arg(long, short, value_name = "FILE.yaml")]
     pub output: PathBuf,
 
-    /// What to fit, comma separated [default: aero,bounce; with --rebound: every rubber-* group].
+    /// What to fit, comma separated [default: aero,bounce; with --method estimator:
+    /// scales,bounce; with --rebound: every rubber-* group].
     #[arg(long, value_enum, value_delimiter = ',')]
     pub fit: Vec<Group>,
+
+    /// How: `batch` fits one deterministic trajectory per flight; `estimator` fits with the
+    /// estimator's own model (flights that stray from the model as the filter lets them, each
+    /// with its own parameters about the shared ones) and writes the noise it learned too: the
+    /// configuration a node started from keeps learning the same numbers (docs/calibration.md).
+    #[arg(long, value_enum, default_value_t = Method::Batch, conflicts_with = "rebound")]
+    pub method: Method,
 
     /// Order of the C_D polynomial (0-3) [default: chosen by AIC].
     #[arg(long, value_name = "N")]
@@ -151,11 +177,33 @@ impl CalibrateArgs {
                     .map_or_else(String::new, |v| v.get_name().to_owned())
             )));
         }
-        let fit = if self.fit.is_empty() {
-            vec![Group::Aero, Group::Bounce]
-        } else {
-            self.fit.clone()
+        let fit = match (self.fit.is_empty(), self.method) {
+            (true, Method::Batch) => vec![Group::Aero, Group::Bounce],
+            (true, Method::Estimator) => vec![Group::Scales, Group::Bounce],
+            (false, _) => self.fit.clone(),
         };
+        if self.method == Method::Estimator {
+            if let Some(g) = fit
+                .iter()
+                .find(|g| !matches!(g, Group::Scales | Group::Bounce))
+            {
+                bail!(BadUsage(format!(
+                    "--fit {}: --method estimator fits what the estimator learns, scales and bounce; use --method batch for the rest",
+                    g.to_possible_value()
+                        .map_or_else(String::new, |v| v.get_name().to_owned())
+                )));
+            }
+            if self.holdout
+                || self.plot.is_some()
+                || self.drag_order.is_some()
+                || self.magnus_order.is_some()
+            {
+                bail!(BadUsage(
+                    "--holdout, --plot, --drag-order and --magnus-order are for --method batch"
+                        .to_owned()
+                ));
+            }
+        }
         let options = Options {
             aero: fit.contains(&Group::Aero),
             scales: fit.contains(&Group::Scales),
@@ -177,6 +225,9 @@ impl CalibrateArgs {
                 },
                 detections: f.members.iter().map(|&i| bag.detections[i]).collect(),
             }));
+        }
+        if self.method == Method::Estimator {
+            return self.run_estimator(&config, &fit, flights);
         }
         let (fitted, held): (Vec<_>, Vec<_>) = if self.holdout {
             let (a, b): (Vec<_>, Vec<_>) = flights
@@ -236,6 +287,110 @@ impl CalibrateArgs {
             write_json(path, &json)?;
         }
         write_stdout(&report(&calibration, held_out.as_ref(), &self.output))?;
+        Ok(ExitCode::SUCCESS)
+    }
+}
+
+impl CalibrateArgs {
+    /// `--method estimator`: the flights through [`calibrate_two_level`], the groups not asked
+    /// for held at their configured values.
+    fn run_estimator(
+        &self,
+        config: &Config,
+        fit: &[Group],
+        flights: Vec<FlightInput>,
+    ) -> anyhow::Result<ExitCode> {
+        let mut start = config.clone();
+        if !fit.contains(&Group::Scales) {
+            start.adaptation.drag_scale_sigma = 0.0;
+            start.adaptation.magnus_scale_sigma = 0.0;
+        }
+        if !fit.contains(&Group::Bounce) {
+            start.adaptation.restitution_sigma = 0.0;
+            start.adaptation.friction_sigma = 0.0;
+        }
+        let detections: Vec<Vec<Detection>> = flights
+            .into_iter()
+            .map(|f| {
+                let mut d = f.detections;
+                d.sort_by_key(|d| d.stamp);
+                d
+            })
+            .collect();
+        let mut progress = |line: &str| eprintln!("{line}");
+        let calibration = calibrate_two_level(&start, &detections, &mut progress)
+            .map_err(|e| BadUsage(format!("cannot calibrate: {e}")))?;
+        let mut text = format!(
+            "# Written by `ttball calibrate --method estimator` from {} flights in:\n",
+            calibration.params.tracks
+        );
+        for i in display_names(&self.inputs) {
+            let _ = writeln!(text, "#   {i}");
+        }
+        let _ = writeln!(
+            text,
+            "# calibrated: {}",
+            describe_params(&calibration.params)
+        );
+        for line in calibration.online.lines() {
+            let _ = writeln!(text, "# flight after flight, online: {line}");
+        }
+        text.push_str(&changed_params_yaml(config, &calibration.config));
+        write_file(&self.output, text)?;
+        if let Some(path) = &self.json {
+            let p = &calibration.params;
+            let json = serde_json::json!({
+                "method": "estimator",
+                "flights": p.tracks,
+                "parameters": PhysicsParams::NAMES.iter().enumerate().map(|(i, name)| {
+                    serde_json::json!({
+                        "name": name,
+                        "value": p.params.to_vector()[i],
+                        "std_error": p.sigma[i],
+                        "initial": PhysicsParams::from_config(config).to_vector()[i],
+                        "online": calibration.online.params.params.to_vector()[i],
+                    })
+                }).collect::<Vec<_>>(),
+                "iterations": calibration.iterations,
+                "converged": calibration.converged,
+            });
+            write_json(path, &json)?;
+        }
+        let mut out = format!(
+            "calibrated from {} flights with the estimator's model, {} iterations{}\n",
+            calibration.params.tracks,
+            calibration.iterations,
+            if calibration.converged {
+                ""
+            } else {
+                " (not converged: the last is written)"
+            }
+        );
+        out.push_str(
+            "parameter                         fitted      +- std error   online     start\n",
+        );
+        let start_values = PhysicsParams::from_config(config).to_vector();
+        let online = calibration.online.params.params.to_vector();
+        let fitted = calibration.params.params.to_vector();
+        for (i, name) in PhysicsParams::NAMES.iter().enumerate() {
+            if calibration.params.sigma[i] > 0.0 {
+                let _ = writeln!(
+                    out,
+                    "  {:<30} {:>10.5}  {:>10.5}   {:>9.5}  {:>9.5}",
+                    name, fitted[i], calibration.params.sigma[i], online[i], start_values[i]
+                );
+            }
+        }
+        for line in calibration.online.lines().iter().skip(1) {
+            let _ = writeln!(out, "  also written: {line}");
+        }
+        let _ = writeln!(
+            out,
+            "written to {} (use it with --config {})",
+            self.output.display(),
+            self.output.display()
+        );
+        write_stdout(&out)?;
         Ok(ExitCode::SUCCESS)
     }
 }

@@ -162,6 +162,19 @@ pub(crate) struct Settings {
     smoothed_lessons: bool,
 }
 
+/// The prior variances of the learned physical parameters (`adaptation.*_sigma` squared; zero,
+/// not adapted, without the adaptation).
+pub(crate) fn param_prior_variances(config: &Config) -> ParamVector {
+    let adaptation = &config.adaptation;
+    let sigmas = ParamVector::new(
+        adaptation.drag_scale_sigma,
+        adaptation.magnus_scale_sigma,
+        adaptation.restitution_sigma,
+        adaptation.friction_sigma,
+    ) * if adaptation.enabled { 1.0 } else { 0.0 };
+    sigmas.component_mul(&sigmas)
+}
+
 impl Settings {
     /// Whether a track's fused detections are kept: for its refits or its smoothed lesson.
     fn keeps_detections(&self) -> bool {
@@ -182,13 +195,7 @@ impl Settings {
     pub(crate) fn new(config: &Config) -> Self {
         let p = config.gating.probability;
         let adaptation = &config.adaptation;
-        let sigmas = ParamVector::new(
-            adaptation.drag_scale_sigma,
-            adaptation.magnus_scale_sigma,
-            adaptation.restitution_sigma,
-            adaptation.friction_sigma,
-        ) * if adaptation.enabled { 1.0 } else { 0.0 };
-        let param_prior_var = sigmas.component_mul(&sigmas);
+        let param_prior_var = param_prior_variances(config);
         Self {
             filter: FilterNoise {
                 process: ProcessNoise {
@@ -682,6 +689,12 @@ impl Estimator {
             params: self.learned_with_live_track(),
             model_noise: self.model_noise,
         }
+    }
+
+    /// The ball's and table's parameters learned so far (the live track's lesson included as
+    /// far as it has come) and their covariance.
+    pub(crate) fn learned_global(&self) -> (ParamVector, ParamCovariance) {
+        self.learned_with_live_track().global()
     }
 
     /// Starts from what another estimator (of the same configuration) learned of the physical
