@@ -203,28 +203,60 @@ fn a_restart_where_every_bounce_rolls_does_not_sink_the_calibration() {
     assert!(loaded.table.restitution > 0.92, "{report}");
 }
 
-/// The offline route and the online one agree: on simulated play flown with drag +15 %,
-/// Magnus -40 %, e_t 0.85, mu_t 0.15, `calibrate` fitting the scale factors and the table
-/// (`--fit scales,bounce`) recovers them, and the estimator, learning them online over the same
-/// flights from the defaults, ends within a few percent of the same numbers.
-#[test]
-fn calibrated_scales_and_table_agree_with_what_the_estimator_learns_online() {
-    use ttball::eval::sets::MISMATCH_A;
-    use ttball::physics::PhysicsParams;
-    let start = Config::default();
-    let truth_params = MISMATCH_A.truth(&start);
-    let mut truth = start.clone();
+/// Simulated play flown with the physics of the harder set a-lab's mismatch (drag +15 %, Magnus
+/// -40 %, e_t 0.85, mu_t 0.15), 30 shots of seed 5 seen by `cameras`: the true parameters, the
+/// configuration that flies them, and the session.
+fn mismatched_play(
+    cameras: Cameras,
+) -> (
+    ttball::physics::PhysicsParams,
+    Config,
+    ttball::eval::sim::Session,
+) {
+    let truth_params = ttball::eval::sets::MISMATCH_A.truth(&Config::default());
+    let mut truth = Config::default();
     truth_params.apply_to(&mut truth);
     let session = simulate(
         &truth,
         &SimOptions {
             shots: 30,
             seed: 5,
-            cameras: Cameras::WideAndHighSpeed,
+            cameras,
             ..SimOptions::default()
         },
     )
     .expect("simulated");
+    (truth_params, truth, session)
+}
+
+/// Each parameter (k_D, k_M, e_t, mu_t) of `a` within `tolerances` (relative) of `b`'s.
+fn assert_within(
+    what: &str,
+    a: &ttball::physics::PhysicsParams,
+    b: &ttball::physics::PhysicsParams,
+    tolerances: [f64; 4],
+) {
+    let (a, b) = (a.to_vector(), b.to_vector());
+    for (i, tolerance) in tolerances.iter().enumerate() {
+        assert!(
+            (a[i] - b[i]).abs() / b[i] < *tolerance,
+            "{what}: {} {} vs {}",
+            ttball::physics::PhysicsParams::NAMES[i],
+            a[i],
+            b[i]
+        );
+    }
+}
+
+/// The offline route and the online one agree: on simulated play flown with drag +15 %,
+/// Magnus -40 %, e_t 0.85, mu_t 0.15, `calibrate` fitting the scale factors and the table
+/// (`--fit scales,bounce`) recovers them, and the estimator, learning them online over the same
+/// flights from the defaults, ends within a few percent of the same numbers.
+#[test]
+fn calibrated_scales_and_table_agree_with_what_the_estimator_learns_online() {
+    use ttball::physics::PhysicsParams;
+    let start = Config::default();
+    let (truth_params, truth, session) = mismatched_play(Cameras::WideAndHighSpeed);
     let mut estimator = ttball::online::estimator::Estimator::new(&start);
     for sim in &session.stream {
         estimator.handle(&sim.detection);
@@ -239,22 +271,10 @@ fn calibrated_scales_and_table_agree_with_what_the_estimator_learns_online() {
     let c = calibrate(&start, &flights, &options, &mut |_| {}).expect("calibrated");
     let offline = PhysicsParams::from_config(&c.config);
     eprintln!("truth {truth_params:?}\noffline {offline:?}\nonline {online:?}");
-    let relative = |a: f64, b: f64| (a - b).abs() / b;
     // Relative tolerances per parameter (k_D, k_M, e_t, mu_t) against the truth; twice those
     // against the online estimate.
-    let tolerances = [0.02, 0.04, 0.02, 0.06];
-    for (what, other, factor) in [("truth", truth_params, 1.0), ("online", online, 2.0)] {
-        let (o, t) = (offline.to_vector(), other.to_vector());
-        for (i, tolerance) in tolerances.iter().enumerate() {
-            assert!(
-                relative(o[i], t[i]) < factor * tolerance,
-                "{what}: {} {} vs {}",
-                PhysicsParams::NAMES[i],
-                o[i],
-                t[i]
-            );
-        }
-    }
+    assert_within("truth", &offline, &truth_params, [0.02, 0.04, 0.02, 0.06]);
+    assert_within("online", &offline, &online, [0.04, 0.08, 0.04, 0.12]);
 }
 
 /// The estimator's route (`--method estimator`, [`calibrate_two_level`]): on simulated play seen
@@ -262,23 +282,10 @@ fn calibrated_scales_and_table_agree_with_what_the_estimator_learns_online() {
 /// recovers them and agrees with the estimator learning online over the same flights.
 #[test]
 fn the_estimators_route_recovers_the_physics_and_the_online_numbers() {
-    use ttball::eval::sets::MISMATCH_A;
     use ttball::offline::two_level::calibrate_two_level;
     use ttball::physics::PhysicsParams;
     let start = Config::default();
-    let truth_params = MISMATCH_A.truth(&start);
-    let mut truth = start.clone();
-    truth_params.apply_to(&mut truth);
-    let session = simulate(
-        &truth,
-        &SimOptions {
-            shots: 30,
-            seed: 5,
-            cameras: Cameras::WideOnly,
-            ..SimOptions::default()
-        },
-    )
-    .expect("simulated");
+    let (truth_params, _, session) = mismatched_play(Cameras::WideOnly);
     let mut flights: Vec<Vec<_>> = vec![Vec::new(); session.shots.len()];
     for sim in &session.stream {
         flights[sim.shot].push(sim.detection);
@@ -293,21 +300,14 @@ fn the_estimators_route_recovers_the_physics_and_the_online_numbers() {
     eprintln!("truth {truth_params:?}\ncalibrated {calibrated:?}\nonline {online:?}\n{steps:#?}");
     assert!(c.converged && c.iterations <= 10, "{steps:#?}");
     assert_eq!(PhysicsParams::from_config(&c.config), calibrated);
-    let relative = |a: f64, b: f64| (a - b).abs() / b;
     let tolerances = [0.03, 0.05, 0.02, 0.06];
-    for (what, other) in [("truth", truth_params), ("online", online)] {
-        let (o, t) = (calibrated.to_vector(), other.to_vector());
-        for (i, tolerance) in tolerances.iter().enumerate() {
-            assert!(
-                relative(o[i], t[i]) < *tolerance,
-                "{what}: {} {} vs {}",
-                PhysicsParams::NAMES[i],
-                o[i],
-                t[i]
-            );
-            assert!(c.params.sigma[i] > 0.0 && c.params.sigma[i] < 0.05);
-        }
-    }
+    assert_within("truth", &calibrated, &truth_params, tolerances);
+    assert_within("online", &calibrated, &online, tolerances);
+    assert!(
+        c.params.sigma.iter().all(|&s| s > 0.0 && s < 0.05),
+        "{:?}",
+        c.params.sigma
+    );
 }
 
 /// On the real launcher flights the batch fit does not give the online numbers (drag 1.025,
