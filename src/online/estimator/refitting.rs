@@ -183,7 +183,9 @@ impl Estimator {
         {
             return None;
         }
-        self.smooth_passes(LESSON_ITERATIONS);
+        // The last pass is not smoothed back: its estimate at the last detection is the lesson.
+        self.smooth_passes(LESSON_ITERATIONS - 1);
+        self.pass_forward();
         let last = self.refit.steps.last()?;
         let lesson = (last.filtered.theta, last.filtered.param_covariance());
         if !self.pass_agrees()
