@@ -35,7 +35,9 @@ use nalgebra::{Cholesky, DMatrix, DVector};
 use crate::config::Config;
 use crate::model::detection::Detection;
 use crate::online::estimator::{Estimator, LearnedParams, LearnedSummary, param_prior_variances};
-use crate::physics::params::{PARAMS, ParamVector, PhysicsParams};
+use crate::physics::params::{
+    DRAG_SCALE, FRICTION, MAGNUS_SCALE, PARAMS, ParamVector, PhysicsParams, RESTITUTION,
+};
 
 /// Converged when theta_g moves by less than this fraction of each parameter's prior sigma.
 pub const CONVERGED: f64 = 5e-3;
@@ -126,12 +128,18 @@ pub fn calibrate_two_level(
         PhysicsParams::from_vector(&theta_g).apply_to(&mut at);
         // Each flight starts where the flights' joint estimate is, as a flight late in a
         // session starts where the earlier ones left it: its filter linearises near there.
-        let sigma = |i: usize| sigma_g[i].clamp(MIN_SIGMA, prior_var[i].sqrt());
+        let sigma = |i: usize| {
+            if prior_var[i] > 0.0 {
+                sigma_g[i].clamp(MIN_SIGMA, prior_var[i].sqrt())
+            } else {
+                0.0
+            }
+        };
         let a = &mut at.adaptation;
-        a.drag_scale_sigma = if prior_var[0] > 0.0 { sigma(0) } else { 0.0 };
-        a.magnus_scale_sigma = if prior_var[1] > 0.0 { sigma(1) } else { 0.0 };
-        a.restitution_sigma = if prior_var[2] > 0.0 { sigma(2) } else { 0.0 };
-        a.friction_sigma = if prior_var[3] > 0.0 { sigma(3) } else { 0.0 };
+        a.drag_scale_sigma = sigma(DRAG_SCALE);
+        a.magnus_scale_sigma = sigma(MAGNUS_SCALE);
+        a.restitution_sigma = sigma(RESTITUTION);
+        a.friction_sigma = sigma(FRICTION);
         let flight_prior = sub(&param_prior_variances(&at));
         let flight_prior_information = DMatrix::from_diagonal(&flight_prior.map(|v| 1.0 / v));
         information = prior_information.clone();
