@@ -364,3 +364,28 @@ fn on_real_flights_the_estimators_route_gives_the_online_numbers() {
     assert_eq!(wrong.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&wrong.stderr).contains("--method batch"));
 }
+
+/// `--holdout` with the estimator's route: every other flight left out of the calibration and
+/// forecast, second half from first, with the starting and the calibrated configurations.
+#[test]
+fn the_estimators_route_holds_flights_out_when_asked() {
+    let d = scratch("calibrate-estimator-holdout");
+    let (yaml, json) = (d.join("ball.yaml"), d.join("ball.json"));
+    let report = ok(&[
+        "calibrate",
+        "bags/sim_rally_wide.mcap",
+        "--method",
+        "estimator",
+        "--holdout",
+        "--output",
+        yaml.to_str().unwrap(),
+        "--json",
+        json.to_str().unwrap(),
+    ]);
+    assert!(report.contains("held-out flights"), "{report}");
+    let j: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    let held = j["holdout"]["flights"].as_u64().unwrap();
+    assert!(held >= 2, "{report}");
+    assert_eq!(j["flights"].as_u64().unwrap() + held, 8, "{report}");
+}

@@ -193,14 +193,9 @@ impl CalibrateArgs {
                         .map_or_else(String::new, |v| v.get_name().to_owned())
                 )));
             }
-            if self.holdout
-                || self.plot.is_some()
-                || self.drag_order.is_some()
-                || self.magnus_order.is_some()
-            {
+            if self.plot.is_some() || self.drag_order.is_some() || self.magnus_order.is_some() {
                 bail!(BadUsage(
-                    "--holdout, --plot, --drag-order and --magnus-order are for --method batch"
-                        .to_owned()
+                    "--plot, --drag-order and --magnus-order are for --method batch".to_owned()
                 ));
             }
         }
@@ -226,9 +221,6 @@ impl CalibrateArgs {
                 detections: f.members.iter().map(|&i| bag.detections[i]).collect(),
             }));
         }
-        if self.method == Method::Estimator {
-            return self.run_estimator(&config, &fit, flights);
-        }
         let (fitted, held): (Vec<_>, Vec<_>) = if self.holdout {
             let (a, b): (Vec<_>, Vec<_>) = flights
                 .into_iter()
@@ -241,6 +233,9 @@ impl CalibrateArgs {
         } else {
             (flights, Vec::new())
         };
+        if self.method == Method::Estimator {
+            return self.run_estimator(&config, &fit, fitted, &held);
+        }
         // Every iteration on a terminal or with TTBALL_VERBOSE set; the stages otherwise.
         let verbose = std::io::IsTerminal::is_terminal(&std::io::stderr())
             || std::env::var_os("TTBALL_VERBOSE").is_some();
@@ -299,6 +294,7 @@ impl CalibrateArgs {
         config: &Config,
         fit: &[Group],
         flights: Vec<FlightInput>,
+        held: &[FlightInput],
     ) -> anyhow::Result<ExitCode> {
         let mut start = config.clone();
         if !fit.contains(&Group::Scales) {
@@ -320,6 +316,9 @@ impl CalibrateArgs {
         let mut progress = |line: &str| eprintln!("{line}");
         let calibration = calibrate_two_level(&start, &detections, &mut progress)
             .map_err(|e| BadUsage(format!("cannot calibrate: {e}")))?;
+        let held_out = self
+            .holdout
+            .then(|| holdout(config, &calibration.config, held, HOLDOUT_FRACTION));
         let mut text = format!(
             "# Written by `ttball calibrate --method estimator` from {} flights in:\n",
             calibration.params.tracks
@@ -353,6 +352,7 @@ impl CalibrateArgs {
                 }).collect::<Vec<_>>(),
                 "iterations": calibration.iterations,
                 "converged": calibration.converged,
+                "holdout": held_out,
             });
             write_json(path, &json)?;
         }
@@ -383,6 +383,9 @@ impl CalibrateArgs {
         }
         for line in calibration.online.lines().iter().skip(1) {
             let _ = writeln!(out, "  also written: {line}");
+        }
+        if let Some(h) = &held_out {
+            out.push_str(&holdout_line(h));
         }
         let _ = writeln!(
             out,
@@ -472,6 +475,18 @@ fn snippet(c: &Calibration, inputs: &[String]) -> String {
     out
 }
 
+/// How the held-out flights were forecast, in a line.
+fn holdout_line(h: &Holdout) -> String {
+    format!(
+        "held-out flights ({}), second half forecast from the first: RMS {:.1} mm -> {:.1} mm, median {:.1} mm -> {:.1} mm\n",
+        h.flights,
+        h.before.rms * 1e3,
+        h.after.rms * 1e3,
+        h.before.median * 1e3,
+        h.after.median * 1e3
+    )
+}
+
 /// What the user reads at the end.
 fn report(c: &Calibration, held_out: Option<&Holdout>, output: &std::path::Path) -> String {
     let mut out = String::new();
@@ -528,15 +543,7 @@ fn report(c: &Calibration, held_out: Option<&Holdout>, output: &std::path::Path)
         "Sp of the detections: 5 % {lo:.2}, median {mid:.2}, 95 % {hi:.2}"
     );
     if let Some(h) = held_out {
-        let _ = writeln!(
-            out,
-            "held-out flights ({}), second half forecast from the first: RMS {:.1} mm -> {:.1} mm, median {:.1} mm -> {:.1} mm",
-            h.flights,
-            h.before.rms * 1e3,
-            h.after.rms * 1e3,
-            h.before.median * 1e3,
-            h.after.median * 1e3
-        );
+        out.push_str(&holdout_line(h));
     }
     let _ = writeln!(
         out,
