@@ -72,6 +72,42 @@ fn refitting_the_track_allocates_nothing() {
     assert_eq!(info.count_total, 0, "{info:?}");
 }
 
+/// The 150 fps camera alone: every ended track's lesson is its flight smoothed
+/// (`adaptation.smoothed_lessons`), run stage by stage in idle time as the node does and at once
+/// when the next track starts as a replay does, in buffers allocated once.
+#[test]
+fn smoothed_lessons_allocate_nothing() {
+    let config = Config::default();
+    let session = simulate(
+        &config,
+        &SimOptions {
+            cameras: Cameras::WideOnly,
+            shots: 5,
+            seed: 4,
+            ..SimOptions::default()
+        },
+    )
+    .unwrap();
+    for idle in [false, true] {
+        let mut estimator = Estimator::new(&config);
+        let first_of_second = session.stream.iter().position(|d| d.shot == 1).unwrap();
+        for sim in &session.stream[..first_of_second] {
+            estimator.handle(&sim.detection);
+        }
+        let rest = &session.stream[first_of_second..];
+        let info = allocation_counter::measure(|| {
+            for sim in rest {
+                estimator.handle(&sim.detection);
+                while idle && estimator.has_idle_work() {
+                    estimator.learn_in_idle_time();
+                }
+            }
+        });
+        assert!(estimator.counters().smoothed_lessons >= 3, "idle {idle}");
+        assert_eq!(info.count_total, 0, "idle {idle}: {info:?}");
+    }
+}
+
 /// The node's whole per-detection path, `Pipeline::on_detection`: the message converted, the
 /// filter updated, the interception predicted and the `/ball/state` and `/ball/intercept`
 /// messages built (their `frame_id` borrowed from a constant) allocate nothing. The

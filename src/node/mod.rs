@@ -726,7 +726,18 @@ impl EstimatorThread {
             // Requests and diagnostics between detections; the thread waits only when no
             // detection is queued (the doorbell rings for the next).
             let operation = if queue.is_empty() {
-                wake_on.select()
+                if self.pipeline.estimator().has_idle_work() {
+                    // An ended track's lesson, a stage at a time while no detection waits.
+                    match wake_on.try_select() {
+                        Ok(operation) => operation,
+                        Err(_) => {
+                            self.pipeline.learn_in_idle_time();
+                            continue;
+                        }
+                    }
+                } else {
+                    wake_on.select()
+                }
             } else {
                 match wake_on.try_select() {
                     Ok(operation) => operation,

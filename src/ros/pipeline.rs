@@ -120,6 +120,12 @@ impl Pipeline {
         self.horizon = config.prediction.horizon;
     }
 
+    /// One stage of an ended track's pending lesson, off the detections' path (see
+    /// [`Estimator::learn_in_idle_time`]); true while stages remain.
+    pub fn learn_in_idle_time(&mut self) -> bool {
+        self.estimator.learn_in_idle_time()
+    }
+
     /// The input has ended: the live track teaches what it learned (see
     /// [`Estimator::end_of_input`]).
     pub fn end_of_input(&mut self) {

@@ -395,6 +395,12 @@ pub struct Estimator {
     expected_hit: Option<(RobotHit, Option<Snapshot>)>,
     /// The live track's detections for its refits, and the last smoothed flight.
     refit: refitting::TrackRefit,
+    /// The buffer of the ended track whose lesson is pending, swapped with `refit`.
+    lesson_refit: refitting::TrackRefit,
+    /// The pending lesson of an ended track ([`Self::learn_in_idle_time`]).
+    lesson: Option<refitting::PendingLesson>,
+    /// The ended track's estimates' (stamp, bounces), for its lesson's check; allocated once.
+    lesson_bounces: Vec<(i64, u32)>,
 }
 
 /// The robot's own hit, announced to the estimator: when and with what racket state it meets
@@ -500,15 +506,12 @@ impl LearnedParams {
 impl Track {
     /// `learned` updated with what this track has learned of the physics so far.
     fn taught(&self, learned: &Learned) -> Learned {
-        self.taught_by(
-            learned,
+        learned.absorbed(
+            &self.param_prior,
             &(self.now.ekf.theta, self.now.ekf.param_covariance()),
+            self.started,
+            self.now.stamp,
         )
-    }
-
-    /// `learned` updated with `posterior`, what this track learned of its flight's physics.
-    fn taught_by(&self, learned: &Learned, posterior: &(ParamVector, ParamCovariance)) -> Learned {
-        learned.absorbed(&self.param_prior, posterior, self.started, self.now.stamp)
     }
 }
 
@@ -592,6 +595,13 @@ impl Estimator {
             } else {
                 0
             }),
+            lesson_refit: refitting::TrackRefit::new(if settings.smoothed_lessons {
+                settings.refit_max
+            } else {
+                0
+            }),
+            lesson: None,
+            lesson_bounces: Vec::with_capacity(history_capacity + 2),
             propagator,
             settings,
         }
@@ -679,6 +689,22 @@ impl Estimator {
     /// as when a track ends for a gap. A later detection starts a new track.
     pub fn end_of_input(&mut self) {
         self.end_track();
+        self.settle_lesson();
+    }
+
+    /// Whether an ended track's lesson has smoothing stages left to run
+    /// (`adaptation.smoothed_lessons`): work for [`Self::learn_in_idle_time`].
+    pub fn has_idle_work(&self) -> bool {
+        self.lesson_stages_left()
+    }
+
+    /// Runs one stage (a pass or a smoothing back over the ended track's detections, about 6
+    /// us per detection) of the pending lesson; true while stages remain. A node calls it when
+    /// no detection waits, so that the smoothing is off the detections' path; what is learned,
+    /// and when it takes effect (the next track's start), are the same whether or not it is
+    /// called (a replay never does).
+    pub fn learn_in_idle_time(&mut self) -> bool {
+        self.advance_lesson()
     }
 
     /// What the estimator has learned of the physical parameters, to start another estimator
@@ -1044,14 +1070,13 @@ impl Estimator {
 
     fn end_track(&mut self) {
         self.continuation = None;
-        let smoothed = self.smoothed_lesson();
+        // What the track learned of the physics carries over to the next: its flight smoothed
+        // (pending until settled) where it can be, else the filter's estimate.
+        let deferred = self.defer_lesson();
         if let Some(track) = self.track.take() {
-            // What the track learned of the physics carries over to the next: its flight
-            // smoothed where it could be, else the filter's estimate.
-            self.learned = match smoothed {
-                Some(posterior) => track.taught_by(&self.learned, &posterior),
-                None => track.taught(&self.learned),
-            };
+            if !deferred {
+                self.learned = track.taught(&self.learned);
+            }
             // Keep the history's buffer for the next track: no allocation per track.
             self.spare_history = track.history;
             self.spare_history.clear();

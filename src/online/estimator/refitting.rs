@@ -21,6 +21,7 @@
 //! either side. A pass linearised along the smoothed flight lands on it (docs/estimator.md).
 
 use super::*;
+use crate::online::ekf::NoiseScales;
 use crate::physics::ParamVector;
 use crate::physics::params::{AUGMENTED, AugmentedMatrix, AugmentedVector};
 
@@ -34,6 +35,9 @@ const ITERATIONS: usize = 2;
 /// flights a fourth or sixth moves the crossing's RMS by under 0.05 mm, the learned
 /// parameters by under 0.002).
 const LESSON_ITERATIONS: usize = 3;
+/// The lesson's stages: its passes and the smoothings between them (the last pass is not
+/// smoothed back).
+const LESSON_STAGES: usize = 2 * LESSON_ITERATIONS - 1;
 /// Variance added to each parameter's in the smoother's inverse of a prediction's covariance.
 const PARAM_VARIANCE_FLOOR: f64 = 1e-12;
 /// The kept detections' buffer, in windows: a window and the detections of the intervals until
@@ -53,6 +57,26 @@ struct Step {
     filtered: Ekf,
     /// Table bounces since the window's first estimate.
     bounces: u32,
+}
+
+/// An ended track's lesson, waiting for its smoothing ([`Estimator::defer_lesson`]).
+#[derive(Debug, Clone, Copy)]
+pub(super) struct PendingLesson {
+    /// The parameters' prior the track started from.
+    prior: (ParamVector, ParamCovariance),
+    /// The track's first and last stamps [ns].
+    started: i64,
+    stamp: i64,
+    /// What the filter learned: the lesson if the smoothing fails.
+    filter: (ParamVector, ParamCovariance),
+    /// The model's noise scales when the track ended.
+    scales: NoiseScales,
+    /// The bounces before the kept detections' first estimate.
+    base_bounces: u32,
+    /// Stages run (passes and smoothings, alternately).
+    stage: usize,
+    /// The smoothed flight's parameters, once the last stage has run and agreed.
+    posterior: Option<(ParamVector, ParamCovariance)>,
 }
 
 /// The live track's detections, kept for its smoothing, and the last smoothed flight.
@@ -85,6 +109,20 @@ impl TrackRefit {
     fn step_at(&self, stamp: i64) -> Option<&Step> {
         let at = self.steps.partition_point(|step| step.stamp < stamp);
         self.steps.get(at).filter(|step| step.stamp == stamp)
+    }
+
+    /// No room: a placeholder while a buffer is worked on elsewhere (allocates nothing).
+    fn empty() -> Self {
+        Self {
+            observations: Vec::new(),
+            steps: Vec::new(),
+            smoothed: Vec::new(),
+            track: 0,
+            start: 0,
+            base: None,
+            next: 0,
+            done: false,
+        }
     }
 
     /// Room for `capacity` detections.
@@ -168,37 +206,135 @@ impl Estimator {
         self.refit_now();
     }
 
-    /// The ending track's lesson, its flight smoothed: the parameters (mean and covariance) of
-    /// the last of [`LESSON_ITERATIONS`] passes at its last detection. `None` (the filter's estimate
-    /// teaches) without the option, for a track whose spin was measured or whose detections
-    /// outgrew the buffer, with too few detections, or when the pass bounces at another time
-    /// than the track or is not finite.
-    pub(super) fn smoothed_lesson(&mut self) -> Option<(ParamVector, ParamCovariance)> {
-        let id = self.track.as_ref()?.id;
-        let kept = &self.refit;
-        if !self.settings.smoothed_lessons
-            || kept.track != id
-            || kept.done
-            || kept.observations.len() < MIN_DETECTIONS
-        {
-            return None;
+    /// Whether the ending track's lesson is its flight smoothed: the option on, the kept
+    /// detections the track's, no spin measured, the buffer not outgrown, enough detections.
+    fn lesson_due(&self) -> bool {
+        let (Some(track), kept) = (self.track.as_ref(), &self.refit) else {
+            return false;
+        };
+        self.settings.smoothed_lessons
+            && kept.track == track.id
+            && !kept.done
+            && kept.observations.len() >= MIN_DETECTIONS
+    }
+
+    /// Hands the ending track's kept detections to its lesson (see the module doc), or returns
+    /// false when the filter's estimate is to teach ([`Self::lesson_due`]). Nothing is computed
+    /// here: the smoothing runs stage by stage in [`Estimator::learn_in_idle_time`] or at once
+    /// when the lesson is settled.
+    pub(super) fn defer_lesson(&mut self) -> bool {
+        if !self.lesson_due() {
+            return false;
         }
-        // The last pass is not smoothed back: its estimate at the last detection is the lesson.
-        self.smooth_passes(LESSON_ITERATIONS - 1);
-        self.pass_forward();
-        let last = self.refit.steps.last()?;
-        let lesson = (last.filtered.theta, last.filtered.param_covariance());
-        if !self.pass_agrees()
-            || !lesson
-                .1
+        self.settle_lesson();
+        let Some(track) = self.track.as_ref() else {
+            return false;
+        };
+        let base_bounces = self.refit.base.map_or(0, |b| b.bounces);
+        self.lesson_bounces.clear();
+        self.lesson_bounces.extend(
+            std::iter::once(&track.base)
+                .chain(track.history.iter().map(|e| &e.after))
+                .chain(std::iter::once(&track.now))
+                .map(|s| (s.stamp, s.bounces)),
+        );
+        self.lesson = Some(PendingLesson {
+            prior: track.param_prior,
+            started: track.started,
+            stamp: track.now.stamp,
+            filter: (track.now.ekf.theta, track.now.ekf.param_covariance()),
+            scales: self.model_noise.scales(),
+            base_bounces,
+            stage: 0,
+            posterior: None,
+        });
+        std::mem::swap(&mut self.refit, &mut self.lesson_refit);
+        // The buffer handed back is the next track's, whatever id it last held.
+        self.refit.track = 0;
+        true
+    }
+
+    /// Whether the pending lesson has stages left to run.
+    pub(super) fn lesson_stages_left(&self) -> bool {
+        self.lesson
+            .as_ref()
+            .is_some_and(|l| l.stage < LESSON_STAGES)
+    }
+
+    /// Runs the next stage of the pending lesson's smoothing (a pass, or a smoothing back);
+    /// true while stages remain. The last stage leaves the posterior to absorb, which
+    /// [`Self::settle_lesson`] absorbs: so when the stages run does not change what is learned,
+    /// nor when.
+    pub(super) fn advance_lesson(&mut self) -> bool {
+        if !self.lesson_stages_left() {
+            return false;
+        }
+        let Some(lesson) = self.lesson.as_mut() else {
+            return false;
+        };
+        let stages = LESSON_STAGES;
+        let scales = lesson.scales;
+        let stage = lesson.stage;
+        lesson.stage += 1;
+        let mut kept = std::mem::replace(&mut self.lesson_refit, TrackRefit::empty());
+        if stage % 2 == 0 {
+            self.pass_forward_on(&mut kept, &scales);
+        } else {
+            // The last pass is not smoothed back: its estimate at the last detection is the
+            // lesson.
+            smooth_back(&mut kept);
+        }
+        let done = stage + 1 == stages;
+        let posterior = done.then(|| self.lesson_posterior(&kept)).flatten();
+        self.lesson_refit = kept;
+        if let Some(lesson) = self.lesson.as_mut()
+            && done
+        {
+            lesson.posterior = posterior;
+        }
+        !done
+    }
+
+    /// The last pass's parameters at its last detection, when it bounces where the track's
+    /// estimates did and is finite.
+    fn lesson_posterior(&self, kept: &TrackRefit) -> Option<(ParamVector, ParamCovariance)> {
+        let lesson = self.lesson.as_ref()?;
+        let last = kept.steps.last()?;
+        let posterior = (last.filtered.theta, last.filtered.param_covariance());
+        let agrees = self.lesson_bounces.iter().all(|&(stamp, bounces)| {
+            kept.step_at(stamp)
+                .is_none_or(|step| bounces == lesson.base_bounces + step.bounces)
+        });
+        let finite = |ekf: &Ekf| {
+            ekf.x
                 .iter()
-                .chain(lesson.0.iter())
+                .chain(ekf.theta.iter())
+                .chain(ekf.P.iter())
                 .all(|v| v.is_finite())
-        {
-            return None;
-        }
-        self.counters.smoothed_lessons += 1;
-        Some(lesson)
+        };
+        (agrees && kept.steps.iter().all(|s| finite(&s.filtered))).then_some(posterior)
+    }
+
+    /// Finishes the pending lesson's stages and absorbs it into the ball's and table's
+    /// parameters (its flight smoothed, or the filter's estimate when the smoothing failed).
+    /// Called before a track takes its prior, before another lesson, and at the input's end:
+    /// points the detections decide, so a node that ran the stages in its idle time and a
+    /// replay that runs them here learn the same.
+    pub(super) fn settle_lesson(&mut self) {
+        while self.advance_lesson() {}
+        let Some(lesson) = self.lesson.take() else {
+            return;
+        };
+        let posterior = match lesson.posterior {
+            Some(smoothed) => {
+                self.counters.smoothed_lessons += 1;
+                smoothed
+            }
+            None => lesson.filter,
+        };
+        self.learned =
+            self.learned
+                .absorbed(&lesson.prior, &posterior, lesson.started, lesson.stamp);
     }
 
     /// `iterations` passes over the kept detections, each smoothed back.
@@ -251,15 +387,22 @@ impl Estimator {
     /// prediction linearised at the last smoothed flight where it has one (a detection it has
     /// not seen: at the pass's own estimate, as the filter does).
     fn pass_forward(&mut self) {
-        let Some(mut snapshot) = self.refit.base else {
+        let mut kept = std::mem::replace(&mut self.refit, TrackRefit::empty());
+        let scales = self.model_noise.scales();
+        self.pass_forward_on(&mut kept, &scales);
+        self.refit = kept;
+    }
+
+    /// [`Self::pass_forward`] over `kept`, the model's noise at `scales`.
+    fn pass_forward_on(&self, kept: &mut TrackRefit, scales: &NoiseScales) {
+        let Some(mut snapshot) = kept.base else {
             return;
         };
-        let scales = self.model_noise.scales();
-        let mut steps = std::mem::take(&mut self.refit.steps);
+        let mut steps = std::mem::take(&mut kept.steps);
         steps.clear();
         let (mut previous, mut bounces) = (snapshot.stamp, 0);
-        for (stamp, m) in &self.refit.observations {
-            let smoothed = &self.refit.smoothed;
+        for (stamp, m) in &kept.observations {
+            let smoothed = &kept.smoothed;
             let at = smoothed.partition_point(|(k, _)| *k < previous);
             let nominal = match smoothed.get(at) {
                 Some((k, y)) if *k == previous => *y,
@@ -272,7 +415,7 @@ impl Estimator {
                 ),
                 &self.propagator,
                 &self.settings.filter,
-                &scales,
+                scales,
                 (stamp - previous) as f64 * 1e-9,
             );
             bounces += report.bounces;
@@ -293,7 +436,7 @@ impl Estimator {
             });
             previous = *stamp;
         }
-        self.refit.steps = steps;
+        kept.steps = steps;
     }
 
     /// Whether the last pass bounces on the table when the track's estimates do, at every stamp
@@ -449,6 +592,52 @@ mod tests {
         config.ekf.learn_model_noise = false;
         config.ekf.learn_noise = false;
         config
+    }
+
+    /// A node runs the ended track's lesson in its idle time ([`Estimator::learn_in_idle_time`]),
+    /// a replay when the next track starts: every output and what is learned are the same to
+    /// the bit, and the lesson is the smoothed flight's.
+    #[test]
+    fn a_lesson_learned_in_idle_time_is_the_lesson_learned_at_once() {
+        let config = Config::default();
+        assert!(config.adaptation.smoothed_lessons);
+        let flight = serve(&config, 0.7);
+        let two_s = 2_000_000_000;
+        let stream: Vec<Detection> = (0..3)
+            .flat_map(|k| {
+                flight.iter().map(move |(d, _)| Detection {
+                    stamp: d.stamp + k * two_s,
+                    ..*d
+                })
+            })
+            .collect();
+        let (mut at_once, mut idle) = (Estimator::new(&config), Estimator::new(&config));
+        let mut stages = 0;
+        for d in &stream {
+            assert_eq!(at_once.handle(d), idle.handle(d), "at {}", d.stamp);
+            while idle.has_idle_work() {
+                idle.learn_in_idle_time();
+                stages += 1;
+            }
+        }
+        at_once.end_of_input();
+        idle.end_of_input();
+        assert_eq!(at_once.learned_summary(), idle.learned_summary());
+        assert_eq!(at_once.counters(), idle.counters());
+        // Two tracks ended on the next flight's detections (their stages run in idle time),
+        // the third at the input's end.
+        assert_eq!(stages, 2 * LESSON_STAGES);
+        assert!(!idle.has_idle_work() && !idle.learn_in_idle_time());
+        assert_eq!(idle.counters().smoothed_lessons, 3);
+        let mut filter_lessons = config.clone();
+        filter_lessons.adaptation.smoothed_lessons = false;
+        let mut filter = Estimator::new(&filter_lessons);
+        for d in &stream {
+            filter.handle(d);
+        }
+        filter.end_of_input();
+        assert_eq!(filter.counters().smoothed_lessons, 0);
+        assert_ne!(filter.learned_params(), idle.learned_params());
     }
 
     /// With a window of 16 detections the track is refitted through the whole flight, the

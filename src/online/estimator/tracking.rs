@@ -84,6 +84,8 @@ impl Estimator {
 
     /// Starts a track from the pending detections when they fit one ballistic flight.
     pub(super) fn try_start_track(&mut self) -> bool {
+        // The ended track's lesson is learned before a track takes its prior.
+        self.settle_lesson();
         let Some(fit) = self.fit_pending() else {
             return false;
         };
@@ -164,6 +166,7 @@ impl Estimator {
                 seed
             }
         };
+        self.settle_lesson();
         let param_prior = self.learned.track_prior(hit.stamp);
         let mut snapshot = seed;
         let nis = self.fuse(&mut snapshot, d, &m, None).ok()?;
