@@ -111,6 +111,28 @@ impl TrackRefit {
         self.steps.get(at).filter(|step| step.stamp == stamp)
     }
 
+    /// Whether the last pass bounces on the table as the track's `estimates` (stamp, bounces)
+    /// did, at every stamp they share (its bounces counted from `base_bounces`, those before
+    /// the window), and is finite throughout.
+    fn pass_agrees_with(
+        &self,
+        mut estimates: impl Iterator<Item = (i64, u32)>,
+        base_bounces: u32,
+    ) -> bool {
+        let agrees = |(stamp, bounces): (i64, u32)| {
+            self.step_at(stamp)
+                .is_none_or(|step| bounces == base_bounces + step.bounces)
+        };
+        let finite = |ekf: &Ekf| {
+            ekf.x
+                .iter()
+                .chain(ekf.theta.iter())
+                .chain(ekf.P.iter())
+                .all(|v| v.is_finite())
+        };
+        estimates.all(agrees) && self.steps.iter().all(|s| finite(&s.filtered))
+    }
+
     /// No room: a placeholder while a buffer is worked on elsewhere (allocates nothing).
     fn empty() -> Self {
         Self {
@@ -301,18 +323,8 @@ impl Estimator {
         let lesson = self.lesson.as_ref()?;
         let last = kept.steps.last()?;
         let posterior = (last.filtered.theta, last.filtered.param_covariance());
-        let agrees = self.lesson_bounces.iter().all(|&(stamp, bounces)| {
-            kept.step_at(stamp)
-                .is_none_or(|step| bounces == lesson.base_bounces + step.bounces)
-        });
-        let finite = |ekf: &Ekf| {
-            ekf.x
-                .iter()
-                .chain(ekf.theta.iter())
-                .chain(ekf.P.iter())
-                .all(|v| v.is_finite())
-        };
-        (agrees && kept.steps.iter().all(|s| finite(&s.filtered))).then_some(posterior)
+        kept.pass_agrees_with(self.lesson_bounces.iter().copied(), lesson.base_bounces)
+            .then_some(posterior)
     }
 
     /// Finishes the pending lesson's stages and absorbs it into the ball's and table's
@@ -446,21 +458,11 @@ impl Estimator {
         let (Some(track), Some(base)) = (self.track.as_ref(), kept.base.as_ref()) else {
             return false;
         };
-        let agrees = |s: &Snapshot| {
-            kept.step_at(s.stamp)
-                .is_none_or(|step| s.bounces == base.bounces + step.bounces)
-        };
-        let mut snapshots = std::iter::once(&track.base)
+        let estimates = std::iter::once(&track.base)
             .chain(track.history.iter().map(|e| &e.after))
-            .chain(std::iter::once(&track.now));
-        let finite = |ekf: &Ekf| {
-            ekf.x
-                .iter()
-                .chain(ekf.theta.iter())
-                .chain(ekf.P.iter())
-                .all(|v| v.is_finite())
-        };
-        snapshots.all(agrees) && kept.steps.iter().all(|s| finite(&s.filtered))
+            .chain(std::iter::once(&track.now))
+            .map(|s| (s.stamp, s.bounces));
+        kept.pass_agrees_with(estimates, base.bounces)
     }
 
     /// Puts the last pass's estimates into the track's snapshots at the same stamps; false,
