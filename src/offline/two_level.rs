@@ -118,7 +118,6 @@ pub fn calibrate_two_level(
     let sub = |v: &ParamVector| DVector::from_iterator(n, active.iter().map(|&i| v[i]));
     let prior_information = DMatrix::from_diagonal(&sub(&prior_var).map(|v| 1.0 / v));
     let mut history = Vec::new();
-    let mut information = prior_information.clone();
     let mut converged = false;
     let mut iterations = 0;
     let (mut damping, mut last_step) = (1.0, f64::INFINITY);
@@ -142,7 +141,7 @@ pub fn calibrate_two_level(
         a.friction_sigma = sigma(FRICTION);
         let flight_prior = sub(&param_prior_variances(&at));
         let flight_prior_information = DMatrix::from_diagonal(&flight_prior.map(|v| 1.0 / v));
-        information = prior_information.clone();
+        let mut information = prior_information.clone();
         let mut weighted = &prior_information * sub(&theta_0);
         for flight in flights.iter().filter(|f| !f.is_empty()) {
             let mut estimator = Estimator::new(&at);
@@ -161,10 +160,15 @@ pub fn calibrate_two_level(
             weighted +=
                 &posterior_information * sub(&theta) - &flight_prior_information * sub(&theta_g);
         }
-        let Some(joint) = Cholesky::new(information.clone()) else {
+        let Some(joint) = Cholesky::new(information) else {
             return Err(TwoLevelError::Singular(iterations));
         };
         let solved = joint.solve(&weighted);
+        // The joint covariance: the next flights' prior sigmas, and the standard errors.
+        let covariance = joint.inverse();
+        for (k, &i) in active.iter().enumerate() {
+            sigma_g[i] = covariance[(k, k)].max(0.0).sqrt();
+        }
         // The step in prior sigmas; a step that does not shrink halves the next ones (a
         // flight's smoothed lesson taken or not flips with theta_g: a two-cycle, damped).
         let step = active
@@ -180,20 +184,12 @@ pub fn calibrate_two_level(
             theta_g[i] += damping * (solved[k] - theta_g[i]);
         }
         converged = damping * step < CONVERGED;
-        if let Some(c) = Cholesky::new(information.clone()).map(|c| c.inverse()) {
-            for (k, &i) in active.iter().enumerate() {
-                sigma_g[i] = c[(k, k)].max(0.0).sqrt();
-            }
-        }
         history.push(PhysicsParams::from_vector(&theta_g));
         progress(&format!("  iteration {iterations}: {}", describe(&theta_g)));
     }
-    let covariance = Cholesky::new(information)
-        .map(|c| c.inverse())
-        .ok_or(TwoLevelError::Singular(iterations))?;
     let mut sigma = [0.0; PARAMS];
-    for (k, &i) in active.iter().enumerate() {
-        sigma[i] = covariance[(k, k)].max(0.0).sqrt();
+    for &i in &active {
+        sigma[i] = sigma_g[i];
     }
     PhysicsParams::from_vector(&theta_g).apply_to(&mut base);
     base.adaptation.drift_per_hour = config.adaptation.drift_per_hour;

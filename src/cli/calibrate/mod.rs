@@ -336,18 +336,20 @@ impl CalibrateArgs {
         }
         text.push_str(&changed_params_yaml(config, &calibration.config));
         write_file(&self.output, text)?;
+        let start_values = PhysicsParams::from_config(config).to_vector();
+        let online = calibration.online.params.params.to_vector();
+        let fitted = calibration.params.params.to_vector();
         if let Some(path) = &self.json {
-            let p = &calibration.params;
             let json = serde_json::json!({
                 "method": "estimator",
-                "flights": p.tracks,
+                "flights": calibration.params.tracks,
                 "parameters": PhysicsParams::NAMES.iter().enumerate().map(|(i, name)| {
                     serde_json::json!({
                         "name": name,
-                        "value": p.params.to_vector()[i],
-                        "std_error": p.sigma[i],
-                        "initial": PhysicsParams::from_config(config).to_vector()[i],
-                        "online": calibration.online.params.params.to_vector()[i],
+                        "value": fitted[i],
+                        "std_error": calibration.params.sigma[i],
+                        "initial": start_values[i],
+                        "online": online[i],
                     })
                 }).collect::<Vec<_>>(),
                 "iterations": calibration.iterations,
@@ -369,9 +371,6 @@ impl CalibrateArgs {
         out.push_str(
             "parameter                         fitted      +- std error   online     start\n",
         );
-        let start_values = PhysicsParams::from_config(config).to_vector();
-        let online = calibration.online.params.params.to_vector();
-        let fitted = calibration.params.params.to_vector();
         for (i, name) in PhysicsParams::NAMES.iter().enumerate() {
             if calibration.params.sigma[i] > 0.0 {
                 let _ = writeln!(
@@ -387,12 +386,7 @@ impl CalibrateArgs {
         if let Some(h) = &held_out {
             out.push_str(&holdout_line(h));
         }
-        let _ = writeln!(
-            out,
-            "written to {} (use it with --config {})",
-            self.output.display(),
-            self.output.display()
-        );
+        out.push_str(&written_line(&self.output));
         write_stdout(&out)?;
         Ok(ExitCode::SUCCESS)
     }
@@ -545,11 +539,15 @@ fn report(c: &Calibration, held_out: Option<&Holdout>, output: &std::path::Path)
     if let Some(h) = held_out {
         out.push_str(&holdout_line(h));
     }
-    let _ = writeln!(
-        out,
-        "written to {} (use it with --config {})",
+    out.push_str(&written_line(output));
+    out
+}
+
+/// Where the configuration snippet went, and how to use it, in a line.
+fn written_line(output: &std::path::Path) -> String {
+    format!(
+        "written to {} (use it with --config {})\n",
         output.display(),
         output.display()
-    );
-    out
+    )
 }

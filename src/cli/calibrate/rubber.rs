@@ -229,11 +229,6 @@ fn report(c: &RubberCalibration, output: &std::path::Path) -> String {
             let _ = writeln!(out, "  held out  {:<40} {}", e.group, errors_line(e));
         }
     }
-    let _ = writeln!(
-        out,
-        "written to {} (use it with --config {})",
-        output.display(),
-        output.display()
-    );
+    out.push_str(&super::written_line(output));
     out
 }

@@ -535,10 +535,10 @@ fn evaluate_flight(
             let out = estimator.handle(d);
             note(&out, d.stamp);
         }
+        estimator.end_of_input();
         result.counters = estimator.counters();
         result.before_bounce = before_bounce;
         result.gated_after_bounce = gated_after_bounce;
-        estimator.end_of_input();
         return (result, estimator.learned_physics());
     };
     let deadlines: Vec<i64> = options
@@ -566,10 +566,11 @@ fn evaluate_flight(
             }
         }
     }
+    // The flight has ended: its track's lesson is learned (and counted) before it is carried.
+    estimator.end_of_input();
     result.counters = estimator.counters();
     result.before_bounce = before_bounce;
     result.gated_after_bounce = gated_after_bounce;
-    estimator.end_of_input();
     let learned_after = estimator.learned_physics();
     result.leads = latest
         .iter()

@@ -692,12 +692,6 @@ impl Estimator {
         self.settle_lesson();
     }
 
-    /// Whether an ended track's lesson has smoothing stages left to run
-    /// (`adaptation.smoothed_lessons`): work for [`Self::learn_in_idle_time`].
-    pub fn has_idle_work(&self) -> bool {
-        self.lesson_stages_left()
-    }
-
     /// Runs one stage (a pass or a smoothing back over the ended track's detections, about 6
     /// us per detection) of the pending lesson; true while stages remain. A node calls it when
     /// no detection waits, so that the smoothing is off the detections' path; what is learned,

@@ -14,7 +14,8 @@
 //!
 //! The same smoothing teaches the physics (`adaptation.smoothed_lessons`, on by default): when
 //! a track ends, its kept detections are smoothed once more and the pass's parameters at its
-//! last detection, rather than the filter's, are the track's lesson ([`Estimator::smoothed_lesson`]).
+//! last detection, rather than the filter's, are the track's lesson ([`Estimator::defer_lesson`],
+//! [`Estimator::learn_in_idle_time`], [`Estimator::settle_lesson`]).
 //! The filter's own estimate of the Magnus scale from positions alone leans low: the curvature
 //! fixes the product of the Magnus scale and the spin, the bounce the spin, and an update
 //! linearised at the filter's estimates moves along the tangent of that hyperbola, below it on
@@ -276,8 +277,9 @@ impl Estimator {
         true
     }
 
-    /// Whether the pending lesson has stages left to run.
-    pub(super) fn lesson_stages_left(&self) -> bool {
+    /// Whether an ended track's lesson has smoothing stages left to run
+    /// (`adaptation.smoothed_lessons`): work for [`Self::learn_in_idle_time`].
+    pub fn has_idle_work(&self) -> bool {
         self.lesson
             .as_ref()
             .is_some_and(|l| l.stage < LESSON_STAGES)
@@ -288,13 +290,12 @@ impl Estimator {
     /// [`Self::settle_lesson`] absorbs: so when the stages run does not change what is learned,
     /// nor when.
     pub(super) fn advance_lesson(&mut self) -> bool {
-        if !self.lesson_stages_left() {
+        if !self.has_idle_work() {
             return false;
         }
         let Some(lesson) = self.lesson.as_mut() else {
             return false;
         };
-        let stages = LESSON_STAGES;
         let scales = lesson.scales;
         let stage = lesson.stage;
         lesson.stage += 1;
@@ -306,7 +307,7 @@ impl Estimator {
             // lesson.
             smooth_back(&mut kept);
         }
-        let done = stage + 1 == stages;
+        let done = stage + 1 == LESSON_STAGES;
         let posterior = done.then(|| self.lesson_posterior(&kept)).flatten();
         self.lesson_refit = kept;
         if let Some(lesson) = self.lesson.as_mut()
@@ -349,18 +350,13 @@ impl Estimator {
                 .absorbed(&lesson.prior, &posterior, lesson.started, lesson.stamp);
     }
 
-    /// `iterations` passes over the kept detections, each smoothed back.
-    fn smooth_passes(&mut self, iterations: usize) {
-        for _ in 0..iterations {
-            self.pass_forward();
-            smooth_back(&mut self.refit);
-        }
-    }
-
     /// One refit of the kept detections: the passes, the estimates taken when the filter's
     /// bounces agree, the window slid.
     fn refit_now(&mut self) {
-        self.smooth_passes(ITERATIONS);
+        for _ in 0..ITERATIONS {
+            self.pass_forward();
+            smooth_back(&mut self.refit);
+        }
         if self.take_pass() {
             self.counters.refits += 1;
         } else {
