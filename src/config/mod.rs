@@ -657,7 +657,7 @@ impl Default for AdaptationParams {
             magnus_scale_flight_sigma: 0.10,
             restitution_flight_sigma: 0.02,
             friction_flight_sigma: 0.0,
-            learn_dispersion: false,
+            learn_dispersion: true,
             smoothed_lessons: true,
             drift_per_hour: 0.5,
         }

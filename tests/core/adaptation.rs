@@ -102,10 +102,11 @@ fn the_adaptation_learns_what_the_configuration_has_wrong() {
 
 /// Play that follows the model exactly (no process noise, no bounce scatter, the same ball and
 /// table every flight) seen by both cameras, with the model's noise and the flight-to-flight
-/// dispersion learned (`ekf.learn_model_noise`, on by default, and `adaptation.learn_dispersion`,
-/// off): the estimator learns that the flights stray from the model far less than configured
-/// and that its flights do not scatter, and predicts the crossing better for it; with either
-/// left out it does worse.
+/// dispersion learned (`ekf.learn_model_noise` and `adaptation.learn_dispersion`, both on by
+/// default): the estimator learns that the flights stray from the model far less than
+/// configured and that its flights do not scatter (down to the dispersion's floor, a third of
+/// the configured sigma), and predicts the crossing better for it; with either left out it does
+/// worse.
 #[test]
 fn the_model_noise_and_the_dispersion_are_learned() {
     use ttball::eval::evaluate_learning;
@@ -119,6 +120,7 @@ fn the_model_noise_and_the_dispersion_are_learned() {
     let mut fixed = Config::default();
     options.params.configure_estimator(&mut fixed);
     fixed.ekf.learn_model_noise = false;
+    fixed.adaptation.learn_dispersion = false;
     let session = simulate(&fixed, &options).unwrap();
     let mut learning = fixed.clone();
     learning.ekf.learn_model_noise = true;
@@ -174,7 +176,7 @@ fn the_model_noise_and_the_dispersion_are_learned() {
             without.leads[lead].position_error.median,
             noise_alone.leads[lead].position_error.median,
         );
-        assert!(a < 0.8 * b && a < c, "lead {lead}: {a} vs {b}, {c}");
+        assert!(a < 0.9 * b && a < c, "lead {lead}: {a} vs {b}, {c}");
     }
 }
 

@@ -31,6 +31,13 @@ pub const DISPERSION_PRIOR_FLIGHTS: f64 = 20.0;
 /// prior's (1/p_pr).
 const MIN_DISPERSION_EVIDENCE: f64 = 0.1;
 
+/// A learned dispersion stays at least this fraction of the configured one (as variances: a
+/// third of its sigma). Learned to nothing, it would leave each flight no parameters of its own
+/// (a flight whose spin the filter misreads could no longer absorb it: with the 150 fps camera
+/// alone the interception's covariance grows overconfident), and it could never grow again when
+/// the ball, the table or the spins change.
+pub const DISPERSION_FLOOR: f64 = 0.1;
+
 /// A squared deviation counts at most this many times its expected variance (one wild track
 /// moves D little).
 const SAMPLE_LIMIT: f64 = 9.0;
@@ -52,6 +59,8 @@ pub(crate) struct Learned {
     drift_density: ParamVector,
     /// D, the flight-to-flight dispersion (diagonal).
     dispersion: ParamVector,
+    /// The configured D (zero: the parameter has no dispersion, learned or not).
+    configured_dispersion: ParamVector,
     /// The weight of the evidence behind each of D's variances (see [`Self::dispersion_after`]).
     dispersion_weight: ParamVector,
     /// Whether D is learned from the tracks.
@@ -78,6 +87,7 @@ impl Learned {
             prior_var,
             drift_density: active(&drift_density),
             dispersion: active(&dispersion),
+            configured_dispersion: active(&dispersion),
             dispersion_weight: ParamVector::from_fn(|i, _| {
                 DISPERSION_PRIOR_FLIGHTS
                     / (2.0 * dispersion[i] * dispersion[i]).max(f64::MIN_POSITIVE)
@@ -181,8 +191,9 @@ impl Learned {
     /// the mean m = (theta_t/p_t - theta_g/p_pr)/j), lies from theta_g by d ~ N(0, D + P_g +
     /// 1/j); d^2 - P_g - 1/j is a sample of D, weighted by its Fisher information 1/(2 V^2)
     /// with V = D + P_g + 1/j, and averaged from the configured D with the weight of
-    /// [`DISPERSION_PRIOR_FLIGHTS`] flights that measure their parameters exactly. A parameter
-    /// configured without dispersion keeps none.
+    /// [`DISPERSION_PRIOR_FLIGHTS`] flights that measure their parameters exactly, never below
+    /// [`DISPERSION_FLOOR`] times the configured D. A parameter configured without dispersion
+    /// keeps none.
     fn dispersion_after(
         &self,
         (theta_prior, p_prior): &(ParamVector, ParamCovariance),
@@ -194,7 +205,7 @@ impl Learned {
             return (dispersion, weight);
         }
         let p_global = self.drifted(stamp);
-        for i in (0..PARAMS).filter(|&i| self.prior_var[i] > 0.0 && self.dispersion[i] > 0.0) {
+        for i in (0..PARAMS).filter(|&i| self.configured_dispersion[i] > 0.0) {
             let (p_pr, p_t) = (p_prior[(i, i)], p_track[(i, i)]);
             if !(p_pr > 0.0 && p_t > 0.0) {
                 continue;
@@ -213,7 +224,8 @@ impl Learned {
                 continue;
             }
             weight[i] += w;
-            dispersion[i] = (dispersion[i] + w * (sample - dispersion[i]) / weight[i]).max(0.0);
+            dispersion[i] = (dispersion[i] + w * (sample - dispersion[i]) / weight[i])
+                .max(DISPERSION_FLOOR * self.configured_dispersion[i]);
         }
         (dispersion, weight)
     }
@@ -354,5 +366,44 @@ mod tests {
         let much_later = l.drifted(100 * an_hour);
         assert!((much_later[(1, 1)] - 0.04).abs() < 1e-12);
         assert!((much_later[(0, 0)] - 0.01).abs() < 1e-12);
+    }
+
+    /// Learned from flights that do not scatter, the dispersion falls to its floor, not to
+    /// nothing; when the flights then scatter (another ball, other spins) it grows again.
+    #[test]
+    fn a_learned_dispersion_stops_at_its_floor_and_grows_again() {
+        let configured = ParamVector::new(0.03f64.powi(2), 0.1f64.powi(2), 0.0, 0.0);
+        let mut l = Learned::new(
+            ParamVector::new(1.0, 1.0, 0.9, 0.25),
+            ParamVector::new(0.01, 0.04, 0.0, 0.01),
+            ParamVector::zeros(),
+            configured,
+            true,
+        );
+        // A track whose filter measured the Magnus scale `measured` with variance `r`.
+        let track = |l: &Learned, measured: f64, r: f64, stamp: i64| {
+            let prior = l.track_prior(stamp);
+            let mut posterior = prior;
+            let p = prior.1[(1, 1)];
+            posterior.0[1] = prior.0[1] + p / (p + r) * (measured - prior.0[1]);
+            posterior.1[(1, 1)] = p * r / (p + r);
+            l.absorbed(&prior, &posterior, stamp, stamp)
+        };
+        for k in 0..200 {
+            l = track(&l, l.theta[1], 1e-6, k);
+        }
+        let floor = DISPERSION_FLOOR * configured[1];
+        assert!(
+            (l.dispersion()[1] - floor).abs() < 1e-15,
+            "{}",
+            l.dispersion()[1]
+        );
+        // The drag scale, which no track measured, keeps its configured dispersion.
+        assert_eq!(l.dispersion()[0], configured[0]);
+        for k in 200..400 {
+            let side = if k % 2 == 0 { 0.3 } else { -0.3 };
+            l = track(&l, l.theta[1] + side, 1e-4, k);
+        }
+        assert!(l.dispersion()[1] > 3.0 * floor, "{}", l.dispersion()[1]);
     }
 }
