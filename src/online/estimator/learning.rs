@@ -38,6 +38,11 @@ const MIN_DISPERSION_EVIDENCE: f64 = 0.1;
 /// the ball, the table or the spins change.
 pub const DISPERSION_FLOOR: f64 = 0.1;
 
+/// The learned dispersion's memory, in tracks: the weight of the evidence behind it fades by
+/// 1/50 a track, so that a dispersion learned on flights that hardly scatter grows again within
+/// some tens of flights when they start to (another ball, a player after a launcher).
+pub const DISPERSION_MEMORY_TRACKS: f64 = 50.0;
+
 /// A squared deviation counts at most this many times its expected variance (one wild track
 /// moves D little).
 const SAMPLE_LIMIT: f64 = 9.0;
@@ -191,7 +196,8 @@ impl Learned {
     /// the mean m = (theta_t/p_t - theta_g/p_pr)/j), lies from theta_g by d ~ N(0, D + P_g +
     /// 1/j); d^2 - P_g - 1/j is a sample of D, weighted by its Fisher information 1/(2 V^2)
     /// with V = D + P_g + 1/j, and averaged from the configured D with the weight of
-    /// [`DISPERSION_PRIOR_FLIGHTS`] flights that measure their parameters exactly, never below
+    /// [`DISPERSION_PRIOR_FLIGHTS`] flights that measure their parameters exactly, the weight
+    /// fading with a memory of [`DISPERSION_MEMORY_TRACKS`] tracks, never below
     /// [`DISPERSION_FLOOR`] times the configured D. A parameter configured without dispersion
     /// keeps none.
     fn dispersion_after(
@@ -223,7 +229,7 @@ impl Learned {
             if !(sample.is_finite() && w.is_finite()) {
                 continue;
             }
-            weight[i] += w;
+            weight[i] = weight[i] * (1.0 - 1.0 / DISPERSION_MEMORY_TRACKS) + w;
             dispersion[i] = (dispersion[i] + w * (sample - dispersion[i]) / weight[i])
                 .max(DISPERSION_FLOOR * self.configured_dispersion[i]);
         }
@@ -369,7 +375,8 @@ mod tests {
     }
 
     /// Learned from flights that do not scatter, the dispersion falls to its floor, not to
-    /// nothing; when the flights then scatter (another ball, other spins) it grows again.
+    /// nothing; when the flights then scatter (another ball, other spins) it grows again within
+    /// 50 flights, its evidence fading.
     #[test]
     fn a_learned_dispersion_stops_at_its_floor_and_grows_again() {
         let configured = ParamVector::new(0.03f64.powi(2), 0.1f64.powi(2), 0.0, 0.0);
@@ -400,7 +407,7 @@ mod tests {
         );
         // The drag scale, which no track measured, keeps its configured dispersion.
         assert_eq!(l.dispersion()[0], configured[0]);
-        for k in 200..400 {
+        for k in 200..250 {
             let side = if k % 2 == 0 { 0.3 } else { -0.3 };
             l = track(&l, l.theta[1] + side, 1e-4, k);
         }
