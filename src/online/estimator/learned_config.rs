@@ -5,7 +5,9 @@
 //! camera's noise it learned in place of the source's configured sigmas (`sources.*`). A node or
 //! replay started from it begins where this one ended, with the configured priors' widths around
 //! the new values (the learning goes on from there; a new ball or table is still learned as
-//! quickly).
+//! quickly). The learned flight-to-flight dispersion is not carried: a configured dispersion
+//! is its prior and the bound under it (`learning::DISPERSION_FLOOR`), so carrying it would
+//! lower the floor run after run; the next run learns it again from the configured one.
 
 use super::{Estimator, LearnedModelNoise, LearnedParams, LearnedSourceNoise, noise};
 use crate::config::Config;
