@@ -633,7 +633,7 @@ pub struct AdaptationParams {
     /// How much the friction a flight sees scatters about the table's [-].
     pub friction_flight_sigma: f64,
     /// Learn the flight-to-flight dispersion from the tracks, starting from the `*_flight_sigma`
-    /// values (a parameter configured with none keeps none).
+    /// values and never below a third of them (a parameter configured with none keeps none).
     pub learn_dispersion: bool,
     /// What a track teaches when it ends is its flight smoothed (the iterated extended Kalman
     /// smoother over its detections) rather than the filter's last estimate: a filter that
