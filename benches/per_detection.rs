@@ -82,10 +82,7 @@ fn main() {
     let (mut wide_idle, mut idle_stages) = (vec![], vec![]);
 
     let (mut all, mut without_trajectory, mut with_trajectory) = (vec![], vec![], vec![]);
-    let (mut filter_only, mut handle, mut handle_learning) = (vec![], vec![], vec![]);
-    let mut learning = config.clone();
-    learning.ekf.learn_model_noise = true;
-    learning.adaptation.learn_dispersion = true;
+    let (mut filter_only, mut handle) = (vec![], vec![]);
     for _ in 0..runs {
         let mut pipeline = Pipeline::new(&config);
         for msg in &messages {
@@ -111,12 +108,6 @@ fn main() {
             let started = Instant::now();
             black_box(estimator.update(black_box(&d.detection)));
             filter_only.push(started.elapsed().as_nanos() as u64);
-        }
-        let mut estimator = Estimator::new(&learning);
-        for d in &session.stream {
-            let started = Instant::now();
-            black_box(estimator.handle(black_box(&d.detection)));
-            handle_learning.push(started.elapsed().as_nanos() as u64);
         }
         // As the node runs it: an ended track's lesson a stage at a time while no detection
         // waits (150 fps: 6.7 ms between frames), timed apart.
@@ -160,10 +151,6 @@ fn main() {
     report("  with the 50 Hz trajectory + markers", with_trajectory);
     report("Estimator::handle (update + interception)", handle);
     report("Estimator::update (filter, rollbacks)", filter_only);
-    report(
-        "Estimator::handle, model noise + dispersion learned",
-        handle_learning,
-    );
     println!(
         "the 150 fps camera alone: {} detections ({} shots) x {runs} runs",
         wide.stream.len(),
