@@ -301,6 +301,13 @@ pub fn summary_text(s: &ReplaySummary, whole_seconds: Option<f64>) -> String {
             String::new()
         }
     );
+    if c.bounce_retries > 0 {
+        let _ = writeln!(
+            out,
+            "  bounces explained again with the spin before them forgotten: {}",
+            c.bounce_retries
+        );
+    }
     if c.seeded_by_hit + c.hits_not_seeded + s.robot_hits_refused > 0 {
         let _ = writeln!(
             out,
@@ -446,6 +453,7 @@ fn summary_json(s: &ReplaySummary, whole_seconds: f64) -> serde_json::Value {
         "rejected": rejected,
         "tracks": c.tracks,
         "reanchored": c.reanchored,
+        "bounce_retries": c.bounce_retries,
         "rollbacks": c.rollbacks,
         "refits": c.refits,
         "smoothed_lessons": c.smoothed_lessons,

@@ -176,6 +176,10 @@ pub fn diagnostics_msg(snapshot: &Snapshot<'_>, window: &mut Window) -> Diagnost
             "tracks re-anchored on their own detections",
             c.reanchored.to_string(),
         ),
+        kv(
+            "bounces explained again with the spin before them forgotten",
+            c.bounce_retries.to_string(),
+        ),
         kv("late detections fused by rollback", c.rollbacks.to_string()),
         kv("track refits", c.refits.to_string()),
         kv(

@@ -829,6 +829,27 @@ impl Ekf {
         })
     }
 
+    /// The NIS of a measurement and the log-determinant of its innovation's covariance, without
+    /// fusing it: twice the negative log-likelihood of the measurement under the estimate, up
+    /// to a constant, is their sum. None when S is not positive definite.
+    #[expect(non_snake_case, reason = "matrix notation")]
+    pub fn nis_and_log_det<const M: usize>(
+        &self,
+        z: &SVector<f64, M>,
+        H: &SMatrix<f64, M, 9>,
+        R: &SMatrix<f64, M, M>,
+    ) -> Option<(f64, f64)> {
+        let (_, chol, nis) = self.innovation(z, H, R)?;
+        let log_det = 2.0
+            * chol
+                .l_dirty()
+                .diagonal()
+                .iter()
+                .map(|v| v.ln())
+                .sum::<f64>();
+        (nis.is_finite() && log_det.is_finite()).then_some((nis, log_det))
+    }
+
     /// The normalised innovation squared of a measurement, without fusing it.
     #[expect(non_snake_case, reason = "matrix notation")]
     pub fn nis<const M: usize>(
@@ -933,6 +954,32 @@ mod tests {
             ekf.update(&far, &position_H(), &R, 10.0, None),
             Err(UpdateError::Gated { .. })
         ));
+    }
+
+    /// The likelihood terms of a measurement without fusing it: its NIS and ln det S, against
+    /// S = H P H' + R and its determinant computed directly.
+    #[test]
+    #[expect(non_snake_case, reason = "matrix notation")]
+    fn the_nis_and_log_det_are_those_of_the_innovation() {
+        let mut P = StateMatrix::identity() * 2e-4;
+        P[(0, 1)] = 5e-5;
+        P[(1, 0)] = 5e-5;
+        let ekf = Ekf::new(
+            StateVector::zeros(),
+            P,
+            ParamVector::repeat(1.0),
+            ParamCovariance::zeros(),
+        );
+        let z = Vector3::new(0.01, -0.02, 0.005);
+        let R = Matrix3::identity() * 4e-6;
+        let (nis, log_det) = ekf
+            .nis_and_log_det(&z, &position_H(), &R)
+            .expect("S positive definite");
+        let S = P.fixed_view::<3, 3>(0, 0) + R;
+        let expected = z.dot(&(S.try_inverse().expect("invertible") * z));
+        assert!((nis - expected).abs() < 1e-9 * expected, "{nis} {expected}");
+        assert!((log_det - S.determinant().ln()).abs() < 1e-9, "{log_det}");
+        assert_eq!(ekf.nis(&z, &position_H(), &R), Some(nis));
     }
 
     /// The multiplied-out covariance update equals the Joseph form written as products, for a

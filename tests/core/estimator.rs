@@ -1018,3 +1018,126 @@ fn a_cloned_estimator_runs_on_as_the_original() {
     }
     assert_eq!(original.counters(), later.counters());
 }
+
+/// The physics as a session learns them after some flights: the ball's and table's parameters
+/// known closely, each flight's own about them as the learned dispersion leaves them.
+fn learned_config() -> Config {
+    let mut config = wide_config();
+    let a = &mut config.adaptation;
+    (a.drag_scale_sigma, a.magnus_scale_sigma) = (0.005, 0.01);
+    (a.restitution_sigma, a.friction_sigma) = (0.001, 0.002);
+    (a.drag_scale_flight_sigma, a.magnus_scale_flight_sigma) = (0.01, 0.03);
+    a.restitution_flight_sigma = 0.006;
+    config
+}
+
+/// The time of a flight's first bounce [ns since EPOCH].
+fn first_bounce(start: &BallState) -> i64 {
+    let flight = predict(
+        &Propagator::new(&Config::default()),
+        start,
+        &PredictOptions {
+            horizon: 0.9,
+            sample_interval: 0.1,
+            plane_x: None,
+            stop_at_plane: false,
+        },
+    );
+    let bounce = flight.bounces().next().unwrap();
+    EPOCH + (bounce.t * 1e9).round() as i64
+}
+
+/// Slow balls with sidespin seen by the 150 fps camera alone, late in a session (the physics
+/// learned closely): before the bounce the flight's curvature misreads their spin and the filter
+/// grows sure of it, the bounce kicks them sideways another way than predicted, and without
+/// more the detections after it were gated one by one until five in a row refuted the track
+/// (found among 3,000 random slow shots: 6 did this, 5 of them re-anchored). The bounce is
+/// tried again with the spin before it forgotten and taken when the positions since say so
+/// clearly (`Counters::bounce_retries`): no detection within 50 ms after the bounce is gated
+/// and the track goes on.
+#[test]
+fn a_bounce_that_refutes_a_misread_spin_is_explained_again() {
+    let shots = [
+        (1375, [-2.8315, 0.4913, 1.8194], [121.54, 42.90, 233.25]),
+        (2587, [-3.4412, 0.4684, 2.3548], [-27.69, -46.30, -401.66]),
+        (2981, [-3.8944, 0.4746, 1.9307], [-102.38, 64.49, -353.04]),
+        (3807, [-2.8046, -0.8656, 1.8133], [119.55, 92.74, -187.53]),
+    ];
+    let mut retries = 0;
+    for (seed, v, w) in shots {
+        let start = shot([0.9, 0.0, 0.25], v, w);
+        let bounce = first_bounce(&start);
+        let detections = camera(
+            &start,
+            150.0,
+            0.0,
+            0.9,
+            0.002,
+            Source::WIDE_150FPS,
+            &mut Rng::new(seed),
+        );
+        let mut estimator = Estimator::new(&learned_config());
+        for (d, _) in &detections {
+            let out = estimator.handle(d);
+            let after = d.stamp - bounce;
+            assert!(
+                !((0..50_000_000).contains(&after)
+                    && out.verdict == Verdict::Rejected(Rejection::Gated)),
+                "seed {seed}: gated {:.1} ms after the bounce",
+                after as f64 * 1e-6
+            );
+        }
+        let c = estimator.counters();
+        assert_eq!((c.tracks, c.reanchored), (1, 0), "seed {seed}: {c:?}");
+        retries += c.bounce_retries;
+    }
+    assert!(retries >= 4, "{retries}");
+}
+
+/// A detection 10-30 mm off the flight 20 ms after an ordinary bounce (as a real tracker gives
+/// now and then) is gated and stays gated: a spin forgotten before the bounce can explain it
+/// too (at 15 mm by more than the evidence asked), but only by pulling the flight away from the
+/// detections before it, and the track goes on as it was (taken, the next five detections
+/// refuted it).
+#[test]
+fn a_detection_off_the_flight_after_a_bounce_does_not_retry_it() {
+    let start = shot([0.9, 0.0, 0.25], [-3.0, 0.2, 2.0], [0.0, 150.0, 0.0]);
+    let bounce = first_bounce(&start);
+    for (offset, axis) in [(0.010, 0), (0.015, 0), (0.020, 0), (0.030, 0), (0.025, 1)] {
+        let mut detections = camera(
+            &start,
+            150.0,
+            0.0,
+            0.9,
+            0.002,
+            Source::WIDE_150FPS,
+            &mut Rng::new(7),
+        );
+        let off = detections
+            .iter()
+            .position(|(d, _)| d.stamp > bounce + 20_000_000)
+            .unwrap();
+        detections[off].0.position[axis] -= offset;
+        let mut estimator = Estimator::new(&learned_config());
+        let verdicts: Vec<Verdict> = detections
+            .iter()
+            .map(|(d, _)| estimator.handle(d).verdict)
+            .collect();
+        assert_eq!(
+            verdicts[off],
+            Verdict::Rejected(Rejection::Gated),
+            "{offset}"
+        );
+        let c = estimator.counters();
+        assert_eq!(
+            (
+                c.tracks,
+                c.reanchored,
+                c.bounce_retries,
+                c.rejected(Rejection::Gated)
+            ),
+            (1, 0, 0, 1),
+            "{offset} m along axis {axis}: {c:?}"
+        );
+    }
+}

@@ -97,6 +97,10 @@ pub struct Counters {
     pub spin_resets: u64,
     /// Detections near the table's edge that the other bounce hypothesis explained better.
     pub edge_retries: u64,
+    /// Detections gated after a bounce that the bounce explained once the spin before it was
+    /// forgotten (the flight's curvature had misread it): the track kept, its estimates since
+    /// the bounce redone.
+    pub bounce_retries: u64,
     /// Detections that claimed a spin of exactly zero (a detector's placeholder, not a
     /// measurement): their spin was ignored, the detection judged as a position alone.
     pub zero_spin_ignored: u64,

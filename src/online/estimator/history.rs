@@ -285,7 +285,9 @@ impl Estimator {
         let mut sensitivity = self.sensitivity.as_deref().copied();
         let mut result = self.fuse(&mut snapshot, d, &m, sensitivity.as_mut());
         if result == Err(Rejection::Gated)
-            && let Some((retried, nis)) = self.retry_edge_bounce(d, &m)
+            && let Some((retried, nis)) = self
+                .retry_edge_bounce(d, &m)
+                .or_else(|| self.retry_bounce_forgetting_spin(d, &m))
         {
             snapshot = retried;
             result = Ok(nis);
@@ -421,6 +423,113 @@ impl Estimator {
         Some((snapshot, nis))
     }
 
+    /// A detection gated after a bounce: the bounce tried again from the last estimate before
+    /// it with the spin forgotten (its covariance reset to the prior), every detection since
+    /// re-applied. Before a bounce the spin is learned from the flight's curvature alone, which
+    /// can misread it and grow sure of it (a spin about the flight's direction, or a fast one
+    /// at a high spin parameter); the bounce then kicks the ball another way than predicted,
+    /// and the detections after it, which tell the spin, are gated one by one until the track
+    /// is refuted. Taken when the detection fuses and the positions since the bounce, `d`'s
+    /// included, are more likely with the spin forgotten than as they were (the sum of NIS and
+    /// log-determinant of each innovation's covariance: the wider covariance pays for its
+    /// width) by more than [`BOUNCE_RETRY_EVIDENCE`], and the detections before `d` at least as
+    /// well as they were (a detection that is not the ball, which a spin forgotten can explain
+    /// too, pulls the flight away from them); the history is rewritten with it. Returns the
+    /// estimate at `d` and its NIS.
+    fn retry_bounce_forgetting_spin(
+        &mut self,
+        d: &Detection,
+        m: &Measurement,
+    ) -> Option<(Snapshot, f64)> {
+        let track = self.track.as_ref()?;
+        let bounces = track.now.bounces;
+        let history = &track.history;
+        let (start, from) = match history.iter().rposition(|e| e.after.bounces < bounces) {
+            Some(i) => (history[i].after, i + 1),
+            None if track.base.bounces < bounces => (track.base, 0),
+            None => return None,
+        };
+        if history.len() - from > BOUNCE_RETRY_LIMIT {
+            return None;
+        }
+        let mut forgotten = start;
+        forgotten.ekf.reset_spin(self.settings.spin_prior_var, None);
+        let entries = || history.iter().skip(from);
+        let kept = self.hypothesis_cost(start, entries(), d, m)?;
+        let retried = self.hypothesis_cost(forgotten, entries(), d, m)?;
+        if !retried.fuses_d
+            || retried.with_d > kept.with_d - BOUNCE_RETRY_EVIDENCE
+            || retried.since > kept.since
+        {
+            return None;
+        }
+        // Taken: the estimates since the bounce redone.
+        let mut track = self.track.take()?;
+        let mut snapshot = forgotten;
+        for entry in track.history.iter_mut().skip(from) {
+            let (detection, measurement) = (entry.detection, entry.measurement);
+            self.fuse_or_advance(&mut snapshot, &detection, &measurement);
+            entry.after = snapshot;
+        }
+        self.track = Some(track);
+        let (fused, _, _) = self.predict_and_update(&self.propagator, &mut snapshot, d, m, None);
+        let fused = fused.ok()?;
+        snapshot.record(d.stamp, &fused);
+        self.counters.bounce_retries += 1;
+        Some((snapshot, fused.nis))
+    }
+
+    /// How unlikely the positions of `entries` and then `d` are under the hypothesis that
+    /// starts at `snapshot` ([`HypothesisCost`]). None when an innovation's covariance is not
+    /// positive definite.
+    fn hypothesis_cost<'a>(
+        &self,
+        mut snapshot: Snapshot,
+        entries: impl Iterator<Item = &'a Entry>,
+        d: &Detection,
+        m: &Measurement,
+    ) -> Option<HypothesisCost> {
+        let mut cost = 0.0;
+        for entry in entries {
+            let (nis, log_det) =
+                self.position_likelihood(&mut snapshot, &entry.detection, &entry.measurement)?;
+            cost += nis.min(self.settings.gate_position) + log_det;
+            self.fuse_or_advance(&mut snapshot, &entry.detection, &entry.measurement);
+        }
+        let (nis, log_det) = self.position_likelihood(&mut snapshot, d, m)?;
+        let (fused, _, _) = self.predict_and_update(&self.propagator, &mut snapshot, d, m, None);
+        Some(HypothesisCost {
+            since: cost,
+            with_d: cost + nis + log_det,
+            fuses_d: fused.is_ok(),
+        })
+    }
+
+    /// The snapshot moved to `d`'s stamp, and its position's NIS and log-determinant of the
+    /// innovation's covariance there (as [`Ekf::nis_and_log_det`]).
+    fn position_likelihood(
+        &self,
+        snapshot: &mut Snapshot,
+        d: &Detection,
+        m: &Measurement,
+    ) -> Option<(f64, f64)> {
+        self.advance(snapshot, d.stamp);
+        let (z, r) = self.measurement_at(snapshot, m).0.position();
+        snapshot.ekf.nis_and_log_det(&z, &position_H(), &r)
+    }
+
+    /// Fuses a re-applied detection into the snapshot, or, when it does not fit, moves the
+    /// snapshot to its stamp.
+    fn fuse_or_advance(&self, snapshot: &mut Snapshot, d: &Detection, m: &Measurement) {
+        match self
+            .predict_and_update(&self.propagator, snapshot, d, m, None)
+            .0
+        {
+            Ok(f) => snapshot.record(d.stamp, &f),
+            Err(_) => self.advance(snapshot, d.stamp),
+        }
+    }
+
     /// The gate of a measurement's every dimension: what a detection a hypothesis cannot explain
     /// counts as when hypotheses are compared.
     fn whole_gate(&self, m: &Measurement) -> f64 {
@@ -506,5 +615,17 @@ impl Estimator {
             track.base = oldest.after;
         }
         track.history.push_back(entry);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::BOUNCE_RETRY_EVIDENCE;
+    use crate::model::stats::chi_square_quantile;
+
+    /// The evidence a bounce retried needs is the likelihood-ratio test's threshold it says.
+    #[test]
+    fn the_bounce_retry_evidence_is_the_chi_square_quantile_of_the_spin() {
+        assert!((BOUNCE_RETRY_EVIDENCE - chi_square_quantile(0.999, 3)).abs() < 0.01);
     }
 }
