@@ -1031,6 +1031,19 @@ fn learned_config() -> Config {
     config
 }
 
+/// 0.9 s of a flight seen by the 150 fps camera with 2 mm of noise drawn from `seed`.
+fn slow_ball_at_150fps(start: &BallState, seed: u64) -> Vec<(Detection, BallState)> {
+    camera(
+        start,
+        150.0,
+        0.0,
+        0.9,
+        0.002,
+        Source::WIDE_150FPS,
+        &mut Rng::new(seed),
+    )
+}
+
 /// The time of a flight's first bounce [ns since EPOCH].
 fn first_bounce(start: &BallState) -> i64 {
     let flight = predict(
@@ -1067,15 +1080,7 @@ fn a_bounce_that_refutes_a_misread_spin_is_explained_again() {
     for (seed, v, w) in shots {
         let start = shot([0.9, 0.0, 0.25], v, w);
         let bounce = first_bounce(&start);
-        let detections = camera(
-            &start,
-            150.0,
-            0.0,
-            0.9,
-            0.002,
-            Source::WIDE_150FPS,
-            &mut Rng::new(seed),
-        );
+        let detections = slow_ball_at_150fps(&start, seed);
         let mut estimator = Estimator::new(&learned_config());
         for (d, _) in &detections {
             let out = estimator.handle(d);
@@ -1104,15 +1109,7 @@ fn a_detection_off_the_flight_after_a_bounce_does_not_retry_it() {
     let start = shot([0.9, 0.0, 0.25], [-3.0, 0.2, 2.0], [0.0, 150.0, 0.0]);
     let bounce = first_bounce(&start);
     for (offset, axis) in [(0.010, 0), (0.015, 0), (0.020, 0), (0.030, 0), (0.025, 1)] {
-        let mut detections = camera(
-            &start,
-            150.0,
-            0.0,
-            0.9,
-            0.002,
-            Source::WIDE_150FPS,
-            &mut Rng::new(7),
-        );
+        let mut detections = slow_ball_at_150fps(&start, 7);
         let off = detections
             .iter()
             .position(|(d, _)| d.stamp > bounce + 20_000_000)
