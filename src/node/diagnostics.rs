@@ -325,6 +325,10 @@ pub struct SourceExpectation<'a> {
 
 /// Most detections of a source rejected (with at least this many) is an ERROR.
 const MIN_FOR_REJECTION_RULE: u64 = 20;
+/// Fewest detections of the other sources in a period that make a silent source STALE: the
+/// tail of another camera's burst (a few frames of the 900 fps camera, milliseconds of flight,
+/// in which a 150 fps camera owes at most one frame) does not.
+const MIN_OTHERS_FOR_STALE: u64 = 10;
 /// The frame-rate band, as fractions of the expected rate.
 const RATE_BAND: (f64, f64) = (0.8, 1.25);
 
@@ -346,7 +350,10 @@ pub fn source_status(
     let rate = window.frame_rate(max_interval);
     let (n, rejected) = (window.detections, window.rejected);
     let (level, message) = if n == 0 {
-        if expected.frame_rate > 0.0 && silent_for > expected.stale_after && others > 0 {
+        if expected.frame_rate > 0.0
+            && silent_for > expected.stale_after
+            && others >= MIN_OTHERS_FOR_STALE
+        {
             let since = if silent_for.is_finite() {
                 format!("for {silent_for:.1} s")
             } else {
@@ -474,6 +481,9 @@ mod tests {
         let stale = source_status("/ttball", &expected, &mut w, 4.2, 150);
         assert_eq!(stale.level, DiagnosticStatus::STALE);
         assert!(stale.message.contains("for 4.2 s"), "{}", stale.message);
+        // Silent while another camera delivered only the tail of a burst: idle.
+        let tail = source_status("/ttball", &expected, &mut w, 4.2, 6);
+        assert_eq!(tail.level, DiagnosticStatus::OK, "{}", tail.message);
         let never = source_status("/ttball", &expected, &mut w, f64::INFINITY, 150);
         assert!(
             never.message.contains("since the node started"),
