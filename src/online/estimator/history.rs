@@ -385,32 +385,22 @@ impl Estimator {
             let mut afters = [snapshot; EDGE_RETRY_LIMIT];
             let mut total = 0.0;
             for (slot, entry) in afters.iter_mut().zip(history.iter().skip(from + 1)) {
-                let (fused, _, _) = self.predict_and_update(
+                total += match self.reapply(
                     alternative,
                     &mut snapshot,
                     &entry.detection,
                     &entry.measurement,
-                    None,
-                );
-                match fused {
-                    Ok(f) => {
-                        snapshot.record(entry.detection.stamp, &f);
-                        total += f.whole_nis;
-                    }
+                ) {
+                    Some(f) => f.whole_nis,
                     // A detection the hypothesis cannot explain counts as at the gate.
-                    Err(_) => {
-                        self.advance_with(alternative, &mut snapshot, entry.detection.stamp, None);
-                        total += self.whole_gate(&entry.measurement);
-                    }
-                }
+                    None => self.whole_gate(&entry.measurement),
+                };
                 *slot = snapshot;
             }
-            let (fused, _, _) = self.predict_and_update(alternative, &mut snapshot, d, m, None);
-            let Ok(fused) = fused else {
+            let Some(fused) = self.reapply(alternative, &mut snapshot, d, m) else {
                 continue;
             };
             if total < kept && best.as_ref().is_none_or(|b| total < b.3) {
-                snapshot.record(d.stamp, &fused);
                 best = Some((afters, snapshot, fused.nis, total));
             }
         }
@@ -468,13 +458,12 @@ impl Estimator {
         let mut snapshot = forgotten;
         for entry in track.history.iter_mut().skip(from) {
             let (detection, measurement) = (entry.detection, entry.measurement);
-            self.fuse_or_advance(&mut snapshot, &detection, &measurement);
+            self.reapply(&self.propagator, &mut snapshot, &detection, &measurement);
             entry.after = snapshot;
         }
         self.track = Some(track);
-        let (fused, _, _) = self.predict_and_update(&self.propagator, &mut snapshot, d, m, None);
-        let fused = fused.ok()?;
-        snapshot.record(d.stamp, &fused);
+        // The same pass as the one scored above: it fuses `d` again.
+        let fused = self.reapply(&self.propagator, &mut snapshot, d, m)?;
         self.counters.bounce_retries += 1;
         Some((snapshot, fused.nis))
     }
@@ -494,14 +483,20 @@ impl Estimator {
             let (nis, log_det) =
                 self.position_likelihood(&mut snapshot, &entry.detection, &entry.measurement)?;
             cost += nis.min(self.settings.gate_position) + log_det;
-            self.fuse_or_advance(&mut snapshot, &entry.detection, &entry.measurement);
+            self.reapply(
+                &self.propagator,
+                &mut snapshot,
+                &entry.detection,
+                &entry.measurement,
+            );
         }
         let (nis, log_det) = self.position_likelihood(&mut snapshot, d, m)?;
-        let (fused, _, _) = self.predict_and_update(&self.propagator, &mut snapshot, d, m, None);
         Some(HypothesisCost {
             since: cost,
             with_d: cost + nis + log_det,
-            fuses_d: fused.is_ok(),
+            fuses_d: self
+                .reapply(&self.propagator, &mut snapshot, d, m)
+                .is_some(),
         })
     }
 
@@ -518,16 +513,22 @@ impl Estimator {
         snapshot.ekf.nis_and_log_det(&z, &position_H(), &r)
     }
 
-    /// Fuses a re-applied detection into the snapshot, or, when it does not fit, moves the
-    /// snapshot to its stamp.
-    fn fuse_or_advance(&self, snapshot: &mut Snapshot, d: &Detection, m: &Measurement) {
-        match self
-            .predict_and_update(&self.propagator, snapshot, d, m, None)
+    /// A detection re-applied to a hypothesis's snapshot (its table given by `propagator`): the
+    /// snapshot is moved to its stamp and, where it fits, updated with it and the fused
+    /// measurement returned (nothing learned of the noise, no counter moved).
+    fn reapply(
+        &self,
+        propagator: &Propagator,
+        snapshot: &mut Snapshot,
+        d: &Detection,
+        m: &Measurement,
+    ) -> Option<Fused> {
+        let fused = self
+            .predict_and_update(propagator, snapshot, d, m, None)
             .0
-        {
-            Ok(f) => snapshot.record(d.stamp, &f),
-            Err(_) => self.advance(snapshot, d.stamp),
-        }
+            .ok()?;
+        snapshot.record(d.stamp, &fused);
+        Some(fused)
     }
 
     /// The gate of a measurement's every dimension: what a detection a hypothesis cannot explain
