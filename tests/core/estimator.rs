@@ -12,9 +12,23 @@ use ttball::config::Config;
 use ttball::eval::sim::{Cameras, Rng, SimOptions, simulate};
 use ttball::model::detection::{Detection, Source};
 use ttball::online::estimator::{Estimator, Rejection, TrackStatus, Verdict};
-use ttball::physics::{BallState, PredictOptions, Propagator, predict};
+use ttball::physics::{BallState, PredictOptions, Propagator, Trajectory, predict};
 
 const EPOCH: i64 = 1_700_000_000_000_000_000;
+
+/// The flight from `from` for `horizon` s under the default physics, sampled every `interval` s.
+fn fly(from: &BallState, horizon: f64, interval: f64) -> Trajectory {
+    predict(
+        &Propagator::new(&Config::default()),
+        from,
+        &PredictOptions {
+            horizon,
+            sample_interval: interval,
+            plane_x: None,
+            stop_at_plane: false,
+        },
+    )
+}
 
 /// Noisy detections of a flight from `start` at `rate` Hz for `duration` s, with the truth.
 fn camera(
@@ -26,19 +40,6 @@ fn camera(
     source: Source,
     rng: &mut Rng,
 ) -> Vec<(Detection, BallState)> {
-    let propagator = Propagator::new(&Config::default());
-    let fly = |from: &BallState, horizon: f64, interval: f64| {
-        predict(
-            &propagator,
-            from,
-            &PredictOptions {
-                horizon,
-                sample_interval: interval,
-                plane_x: None,
-                stop_at_plane: false,
-            },
-        )
-    };
     // The camera's first frame comes `phase` seconds after the start.
     let first = if phase > 0.0 {
         fly(start, phase, phase).samples.last().unwrap().state
@@ -350,16 +351,7 @@ fn a_bounce_on_the_side_edge_between_two_frames_is_found() {
         Source::WIDE_150FPS,
         &mut Rng::new(31),
     );
-    let flight = predict(
-        &Propagator::new(&Config::default()),
-        &start,
-        &PredictOptions {
-            horizon: 0.3,
-            sample_interval: 0.1,
-            plane_x: None,
-            stop_at_plane: false,
-        },
-    );
+    let flight = fly(&start, 0.3, 0.1);
     let landing = flight.bounces().next().unwrap();
     assert!((0.7605..0.7625).contains(&landing.before[1]), "{landing:?}");
     let bounce = EPOCH + (landing.t * 1e9).round() as i64;
@@ -1046,16 +1038,7 @@ fn slow_ball_at_150fps(start: &BallState, seed: u64) -> Vec<(Detection, BallStat
 
 /// The time of a flight's first bounce [ns since EPOCH].
 fn first_bounce(start: &BallState) -> i64 {
-    let flight = predict(
-        &Propagator::new(&Config::default()),
-        start,
-        &PredictOptions {
-            horizon: 0.9,
-            sample_interval: 0.1,
-            plane_x: None,
-            stop_at_plane: false,
-        },
-    );
+    let flight = fly(start, 0.9, 0.1);
     let bounce = flight.bounces().next().unwrap();
     EPOCH + (bounce.t * 1e9).round() as i64
 }
