@@ -547,6 +547,13 @@ pub struct EkfParams {
     /// starts at zero, the smallest magnitude a spin can have; the drag and the Magnus force of
     /// the spins it may be are those of a larger one.
     pub spin_parameter_spread: f64,
+    /// The fraction of its Kalman gain a position detection applies to the spin along the
+    /// flight before the track's first bounce [-], in [0, 1]; 1 is the plain filter's update.
+    /// Positions see that spin only through how the sideways Magnus force changes as gravity
+    /// turns the flight, a signal the linearised filter reads at its own uncertain spin and so
+    /// grows sure of too fast (a partial-update Schmidt-Kalman filter, Brink 2017; the
+    /// covariance is that of the gain applied).
+    pub spin_along_flight_gain: f64,
     /// Whether the filter carries the state's uncertainty through a bounce by sigma points
     /// (the unscented transform of the bounce map: both regimes, the spin along every
     /// direction), adding its spread beyond the linearised one.
@@ -594,6 +601,7 @@ impl Default for EkfParams {
             bounce_restitution_sigma: 0.01,
             contact_position_sigma: 0.003,
             spin_parameter_spread: 0.5,
+            spin_along_flight_gain: 0.7,
             bounce_unscented: true,
             learn_noise: true,
             noise_memory: 2000,

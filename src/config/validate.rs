@@ -772,6 +772,11 @@ impl Config {
             Range::between(0.0, 2.0),
         );
         c.real(
+            "ekf.spin_along_flight_gain",
+            e.spin_along_flight_gain,
+            Range::between(0.0, 1.0),
+        );
+        c.real(
             "ekf.contact_position_sigma",
             e.contact_position_sigma,
             Range::between(0.0, 0.05).note("m"),

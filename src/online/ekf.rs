@@ -488,6 +488,31 @@ pub(crate) fn unscented_excess(
     q
 }
 
+/// The slowest flight whose direction a partial update trusts [m/s].
+const PARTIAL_UPDATE_MIN_SPEED: f64 = 0.5;
+
+/// Takes the fraction `withheld` of the gain's rows of the spin along the flight (the direction
+/// of the velocity in `x`) out of `K`: K_w <- (I - withheld u u') K_w.
+#[expect(non_snake_case, reason = "matrix notation")]
+fn withhold_along_flight<const M: usize>(
+    K: &mut SMatrix<f64, AUGMENTED, M>,
+    x: &StateVector,
+    withheld: f64,
+) {
+    let velocity = x.fixed_rows::<3>(3);
+    let speed = velocity.norm();
+    if speed < PARTIAL_UPDATE_MIN_SPEED {
+        return;
+    }
+    let u = velocity / speed;
+    for j in 0..M {
+        let along = u.dot(&K.fixed_view::<3, 1>(6, j)) * withheld;
+        for a in 0..3 {
+            K[(6 + a, j)] -= u[a] * along;
+        }
+    }
+}
+
 /// The filter's estimate: state, parameters and their joint covariance.
 #[derive(Debug, Clone, Copy, PartialEq)]
 #[expect(non_snake_case, reason = "matrix notation")]
@@ -739,7 +764,24 @@ impl Ekf {
         H: &SMatrix<f64, M, 9>,
         R: &SMatrix<f64, M, M>,
         gate: f64,
+        sensitivity: Option<&mut NoiseSensitivity>,
+    ) -> Result<Fused, UpdateError> {
+        self.update_partially(z, H, R, gate, sensitivity, 1.0)
+    }
+
+    /// [`Self::update`] with only the fraction `along_flight` in [0, 1] of the gain applied to
+    /// the spin along the flight (the estimate's velocity direction): the partial-update
+    /// Schmidt-Kalman filter (Brink 2017) on that one direction. The covariance is the Joseph
+    /// form's for the gain applied, so it stays that of the estimate; 1 is the plain update.
+    #[expect(non_snake_case, reason = "matrix notation")]
+    pub fn update_partially<const M: usize>(
+        &mut self,
+        z: &SVector<f64, M>,
+        H: &SMatrix<f64, M, 9>,
+        R: &SMatrix<f64, M, M>,
+        gate: f64,
         mut sensitivity: Option<&mut NoiseSensitivity>,
+        along_flight: f64,
     ) -> Result<Fused, UpdateError> {
         if !z.iter().chain(R.iter()).all(|v| v.is_finite()) {
             return Err(UpdateError::NotFinite);
@@ -763,7 +805,10 @@ impl Ekf {
             .map(|d| noise_score(&y, &chol, nis, H, d))
             .unwrap_or_default();
         // K = P H' S^-1 = (S^-1 H P)'.
-        let K = chol.solve(&PHt.transpose()).transpose();
+        let mut K = chol.solve(&PHt.transpose()).transpose();
+        if along_flight < 1.0 {
+            withhold_along_flight(&mut K, &self.x, 1.0 - along_flight);
+        }
         let dx = K * y;
         self.x += dx.fixed_rows::<9>(0);
         self.theta += dx.fixed_rows::<PARAMS>(9);
@@ -1007,6 +1052,55 @@ mod tests {
         );
         assert!((ekf.x - (x + K * (z - H * x))).amax() < 1e-13);
         assert_eq!(ekf.P, ekf.P.transpose());
+    }
+
+    /// A position update that applies `keep` of its gain to the spin along the flight: the
+    /// state moves by that gain, and the covariance is the Joseph form's for it (with the
+    /// parameters uncorrelated, the 9-state one).
+    #[test]
+    fn a_partial_update_moves_the_spin_along_the_flight_by_its_share_and_stays_honest() {
+        let A = StateMatrix::from_fn(|i, j| ((i * 7 + j * 3) % 5) as f64 * 0.1 - 0.2);
+        let P = A * A.transpose() + StateMatrix::identity() * 0.5;
+        let x = StateVector::from_fn(|i, _| i as f64 * 0.3);
+        let H = position_H();
+        let R = SMatrix::<f64, 3, 3>::from_diagonal_element(0.2);
+        let z = H * x + SVector::<f64, 3>::new(0.3, -0.2, 0.1);
+        let u = x.fixed_rows::<3>(3).normalize();
+        let S = H * P * H.transpose() + R;
+        let K_plain = P * H.transpose() * S.try_inverse().expect("S invertible");
+        let mut plain = Ekf::new(x, P, ParamVector::repeat(0.5), ParamCovariance::zeros());
+        let mut same = plain;
+        plain.update(&z, &H, &R, 1e6, None).expect("fused");
+        same.update_partially(&z, &H, &R, 1e6, None, 1.0)
+            .expect("fused");
+        assert_eq!(plain, same, "a partial update of 1 is the plain update");
+        for keep in [0.0, 0.5] {
+            let mut ekf = Ekf::new(x, P, ParamVector::repeat(0.5), ParamCovariance::zeros());
+            ekf.update_partially(&z, &H, &R, 1e6, None, keep)
+                .expect("fused");
+            let mut K = K_plain;
+            for j in 0..3 {
+                let along = u.dot(&K.fixed_view::<3, 1>(6, j)) * (1.0 - keep);
+                for a in 0..3 {
+                    K[(6 + a, j)] -= u[a] * along;
+                }
+            }
+            let moved = |e: &Ekf| (e.x - x).fixed_rows::<3>(6).dot(&u);
+            let plain_along = moved(&plain);
+            assert!(plain_along.abs() > 1e-3, "{plain_along}");
+            assert!((moved(&ekf) - keep * plain_along).abs() < 1e-12);
+            // The spin across the flight moves as in the plain update.
+            let across = |e: &Ekf| {
+                let w = (e.x - x).fixed_rows::<3>(6).into_owned();
+                w - u * w.dot(&u)
+            };
+            assert!((across(&ekf) - across(&plain)).amax() < 1e-12);
+            let I_KH = StateMatrix::identity() - K * H;
+            let joseph = I_KH * P * I_KH.transpose() + K * R * K.transpose();
+            let p9 = ekf.state_covariance();
+            assert!((p9 - joseph).amax() < 1e-13 * P.amax(), "keep {keep}");
+            assert!((ekf.x - (x + K * (z - H * x))).amax() < 1e-13);
+        }
     }
 
     #[test]

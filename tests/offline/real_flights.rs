@@ -317,16 +317,19 @@ fn the_estimator_predicts_real_flights_through_their_bounce() {
     // The targets: at most 15 mm RMS at 200 ms lead, 10 mm at 100 ms.
     assert!(lead200.position_error.rms <= 0.015, "{lead200:?}");
     assert!(lead100.position_error.rms <= 0.010, "{lead100:?}");
-    // The predicted covariance is about honest on the crossing (NEES per dimension 0.61 at 200
-    // ms, 1.12 at 100 ms; 0.89 and 1.58 with the bounce's impulse scatter at 0.05 m/s, 1.14 and
+    // The predicted covariance is about honest on the crossing (NEES per dimension 0.35 at 200
+    // ms, 1.03 at 100 ms; 0.49 and 1.28 with the plain update of the spin along the flight;
+    // 0.61 and 1.12 before the smoothed lessons; 0.89 and 1.58 with the bounce's impulse scatter at 0.05 m/s, 1.14 and
     // 1.87 before the bounce ahead entered it; with the model noise learned from each
     // detection's innovation instead of 0.1 s ahead, 0.72 and 1.95).
     assert!(lead200.crossing_nees < 0.8, "{lead200:?}");
     assert!(lead100.crossing_nees < 1.3, "{lead100:?}");
     // Real flights stray from the model more than the simulated ones (which learn 0.03x): the
-    // model noise learned 0.1 s ahead grows (1.4x the configured acceleration noise).
+    // model noise learned 0.1 s ahead grows (1.1x the configured acceleration noise; 1.16x
+    // before part of the gain on the spin along the flight, `ekf.spin_along_flight_gain`, took
+    // some of the misses away).
     let model_noise = full.model_noise.expect("learned model noise").scales;
-    assert!(model_noise.acceleration > 1.1, "{model_noise:?}");
+    assert!(model_noise.acceleration > 1.0, "{model_noise:?}");
     // Within a racket's sweet spot at 100 ms, for every kind.
     assert!(lead100.valid_fraction >= 0.9, "{lead100:?}");
     assert!(lead100.time_error.rms < 0.005, "{lead100:?}");

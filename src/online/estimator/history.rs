@@ -118,12 +118,13 @@ impl Estimator {
         });
         let (result, spin_reset) = match &m {
             Measurement::Position { z, r, .. } => (
-                snapshot.ekf.update(
+                snapshot.ekf.update_partially(
                     z,
                     &position_H(),
                     r,
                     self.settings.gate_position,
                     sensitivity,
+                    self.settings.along_flight_gain(snapshot.bounces),
                 ),
                 false,
             ),

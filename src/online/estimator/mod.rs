@@ -136,6 +136,9 @@ pub(crate) struct Settings {
     param_dispersion: ParamVector,
     gate_position: f64,
     gate_position_spin: f64,
+    /// The fraction of the gain a position applies to the spin along the flight before the
+    /// first bounce (`ekf.spin_along_flight_gain`).
+    spin_along_flight_gain: f64,
     gate_probability: f64,
     /// Every source's noise, in the order of [`SourcesParams::all`].
     /// How a detection becomes a measurement (its source's noise, the confidence floor).
@@ -187,6 +190,17 @@ impl Settings {
         self.init_count.max(self.max_rejections as usize) + 8
     }
 
+    /// The fraction of a position's gain on the spin along the flight after `bounces` bounces
+    /// of the track: `ekf.spin_along_flight_gain` before the first (positions see that spin
+    /// only through the turning flight's sideways force), the whole gain after it.
+    fn along_flight_gain(&self, bounces: u32) -> f64 {
+        if bounces == 0 {
+            self.spin_along_flight_gain
+        } else {
+            1.0
+        }
+    }
+
     /// The most rejected detections kept to seed a new track.
     fn rejected_run_limit(&self) -> usize {
         self.max_rejections as usize + 1
@@ -221,6 +235,7 @@ impl Settings {
             },
             gate_position: chi_square_quantile(p, 3),
             gate_position_spin: chi_square_quantile(p, 6),
+            spin_along_flight_gain: config.ekf.spin_along_flight_gain,
             gate_probability: p,
             measurement: MeasurementModel::new(config),
             init_count: config.ekf.init_detections.max(3) as usize,

@@ -430,10 +430,17 @@ impl Estimator {
             let predicted = (augmented(&snapshot.ekf), snapshot.ekf.P);
             // Kept detections are positions (a measured spin ends the smoothing), each fused
             // once already: no gate.
+            // As the filter fuses it: part of the gain on the spin along the flight before the
+            // track's first bounce.
             if let (Measurement::Position { z, r, .. }, _) = self.measurement_at(&snapshot, m) {
-                let _ = snapshot
-                    .ekf
-                    .update(&z, &position_H(), &r, f64::INFINITY, None);
+                let _ = snapshot.ekf.update_partially(
+                    &z,
+                    &position_H(),
+                    &r,
+                    f64::INFINITY,
+                    None,
+                    self.settings.along_flight_gain(snapshot.bounces + bounces),
+                );
             }
             steps.push(Step {
                 stamp: *stamp,
