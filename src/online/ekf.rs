@@ -1058,6 +1058,7 @@ mod tests {
     /// state moves by that gain, and the covariance is the Joseph form's for it (with the
     /// parameters uncorrelated, the 9-state one).
     #[test]
+    #[expect(non_snake_case, reason = "matrix notation")]
     fn a_partial_update_moves_the_spin_along_the_flight_by_its_share_and_stays_honest() {
         let A = StateMatrix::from_fn(|i, j| ((i * 7 + j * 3) % 5) as f64 * 0.1 - 0.2);
         let P = A * A.transpose() + StateMatrix::identity() * 0.5;
