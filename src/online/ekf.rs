@@ -25,7 +25,10 @@
 //! - Update: S = H P H' + R factored by Cholesky (a typed error when S is not positive definite),
 //!   NIS = y' S^-1 y, the gain from the factor, and the Joseph form
 //!   P = (I - K H) P (I - K H)' + K R K' (multiplied out), symmetrised; the parameters are kept
-//!   inside their physical box ([`PARAM_BOUNDS`]). Fixed-size matrices: no heap allocation.
+//!   inside their physical box ([`PARAM_BOUNDS`]). A partial update ([`Ekf::update_partially`])
+//!   applies only a share of the gain to the spin along the flight (the partial-update
+//!   Schmidt-Kalman filter, Brink 2017), the covariance the Joseph form's for the gain applied.
+//!   Fixed-size matrices: no heap allocation.
 
 use nalgebra::{SMatrix, SVector};
 
