@@ -1030,14 +1030,21 @@ mod tests {
         assert_eq!(ekf.nis(&z, &position_H(), &R), Some(nis));
     }
 
+    /// A state and a covariance with every component correlated.
+    fn correlated_prior() -> (StateVector, StateMatrix) {
+        let a = StateMatrix::from_fn(|i, j| ((i * 7 + j * 3) % 5) as f64 * 0.1 - 0.2);
+        (
+            StateVector::from_fn(|i, _| i as f64 * 0.3),
+            a * a.transpose() + StateMatrix::identity() * 0.5,
+        )
+    }
+
     /// The multiplied-out covariance update equals the Joseph form written as products, for a
     /// correlated prior and a position + spin measurement.
     #[test]
     #[expect(non_snake_case, reason = "matrix notation")]
     fn update_covariance_is_the_joseph_form() {
-        let A = StateMatrix::from_fn(|i, j| ((i * 7 + j * 3) % 5) as f64 * 0.1 - 0.2);
-        let P = A * A.transpose() + StateMatrix::identity() * 0.5;
-        let x = StateVector::from_fn(|i, _| i as f64 * 0.3);
+        let (x, P) = correlated_prior();
         let H = position_spin_H();
         let R = SMatrix::<f64, 6, 6>::from_diagonal_element(0.2);
         let z = H * x + SVector::<f64, 6>::from_fn(|i, _| 0.1 * i as f64 - 0.2);
@@ -1063,9 +1070,7 @@ mod tests {
     #[test]
     #[expect(non_snake_case, reason = "matrix notation")]
     fn a_partial_update_moves_the_spin_along_the_flight_by_its_share_and_stays_honest() {
-        let A = StateMatrix::from_fn(|i, j| ((i * 7 + j * 3) % 5) as f64 * 0.1 - 0.2);
-        let P = A * A.transpose() + StateMatrix::identity() * 0.5;
-        let x = StateVector::from_fn(|i, _| i as f64 * 0.3);
+        let (x, P) = correlated_prior();
         let H = position_H();
         let R = SMatrix::<f64, 3, 3>::from_diagonal_element(0.2);
         let z = H * x + SVector::<f64, 3>::new(0.3, -0.2, 0.1);
