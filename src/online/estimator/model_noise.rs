@@ -128,7 +128,10 @@ impl ModelNoiseLearner {
     /// One detection's fading of the information, nothing learned (a detection whose score is
     /// not the one learned from: with a horizon, the prediction's further ahead are).
     pub(crate) fn fade(&mut self) {
-        self.learn_faded(&NoiseScore::default(), self.fading);
+        // A score of zero moves no scale: only the information fades.
+        if self.enabled {
+            self.information = self.information.map(|i| i * self.fading);
+        }
     }
 
     /// Learns from the score of a prediction further ahead, at the current scales, with no
