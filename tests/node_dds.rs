@@ -20,9 +20,9 @@
 //! - Robustness: a peer publishes samples of the detection's type name with other fields (the
 //!   node counts them undecodable) and of another type (DDS does not match them), then half the
 //!   bag and exits, then a new peer publishes the other half: the states and intercepts still
-//!   equal the replay's. A flood (another bag at 1000x, into a queue of 8) is shed oldest first
-//!   and counted; the node still answers a service call, stops cleanly, and every detection is
-//!   accounted for (fused + initialising + rejected by reason = received; received + lost before
+//!   equal the replay's. A flood (another bag at 1000x, into a second node whose queue holds 8)
+//!   is shed oldest first and counted; that node still answers a service call; both stop
+//!   cleanly, and every detection is accounted for (fused + initialising + rejected by reason = received; received + lost before
 //!   the node, from publisher sequence gaps, at most what the peers sent).
 //!
 //! The two tests take turns (one DDS run at a time on 2 cores).
@@ -594,18 +594,23 @@ fn the_node_survives_wrong_types_a_peer_that_comes_back_and_a_flood() {
         r#"
 export ROS_DOMAIN_ID=43 ROS_LOCALHOST_ONLY=1
 cd "{dir}"
-"{ttball}" node -p node.service_mapping:=cyclone -p node.queue_capacity:=8 > node.out 2> node.err &
+"{ttball}" node -p node.service_mapping:=cyclone > node.out 2> node.err &
 node=$!
 "{python}" "{peer}" publish-wrong other-fields --count 200 --wait-match 30 --out wrong.json 2> peer.err
 "{python}" "{peer}" publish-wrong other-type --count 200 --wait-match 3 --out other.json 2>> peer.err
 "{python}" "{peer}" publish "{bag}" --count {half} --wait-match 30 --linger 1 --out first.json 2>> peer.err
 sleep 1
-"{python}" "{peer}" publish "{bag}" --first {half} --wait-match 30 --out second.json 2>> peer.err
+"{python}" "{peer}" publish "{bag}" --first {half} --wait-match 30 --linger 1 --out second.json 2>> peer.err
+kill -TERM $node
+wait $node
+echo $? > node.rc
+"{ttball}" node -p node.service_mapping:=cyclone -p node.queue_capacity:=8 > flooded.out 2> flooded.err &
+node=$!
 "{python}" "{peer}" publish "{flood}" --rate 1000 --wait-match 30 --linger 1 --out flood.json 2>> peer.err
 "{python}" "{peer}" call-predict --horizon 0.5 --dt 0.01 --timeout 20 --out call.json 2>> peer.err
 kill -TERM $node
 wait $node
-echo $? > node.rc
+echo $? > flooded.rc
 "#,
         dir = dir.display(),
         python = python.display(),
@@ -615,15 +620,18 @@ echo $? > node.rc
     );
     common::run_on_loopback_only(&script);
     let read = |name: &str| std::fs::read_to_string(dir.join(name)).unwrap_or_default();
-    assert_eq!(
-        read("node.rc").trim(),
-        "0",
-        "node: {}\npeer: {}",
-        read("node.err"),
-        read("peer.err")
-    );
+    for (rc, err) in [("node.rc", "node.err"), ("flooded.rc", "flooded.err")] {
+        assert_eq!(
+            read(rc).trim(),
+            "0",
+            "node: {}\npeer: {}",
+            read(err),
+            read("peer.err")
+        );
+    }
     let summary = read("node.out");
-    eprintln!("{summary}");
+    let flooded_summary = read("flooded.out");
+    eprintln!("{summary}\n{flooded_summary}");
 
     // The wrong samples: those of the detection's name are counted undecodable; those of another
     // type never reach the node (DDS matches by type name).
@@ -662,37 +670,43 @@ echo $? > node.rc
     compare("intercepts", &intercepts, &replay_intercepts, whole);
     assert!(
         states.len() * 10 >= replay_states.len() * 9,
-        "{} of {} states",
+        "{} of {} states: {summary}",
         states.len(),
         replay_states.len()
     );
+    let other_fields = usize::try_from(wrong["sent"].as_u64().unwrap()).unwrap();
+    accounted_for(&summary, other_fields + sent);
 
-    // The flood: shed oldest first and counted; the node went on and answered a call.
+    // The flood, into a node whose queue holds 8 (its own run, so that a slow CI machine's
+    // shedding cannot reach the bag's halves): shed oldest first and counted; the node went on
+    // and answered a call.
     let flooded = records(&read_json(&dir.join("flood.json")), "sent").len();
     assert!(flooded > 0);
-    let dropped = summary_count(&summary, "queue full");
-    let lost = summary_count(&summary, "lost before the node");
+    let dropped = summary_count(&flooded_summary, "queue full");
+    let lost = summary_count(&flooded_summary, "lost before the node");
     eprintln!(
-        "flood: {flooded} detections sent at 1000x, {dropped} dropped by the queue (capacity 8); lost before the node (publisher sequence gaps) over the run: {lost}"
+        "flood: {flooded} detections sent at 1000x, {dropped} dropped by the queue (capacity 8); lost before the node (publisher sequence gaps): {lost}"
     );
     let call = read_json(&dir.join("call.json"));
     assert_eq!(call["success"], Value::Bool(true), "{call}");
+    accounted_for(&flooded_summary, flooded);
+}
 
-    // Every detection accounted for.
-    let received = summary_count(&summary, "detections received");
+/// Every detection a node received is accounted for in its stop summary (fused + initialising +
+/// rejected by reason = received), and what the peers sent either reached it or is counted lost
+/// (samples of another type are not matched, so neither).
+fn accounted_for(summary: &str, sent: usize) {
+    let received = summary_count(summary, "detections received");
     let (fused, initialising, rejected) = (
-        summary_count(&summary, "fused"),
-        summary_count(&summary, "initialising"),
-        summary_count(&summary, "rejected"),
+        summary_count(summary, "fused"),
+        summary_count(summary, "initialising"),
+        summary_count(summary, "rejected"),
     );
     assert_eq!(fused + initialising + rejected, received, "{summary}");
-    assert!(received as usize >= sent, "{summary}");
-    // What the peers sent either reached the node or is counted lost (the other-type samples
-    // are not matched, so neither).
-    let other_fields = usize::try_from(wrong["sent"].as_u64().unwrap()).unwrap();
+    let lost = summary_count(summary, "lost before the node");
     assert!(
-        (received + lost) as usize <= other_fields + sent + flooded,
-        "{received} received + {lost} lost > {other_fields} + {sent} + {flooded} sent: {summary}"
+        (received + lost) as usize <= sent,
+        "{received} received + {lost} lost > {sent} sent: {summary}"
     );
 }
 
