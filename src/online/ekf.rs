@@ -233,12 +233,15 @@ pub struct PredictReport {
     pub bounces: u32,
     /// Table bounces during the step on the robot's half (x < 0).
     pub robot_half_bounces: u32,
+    /// The state change of the step's last bounce (after - before).
+    pub last_jump: Option<StateVector>,
 }
 
 impl Observer for PredictReport {
     fn on_event(&mut self, event: &Event) -> Flow {
         if matches!(event.kind, EventKind::TableBounce { .. }) {
             self.bounces += 1;
+            self.last_jump = Some(event.after - event.before);
             if event.before[0] < 0.0 {
                 self.robot_half_bounces += 1;
             }

@@ -5,12 +5,15 @@
 //!   update.
 //! - [`ekf`]: the extended Kalman filter over (position, velocity, spin) and the physical
 //!   parameters it adapts.
+//! - [`contact_side`]: the published covariance near a table contact, widened by the chance that
+//!   the ball is on the other side of it.
 //! - [`measurement`]: a detection as a measurement with its noise, shared by the filter and the
 //!   batch fit.
 //! - [`intercept`]: the predicted crossing of the robot's hitting plane, with its covariance.
 //! - [`stroke`]: the robot's hit: the ball's rebound off the racket and its return flight, and
 //!   the racket command (velocity, face normal) that returns the ball to a target.
 
+pub mod contact_side;
 pub mod ekf;
 pub mod estimator;
 pub mod intercept;

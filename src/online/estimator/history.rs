@@ -29,6 +29,7 @@ impl Estimator {
             );
             snapshot.bounces += report.bounces;
             snapshot.robot_half_bounces += report.robot_half_bounces;
+            snapshot.bounce_jump = report.last_jump.or(snapshot.bounce_jump);
         }
         snapshot.stamp = stamp.max(snapshot.stamp);
     }

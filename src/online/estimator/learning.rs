@@ -32,11 +32,13 @@ pub const DISPERSION_PRIOR_FLIGHTS: f64 = 20.0;
 const MIN_DISPERSION_EVIDENCE: f64 = 0.1;
 
 /// A learned dispersion stays at least this fraction of the configured one (as variances: a
-/// third of its sigma). Learned to nothing, it would leave each flight no parameters of its own
+/// tenth of its sigma; a tenth of the variance until the published covariance took in the side
+/// of a bounce, [`crate::online::contact_side`], which is what the higher floor had held on the
+/// 150 fps camera). Learned to nothing, it would leave each flight no parameters of its own
 /// (a flight whose spin the filter misreads could no longer absorb it: with the 150 fps camera
 /// alone the interception's covariance grows overconfident), and it could never grow again when
 /// the ball, the table or the spins change.
-pub const DISPERSION_FLOOR: f64 = 0.1;
+pub const DISPERSION_FLOOR: f64 = 0.01;
 
 /// The learned dispersion's memory, in tracks: the weight of the evidence behind it fades by
 /// 1/50 a track, so that a dispersion learned on flights that hardly scatter grows again within

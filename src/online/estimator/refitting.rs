@@ -427,6 +427,7 @@ impl Estimator {
                 (stamp - previous) as f64 * 1e-9,
             );
             bounces += report.bounces;
+            snapshot.bounce_jump = report.last_jump.or(snapshot.bounce_jump);
             let predicted = (augmented(&snapshot.ekf), snapshot.ekf.P);
             // Kept detections are positions (a measured spin ends the smoothing), each fused
             // once already: no gate.

@@ -104,6 +104,7 @@ impl Estimator {
             last_fused: fit.stamp,
             nis: 0.0,
             whole_nis: 0.0,
+            bounce_jump: None,
         };
         let first_seen = self.pending.first().map_or(fit.stamp, |d| d.stamp);
         let continued = self
@@ -224,6 +225,7 @@ impl Estimator {
             last_fused: hit.stamp,
             nis: 0.0,
             whole_nis: 0.0,
+            bounce_jump: None,
         })
     }
 
