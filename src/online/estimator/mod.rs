@@ -1141,6 +1141,7 @@ impl Estimator {
 mod tests {
     use super::*;
     use crate::model::detection::Source;
+    use crate::physics::predict::Sample;
     use nalgebra::Vector3;
 
     /// A 150 fps serve with a millimetre of noise whose frames put one detection 0.1-0.4 ms
@@ -1167,10 +1168,15 @@ mod tests {
             .windows(2)
             .position(|w| w[0].state.velocity.z < 0.0 && w[1].state.velocity.z > 0.0)
             .expect("the serve bounces");
-        fine.samples
-            .iter()
-            .skip(bounce % FINE)
-            .step_by(FINE)
+        detections_of(fine.samples.iter().skip(bounce % FINE).step_by(FINE))
+    }
+
+    /// A flight's samples as 150 fps detections from 1 s on, with a millimetre of deterministic
+    /// noise, each with its truth.
+    pub(super) fn detections_of<'a>(
+        samples: impl Iterator<Item = &'a Sample>,
+    ) -> Vec<(Detection, BallState)> {
+        samples
             .enumerate()
             .map(|(k, sample)| {
                 let k = k as f64;

@@ -547,7 +547,6 @@ fn smooth_back(kept: &mut TrackRefit) {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::model::detection::Source;
     use crate::physics::{BallState, PredictOptions, predict};
     use nalgebra::Vector3;
 
@@ -568,25 +567,7 @@ mod tests {
                 stop_at_plane: false,
             },
         );
-        flight
-            .samples
-            .iter()
-            .enumerate()
-            .map(|(k, sample)| {
-                let k = k as f64;
-                let noise = Vector3::new((1.7 * k).sin(), (2.3 * k).cos(), (0.9 * k).sin()) * 1e-3;
-                let detection = Detection {
-                    stamp: 1_000_000_000 + (sample.t * 1e9).round() as i64,
-                    source: Source::WIDE_150FPS,
-                    position: sample.state.position + noise,
-                    position_covariance: None,
-                    spin: None,
-                    spin_covariance: None,
-                    confidence: 0.9,
-                };
-                (detection, sample.state)
-            })
-            .collect()
+        crate::online::estimator::tests::detections_of(flight.samples.iter())
     }
 
     /// Refits due only after a second of track (the detections are kept, nothing refitted
