@@ -958,14 +958,17 @@ impl Estimator {
     /// The covariance an estimate publishes: the filter's, widened near a table contact by the
     /// chance that the ball is on its other side ([`with_contact_side`]).
     fn published_covariance(&self, snapshot: &Snapshot) -> StateMatrix {
-        let x = &snapshot.ekf.x;
-        let propagator = self.propagator.with_params(&snapshot.ekf.params());
+        let (x, params) = (&snapshot.ekf.x, snapshot.ekf.params());
+        let flight = self.propagator.flight();
         with_contact_side(
-            propagator.bounce(),
-            (propagator.flight().radius(), propagator.flight().gravity()),
+            &self
+                .propagator
+                .bounce()
+                .with_table(params.restitution, params.friction),
+            (flight.radius(), flight.gravity()),
             x,
             &snapshot.ekf.state_covariance(),
-            propagator.distance_outside_table(x[0], x[1]) <= 0.0,
+            self.propagator.distance_outside_table(x[0], x[1]) <= 0.0,
             snapshot.bounce_jump.as_ref(),
         )
     }
