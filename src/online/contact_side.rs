@@ -46,17 +46,13 @@ pub fn with_contact_side(
     jump: Option<&StateVector>,
 ) -> StateMatrix {
     let (height, vz) = (x[POSITION + 2] - radius, x[VELOCITY + 2]);
-    let jump = if vz < 0.0 && over_table {
-        // Coming down: the other side has bounced already.
-        bounce.apply(x).state - x
-    } else if vz > 0.0
-        && let Some(jump) = jump
-    {
-        // Going up after the filter's bounce: the other side has not bounced yet.
-        -jump
-    } else {
+    // Coming down, the other side has bounced already; going up after the filter's bounce, it
+    // has not bounced yet.
+    let coming_down = vz < 0.0 && over_table;
+    let going_up_after_a_bounce = vz > 0.0 && jump.is_some();
+    if !(coming_down || going_up_after_a_bounce) {
         return *p;
-    };
+    }
     // From 1/2 g tau^2 + u tau - h = 0: d tau/dh = 1 / w, d tau/du = -tau / w (w = g tau + u).
     let speed = vz.abs();
     let w = (speed * speed + 2.0 * gravity * height.max(0.0)).sqrt();
@@ -68,7 +64,11 @@ pub fn with_contact_side(
         return *p;
     }
     let other = normal_cdf(-tau / variance.sqrt());
-    let mut d = jump;
+    // The bounce map only where the other side has a chance.
+    let mut d = match jump {
+        Some(jump) if !coming_down => -jump,
+        _ => bounce.apply(x).state - x,
+    };
     // Both sides are where the detection is: the jump is in velocity and spin only.
     d.fixed_rows_mut::<3>(POSITION).fill(0.0);
     p + d * d.transpose() * other
