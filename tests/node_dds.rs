@@ -22,8 +22,9 @@
 //!   bag and exits, then a new peer publishes the other half: the states and intercepts still
 //!   equal the replay's. A flood (another bag at 1000x, into a second node whose queue holds 8)
 //!   is shed oldest first and counted; that node still answers a service call; both stop
-//!   cleanly, and every detection is accounted for (fused + initialising + rejected by reason = received; received + lost before
-//!   the node, from publisher sequence gaps, at most what the peers sent).
+//!   cleanly, and every detection is accounted for (fused + initialising + rejected by reason =
+//!   received; received + lost before the node, from publisher sequence gaps, at most what the
+//!   peers sent).
 //!
 //! The two tests take turns (one DDS run at a time on 2 cores).
 //!
@@ -690,6 +691,11 @@ echo $? > flooded.rc
     let call = read_json(&dir.join("call.json"));
     assert_eq!(call["success"], Value::Bool(true), "{call}");
     accounted_for(&flooded_summary, flooded);
+    // Together the two nodes received at least the bag's halves (as the one node did before
+    // the flood had its own).
+    let received = summary_count(&summary, "detections received")
+        + summary_count(&flooded_summary, "detections received");
+    assert!(received as usize >= sent, "{summary}\n{flooded_summary}");
 }
 
 /// Every detection a node received is accounted for in its stop summary (fused + initialising +
