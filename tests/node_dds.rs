@@ -1036,6 +1036,66 @@ echo $? > node.rc
     );
 }
 
+/// With `use_sim_time` the node's clock is a peer's `/clock` (as `ros2 bag play --clock`
+/// publishes it): its `/diagnostics` are stamped in the simulated time, 0 until the first
+/// `/clock` arrives (as in rclcpp), never in the wall clock's.
+#[test]
+fn with_use_sim_time_the_node_stamps_its_diagnostics_from_clock() {
+    let Some(DdsRun {
+        python,
+        dir,
+        ttball,
+        peer,
+        _turn,
+        ..
+    }) = DdsRun::start("dds-sim-time")
+    else {
+        return;
+    };
+    const SIM_START: f64 = 1000.0;
+    let script = format!(
+        r#"
+export ROS_DOMAIN_ID=47 ROS_LOCALHOST_ONLY=1
+cd "{dir}"
+"{ttball}" node -p use_sim_time:=true -p node.diagnostics_period:=0.25 > node.out 2> node.err &
+node=$!
+"{python}" "{peer}" record --clock {SIM_START} --seconds 5 --out record.json 2> record.err
+kill -TERM $node
+wait $node
+echo $? > node.rc
+"#,
+        dir = dir.display(),
+        python = python.display(),
+        peer = peer.display(),
+    );
+    common::run_on_loopback_only(&script);
+    let read = |name: &str| std::fs::read_to_string(dir.join(name)).unwrap_or_default();
+    assert_eq!(read("node.rc").trim(), "0", "node: {}", read("node.err"));
+    let record = read_json(&dir.join("record.json"));
+    let stamps: Vec<f64> = records(&record, "diagnostics")
+        .iter()
+        .map(|d| d["stamp_ns"].as_f64().unwrap_or(f64::NAN) * 1e-9)
+        .collect();
+    let context = format!("{stamps:?}\npeer: {}\nnode: {}", read("record.err"), read("node.err"));
+    // The recording ran 5 s of simulated time from SIM_START; allow a second for discovery.
+    let simulated: Vec<f64> = stamps.iter().copied().filter(|&s| s != 0.0).collect();
+    assert!(
+        simulated.iter().all(|&s| (SIM_START..SIM_START + 6.0).contains(&s)),
+        "a diagnostics stamp outside the simulated time: {context}"
+    );
+    assert!(simulated.len() >= 4, "too few diagnostics on /clock's time: {context}");
+    assert!(
+        simulated.windows(2).all(|w| w[0] <= w[1]),
+        "the simulated stamps went back: {context}"
+    );
+    // Zeros (before the first /clock) only come first.
+    let first_simulated = stamps.iter().position(|&s| s != 0.0).unwrap_or(stamps.len());
+    assert!(
+        stamps[first_simulated..].iter().all(|&s| s != 0.0),
+        "{context}"
+    );
+}
+
 /// The Fast DDS peer (`tests/interop/fastdds/`, built by `.ci/run` with Debian's Fast DDS and
 /// fastddsgen; `TTBALL_FASTDDS_PEER` names it), or why the test cannot run.
 fn fastdds_peer() -> Option<PathBuf> {

@@ -9,6 +9,7 @@ did not write: it proves the node interoperates over DDS, and lets you try the n
     python dds_peer.py call-plan --target 0.9 0.3   # likewise
     python dds_peer.py call-rebound --racket 1.6 0 0.15 1 0 0
     python dds_peer.py params --node /ttball         # rcl_interfaces' parameter services, ~/reset
+    python dds_peer.py record --clock 1000 --seconds 5   # /diagnostics while publishing /clock
 
 `publish` plays a bag's detections to /ball/detections at their recorded times and records the
 node's /ball/state and /ball/intercept (with latency); `listen` records detections published by
@@ -67,6 +68,11 @@ LOOPBACK_URI = (
 class Time_(IdlStruct, typename="builtin_interfaces::msg::dds_::Time_"):
     sec: t.int32
     nanosec: t.uint32
+
+
+@dataclass
+class Clock_(IdlStruct, typename="rosgraph_msgs::msg::dds_::Clock_"):
+    clock: Time_
 
 
 @dataclass
@@ -886,13 +892,21 @@ def cmd_params(args):
 
 
 def cmd_record(args):
-    """Records /diagnostics and /rosout for --seconds."""
+    """Records /diagnostics and /rosout for --seconds; with --clock, publishes a simulated time
+    on /clock meanwhile, as `ros2 bag play --clock` does."""
     dp = participant()
     diagnostics = Recorder(dp, "rt/diagnostics", DiagnosticArray_, True, 1000)
     rosout = Recorder(dp, "rt/rosout", Log_, True, 1000)
-    deadline = time.monotonic() + args.seconds
+    clock = writer(dp, "rt/clock", Clock_, False, 1) if args.clock is not None else None
+    started = time.monotonic()
+    deadline = started + args.seconds
     while time.monotonic() < deadline and not (args.until_file and os.path.exists(args.until_file)):
-        time.sleep(0.1)
+        if clock is not None:
+            now = int((args.clock + time.monotonic() - started) * 1e9)
+            clock.write(Clock_(clock=Time_(sec=now // 1_000_000_000, nanosec=now % 1_000_000_000)))
+            time.sleep(0.02)
+        else:
+            time.sleep(0.1)
     out = {
         "diagnostics": [{"stamp_ns": stamp_ns(d.header.stamp),
                          "status": [{"level": s.level, "name": s.name, "message": s.message,
@@ -1026,12 +1040,15 @@ def main(argv=None):
                    help="racket speed along the face, upward (> 0 topspin) (default 0)")
     call_options(p, cmd_call_plan)
 
-    p = sub.add_parser("record", help="record /diagnostics and /rosout",
+    p = sub.add_parser("record", help="record /diagnostics and /rosout (optionally publishing /clock)",
                        description="Subscribe to /diagnostics and /rosout (Reliable, KeepLast 1000) for --seconds. "
                                    "Writes JSON {diagnostics: [{stamp_ns, status: [{level, name, message, "
                                    "hardware_id}]}], rosout: [{level, name, msg}]}.")
     p.add_argument("--seconds", type=float, default=10.0, help="at most (default %(default)s)")
     p.add_argument("--until-file", metavar="PATH", help="stop as soon as this file exists")
+    p.add_argument("--clock", type=float, metavar="SECONDS",
+                   help="meanwhile publish /clock (rosgraph_msgs/Clock, best effort) at 50 Hz, "
+                        "starting at this simulated time and running at the wall clock's rate")
     p.add_argument("--out", metavar="FILE.json", help="write the records here")
     p.set_defaults(run=cmd_record)
 
