@@ -328,21 +328,15 @@ fn start_here(config: &Config, placement: &Placement) -> Result<NodeHandle, Node
             &output_qos,
         )?,
     };
-    // Only with use_sim_time: ros2-client's spinner keeps a /clock topic of its own under
-    // another type name (builtin_interfaces' Time, which no ROS 2 clock publisher matches), and
-    // RustDDS logs an error when one participant has a topic under two types.
-    let clock: Option<Subscription<Clock>> = if config.use_sim_time {
-        let topic = node
-            .create_topic(
-                &dds::name(CLOCK_TOPIC)?,
-                dds::message_type(CLOCK_TYPE),
-                &dds::clock(),
-            )
-            .map_err(dds::error)?;
-        Some(node.create_subscription(&topic, None).map_err(dds::error)?)
+    let clock = if config.use_sim_time {
+        Some(clock_subscription(&mut node)?)
     } else {
         None
     };
+    // The DDS thread makes the /clock reader when `use_sim_time` is first set on the running
+    // node (it holds the node), and hands it to the estimator thread.
+    let (clock_wanted_tx, clock_wanted_rx) = mpsc::unbounded::<()>();
+    let (clock_made_tx, clock_made_rx) = channel::bounded::<Subscription<Clock>>(1);
     let tf_topic = node
         .create_topic(
             &dds::name(TF_STATIC_TOPIC)?,
@@ -422,8 +416,12 @@ fn start_here(config: &Config, placement: &Placement) -> Result<NodeHandle, Node
         robot_hits,
         _tf_publisher: tf_publisher,
         clock: NodeClock {
+            simulated: config.use_sim_time,
+            asked: clock.is_some(),
             subscription: clock,
             latest: None,
+            wanted: clock_wanted_tx,
+            made: clock_made_rx,
         },
         outputs,
         shared: Arc::clone(&shared),
@@ -480,7 +478,18 @@ fn start_here(config: &Config, placement: &Placement) -> Result<NodeHandle, Node
         .name("ttball-dds".to_owned())
         .spawn(move || {
             let started = Instant::now();
-            dds_loop(&servers, &request_tx, reply_rx, stop_rx, &shared);
+            let clock = ClockMaker {
+                wanted: clock_wanted_rx,
+                made: clock_made_tx,
+            };
+            dds_loop(
+                &servers,
+                &request_tx,
+                reply_rx,
+                stop_rx,
+                &shared,
+                (&mut node, clock),
+            );
             // The estimator takes this as its stop: it processes what DDS holds and ends.
             drop(request_tx);
             let estimator = estimator
@@ -513,6 +522,27 @@ fn start_here(config: &Config, placement: &Placement) -> Result<NodeHandle, Node
     })
 }
 
+/// The node's reader of `/clock` (`use_sim_time`). Made only when needed: ros2-client's spinner
+/// keeps a /clock topic of its own under another type name (builtin_interfaces' Time, which no
+/// ROS 2 clock publisher matches), and RustDDS logs an error when one participant has a topic
+/// under two types.
+fn clock_subscription(node: &mut Node) -> Result<Subscription<Clock>, NodeError> {
+    let topic = node
+        .create_topic(
+            &dds::name(CLOCK_TOPIC)?,
+            dds::message_type(CLOCK_TYPE),
+            &dds::clock(),
+        )
+        .map_err(dds::error)?;
+    node.create_subscription(&topic, None).map_err(dds::error)
+}
+
+/// The DDS thread's side of a `/clock` reader made on request (see [`NodeClock`]).
+struct ClockMaker {
+    wanted: mpsc::UnboundedReceiver<()>,
+    made: Sender<Subscription<Clock>>,
+}
+
 fn publisher<M: Serialize>(
     node: &mut Node,
     topic: &str,
@@ -540,13 +570,15 @@ impl Wake for Doorbell {
     }
 }
 
-/// Takes service requests off DDS and sends the replies until `stop` fires.
+/// Takes service requests off DDS and sends the replies until `stop` fires; makes the
+/// `/clock` reader when the estimator thread asks for it.
 fn dds_loop(
     servers: &Servers,
     requests: &Sender<PendingRequest>,
     mut replies: mpsc::UnboundedReceiver<PendingReply>,
     stop: oneshot::Receiver<()>,
     shared: &Shared,
+    (node, mut clock): (&mut Node, ClockMaker),
 ) {
     futures::executor::block_on(async {
         let incoming = servers.requests();
@@ -554,6 +586,12 @@ fn dds_loop(
         let mut stop = stop.fuse();
         loop {
             futures::select! {
+                () = clock.wanted.select_next_some() => match clock_subscription(node) {
+                    Ok(subscription) => {
+                        let _ = clock.made.try_send(subscription);
+                    }
+                    Err(e) => warn!("cannot read {CLOCK_TOPIC} for use_sim_time: {e}"),
+                },
                 request = incoming.select_next_some() => match request {
                     Ok((id, request)) => {
                         if let Err(TrySendError::Full((id, request))) = requests.try_send((id, request)) {
@@ -647,22 +685,52 @@ fn table_transform(config: &Config, stamp: i64) -> Option<TFMessage> {
 }
 
 /// The node's clock: the system clock, or with `use_sim_time` the latest `/clock` (0 until the
-/// first, as in rclcpp).
+/// first, as in rclcpp). `use_sim_time` may be set on the running node, as rclcpp's may: the
+/// first time, the DDS thread (which holds the node) is asked for the `/clock` reader.
 struct NodeClock {
+    /// `use_sim_time` as it stands.
+    simulated: bool,
+    /// The reader has been asked for (or made at the start).
+    asked: bool,
     subscription: Option<Subscription<Clock>>,
     latest: Option<i64>,
+    wanted: mpsc::UnboundedSender<()>,
+    made: Receiver<Subscription<Clock>>,
 }
 
 impl NodeClock {
     /// Now [ns since the epoch].
     fn now_ns(&mut self) -> i64 {
-        let Some(subscription) = &self.subscription else {
+        if !self.simulated {
             return wall_clock_ns();
-        };
-        while let Ok(Some((clock, _))) = subscription.take() {
-            self.latest = Some(clock.clock.to_nanos());
+        }
+        if self.subscription.is_none() {
+            self.subscription = self.made.try_recv().ok();
+        }
+        if let Some(subscription) = &self.subscription {
+            while let Ok(Some((clock, _))) = subscription.take() {
+                self.latest = Some(clock.clock.to_nanos());
+            }
         }
         self.latest.unwrap_or(0)
+    }
+
+    /// Follows `use_sim_time` set on the running node.
+    fn set_simulated(&mut self, simulated: bool) {
+        if simulated != self.simulated {
+            info!(
+                "node time from {}",
+                if simulated {
+                    "/clock (use_sim_time)"
+                } else {
+                    "the system clock"
+                }
+            );
+        }
+        self.simulated = simulated;
+        if simulated && !self.asked {
+            self.asked = self.wanted.unbounded_send(()).is_ok();
+        }
     }
 }
 
@@ -759,6 +827,8 @@ impl EstimatorThread {
                             let names: Vec<&str> =
                                 change.changed.iter().map(|p| p.name.as_str()).collect();
                             info!("parameters set: {}", names.join(", "));
+                            self.clock
+                                .set_simulated(self.parameters.config().use_sim_time);
                             let now = self.now();
                             let event = parameters::change_event(&change, now, &self.node_name);
                             self.publish_parameter_event(event);

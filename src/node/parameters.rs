@@ -23,10 +23,12 @@ use serde_norway::Value;
 use crate::config::yaml;
 use crate::config::{Config, CountRange, Range, UNKNOWN_SOURCE};
 
-/// Sections (and single keys) whose parameters take effect between detections; the others are
-/// read-only, as they shape what the node was built with (its physics and what it learned of
-/// it, its DDS entities, the propagator's step).
-const LIVE: [&str; 10] = [
+/// Sections (and single keys) whose parameters take effect between detections (`use_sim_time`:
+/// from the next stamp of the node's own messages, as in rclcpp); the others are read-only, as
+/// they shape what the node was built with (its physics and what it learned of it, its DDS
+/// entities, the propagator's step).
+const LIVE: [&str; 11] = [
+    "use_sim_time",
     "ekf.",
     "gating.",
     "sources.",
@@ -602,6 +604,24 @@ mod tests {
         );
         assert!(intercept.prefixes.contains(&"intercept.refresh".to_owned()));
         assert_eq!(p.list(&[], 0).names.len(), p.names().count());
+    }
+
+    /// `use_sim_time` may be switched on the running node, as in rclcpp; the node's other
+    /// top-level keys may not.
+    #[test]
+    fn use_sim_time_is_live() {
+        let mut p = Parameters::new(&Config::default());
+        let on = ParameterValue {
+            boolean_value: true,
+            ..empty_value(ParameterType::BOOL)
+        };
+        let (results, change) = p.set(&[param("use_sim_time", on)]);
+        assert!(results[0].successful, "{}", results[0].reason);
+        assert!(p.config().use_sim_time);
+        assert!(change.is_some());
+        let described = p.describe(&["use_sim_time".to_owned(), "gravity".to_owned()]);
+        assert!(!described[0].read_only);
+        assert!(described[1].read_only);
     }
 
     #[test]

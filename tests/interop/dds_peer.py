@@ -10,6 +10,7 @@ did not write: it proves the node interoperates over DDS, and lets you try the n
     python dds_peer.py call-rebound --racket 1.6 0 0.15 1 0 0
     python dds_peer.py params --node /ttball         # rcl_interfaces' parameter services, ~/reset
     python dds_peer.py record --clock 1000 --seconds 5   # /diagnostics while publishing /clock
+    python dds_peer.py set-params --node /ttball use_sim_time:=true   # as `ros2 param set`
 
 `publish` plays a bag's detections to /ball/detections at their recorded times and records the
 node's /ball/state and /ball/intercept (with latency); `listen` records detections published by
@@ -891,6 +892,35 @@ def cmd_params(args):
     return 0
 
 
+def cmd_set_params(args):
+    """Sets parameters of --node through rcl_interfaces/SetParameters, as `ros2 param set` does."""
+    sets = []
+    for assignment in args.assignments:
+        name, sep, text = assignment.partition(":=")
+        if not sep:
+            print(f"dds_peer: {assignment!r} is not NAME:=VALUE", file=sys.stderr)
+            return 2
+        value = {"true": True, "false": False}.get(text.lower())
+        if value is None:
+            try:
+                value = int(text)
+            except ValueError:
+                try:
+                    value = float(text)
+                except ValueError:
+                    value = text
+        sets.append((name, value))
+    ns = argparse.Namespace(service=f"{args.node.rstrip('/')}/set_parameters", timeout=args.timeout)
+    code, reply = call(ns, SetParameters_Request_, SetParameters_Response_,
+                       parameters=[Parameter_(name=n, value=parameter_value(v)) for n, v in sets])
+    if reply is None:
+        return code
+    out = [{"name": n, "successful": r.successful, "reason": r.reason} for (n, _), r in zip(sets, reply.results)]
+    write_json(args.out, out)
+    print(f"dds_peer: set {[(o['name'], o['successful']) for o in out]}", file=sys.stderr)
+    return 0 if all(o["successful"] for o in out) else 5
+
+
 def cmd_record(args):
     """Records /diagnostics and /rosout for --seconds; with --clock, publishes a simulated time
     on /clock meanwhile, as `ros2 bag play --clock` does."""
@@ -1060,9 +1090,23 @@ def main(argv=None):
     p.add_argument("--node", default="/ttball", help="the node's fully qualified name (default %(default)s)")
     call_options(p, cmd_params)
 
+    p = sub.add_parser("set-params", help="set the node's parameters, as `ros2 param set` does",
+                       description="Call --node's rcl_interfaces/SetParameters (rmw_cyclonedds mapping) with "
+                                   "NAME:=VALUE assignments (true/false, integers, floats, else strings). "
+                                   "Writes JSON [{name, successful, reason}]; exits 5 when one was refused.")
+    p.add_argument("--node", default="/ttball", help="the node's fully qualified name (default %(default)s)")
+    p.add_argument("assignments", nargs="+", metavar="NAME:=VALUE")
+    call_options(p, cmd_set_params)
+
     args = parser.parse_args(argv)
     return args.run(args)
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    code = main()
+    # Every output is written and closed by now. Leave without the interpreter's teardown: the
+    # Cyclone binding's listener threads can still be running then, and its finalisers were seen
+    # to kill the process (SIGILL) after a recording with /clock written meanwhile.
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(code or 0)
