@@ -1036,104 +1036,46 @@ echo $? > node.rc
     );
 }
 
-/// With `use_sim_time` the node's clock is a peer's `/clock` (as `ros2 bag play --clock`
-/// publishes it): its `/diagnostics` are stamped in the simulated time, 0 until the first
-/// `/clock` arrives (as in rclcpp), never in the wall clock's.
-#[test]
-fn with_use_sim_time_the_node_stamps_its_diagnostics_from_clock() {
-    let Some(DdsRun {
-        python,
-        dir,
-        ttball,
-        peer,
-        _turn,
-        ..
-    }) = DdsRun::start("dds-sim-time")
-    else {
-        return;
-    };
-    const SIM_START: f64 = 1000.0;
-    let script = format!(
-        r#"
-export ROS_DOMAIN_ID=47 ROS_LOCALHOST_ONLY=1
-cd "{dir}"
-"{ttball}" node -p use_sim_time:=true -p node.diagnostics_period:=0.25 > node.out 2> node.err &
-node=$!
-"{python}" "{peer}" record --clock {SIM_START} --seconds 5 --out record.json 2> record.err
-kill -TERM $node
-wait $node
-echo $? > node.rc
-"#,
-        dir = dir.display(),
-        python = python.display(),
-        peer = peer.display(),
-    );
-    common::run_on_loopback_only(&script);
-    let read = |name: &str| std::fs::read_to_string(dir.join(name)).unwrap_or_default();
-    assert_eq!(read("node.rc").trim(), "0", "node: {}", read("node.err"));
-    let record = read_json(&dir.join("record.json"));
-    let stamps: Vec<f64> = records(&record, "diagnostics")
-        .iter()
-        .map(|d| d["stamp_ns"].as_f64().unwrap_or(f64::NAN) * 1e-9)
-        .collect();
-    let context = format!(
-        "{stamps:?}\npeer: {}\nnode: {}",
-        read("record.err"),
-        read("node.err")
-    );
-    // The recording ran 5 s of simulated time from SIM_START; allow a second for discovery.
-    let simulated: Vec<f64> = stamps.iter().copied().filter(|&s| s != 0.0).collect();
-    assert!(
-        simulated
-            .iter()
-            .all(|&s| (SIM_START..SIM_START + 6.0).contains(&s)),
-        "a diagnostics stamp outside the simulated time: {context}"
-    );
-    assert!(
-        simulated.len() >= 4,
-        "too few diagnostics on /clock's time: {context}"
-    );
-    assert!(
-        simulated.windows(2).all(|w| w[0] <= w[1]),
-        "the simulated stamps went back: {context}"
-    );
-    // Zeros (before the first /clock) only come first.
-    let first_simulated = stamps
-        .iter()
-        .position(|&s| s != 0.0)
-        .unwrap_or(stamps.len());
-    assert!(
-        stamps[first_simulated..].iter().all(|&s| s != 0.0),
-        "{context}"
-    );
-}
+/// The simulated time `dds_peer.py record --clock` starts from [s].
+const SIM_START: f64 = 1000.0;
 
-/// `use_sim_time` set on the running node (as `ros2 param set /ttball use_sim_time true`): its
-/// `/diagnostics` go from the wall clock's stamps to `/clock`'s.
-#[test]
-fn use_sim_time_set_on_the_running_node_takes_clock_from_then_on() {
-    let Some(DdsRun {
+/// Runs `ttball node` with `node_args` (diagnostics every 0.25 s) beside a Cyclone DDS peer
+/// that publishes `/clock` from [`SIM_START`] for `seconds` while recording `/diagnostics`;
+/// with `switch`, the peer sets `use_sim_time` true on the running node 2 s in (as `ros2 param
+/// set` does). Returns the diagnostics' stamps [s] and what to print when a check fails.
+fn diagnostics_beside_a_clock(
+    run: &DdsRun,
+    domain: u32,
+    node_args: &str,
+    seconds: f64,
+    switch: bool,
+) -> (Vec<f64>, String) {
+    let DdsRun {
         python,
         dir,
         ttball,
         peer,
-        _turn,
         ..
-    }) = DdsRun::start("dds-sim-time-live")
-    else {
-        return;
+    } = run;
+    let set = if switch {
+        format!(
+            r#"sleep 2
+"{python}" "{peer}" set-params --node /ttball use_sim_time:=true --timeout 20 --out set.json 2> set.err"#,
+            python = python.display(),
+            peer = peer.display(),
+        )
+    } else {
+        String::new()
     };
-    const SIM_START: f64 = 1000.0;
     let script = format!(
         r#"
-export ROS_DOMAIN_ID=48 ROS_LOCALHOST_ONLY=1
+export ROS_DOMAIN_ID={domain} ROS_LOCALHOST_ONLY=1
 cd "{dir}"
-"{ttball}" node -p node.service_mapping:=cyclone -p node.diagnostics_period:=0.25 > node.out 2> node.err &
+"{ttball}" node {node_args} -p node.diagnostics_period:=0.25 > node.out 2> node.err &
 node=$!
-"{python}" "{peer}" record --clock {SIM_START} --seconds 8 --out record.json 2> record.err &
+"{python}" "{peer}" record --clock {SIM_START} --seconds {seconds} --out record.json 2> record.err &
 recorder=$!
-sleep 2
-"{python}" "{peer}" set-params --node /ttball use_sim_time:=true --timeout 20 --out set.json 2> set.err
+{set}
 wait $recorder
 kill -TERM $node
 wait $node
@@ -1146,49 +1088,75 @@ echo $? > node.rc
     common::run_on_loopback_only(&script);
     let read = |name: &str| std::fs::read_to_string(dir.join(name)).unwrap_or_default();
     assert_eq!(read("node.rc").trim(), "0", "node: {}", read("node.err"));
-    let set = read_json(&dir.join("set.json"));
-    let context = format!(
-        "set: {set}\n{}\npeer: {}\nnode: {}",
-        read("set.err"),
-        read("record.err"),
-        read("node.err")
-    );
-    assert_eq!(set[0]["successful"], true, "{context}");
     let stamps: Vec<f64> = records(&read_json(&dir.join("record.json")), "diagnostics")
         .iter()
         .map(|d| d["stamp_ns"].as_f64().unwrap_or(f64::NAN) * 1e-9)
         .collect();
-    let context = format!("{stamps:?}\n{context}");
-    // The wall clock's stamps first, then (after zeros until the new reader's first /clock)
-    // the simulated time's, and never the wall clock's again.
-    let wall = |s: f64| s > 1e9;
-    let simulated = |s: f64| (SIM_START..SIM_START + 10.0).contains(&s);
-    let first_not_wall = stamps
+    let context = format!(
+        "{stamps:?}\nset: {} {}\npeer: {}\nnode: {}",
+        read("set.json"),
+        read("set.err"),
+        read("record.err"),
+        read("node.err")
+    );
+    (stamps, context)
+}
+
+/// Stamps on `/clock`'s time: zeros until the node's reader has its first `/clock` (as in
+/// rclcpp), then at least four within the recording's simulated time, never going back.
+fn assert_on_the_clock(stamps: &[f64], seconds: f64, context: &str) {
+    let first = stamps
         .iter()
-        .position(|&s| !wall(s))
+        .position(|&s| s != 0.0)
         .unwrap_or(stamps.len());
+    let simulated = &stamps[first..];
     assert!(
-        first_not_wall >= 2,
-        "too few diagnostics before the switch: {context}"
-    );
-    let after = &stamps[first_not_wall..];
-    let first_simulated = after
-        .iter()
-        .position(|&s| simulated(s))
-        .unwrap_or(after.len());
-    assert!(
-        after[..first_simulated].iter().all(|&s| s == 0.0),
-        "{context}"
-    );
-    let on_clock = &after[first_simulated..];
-    assert!(
-        on_clock.len() >= 4,
+        simulated.len() >= 4,
         "too few diagnostics on /clock's time: {context}"
     );
-    assert!(on_clock.iter().all(|&s| simulated(s)), "{context}");
-    assert!(on_clock.windows(2).all(|w| w[0] <= w[1]), "{context}");
     assert!(
-        read("node.err").contains("node time from /clock (use_sim_time)"),
+        simulated
+            .iter()
+            .all(|&s| (SIM_START..SIM_START + seconds + 1.0).contains(&s)),
+        "a diagnostics stamp outside the simulated time: {context}"
+    );
+    assert!(
+        simulated.windows(2).all(|w| w[0] <= w[1]),
+        "the simulated stamps went back: {context}"
+    );
+}
+
+/// With `use_sim_time` the node's clock is a peer's `/clock` (as `ros2 bag play --clock`
+/// publishes it): its `/diagnostics` are stamped in the simulated time, 0 until the first
+/// `/clock` arrives (as in rclcpp), never in the wall clock's.
+#[test]
+fn with_use_sim_time_the_node_stamps_its_diagnostics_from_clock() {
+    let Some(run) = DdsRun::start("dds-sim-time") else {
+        return;
+    };
+    let (stamps, context) =
+        diagnostics_beside_a_clock(&run, 47, "-p use_sim_time:=true", 5.0, false);
+    assert_on_the_clock(&stamps, 5.0, &context);
+}
+
+/// `use_sim_time` set on the running node (as `ros2 param set /ttball use_sim_time true`): its
+/// `/diagnostics` go from the wall clock's stamps to `/clock`'s, and it says so in its log.
+#[test]
+fn use_sim_time_set_on_the_running_node_takes_clock_from_then_on() {
+    let Some(run) = DdsRun::start("dds-sim-time-live") else {
+        return;
+    };
+    let (stamps, context) =
+        diagnostics_beside_a_clock(&run, 48, "-p node.service_mapping:=cyclone", 8.0, true);
+    assert!(context.contains(r#""successful": true"#), "{context}");
+    let before = stamps.iter().position(|&s| s < 1e9).unwrap_or(stamps.len());
+    assert!(
+        before >= 2,
+        "too few diagnostics before the switch: {context}"
+    );
+    assert_on_the_clock(&stamps[before..], 8.0, &context);
+    assert!(
+        context.contains("node time from /clock (use_sim_time)"),
         "{context}"
     );
 }
