@@ -838,6 +838,12 @@ def plain_value(value):
             4: value.string_value, 8: list(value.double_array_value)}.get(value.type, "?")
 
 
+def call_node(args, service, request_type, reply_type, **fields):
+    """`call` of the service ~/service of the node args.node; returns (exit code, reply)."""
+    ns = argparse.Namespace(service=f"{args.node.rstrip('/')}/{service}", timeout=args.timeout)
+    return call(ns, request_type, reply_type, **fields)
+
+
 def cmd_params(args):
     """Lists, gets, describes and sets the node's parameters through rcl_interfaces' services (as
     `ros2 param` does), records /parameter_events meanwhile, and calls ~/reset."""
@@ -847,8 +853,7 @@ def cmd_params(args):
     out = {}
 
     def ask(service, request_type, reply_type, **fields):
-        ns = argparse.Namespace(service=f"{node}/{service}", timeout=args.timeout)
-        code, reply = call(ns, request_type, reply_type, **fields)
+        code, reply = call_node(args, service, request_type, reply_type, **fields)
         if reply is None:
             sys.exit(code)
         return reply
@@ -910,9 +915,8 @@ def cmd_set_params(args):
                 except ValueError:
                     value = text
         sets.append((name, value))
-    ns = argparse.Namespace(service=f"{args.node.rstrip('/')}/set_parameters", timeout=args.timeout)
-    code, reply = call(ns, SetParameters_Request_, SetParameters_Response_,
-                       parameters=[Parameter_(name=n, value=parameter_value(v)) for n, v in sets])
+    code, reply = call_node(args, "set_parameters", SetParameters_Request_, SetParameters_Response_,
+                            parameters=[Parameter_(name=n, value=parameter_value(v)) for n, v in sets])
     if reply is None:
         return code
     out = [{"name": n, "successful": r.successful, "reason": r.reason} for (n, _), r in zip(sets, reply.results)]
