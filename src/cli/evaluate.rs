@@ -10,7 +10,7 @@ use ttball::eval::real::{
     LauncherFlights, LeadOutcome, RealEvalOptions, RealReport, SpinKind, evaluate_flights,
 };
 use ttball::eval::sets::{
-    LeadComparison, SETTLE_FLIGHTS, SetReport, TrialSet, run_set, standard_sets,
+    LeadComparison, SETTLE_FLIGHTS, SetReport, TrialSet, run_set, set_efficiency, standard_sets,
 };
 use ttball::eval::sim::{Cameras, SimOptions, simulate};
 use ttball::eval::{
@@ -53,7 +53,8 @@ pub struct EvaluateArgs {
     /// camera sees the ball) divided by those of a batch fit of the same detections at the
     /// same stamps (1.0 is the best any estimator of a flight that follows the model can do),
     /// the fit flying the configured physics and, again, the physics the estimator had learned
-    /// when the shot began. Fits every shot ten times: about 0.2 s per shot.
+    /// when the shot began. Fits every shot ten times: about 0.2 s per shot. With `--sets`:
+    /// each set's shots again, the fit flying the learned physics and the set's true physics.
     #[arg(long)]
     pub efficiency: bool,
 
@@ -270,6 +271,19 @@ impl EvaluateArgs {
             write_stdout(&set_line(&r))?;
             reports.push(r);
         }
+        let mut efficiencies = Vec::new();
+        if self.efficiency {
+            for set in &chosen {
+                eprintln!(
+                    "fitting every shot of {} as a whole at each lead...",
+                    set.name
+                );
+                let lines = set_efficiency(&config, set, self.shots, self.seed)
+                    .with_context(|| format!("cannot simulate the set {}", set.name))?;
+                write_stdout(&format!("\n== {}\n{}", set.name, efficiency_table(&lines)))?;
+                efficiencies.push(lines);
+            }
+        }
         write_stdout(
             "
 learned physics at the end (relative error against the truth):
@@ -294,7 +308,8 @@ learned physics at the end (relative error against the truth):
         if let Some(path) = &self.json {
             let json: Vec<serde_json::Value> = reports
                 .iter()
-                .map(|r| {
+                .enumerate()
+                .map(|(i, r)| {
                     serde_json::json!({
                         "set": r.set.name,
                         "single_track_fraction": r.single_track_fraction(),
@@ -305,6 +320,7 @@ learned physics at the end (relative error against the truth):
                         "learned_relative_errors": r.learned_errors(),
                         "report": r.report,
                         "reference": r.reference,
+                        "efficiency": efficiencies.get(i),
                     })
                 })
                 .collect();
@@ -362,6 +378,7 @@ fn efficiency_table(efficiencies: &[Efficiency]) -> String {
             match e.physics {
                 BatchPhysics::Configured => "the configured physics",
                 BatchPhysics::Learned => "the physics the estimator had learned",
+                BatchPhysics::True => "the true physics (the set's)",
             }
         ));
         let mut line = |name: &str, c: &Comparison, unit: f64| {

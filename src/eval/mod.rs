@@ -25,7 +25,7 @@ use crate::online::estimator::{
     Counters, Estimate, Estimator, Output, Rejection, TrackStatus, Verdict,
 };
 use crate::online::intercept::{InterceptQuery, predict_intercept};
-use crate::physics::{BallState, Propagator};
+use crate::physics::{BallState, PhysicsParams, Propagator};
 
 pub mod real;
 pub mod sets;
@@ -497,6 +497,9 @@ pub enum BatchPhysics {
     /// What the estimator had learned of the physics when the shot's first detection came (the
     /// same knowledge the filter starts the shot with).
     Learned,
+    /// The simulation's own physics where it is not the configuration's (the harder sets,
+    /// [`sets`]): the best a fit of a flight that follows the model can do.
+    True,
 }
 
 /// The filter's efficiency: its errors divided by the batch fit's on the same detections.
@@ -524,124 +527,155 @@ pub struct Efficiency {
 /// flight-to-flight dispersion of the parameters, gating, initialisation) cost.
 pub fn efficiency(config: &Config, session: &Session) -> [Efficiency; 2] {
     let run = run(config, session);
+    [BatchPhysics::Configured, BatchPhysics::Learned]
+        .map(|physics| efficiency_of(&run, config, session, physics, None))
+}
+
+/// The filter's efficiency on a session simulated with other physics than `config`'s
+/// (`truth`, a harder set's): against the batch fit with the physics the estimator had learned
+/// when each shot began and with the true physics, the filter running on `config`.
+pub fn efficiency_with_truth(
+    config: &Config,
+    session: &Session,
+    truth: &PhysicsParams,
+) -> [Efficiency; 2] {
+    let run = run(config, session);
+    [BatchPhysics::Learned, BatchPhysics::True]
+        .map(|physics| efficiency_of(&run, config, session, physics, Some(truth)))
+}
+
+/// One line of [`efficiency`]: the filter's `run` of `session` against the batch fit flying
+/// `physics` (`truth` for [`BatchPhysics::True`]; the configured physics without it).
+fn efficiency_of(
+    run: &Run,
+    config: &Config,
+    session: &Session,
+    physics: BatchPhysics,
+    truth: Option<&PhysicsParams>,
+) -> Efficiency {
     let query = |bounced| InterceptQuery {
         plane_x: config.intercept.plane_x,
         horizon: config.prediction.horizon,
         bounced_on_robot_half: bounced,
         bounce_noise: BounceNoise::default(),
     };
-    [BatchPhysics::Configured, BatchPhysics::Learned].map(|physics| {
-        let physics_of = |index: usize| -> Config {
-            let mut c = config.clone();
-            if physics == BatchPhysics::Learned
-                && let Some(Some(p)) = run.physics_at_start.get(index)
-            {
-                p.apply_to(&mut c);
+    let physics_of = |index: usize| -> Config {
+        let mut c = config.clone();
+        match physics {
+            BatchPhysics::Configured => {}
+            BatchPhysics::Learned => {
+                if let Some(Some(p)) = run.physics_at_start.get(index) {
+                    p.apply_to(&mut c);
+                }
             }
-            c
-        };
-        // The batch fit of the shot's detections among the first `arrived`, at `stamp`.
-        let fitted = |index: usize, arrived: usize, stamp: i64| {
-            let c = physics_of(index);
-            let seen: Vec<Detection> = session.stream[..arrived]
-                .iter()
-                .filter(|d| d.shot == index)
-                .map(|d| d.detection)
-                .collect();
-            let propagator = Propagator::new(&c);
-            let state = fit_whole_flight(&c, &seen)
-                .ok()?
-                .states_at(&propagator, &[stamp])
-                .pop()
-                .flatten()?;
-            Some((state, propagator))
-        };
-        let leads = LEADS
-            .iter()
-            .enumerate()
-            .map(|(slot, &lead)| {
-                let (mut online, mut batch) = (Vec::new(), Vec::new());
-                let (mut online_spin, mut batch_spin) = (Vec::new(), Vec::new());
-                for (index, (truth, record)) in
-                    run.scorer.shots.iter().zip(&run.scorer.records).enumerate()
-                {
-                    let Some((arrived, published)) = record.at_lead[slot] else {
-                        continue;
-                    };
-                    let Some(estimate) = published.intercept else {
-                        continue;
-                    };
-                    let Ok(online_crossing) = estimate.intercept.crossing else {
-                        continue;
-                    };
-                    let Some((fitted, propagator)) = fitted(index, arrived, estimate.stamp) else {
-                        continue;
-                    };
-                    let predicted = predict_intercept(
-                        &propagator,
-                        &fitted.state.to_vector(),
-                        &fitted.covariance,
-                        &query(fitted.robot_half_bounces > 0),
-                    );
-                    let Ok(batch_crossing) = predicted.crossing else {
-                        continue;
-                    };
-                    let miss = |p: &Vector3<f64>| {
-                        Vector2::new(
-                            p.y - truth.intercept_position.y,
-                            p.z - truth.intercept_position.z,
-                        )
-                        .norm()
-                    };
-                    online.push(miss(&online_crossing.state.position));
-                    batch.push(miss(&batch_crossing.state.position));
-                    online_spin.push((online_crossing.state.spin - truth.intercept_spin).norm());
-                    batch_spin.push((batch_crossing.state.spin - truth.intercept_spin).norm());
+            BatchPhysics::True => {
+                if let Some(p) = truth {
+                    p.apply_to(&mut c);
                 }
-                LeadEfficiency {
-                    lead,
-                    position: Comparison::of(&online, &batch),
-                    spin: Comparison::of(&online_spin, &batch_spin),
-                }
-            })
-            .collect();
-        // A state error of the filter's estimate and of the fit at the estimate's stamp.
-        let state_errors =
-            |pick: &dyn Fn(&ShotRecord) -> Option<(usize, Estimate)>,
-             error: &dyn Fn(&BallState, &BallState) -> f64| {
-                let (mut online, mut batch) = (Vec::new(), Vec::new());
-                for (index, record) in run.scorer.records.iter().enumerate() {
-                    let Some((arrived, estimate)) = pick(record) else {
-                        continue;
-                    };
-                    let Some(truth) = session
-                        .shots
-                        .get(index)
-                        .and_then(|s| s.state_at(estimate.stamp))
-                    else {
-                        continue;
-                    };
-                    let Some((fitted, _)) = fitted(index, arrived, estimate.stamp) else {
-                        continue;
-                    };
-                    online.push(error(&estimate.state, &truth));
-                    batch.push(error(&fitted.state, &truth));
-                }
-                Comparison::of(&online, &batch)
-            };
-        let velocity = |e: &BallState, t: &BallState| (e.velocity - t.velocity).norm();
-        let spin_across = |e: &BallState, t: &BallState| {
-            let along = t.velocity.normalize();
-            let error = e.spin - t.spin;
-            (error - along * error.dot(&along)).norm()
-        };
-        Efficiency {
-            physics,
-            leads,
-            velocity_at_age: state_errors(&|r| r.at_age, &velocity),
-            spin_before_high_speed: state_errors(&|r| r.before_high_speed, &spin_across),
+            }
         }
-    })
+        c
+    };
+    // The batch fit of the shot's detections among the first `arrived`, at `stamp`.
+    let fitted = |index: usize, arrived: usize, stamp: i64| {
+        let c = physics_of(index);
+        let seen: Vec<Detection> = session.stream[..arrived]
+            .iter()
+            .filter(|d| d.shot == index)
+            .map(|d| d.detection)
+            .collect();
+        let propagator = Propagator::new(&c);
+        let state = fit_whole_flight(&c, &seen)
+            .ok()?
+            .states_at(&propagator, &[stamp])
+            .pop()
+            .flatten()?;
+        Some((state, propagator))
+    };
+    let leads = LEADS
+        .iter()
+        .enumerate()
+        .map(|(slot, &lead)| {
+            let (mut online, mut batch) = (Vec::new(), Vec::new());
+            let (mut online_spin, mut batch_spin) = (Vec::new(), Vec::new());
+            for (index, (truth, record)) in
+                run.scorer.shots.iter().zip(&run.scorer.records).enumerate()
+            {
+                let Some((arrived, published)) = record.at_lead[slot] else {
+                    continue;
+                };
+                let Some(estimate) = published.intercept else {
+                    continue;
+                };
+                let Ok(online_crossing) = estimate.intercept.crossing else {
+                    continue;
+                };
+                let Some((fitted, propagator)) = fitted(index, arrived, estimate.stamp) else {
+                    continue;
+                };
+                let predicted = predict_intercept(
+                    &propagator,
+                    &fitted.state.to_vector(),
+                    &fitted.covariance,
+                    &query(fitted.robot_half_bounces > 0),
+                );
+                let Ok(batch_crossing) = predicted.crossing else {
+                    continue;
+                };
+                let miss = |p: &Vector3<f64>| {
+                    Vector2::new(
+                        p.y - truth.intercept_position.y,
+                        p.z - truth.intercept_position.z,
+                    )
+                    .norm()
+                };
+                online.push(miss(&online_crossing.state.position));
+                batch.push(miss(&batch_crossing.state.position));
+                online_spin.push((online_crossing.state.spin - truth.intercept_spin).norm());
+                batch_spin.push((batch_crossing.state.spin - truth.intercept_spin).norm());
+            }
+            LeadEfficiency {
+                lead,
+                position: Comparison::of(&online, &batch),
+                spin: Comparison::of(&online_spin, &batch_spin),
+            }
+        })
+        .collect();
+    // A state error of the filter's estimate and of the fit at the estimate's stamp.
+    let state_errors = |pick: &dyn Fn(&ShotRecord) -> Option<(usize, Estimate)>,
+                        error: &dyn Fn(&BallState, &BallState) -> f64| {
+        let (mut online, mut batch) = (Vec::new(), Vec::new());
+        for (index, record) in run.scorer.records.iter().enumerate() {
+            let Some((arrived, estimate)) = pick(record) else {
+                continue;
+            };
+            let Some(truth) = session
+                .shots
+                .get(index)
+                .and_then(|s| s.state_at(estimate.stamp))
+            else {
+                continue;
+            };
+            let Some((fitted, _)) = fitted(index, arrived, estimate.stamp) else {
+                continue;
+            };
+            online.push(error(&estimate.state, &truth));
+            batch.push(error(&fitted.state, &truth));
+        }
+        Comparison::of(&online, &batch)
+    };
+    let velocity = |e: &BallState, t: &BallState| (e.velocity - t.velocity).norm();
+    let spin_across = |e: &BallState, t: &BallState| {
+        let along = t.velocity.normalize();
+        let error = e.spin - t.spin;
+        (error - along * error.dot(&along)).norm()
+    };
+    Efficiency {
+        physics,
+        leads,
+        velocity_at_age: state_errors(&|r| r.at_age, &velocity),
+        spin_before_high_speed: state_errors(&|r| r.before_high_speed, &spin_across),
+    }
 }
 
 #[cfg(test)]

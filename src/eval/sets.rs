@@ -16,7 +16,7 @@
 //! 200 ms lead over the shots after the first [`SETTLE_FLIGHTS`] against the reference's, and
 //! the learned parameters against the truth.
 
-use super::{EvalReport, LEADS, run};
+use super::{Efficiency, EvalReport, LEADS, efficiency_with_truth, run};
 use crate::config::Config;
 use crate::eval::sim::{Cameras, SimError, SimOptions, Spread, simulate};
 use crate::model::stats::ErrorStats;
@@ -336,4 +336,23 @@ pub fn run_set(
         model_noise: filtered.model_noise,
         truth: PhysicsParams::from_config(&truth),
     })
+}
+
+/// The filter's efficiency on a set ([`crate::eval::efficiency_with_truth`]): its errors over
+/// the batch fit's of the same detections, the fit flying the physics the estimator had learned
+/// when each shot began and the set's true physics. Every shot counts, the first
+/// [`SETTLE_FLIGHTS`] (while the estimator learns the set's physics) included.
+pub fn set_efficiency(
+    config: &Config,
+    set: &TrialSet,
+    shots: usize,
+    seed: u64,
+) -> Result<[Efficiency; 2], SimError> {
+    let (truth, filter, _) = configurations(config, set);
+    let session = simulate(&truth, &sim_options(&filter, set, shots, seed))?;
+    Ok(efficiency_with_truth(
+        &filter,
+        &session,
+        &PhysicsParams::from_config(&truth),
+    ))
 }

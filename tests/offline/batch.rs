@@ -126,3 +126,42 @@ fn the_filter_is_measured_against_the_batch_fit_of_the_same_detections() {
     assert_eq!(a.leads, b.leads);
     assert_eq!(a.velocity_at_age, b.velocity_at_age);
 }
+
+/// On a harder set, whose physics are not the configuration's, the filter is measured against
+/// the fit flying the physics it had learned and the fit flying the set's true physics; the
+/// latter, given what neither the filter nor the configuration knows, predicts the crossing far
+/// better than a fit flying the configured (mismatched) physics of the same detections.
+#[test]
+fn on_a_harder_set_the_filter_is_measured_against_the_fit_with_the_true_physics() {
+    use ttball::eval::sets::{configurations, set_efficiency, sim_options, standard_sets};
+    let config = Config::default();
+    let set = standard_sets()
+        .into_iter()
+        .find(|s| s.name == "a-2cams")
+        .expect("set a-2cams");
+    let [learned, truth] = set_efficiency(&config, &set, 12, 3).expect("simulated");
+    assert_eq!(learned.physics, ttball::eval::BatchPhysics::Learned);
+    assert_eq!(truth.physics, ttball::eval::BatchPhysics::True);
+    // The same filter in both lines.
+    for (l, t) in learned.leads.iter().zip(&truth.leads) {
+        assert_eq!(l.lead, t.lead);
+        assert_eq!(l.position.online.median, t.position.online.median);
+    }
+    let (_, filter, _) = configurations(&config, &set);
+    let session = simulate(
+        &configurations(&config, &set).0,
+        &sim_options(&filter, &set, 12, 3),
+    )
+    .expect("simulated");
+    let [configured, _] = ttball::eval::efficiency(&filter, &session);
+    let at_100 = |e: &ttball::eval::Efficiency| e.leads[2].position;
+    eprintln!("configured {:?}", at_100(&configured));
+    eprintln!("true {:?}", at_100(&truth));
+    assert!(at_100(&truth).shots >= 10, "{:?}", at_100(&truth));
+    assert!(
+        at_100(&truth).batch.median * 3.0 < at_100(&configured).batch.median,
+        "the fit with the set's physics {:?} against the configured {:?}",
+        at_100(&truth).batch,
+        at_100(&configured).batch
+    );
+}
