@@ -132,6 +132,11 @@ impl EvaluateArgs {
                 ttball::online::estimator::describe_params(&learning.params),
                 ttball::online::estimator::describe_model_noise(&learning.model_noise)
             ))?;
+            if let Some(line) =
+                ttball::online::estimator::describe_refit_contest(&learning.refit_contest)
+            {
+                write_stdout(&format!("{line}\n"))?;
+            }
             let efficiency = if self.efficiency {
                 eprintln!("fitting every shot as a whole at each lead...");
                 let lines = efficiency(&config, &session);
@@ -226,6 +231,13 @@ impl EvaluateArgs {
                 "            {}\n",
                 ttball::online::estimator::describe_model_noise(model_noise)
             ));
+        }
+        if let Some(line) = report
+            .refit_contest
+            .as_ref()
+            .and_then(ttball::online::estimator::describe_refit_contest)
+        {
+            text.push_str(&format!("            {line}\n"));
         }
         write_stdout(&text)?;
         if let Some(path) = &self.json {

@@ -580,6 +580,9 @@ pub struct EkfParams {
     /// so far, linearised along the flight they smooth to, and smoothed back (an iterated
     /// extended Kalman smoother, two iterations); its estimates replace the filter's; 0 never.
     pub refit_interval: f64,
+    /// Whether the refits replace the filter's estimates only while they have predicted the
+    /// flights better (a contest 0.1 s ahead, learned from the detections); false: always.
+    pub refit_when_better: bool,
     /// The most detections a refit runs over [-]: older ones are kept in the estimate it
     /// starts from (each refit costs about 10 us per detection, 5 us per iteration).
     pub refit_max_detections: u32,
@@ -608,7 +611,8 @@ impl Default for EkfParams {
             learn_model_noise: true,
             model_noise_memory: 20000,
             model_noise_horizon: 0.1,
-            refit_interval: 0.0,
+            refit_interval: 0.05,
+            refit_when_better: true,
             refit_max_detections: 128,
         }
     }

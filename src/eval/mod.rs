@@ -395,6 +395,8 @@ pub struct Learning {
     pub params: crate::online::estimator::LearnedParams,
     /// The process noise and bounce scatter scales.
     pub model_noise: crate::online::estimator::LearnedModelNoise,
+    /// The refits' contest with the filter at the end.
+    pub refit_contest: crate::online::estimator::RefitContestScore,
 }
 
 /// [`evaluate`], with what the estimator had learned at the end.
@@ -405,6 +407,7 @@ pub fn evaluate_learning(config: &Config, session: &Session) -> (EvalReport, Lea
         Learning {
             params: run.learned,
             model_noise: run.model_noise,
+            refit_contest: run.refit_contest,
         },
     )
 }
@@ -417,6 +420,7 @@ pub(crate) struct Run {
     pub(crate) learned: crate::online::estimator::LearnedParams,
     /// How far it had learned the flights stray from its model, at the end.
     pub(crate) model_noise: crate::online::estimator::LearnedModelNoise,
+    pub(crate) refit_contest: crate::online::estimator::RefitContestScore,
     /// The physical parameters it had learned when each shot's first detection came.
     pub(crate) physics_at_start: Vec<Option<crate::physics::PhysicsParams>>,
 }
@@ -444,6 +448,7 @@ pub(crate) fn run(config: &Config, session: &Session) -> Run {
         counters: estimator.counters(),
         learned: estimator.learned_params(),
         model_noise: estimator.learned_model_noise(),
+        refit_contest: estimator.refit_contest(),
         physics_at_start,
     }
 }

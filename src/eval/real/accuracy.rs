@@ -38,7 +38,7 @@ use crate::model::stats::ErrorStats;
 use crate::offline::ballistic::{MeasuredBounce, detect_bounce, fit_ballistic};
 use crate::online::estimator::{
     Counters, Estimator, InterceptEstimate, LearnedModelNoise, LearnedParams, LearnedPhysics,
-    Rejection, Verdict,
+    RefitContestScore, Rejection, Verdict,
 };
 use crate::online::intercept::NoIntercept;
 use crate::physics::BallState;
@@ -346,6 +346,8 @@ pub struct RealReport {
     pub learned: Option<LearnedParams>,
     /// What the last flight's estimator had learned of how far the flights stray from the model.
     pub model_noise: Option<LearnedModelNoise>,
+    /// The last flight's estimator's contest of its refits with its filter.
+    pub refit_contest: Option<RefitContestScore>,
 }
 
 impl RealReport {
@@ -454,12 +456,14 @@ pub fn evaluate_flights(
     let mut learned: Option<LearnedPhysics> = None;
     let mut last = None;
     let mut model_noise = None;
+    let mut refit_contest = None;
     let results: Vec<FlightResult> = flights
         .iter()
         .map(|f| {
             let (result, after) = evaluate_flight(config, f, options, learned.as_ref());
             last = Some(after.params());
             model_noise = Some(after.model_noise());
+            refit_contest = Some(after.refit_contest());
             if options.carry_over {
                 learned = Some(after);
             }
@@ -478,6 +482,7 @@ pub fn evaluate_flights(
         groups,
         learned: last,
         model_noise,
+        refit_contest,
     }
 }
 

@@ -300,6 +300,7 @@ impl Estimator {
             *kept = moved;
         }
         self.learn_ahead(d, &m, &snapshot);
+        self.judge_contest(d, &m);
         self.push_history(Entry {
             detection: *d,
             measurement: m,

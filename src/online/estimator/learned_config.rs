@@ -9,7 +9,9 @@
 //! is its prior and the bound under it (`learning::DISPERSION_FLOOR`), so carrying it would
 //! lower the floor run after run; the next run learns it again from the configured one.
 
-use super::{Estimator, LearnedModelNoise, LearnedParams, LearnedSourceNoise, noise};
+use super::{
+    Estimator, LearnedModelNoise, LearnedParams, LearnedSourceNoise, RefitContestScore, noise,
+};
 use crate::config::Config;
 #[cfg(feature = "interface")]
 use crate::config::ConfigError;
@@ -25,6 +27,8 @@ pub struct LearnedSummary {
     pub source_noise: Vec<LearnedSourceNoise>,
     /// How far the flights stray from the model.
     pub model_noise: LearnedModelNoise,
+    /// Whether the live refits predict the flights better than the filter.
+    pub refit_contest: RefitContestScore,
 }
 
 impl Estimator {
@@ -34,6 +38,7 @@ impl Estimator {
             params: self.learned_params(),
             source_noise: self.learned_noise(),
             model_noise: self.learned_model_noise(),
+            refit_contest: self.refit_contest(),
         }
     }
 }
@@ -70,6 +75,7 @@ impl LearnedSummary {
         let mut lines = vec![describe_params(&self.params)];
         lines.extend(describe_source_noise(&self.source_noise));
         lines.push(describe_model_noise(&self.model_noise));
+        lines.extend(describe_refit_contest(&self.refit_contest));
         lines
     }
 
@@ -134,6 +140,21 @@ pub fn describe_model_noise(m: &LearnedModelNoise) -> String {
     format!("learned model noise: {} the configured", parts.join(", "))
 }
 
+/// The refits' contest with the filter in one line ("refits applied: ..."), or `None` before
+/// the first contest.
+pub fn describe_refit_contest(c: &RefitContestScore) -> Option<String> {
+    (c.contests > 0).then(|| {
+        format!(
+            "refits {} (ekf.refit_when_better): {} contests 0.1 s ahead, the refit's miss {:.2}x \
+             the filter's (geometric mean, t = {:.1})",
+            if c.applying { "applied" } else { "not applied" },
+            c.contests,
+            (-c.mean_log_ratio).exp(),
+            c.t
+        )
+    })
+}
+
 /// The noise learned of the sources that sent detections, in one line: "learned noise:
 /// wide_150fps position sigma 3.0 mm (1.50x configured), stamps 0.3 ms; ...", or `None` when no
 /// source has learned anything.
@@ -177,6 +198,7 @@ mod tests {
 
     fn lesson() -> LearnedSummary {
         LearnedSummary {
+            refit_contest: RefitContestScore::default(),
             params: LearnedParams {
                 params: PhysicsParams {
                     drag_scale: 0.93,
@@ -230,6 +252,7 @@ mod tests {
         assert!(c.validate().is_ok());
         // Nothing learned, nothing changed.
         let nothing = LearnedSummary {
+            refit_contest: RefitContestScore::default(),
             params: LearnedParams {
                 params: PhysicsParams::from_config(&base),
                 ..learned.params

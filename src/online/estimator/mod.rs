@@ -27,6 +27,7 @@ mod learned_config;
 mod learning;
 mod model_noise;
 mod noise;
+mod refit_contest;
 mod refitting;
 mod tracking;
 
@@ -52,12 +53,14 @@ use crate::physics::{
 };
 pub use counters::{Counters, Rejection, Verdict};
 pub use learned_config::{
-    LearnedSummary, describe_model_noise, describe_params, describe_source_noise,
+    LearnedSummary, describe_model_noise, describe_params, describe_refit_contest,
+    describe_source_noise,
 };
 use learning::Learned;
 use model_noise::ModelNoiseLearner;
 use noise::NoiseLearner;
 pub use noise::SourceNoiseEstimate;
+pub use refit_contest::RefitContestScore;
 
 /// Track status, with the codes of `BallState.msg`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -159,6 +162,11 @@ pub(crate) struct Settings {
     model_noise_horizon: i64,
     /// How often the track is refitted [ns of track]; 0 never.
     refit_interval: i64,
+    /// Refits replace the filter's estimates only while they predict the flight better
+    /// ([`refit_contest`]).
+    refit_when_better: bool,
+    /// The horizon the refits and the filter are contested at [ns].
+    contest_horizon: i64,
     /// The most detections a refit runs over (its window).
     refit_max: usize,
     /// A track teaches its flight smoothed when it ends (`adaptation.smoothed_lessons`, with
@@ -249,6 +257,12 @@ impl Settings {
             plane_x: config.intercept.plane_x,
             horizon: config.prediction.horizon,
             refit_interval: seconds_to_ns(config.ekf.refit_interval),
+            refit_when_better: config.ekf.refit_when_better,
+            contest_horizon: seconds_to_ns(if config.ekf.model_noise_horizon > 0.0 {
+                config.ekf.model_noise_horizon
+            } else {
+                refit_contest::HORIZON
+            }),
             refit_max: REFIT_MAX_DETECTIONS.clamp(config.ekf.refit_max_detections) as usize,
             smoothed_lessons: config.adaptation.enabled && config.adaptation.smoothed_lessons,
             gravity: config.gravity,
@@ -413,6 +427,8 @@ pub struct Estimator {
     expected_hit: Option<(RobotHit, Option<Snapshot>)>,
     /// The live track's detections for its refits, and the last smoothed flight.
     refit: refitting::TrackRefit,
+    /// Whether the refits predict the flights better than the filter.
+    contest: refit_contest::RefitContest,
     /// The buffer of the ended track whose lesson is pending, swapped with `refit`.
     lesson_refit: refitting::TrackRefit,
     /// The pending lesson of an ended track ([`Self::learn_in_idle_time`]).
@@ -469,9 +485,16 @@ pub struct LearnedModelNoise {
 pub struct LearnedPhysics {
     params: Learned,
     model_noise: ModelNoiseLearner,
+    /// The refits' contest with the filter (no contest under way).
+    refit_contest: refit_contest::RefitContest,
 }
 
 impl LearnedPhysics {
+    /// Whether the live refits predict the flights better than the filter, as contested.
+    pub fn refit_contest(&self) -> RefitContestScore {
+        self.refit_contest.report()
+    }
+
     /// How far the flights stray from the model, as learned.
     pub fn model_noise(&self) -> LearnedModelNoise {
         self.model_noise.learned()
@@ -643,6 +666,7 @@ impl Estimator {
             } else {
                 0
             }),
+            contest: refit_contest::RefitContest::default(),
             lesson: None,
             lesson_bounces: Vec::with_capacity(history_capacity + 2),
             propagator,
@@ -751,6 +775,7 @@ impl Estimator {
         LearnedPhysics {
             params: self.learned_with_live_track(),
             model_noise: self.model_noise,
+            refit_contest: self.contest.without_held(),
         }
     }
 
@@ -761,11 +786,12 @@ impl Estimator {
     }
 
     /// Starts from what another estimator (of the same configuration) learned of the physical
-    /// parameters and of how far the flights stray from the model, as if its tracks had been
-    /// this one's.
+    /// parameters, of how far the flights stray from the model and of whether its refits
+    /// predict them better than the filter, as if its tracks had been this one's.
     pub fn adopt_learned_physics(&mut self, learned: &LearnedPhysics) {
         self.learned = learned.params;
         self.model_noise = learned.model_noise;
+        self.contest = learned.refit_contest;
     }
 
     fn learned_with_live_track(&self) -> Learned {
@@ -1036,6 +1062,12 @@ impl Estimator {
     /// its configured process noise and bounce scatter.
     pub fn learned_model_noise(&self) -> LearnedModelNoise {
         self.model_noise.learned()
+    }
+
+    /// Whether the live refits (`ekf.refit_interval`) predict the flights better than the
+    /// filter, as far as the contests so far tell (`ekf.refit_when_better`).
+    pub fn refit_contest(&self) -> RefitContestScore {
+        self.contest.report()
     }
 
     /// What the estimator has learned of each source's noise, in the order of

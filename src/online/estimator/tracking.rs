@@ -134,6 +134,7 @@ impl Estimator {
         if let Some(probe) = self.probe.as_deref_mut() {
             probe.from = None;
         }
+        self.contest.held = None;
         let history = std::mem::take(&mut self.spare_history);
         self.track = Some(Track {
             id,
@@ -183,6 +184,7 @@ impl Estimator {
         if let Some(probe) = self.probe.as_deref_mut() {
             probe.from = None;
         }
+        self.contest.held = None;
         let mut history = std::mem::take(&mut self.spare_history);
         history.push_back(Entry {
             detection: *d,
