@@ -185,15 +185,18 @@ fn the_model_noise_and_the_dispersion_are_learned() {
 /// low when its own estimates teach (`adaptation.smoothed_lessons: false`); each track's flight
 /// smoothed when it ends (the default: the filter run again over the track linearised along the
 /// flight its detections smooth to) teaches a scale near the truth, as do the track's refits
-/// (`ekf.refit_interval`).
+/// (`ekf.refit_interval`, applied always). Each on its own: the lessons without refits, the
+/// refits without the lessons.
 #[test]
 fn a_smoothed_flight_teaches_the_magnus_scale_a_position_only_filter_leans_low_on() {
-    let smoothed = Config::default();
+    let mut smoothed = Config::default();
     assert!(smoothed.adaptation.smoothed_lessons);
+    smoothed.ekf.refit_interval = 0.0;
     let mut filter = smoothed.clone();
     filter.adaptation.smoothed_lessons = false;
     let mut refitted = filter.clone();
     refitted.ekf.refit_interval = 0.05;
+    refitted.ekf.refit_when_better = false;
     let relative = |r: &SetReport| r.learned.params.magnus_scale / r.truth.magnus_scale - 1.0;
     let alone = report(&filter, "a-lab", 60);
     let with_lessons = report(&smoothed, "a-lab", 60);

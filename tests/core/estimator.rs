@@ -958,12 +958,15 @@ fn spin_across_at_the_end(config: &Config, shots: usize, seed: u64) -> f64 {
 /// zero: where C_M(Sp) is steep a small spin explains the curvature, so a fast spin is read too
 /// small and then believed. Refitting the track (`ekf.refit_interval`) runs the filter again
 /// linearised along the flight the detections smooth to: with the 150 fps camera alone the spin
-/// across the flight at each shot's last detection is less than half as far off.
+/// across the flight at each shot's last detection is less than half as far off (the refits
+/// applied from the first shot, `ekf.refit_when_better: false`).
 #[test]
 fn a_refitted_track_reads_a_fast_spin_the_filter_reads_too_small() {
-    let filter = Config::default();
+    let mut filter = Config::default();
+    filter.ekf.refit_interval = 0.0;
     let mut refitted = filter.clone();
     refitted.ekf.refit_interval = 0.05;
+    refitted.ekf.refit_when_better = false;
     let (alone, with_refits) = (
         spin_across_at_the_end(&filter, 60, 4),
         spin_across_at_the_end(&refitted, 60, 4),
@@ -975,6 +978,39 @@ fn a_refitted_track_reads_a_fast_spin_the_filter_reads_too_small() {
         with_refits < 0.5 * alone,
         "{with_refits:.1} against {alone:.1}"
     );
+}
+
+/// On simulated play, whose flights follow the model, the refits predict the flight 0.1 s ahead
+/// better than the filter, and once enough contests say so (`ekf.refit_when_better`, the
+/// default) they are applied: the 150 fps camera's spin across the flight is then read as the
+/// refits read it from the first shot (`ekf.refit_when_better: false`), not as the filter.
+#[test]
+fn the_refits_are_applied_once_they_have_predicted_better() {
+    let config = Config::default();
+    assert!(config.ekf.refit_when_better && config.ekf.refit_interval > 0.0);
+    let options = SimOptions {
+        cameras: Cameras::WideOnly,
+        shots: 80,
+        seed: 1,
+        ..SimOptions::default()
+    };
+    let mut configured = config.clone();
+    options.params.configure_estimator(&mut configured);
+    let session = simulate(&configured, &options).unwrap();
+    let mut estimator = Estimator::new(&configured);
+    let mut switched = None;
+    for sim in &session.stream {
+        estimator.handle(&sim.detection);
+        if switched.is_none() && estimator.refit_contest().applying {
+            switched = Some(sim.shot);
+        }
+    }
+    let contest = estimator.refit_contest();
+    eprintln!("{contest:?}, applied from shot {switched:?}");
+    let shot = switched.expect("the refits applied");
+    assert!((5..70).contains(&shot), "from shot {shot}");
+    assert!(contest.applying && contest.t > 2.0, "{contest:?}");
+    assert!(estimator.counters().refits > 100, "{:?}", estimator.counters());
 }
 
 /// A clone of an estimator, fresh or midway through a stream, runs on exactly as the original:
@@ -1192,10 +1228,13 @@ fn spin_along_the_flight_before_the_bounce(config: &Config, shots: usize, seed: 
 /// (NEES 0.85).
 #[test]
 fn the_spin_along_the_flight_is_learned_at_part_of_the_gain() {
-    let mut plain = Config::default();
+    // The filter's own update, no refit.
+    let mut filter = Config::default();
+    filter.ekf.refit_interval = 0.0;
+    let mut plain = filter.clone();
     plain.ekf.spin_along_flight_gain = 1.0;
     let (partial, full) = (
-        spin_along_the_flight_before_the_bounce(&Config::default(), 40, 7),
+        spin_along_the_flight_before_the_bounce(&filter, 40, 7),
         spin_along_the_flight_before_the_bounce(&plain, 40, 7),
     );
     eprintln!(
