@@ -611,7 +611,7 @@ impl Default for EkfParams {
             learn_model_noise: true,
             model_noise_memory: 20000,
             model_noise_horizon: 0.1,
-            refit_interval: 0.05,
+            refit_interval: 0.1,
             refit_when_better: true,
             refit_max_detections: 128,
         }

@@ -1010,7 +1010,11 @@ fn the_refits_are_applied_once_they_have_predicted_better() {
     let shot = switched.expect("the refits applied");
     assert!((5..70).contains(&shot), "from shot {shot}");
     assert!(contest.applying && contest.t > 2.0, "{contest:?}");
-    assert!(estimator.counters().refits > 100, "{:?}", estimator.counters());
+    assert!(
+        estimator.counters().refits > 100,
+        "{:?}",
+        estimator.counters()
+    );
 }
 
 /// A clone of an estimator, fresh or midway through a stream, runs on exactly as the original:
