@@ -8,7 +8,8 @@
 //! on the real launcher flights, whose shape departs from the model's, they predict it worse
 //! (docs/estimator.md, "The track refitted"). Which holds for the flights at hand is for those
 //! flights to say, as they say how far they stray from the model (the learned model noise,
-//! [`super::model_noise`]): a predictive contest between the two estimates.
+//! [`super::model_noise`]): a predictive contest between the two estimates, each judged by
+//! data it had not seen (Dawid, "the prequential approach", JRSS A 1984; docs/references.md).
 //!
 //! At a refit both estimates of the newest stamp are held, the filter's and the refit's. At the
 //! track's first fused detection a horizon later (`ekf.model_noise_horizon`, or [`HORIZON`]
