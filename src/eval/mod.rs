@@ -532,8 +532,10 @@ pub struct Efficiency {
 /// flight-to-flight dispersion of the parameters, gating, initialisation) cost.
 pub fn efficiency(config: &Config, session: &Session) -> [Efficiency; 2] {
     let run = run(config, session);
+    // The session flies the configured physics.
+    let truth = PhysicsParams::from_config(config);
     [BatchPhysics::Configured, BatchPhysics::Learned]
-        .map(|physics| efficiency_of(&run, config, session, physics, None))
+        .map(|physics| efficiency_of(&run, config, session, physics, &truth))
 }
 
 /// The filter's efficiency on a session simulated with other physics than `config`'s
@@ -546,17 +548,17 @@ pub fn efficiency_with_truth(
 ) -> [Efficiency; 2] {
     let run = run(config, session);
     [BatchPhysics::Learned, BatchPhysics::True]
-        .map(|physics| efficiency_of(&run, config, session, physics, Some(truth)))
+        .map(|physics| efficiency_of(&run, config, session, physics, truth))
 }
 
 /// One line of [`efficiency`]: the filter's `run` of `session` against the batch fit flying
-/// `physics` (`truth` for [`BatchPhysics::True`]; the configured physics without it).
+/// `physics` (`truth`, the session's own, for [`BatchPhysics::True`]).
 fn efficiency_of(
     run: &Run,
     config: &Config,
     session: &Session,
     physics: BatchPhysics,
-    truth: Option<&PhysicsParams>,
+    truth: &PhysicsParams,
 ) -> Efficiency {
     let query = |bounced| InterceptQuery {
         plane_x: config.intercept.plane_x,
@@ -573,11 +575,7 @@ fn efficiency_of(
                     p.apply_to(&mut c);
                 }
             }
-            BatchPhysics::True => {
-                if let Some(p) = truth {
-                    p.apply_to(&mut c);
-                }
-            }
+            BatchPhysics::True => truth.apply_to(&mut c),
         }
         c
     };

@@ -147,12 +147,8 @@ fn on_a_harder_set_the_filter_is_measured_against_the_fit_with_the_true_physics(
         assert_eq!(l.lead, t.lead);
         assert_eq!(l.position.online.median, t.position.online.median);
     }
-    let (_, filter, _) = configurations(&config, &set);
-    let session = simulate(
-        &configurations(&config, &set).0,
-        &sim_options(&filter, &set, 12, 3),
-    )
-    .expect("simulated");
+    let (truth_config, filter, _) = configurations(&config, &set);
+    let session = simulate(&truth_config, &sim_options(&filter, &set, 12, 3)).expect("simulated");
     let [configured, _] = ttball::eval::efficiency(&filter, &session);
     let at_100 = |e: &ttball::eval::Efficiency| e.leads[2].position;
     eprintln!("configured {:?}", at_100(&configured));

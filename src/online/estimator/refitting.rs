@@ -239,12 +239,13 @@ impl Estimator {
         while kept.next <= age {
             kept.next += interval;
         }
-        // A refit that would neither be applied nor start a contest is not run.
-        let contested = self.settings.refit_when_better && !self.contest.applying();
-        if kept.observations.len() < MIN_DETECTIONS || (contested && self.contest.held.is_some()) {
+        if kept.observations.len() < MIN_DETECTIONS {
             return;
         }
-        self.refit_now();
+        // A refit that would neither be applied nor start a contest is not run.
+        if self.refits_applied() || self.contest.held.is_none() {
+            self.refit_now();
+        }
     }
 
     /// Whether the ending track's lesson is its flight smoothed: the option on, the kept
@@ -380,7 +381,7 @@ impl Estimator {
             if self.settings.refit_when_better {
                 self.hold_contest();
             }
-            if !self.settings.refit_when_better || self.contest.applying() {
+            if self.refits_applied() {
                 self.take_pass();
                 self.counters.refits += 1;
             }
@@ -390,6 +391,12 @@ impl Estimator {
             self.refit.smoothed.clear();
         }
         self.slide_window();
+    }
+
+    /// Whether a refit's estimates replace the filter's: always without `ekf.refit_when_better`,
+    /// else while the refits win their contests.
+    fn refits_applied(&self) -> bool {
+        !self.settings.refit_when_better || self.contest.applying()
     }
 
     /// Holds the live track's newest estimate and the last pass's at the same stamp for their

@@ -5,6 +5,18 @@
 use super::*;
 
 impl Estimator {
+    /// A new track starts: nothing of it depends on the noise scales yet, and no prediction
+    /// of the last track is held to learn the model noise from or to score a refit's contest.
+    fn forget_the_last_tracks_predictions(&mut self) {
+        if let Some(d) = self.sensitivity.as_deref_mut() {
+            *d = [StateMatrix::zeros(); NOISE_SCALES];
+        }
+        if let Some(probe) = self.probe.as_deref_mut() {
+            probe.from = None;
+        }
+        self.contest.held = None;
+    }
+
     pub(super) fn insert_pending(&mut self, d: &Detection) {
         if self.pending.len() >= self.settings.pending_limit() {
             self.pending.remove(0);
@@ -127,14 +139,7 @@ impl Estimator {
                 id
             }
         };
-        // Nothing of the new track depends on the noise scales yet.
-        if let Some(d) = self.sensitivity.as_deref_mut() {
-            *d = [StateMatrix::zeros(); NOISE_SCALES];
-        }
-        if let Some(probe) = self.probe.as_deref_mut() {
-            probe.from = None;
-        }
-        self.contest.held = None;
+        self.forget_the_last_tracks_predictions();
         let history = std::mem::take(&mut self.spare_history);
         self.track = Some(Track {
             id,
@@ -178,13 +183,7 @@ impl Estimator {
         self.next_track_id = self.next_track_id.wrapping_add(1).max(1);
         self.counters.tracks += 1;
         self.counters.seeded_by_hit += 1;
-        if let Some(s) = self.sensitivity.as_deref_mut() {
-            *s = [StateMatrix::zeros(); NOISE_SCALES];
-        }
-        if let Some(probe) = self.probe.as_deref_mut() {
-            probe.from = None;
-        }
-        self.contest.held = None;
+        self.forget_the_last_tracks_predictions();
         let mut history = std::mem::take(&mut self.spare_history);
         history.push_back(Entry {
             detection: *d,
