@@ -12,7 +12,6 @@ use clap::Args;
 use ttball::bag::damage_text;
 use ttball::bag::live_view::LiveView;
 use ttball::bag::replay::{ReplaySummary, replay, replay_observed};
-use ttball::online::ekf::NoiseScales;
 use ttball::online::estimator::{LearnedModelNoise, LearnedParams, LearnedSourceNoise, Rejection};
 use ttball::physics::PhysicsParams;
 
@@ -381,11 +380,10 @@ pub fn summary_text(s: &ReplaySummary, whole_seconds: Option<f64>) -> String {
 
 /// The learned model noise as JSON: each scale by name with the sigma of its log.
 pub fn model_noise_json(m: &LearnedModelNoise) -> serde_json::Value {
-    let scales: serde_json::Map<String, serde_json::Value> = NoiseScales::NAMES
-        .iter()
-        .zip(m.scales.to_array())
-        .zip(m.log_sigma)
-        .map(|((name, scale), sigma)| {
+    let scales: serde_json::Map<String, serde_json::Value> = m
+        .named()
+        .into_iter()
+        .map(|(name, scale, sigma)| {
             (
                 (*name).to_string(),
                 serde_json::json!({"scale": scale, "log_sigma": sigma}),

@@ -517,6 +517,11 @@ pub struct EkfParams {
     /// wander by 0.045 m/s over 1 s. The filter learns spin from the flight's curvature, where
     /// 1 rad/s changes the acceleration by only ~5 mm/s^2: larger values hide it. Tuning value.
     pub acceleration_noise_density: f64,
+    /// Power spectral density of the white acceleration noise once the track's spin has been
+    /// measured (a spin camera's detection fused) [m^2/s^3]: the Magnus force is then known,
+    /// and the model misses less. Learned apart from `acceleration_noise_density` (see
+    /// `learn_model_noise`). Tuning value.
+    pub spin_measured_acceleration_noise_density: f64,
     /// Power spectral density q_w of the spin random walk [(rad/s)^2/s]; the model keeps spin
     /// constant in flight, this lets the estimate drift by about 3 rad/s per sqrt(s). Tuning value.
     pub spin_noise_density: f64,
@@ -565,7 +570,8 @@ pub struct EkfParams {
     pub noise_memory: u32,
     /// Learn how far the flights really stray from the model, from the innovations of the
     /// predictions `model_noise_horizon` ahead: a scale on the process noise
-    /// (`acceleration_noise_density`, `spin_noise_density`) and one on the bounce's scatter
+    /// (`acceleration_noise_density`, `spin_measured_acceleration_noise_density`,
+    /// `spin_noise_density`) and one on the bounce's scatter
     /// (`bounce_impulse_sigma`, `bounce_restitution_sigma`, as variances), starting from 1, by
     /// recursive maximum likelihood.
     pub learn_model_noise: bool,
@@ -595,6 +601,7 @@ impl Default for EkfParams {
     fn default() -> Self {
         Self {
             acceleration_noise_density: 0.002,
+            spin_measured_acceleration_noise_density: 0.002,
             spin_noise_density: 10.0,
             init_detections: 4,
             init_max_span: 0.1,

@@ -742,6 +742,10 @@ impl Config {
             "ekf.acceleration_noise_density",
             e.acceleration_noise_density,
         );
+        c.positive(
+            "ekf.spin_measured_acceleration_noise_density",
+            e.spin_measured_acceleration_noise_density,
+        );
         c.non_negative("ekf.spin_noise_density", e.spin_noise_density);
         c.count(
             "ekf.init_detections",

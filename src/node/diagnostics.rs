@@ -6,7 +6,6 @@
 //! readings.
 
 use crate::model::stats::DurationSummary;
-use crate::online::ekf::NoiseScales;
 use crate::online::estimator::{Counters, Rejection};
 use crate::online::estimator::{LearnedModelNoise, LearnedParams, LearnedSourceNoise};
 use crate::physics::PhysicsParams;
@@ -214,10 +213,7 @@ pub fn diagnostics_msg(snapshot: &Snapshot<'_>, window: &mut Window) -> Diagnost
             format!("{:.4}", s.learned.flight_sigma[i]),
         ));
     }
-    for (name, scale) in NoiseScales::NAMES
-        .iter()
-        .zip(s.learned_model_noise.scales.to_array())
-    {
+    for (name, scale, _) in s.learned_model_noise.named() {
         values.push(kv(
             &format!("learned {name} noise scale"),
             format!("{scale:.4}"),
@@ -596,12 +592,13 @@ mod tests {
 
     fn model_noise() -> LearnedModelNoise {
         LearnedModelNoise {
-            scales: NoiseScales {
+            scales: crate::online::ekf::NoiseScales {
                 acceleration: 0.2,
                 spin: 0.5,
                 bounce: 1.5,
             },
-            log_sigma: [0.3, 0.4, 0.5],
+            spin_measured_acceleration: 0.05,
+            log_sigma: [0.3, 0.4, 0.5, 0.6],
         }
     }
 

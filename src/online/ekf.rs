@@ -192,6 +192,10 @@ pub struct NoiseScore {
     pub gradient: [f64; NOISE_SCALES],
     /// The Fisher information of each, 1/2 tr(S^-1 dS S^-1 dS).
     pub information: [f64; NOISE_SCALES],
+    /// The share of the innovation's covariance each scale makes per unit of it,
+    /// tr(S^-1 dS) / m: times the scale, the fraction of S that is the scale's doing (1 where it
+    /// is all of it).
+    pub share: [f64; NOISE_SCALES],
 }
 
 /// A fused measurement: its normalised innovation squared and what it tells of the noise.
@@ -346,6 +350,7 @@ fn noise_score<const M: usize>(
         let SiA = chol.solve(&A);
         score.gradient[j] = -0.5 * (SiA.trace() - w.dot(&(A * w)));
         score.information[j] = 0.5 * (SiA * SiA).trace();
+        score.share[j] = SiA.trace() / M as f64;
     }
     score
 }

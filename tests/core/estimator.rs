@@ -239,7 +239,7 @@ fn out_of_order_fusion_equals_in_order_fusion() {
     fixed_noise.ekf.learn_model_noise = false;
     for (config, position, velocity, spin) in [
         (fixed_noise, 1e-9, 1e-9, 1e-9),
-        (wide_config(), 1e-4, 1e-3, 0.05),
+        (wide_config(), 1e-4, 1e-3, 0.1),
     ] {
         let mut in_order = Estimator::new(&config);
         for d in &by_stamp {

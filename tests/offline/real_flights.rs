@@ -324,12 +324,13 @@ fn the_estimator_predicts_real_flights_through_their_bounce() {
     // detection's innovation instead of 0.1 s ahead, 0.72 and 1.95).
     assert!(lead200.crossing_nees < 0.8, "{lead200:?}");
     assert!(lead100.crossing_nees < 1.3, "{lead100:?}");
-    // Real flights stray from the model more than the simulated ones (which learn 0.03x): the
-    // model noise learned 0.1 s ahead grows (1.1x the configured acceleration noise; 1.16x
-    // before part of the gain on the spin along the flight, `ekf.spin_along_flight_gain`, took
-    // some of the misses away).
+    // Real flights stray from the model far more than the simulated ones (whose scales fall to
+    // the floor, 0.0001x): the acceleration noise learned 0.1 s ahead stays near the configured
+    // (0.74x; 1.1x while the score took the held estimate's covariance as given, 1.16x before
+    // part of the gain on the spin along the flight, `ekf.spin_along_flight_gain`, took some of
+    // the misses away).
     let model_noise = full.model_noise.expect("learned model noise").scales;
-    assert!(model_noise.acceleration > 1.0, "{model_noise:?}");
+    assert!(model_noise.acceleration > 0.5, "{model_noise:?}");
     // The track's refits, which predict simulated flights better than the filter, predict these
     // worse 0.1 s ahead (119 contests, the refit's miss 1.04x the filter's, t = -1.7): never
     // applied, the crossing is the filter's.

@@ -23,7 +23,7 @@ impl Estimator {
             let report = snapshot.ekf.predict(
                 propagator,
                 &self.settings.filter,
-                &self.model_noise.scales(),
+                &self.model_noise.scales(snapshot.spin_measured),
                 sensitivity,
                 dt,
             );
@@ -76,7 +76,7 @@ impl Estimator {
         match result {
             Ok(fused) => {
                 snapshot.record(d.stamp, &fused);
-                self.score = scoring.then_some(fused.score);
+                self.score = scoring.then_some((fused.score, prior.spin_measured));
                 Ok(fused.nis)
             }
             Err(UpdateError::Gated { .. }) => Err(Rejection::Gated),
@@ -130,7 +130,9 @@ impl Estimator {
                 false,
             ),
             Measurement::PositionSpin { z, r, .. } => {
-                self.fuse_position_spin(snapshot, z, r, sensitivity)
+                let fused = self.fuse_position_spin(snapshot, z, r, sensitivity);
+                snapshot.spin_measured |= fused.0.is_ok();
+                fused
             }
         };
         (result, innovation, spin_reset)
@@ -283,6 +285,7 @@ impl Estimator {
             return Err(Rejection::Duplicate);
         }
         let mut snapshot = track.now;
+        let track_was_spin_measured = snapshot.spin_measured;
         // The sensitivity to the noise scales moves on only with a detection fused.
         let mut sensitivity = self.sensitivity.as_deref().copied();
         let mut result = self.fuse(&mut snapshot, d, &m, sensitivity.as_mut());
@@ -296,7 +299,12 @@ impl Estimator {
         }
         self.learn_noise(d);
         let nis = result?;
-        if let (Some(kept), Some(moved)) = (self.sensitivity.as_deref_mut(), sensitivity) {
+        if let (Some(kept), Some(mut moved)) = (self.sensitivity.as_deref_mut(), sensitivity) {
+            if snapshot.spin_measured && !track_was_spin_measured {
+                // The acceleration's scale of the phase that starts here has added nothing yet.
+                let [acceleration, _, _] = &mut moved;
+                *acceleration = StateMatrix::zeros();
+            }
             *kept = moved;
         }
         self.learn_ahead(d, &m, &snapshot);
@@ -322,15 +330,14 @@ impl Estimator {
         let due = probe
             .from
             .as_ref()
-            .is_none_or(|from| d.stamp - from.stamp >= self.settings.model_noise_horizon);
+            .is_none_or(|(from, _)| d.stamp - from.stamp >= self.settings.model_noise_horizon);
         let held = if due { probe.from } else { None };
         // Each fused detection fades what was learned, as without a horizon.
         self.model_noise.fade();
         if !due {
             return;
         }
-        if let Some(mut ahead) = held {
-            let mut sensitivity = [StateMatrix::zeros(); NOISE_SCALES];
+        if let Some((mut ahead, mut sensitivity)) = held {
             self.advance_with(
                 &self.propagator,
                 &mut ahead,
@@ -339,11 +346,13 @@ impl Estimator {
             );
             let (z, r) = self.measurement_at(&ahead, m).0.position();
             if let Some(fused) = ahead.ekf.score(&z, &position_H(), &r, &sensitivity) {
-                self.model_noise.learn_ahead(&fused.score);
+                self.model_noise
+                    .learn_ahead(&fused.score, ahead.spin_measured);
             }
         }
-        if let Some(held) = self.probe.as_deref_mut() {
-            held.from = Some(*after);
+        let sensitivity = self.sensitivity.as_deref().copied();
+        if let (Some(held), Some(sensitivity)) = (self.probe.as_deref_mut(), sensitivity) {
+            held.from = Some((*after, sensitivity));
         }
     }
 

@@ -30,6 +30,8 @@ pub(crate) struct InitialFit {
     pub dof: u32,
     /// Index of the detection with the largest normalised residual.
     pub worst: usize,
+    /// Whether the spin was measured (on every axis) rather than left to the filter to learn.
+    pub spin_measured: bool,
 }
 
 /// Measurement variances of one detection, as the filter would use them.
@@ -150,5 +152,6 @@ pub(crate) fn fit(
         chi_square,
         dof: (3 * n).saturating_sub(6),
         worst: worst.0,
+        spin_measured,
     })
 }

@@ -15,7 +15,6 @@ use super::{
 use crate::config::Config;
 #[cfg(feature = "interface")]
 use crate::config::ConfigError;
-use crate::online::ekf::NoiseScales;
 use crate::physics::PhysicsParams;
 
 /// Everything an estimator has learned, as it stands.
@@ -52,6 +51,7 @@ impl LearnedSummary {
         let scales = &self.model_noise.scales;
         let ekf = &mut config.ekf;
         ekf.acceleration_noise_density *= scales.acceleration;
+        ekf.spin_measured_acceleration_noise_density *= self.model_noise.spin_measured_acceleration;
         ekf.spin_noise_density *= scales.spin;
         // The bounce's scale is on the scatter's variance.
         ekf.bounce_impulse_sigma *= scales.bounce.sqrt();
@@ -132,10 +132,10 @@ pub fn describe_params(l: &LearnedParams) -> String {
 /// How far the flights stray from the model, in one line: "learned model noise: acceleration
 /// 0.030x, spin 0.100x, bounce 0.090x the configured".
 pub fn describe_model_noise(m: &LearnedModelNoise) -> String {
-    let parts: Vec<String> = NoiseScales::NAMES
+    let parts: Vec<String> = m
+        .named()
         .iter()
-        .zip(m.scales.to_array())
-        .map(|(name, scale)| format!("{name} {scale:.3}x"))
+        .map(|(name, scale, _)| format!("{name} {scale:.3}x"))
         .collect();
     format!("learned model noise: {} the configured", parts.join(", "))
 }
@@ -178,7 +178,8 @@ pub fn describe_source_noise(noise: &[LearnedSourceNoise]) -> Option<String> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::online::ekf::NOISE_SCALES;
+    use crate::online::ekf::NoiseScales;
+    use crate::online::estimator::LEARNED_SCALES;
     use crate::online::estimator::SourceNoiseEstimate;
 
     fn source(name: &str, weight: f64, spin_weight: f64) -> LearnedSourceNoise {
@@ -221,7 +222,8 @@ mod tests {
                     spin: 0.5,
                     bounce: 4.0,
                 },
-                log_sigma: [0.1; NOISE_SCALES],
+                spin_measured_acceleration: 0.25,
+                log_sigma: [0.1; LEARNED_SCALES],
             },
         }
     }
@@ -239,6 +241,10 @@ mod tests {
         assert_eq!(
             e.acceleration_noise_density,
             1.5 * b.acceleration_noise_density
+        );
+        assert_eq!(
+            e.spin_measured_acceleration_noise_density,
+            0.25 * b.spin_measured_acceleration_noise_density
         );
         assert_eq!(e.spin_noise_density, 0.5 * b.spin_noise_density);
         assert_eq!(e.bounce_impulse_sigma, 2.0 * b.bounce_impulse_sigma);
@@ -260,7 +266,8 @@ mod tests {
             source_noise: Vec::new(),
             model_noise: LearnedModelNoise {
                 scales: NoiseScales::default(),
-                log_sigma: [0.5; NOISE_SCALES],
+                spin_measured_acceleration: 1.0,
+                log_sigma: [0.5; LEARNED_SCALES],
             },
         };
         assert_eq!(nothing.configuration(&base), base);

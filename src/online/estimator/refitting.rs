@@ -86,7 +86,8 @@ pub(super) struct PendingLesson {
     stamp: i64,
     /// What the filter learned: the lesson if the smoothing fails.
     filter: (ParamVector, ParamCovariance),
-    /// The model's noise scales when the track ended.
+    /// The model's noise scales when the track ended, for the kept detections' phase (positions
+    /// before the spin is measured).
     scales: NoiseScales,
     /// The bounces before the kept detections' first estimate.
     base_bounces: u32,
@@ -285,7 +286,7 @@ impl Estimator {
             started: track.started,
             stamp: track.now.stamp,
             filter: (track.now.ekf.theta, track.now.ekf.param_covariance()),
-            scales: self.model_noise.scales(),
+            scales: self.refit_scales(),
             base_bounces,
             stage: 0,
             posterior: None,
@@ -459,10 +460,17 @@ impl Estimator {
     /// prediction linearised at the last smoothed flight where it has one (a detection it has
     /// not seen: at the pass's own estimate, as the filter does).
     fn pass_forward(&mut self) {
+        let scales = self.refit_scales();
         let mut kept = std::mem::replace(&mut self.refit, TrackRefit::empty());
-        let scales = self.model_noise.scales();
         self.pass_forward_on(&mut kept, &scales, PassModel::Smoothed);
         self.refit = kept;
+    }
+
+    /// The noise scales of the kept detections' passes: those of the phase their first estimate
+    /// is in (the kept detections are positions, and a measured spin ends the smoothing).
+    fn refit_scales(&self) -> NoiseScales {
+        let spin_measured = self.refit.base.is_some_and(|b| b.spin_measured);
+        self.model_noise.scales(spin_measured)
     }
 
     /// [`Self::pass_forward`] over `kept`, the model's noise at `scales`, with or without the
@@ -565,7 +573,7 @@ impl Estimator {
         place(&mut track.now);
         // The estimate held to learn the model noise from meets the pass too: the filter's
         // earlier miss is not the flight straying from the model.
-        if let Some(from) = self.probe.as_deref_mut().and_then(|p| p.from.as_mut()) {
+        if let Some((from, _)) = self.probe.as_deref_mut().and_then(|p| p.from.as_mut()) {
             place(from);
         }
     }

@@ -117,6 +117,7 @@ impl Estimator {
             nis: 0.0,
             whole_nis: 0.0,
             bounce_jump: None,
+            spin_measured: fit.spin_measured,
         };
         let first_seen = self.pending.first().map_or(fit.stamp, |d| d.stamp);
         let continued = self
@@ -227,6 +228,7 @@ impl Estimator {
             nis: 0.0,
             whole_nis: 0.0,
             bounce_jump: None,
+            spin_measured: false,
         })
     }
 
