@@ -81,7 +81,7 @@ pub const LEARNED_SCALE_NAMES: [&str; LEARNED_SCALES] = [
     NoiseScales::NAMES[0],
     NoiseScales::NAMES[1],
     NoiseScales::NAMES[2],
-    "acceleration once the spin is measured",
+    "spin-measured acceleration",
 ];
 
 /// Where each of the filter's scales is learned, in the order of [`NoiseScales::NAMES`], for a
