@@ -154,9 +154,10 @@ fn the_model_noise_and_the_dispersion_are_learned() {
         "{scales:?}"
     );
     // Once the spin camera measures the spin the model misses next to nothing here: that
-    // phase's acceleration scale falls far below the configured (to the floor, 0.0001x).
+    // phase's acceleration scale falls to the floor (0.0001x; 0.052x with the information kept
+    // as gathered rather than re-evaluated at each new scale).
     assert!(
-        learned.model_noise.spin_measured_acceleration < 0.01,
+        learned.model_noise.spin_measured_acceleration < 0.001,
         "{:?}",
         learned.model_noise
     );

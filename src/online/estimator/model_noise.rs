@@ -84,10 +84,18 @@ pub const LEARNED_SCALE_NAMES: [&str; LEARNED_SCALES] = [
     "spin-measured acceleration",
 ];
 
+/// Where the white acceleration's scale once the spin is measured is kept among the learned
+/// scales (after the filter's own, [`LEARNED_SCALE_NAMES`]).
+const SPIN_MEASURED_ACCELERATION: usize = NOISE_SCALES;
+
 /// Where each of the filter's scales is learned, in the order of [`NoiseScales::NAMES`], for a
 /// prediction that starts before the spin is measured (`false`) and after (`true`).
 const fn learned_index(spin_measured: bool) -> [usize; NOISE_SCALES] {
-    if spin_measured { [3, 1, 2] } else { [0, 1, 2] }
+    if spin_measured {
+        [SPIN_MEASURED_ACCELERATION, 1, 2]
+    } else {
+        [0, 1, 2]
+    }
 }
 
 /// The information the configured scales (1) start with, on the parameter each steps on (log s
@@ -137,7 +145,7 @@ impl ModelNoiseLearner {
             1.0
         };
         let mut log_scales = [0.0; LEARNED_SCALES];
-        log_scales[3] = spin_measured_ratio.ln();
+        log_scales[SPIN_MEASURED_ACCELERATION] = spin_measured_ratio.ln();
         Self {
             enabled: ekf.learn_model_noise,
             log_scales,
@@ -431,7 +439,10 @@ mod tests {
         assert_eq!(learned.spin_measured_acceleration, after.acceleration);
         let information = learner.information();
         assert_eq!(information[0], PRIOR_INFORMATION * 0.999);
-        assert!(information[3] > information[0], "{information:?}");
+        assert!(
+            information[SPIN_MEASURED_ACCELERATION] > information[0],
+            "{information:?}"
+        );
         learner.learn(&less, false);
         assert!(learner.scales(false).acceleration < 1.0);
         assert_eq!(learner.scales(true).acceleration, after.acceleration);
