@@ -28,9 +28,12 @@ use crate::physics::params::{AUGMENTED, AugmentedMatrix, AugmentedVector};
 
 /// Fewest detections a track is smoothed from.
 const MIN_DETECTIONS: usize = 8;
-/// Iterations (a pass forward and one back) of each smoothing: on the real launcher flights a
-/// third makes the crossing worse, one alone is unstable (docs/estimator.md).
-const ITERATIONS: usize = 2;
+/// Iterations (a pass forward and one back) of each smoothing. One alone is unstable; a third
+/// (since 2026-12-04; the real launcher flights, where the contest keeps the refits out, print
+/// the same) reads the 150 fps camera's fast spins where two left them short: its state NEES
+/// on seeds 1-10 0.99-1.34 instead of up to 1.56, which let the learned dispersion's floor
+/// fall ([`super::learning::DISPERSION_FLOOR`]; docs/estimator.md).
+const ITERATIONS: usize = 3;
 /// Iterations of the smoothing a track's lesson is taken from: the first pass is the filter
 /// itself, the second one Gauss-Newton step, the third has converged (on the real launcher
 /// flights a fourth or sixth moves the crossing's RMS by under 0.05 mm, the learned
@@ -761,10 +764,10 @@ mod tests {
             for (d, _) in &detections {
                 estimator.handle(d);
             }
-            let filter = estimator.track.as_ref().unwrap().now;
             estimator.pass_forward();
             smooth_back(&mut estimator.refit);
             assert!(estimator.refit.smoothed.len() > 30);
+            let reference = estimator.clone();
             for (_, y) in estimator.refit.smoothed.iter_mut() {
                 y[7] = wild;
                 y[10] = -50.0;
@@ -776,8 +779,16 @@ mod tests {
             let miss = (now.ekf.x.fixed_rows::<3>(0) - truth.position).norm();
             assert!(miss < 3e-3, "{wild}: {miss} m off the flight");
             if wild.is_nan() {
-                // The smoothing of the wild pass failed: the second pass is the filter's.
-                assert!((now.ekf.x - filter.ekf.x).norm() < 1e-9 * filter.ekf.x.norm());
+                // The smoothing of the wild pass failed: the passes after it are a refit's
+                // from no smoothed flight, one fewer, the first of them the filter itself.
+                let mut fresh = reference.clone();
+                fresh.refit.smoothed.clear();
+                for _ in 1..ITERATIONS {
+                    fresh.pass_forward();
+                    smooth_back(&mut fresh.refit);
+                }
+                let expected = fresh.refit.steps.last().unwrap().filtered.x;
+                assert!((now.ekf.x - expected).norm() < 1e-9 * expected.norm());
             }
             assert!(
                 estimator
