@@ -584,7 +584,7 @@ pub struct EkfParams {
     pub model_noise_horizon: f64,
     /// How often the track is refitted [s of track]: the filter run again over its detections
     /// so far, linearised along the flight they smooth to, and smoothed back (an iterated
-    /// extended Kalman smoother, two iterations); its estimates replace the filter's; 0 never.
+    /// extended Kalman smoother, three iterations); its estimates replace the filter's; 0 never.
     pub refit_interval: f64,
     /// Whether the refits replace the filter's estimates only while they have predicted the
     /// flights better (a contest 0.1 s ahead, learned from the detections); false: always.

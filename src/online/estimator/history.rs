@@ -125,7 +125,8 @@ impl Estimator {
                     r,
                     self.settings.gate_position,
                     sensitivity,
-                    self.settings.along_flight_gain(snapshot.bounces),
+                    self.settings
+                        .along_flight_gain(snapshot.bounces, self.guards_spin_along_flight()),
                 ),
                 false,
             ),

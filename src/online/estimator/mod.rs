@@ -201,10 +201,11 @@ impl Settings {
     }
 
     /// The fraction of a position's gain on the spin along the flight after `bounces` bounces
-    /// of the track: `ekf.spin_along_flight_gain` before the first (positions see that spin
-    /// only through the turning flight's sideways force), the whole gain after it.
-    fn along_flight_gain(&self, bounces: u32) -> f64 {
-        if bounces == 0 {
+    /// of the track, `guarded` or not ([`Estimator::guards_spin_along_flight`]):
+    /// `ekf.spin_along_flight_gain` before the first (positions see that spin only through the
+    /// turning flight's sideways force), the whole gain after it or unguarded.
+    fn along_flight_gain(&self, bounces: u32, guarded: bool) -> f64 {
+        if bounces == 0 && guarded {
             self.spin_along_flight_gain
         } else {
             1.0

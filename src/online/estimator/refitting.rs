@@ -59,9 +59,13 @@ enum PassModel {
     /// 0.05 s, seed 1) the refits' 150 fps spin at the crossing was 1.9-3.0x the batch fit's
     /// instead of 1.1-1.6x, and seed 3's state NEES 0.68 instead of 0.80 (docs/estimator.md).
     Smoothed,
-    /// The filter's: a track's lesson, which teaches the physics as the filter's own lessons
-    /// did (its first pass is the filter itself).
-    Filter,
+    /// The filter's, its guard on the spin along the flight as the track ended
+    /// ([`Estimator::guards_spin_along_flight`]): a track's lesson, which teaches the physics
+    /// as the filter's own lessons did (its first pass is the filter itself).
+    Filter {
+        /// Whether the filter guarded the spin along the flight.
+        guarded: bool,
+    },
 }
 
 /// One step of the pass: the estimate predicted to a detection and after it.
@@ -92,6 +96,9 @@ pub(super) struct PendingLesson {
     /// The model's noise scales when the track ended, for the kept detections' phase (positions
     /// before the spin is measured).
     scales: NoiseScales,
+    /// Whether the filter guarded the spin along the flight when the track ended (the stages
+    /// may run after a contest has changed it).
+    guarded: bool,
     /// The bounces before the kept detections' first estimate.
     base_bounces: u32,
     /// Stages run (passes and smoothings, alternately).
@@ -290,6 +297,7 @@ impl Estimator {
             stamp: track.now.stamp,
             filter: (track.now.ekf.theta, track.now.ekf.param_covariance()),
             scales: self.refit_scales(),
+            guarded: self.guards_spin_along_flight(),
             base_bounces,
             stage: 0,
             posterior: None,
@@ -319,12 +327,12 @@ impl Estimator {
         let Some(lesson) = self.lesson.as_mut() else {
             return false;
         };
-        let scales = lesson.scales;
+        let (scales, guarded) = (lesson.scales, lesson.guarded);
         let stage = lesson.stage;
         lesson.stage += 1;
         let mut kept = std::mem::replace(&mut self.lesson_refit, TrackRefit::empty());
         if stage % 2 == 0 {
-            self.pass_forward_on(&mut kept, &scales, PassModel::Filter);
+            self.pass_forward_on(&mut kept, &scales, PassModel::Filter { guarded });
         } else {
             // The last pass is not smoothed back: its estimate at the last detection is the
             // lesson.
@@ -401,6 +409,18 @@ impl Estimator {
     /// else while the refits win their contests.
     fn refits_applied(&self) -> bool {
         !self.settings.refit_when_better || self.contest.applying()
+    }
+
+    /// Whether the filter takes only `ekf.spin_along_flight_gain` of a position's gain on the
+    /// spin along the flight before the first bounce: unless refits replace its estimates.
+    /// The guard keeps the filter, linearised at its own uncertain spin, from growing sure of a
+    /// misread spin, at the price of the information it throws away; refits, linearised along
+    /// the smoothed flight, mend a misread every interval, so with them applied the guard only
+    /// costs (seeds 1-3 with both cameras: the spin at the crossing 1.16-1.43x the batch fit's
+    /// guarded, 1.11-1.30x unguarded), and where they lose their contest (the real launcher
+    /// flights) it stays (docs/estimator.md, "The spin along the flight, partly learned").
+    pub(super) fn guards_spin_along_flight(&self) -> bool {
+        !(self.settings.refit_interval > 0 && self.refits_applied())
     }
 
     /// Holds the live track's newest estimate and the last pass's at the same stamp for their
@@ -490,7 +510,7 @@ impl Estimator {
                 spin_spread: 0.0,
                 ..self.settings.filter
             },
-            PassModel::Filter => self.settings.filter,
+            PassModel::Filter { .. } => self.settings.filter,
         };
         for (stamp, m) in &kept.observations {
             let smoothed = &kept.smoothed;
@@ -517,9 +537,9 @@ impl Estimator {
             if let (Measurement::Position { z, r, .. }, _) = self.measurement_at(&snapshot, m) {
                 let along_flight = match model {
                     PassModel::Smoothed => 1.0,
-                    PassModel::Filter => {
-                        self.settings.along_flight_gain(snapshot.bounces + bounces)
-                    }
+                    PassModel::Filter { guarded } => self
+                        .settings
+                        .along_flight_gain(snapshot.bounces + bounces, guarded),
                 };
                 let _ = snapshot.ekf.update_partially(
                     &z,
