@@ -557,7 +557,8 @@ pub struct EkfParams {
     /// Positions see that spin only through how the sideways Magnus force changes as gravity
     /// turns the flight, a signal the linearised filter reads at its own uncertain spin and so
     /// grows sure of too fast (a partial-update Schmidt-Kalman filter, Brink 2017; the
-    /// covariance is that of the gain applied).
+    /// covariance is that of the gain applied). Only while no refit replaces the filter's
+    /// estimates (`refit_interval`, `refit_when_better`): the refits mend a misread spin.
     pub spin_along_flight_gain: f64,
     /// Whether the filter carries the state's uncertainty through a bounce by sigma points
     /// (the unscented transform of the bounce map: both regimes, the spin along every

@@ -693,6 +693,42 @@ mod tests {
         config
     }
 
+    /// The filter guards the spin along the flight (`ekf.spin_along_flight_gain`) only while no
+    /// refit replaces its estimates: with the refits applied always its estimates are the plain
+    /// update's; without refits, or while they have not won their contest, the guard's.
+    #[test]
+    fn the_spin_along_the_flight_is_guarded_only_while_no_refit_is_applied() {
+        let run = |config: &Config| {
+            let mut estimator = Estimator::new(config);
+            for (d, _) in serve(config, 0.3) {
+                estimator.handle(&d);
+            }
+            let now = estimator.track.as_ref().unwrap().now;
+            assert_eq!(now.bounces, 0);
+            (estimator.guards_spin_along_flight(), now.ekf.x)
+        };
+        // Refits applied always (due after a second: none run here).
+        let applied = keeping_detections();
+        assert!(applied.ekf.spin_along_flight_gain < 1.0);
+        let mut plain = applied.clone();
+        plain.ekf.spin_along_flight_gain = 1.0;
+        let mut without = applied.clone();
+        without.ekf.refit_interval = 0.0;
+        let mut contested = applied.clone();
+        contested.ekf.refit_when_better = true;
+        let (guarded, x_applied) = run(&applied);
+        assert!(!guarded);
+        assert_eq!(x_applied, run(&plain).1);
+        let (guarded, x_without) = run(&without);
+        assert!(guarded);
+        assert!(
+            (x_without - x_applied).norm() > 1.0,
+            "{}",
+            (x_without - x_applied).norm()
+        );
+        assert_eq!(run(&contested), (true, x_without));
+    }
+
     /// A node runs the ended track's lesson in its idle time ([`Estimator::learn_in_idle_time`]),
     /// a replay when the next track starts: every output and what is learned are the same to
     /// the bit, and the lesson is the smoothed flight's.
