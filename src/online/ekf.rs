@@ -256,11 +256,21 @@ impl Observer for PredictReport {
 
 /// Counts the bounces of a prediction and adds up their scatter (in the state just after the
 /// last one).
+/// What a prediction about a nominal ([`Ekf::predict_about`]) writes and reads beyond the
+/// estimate's.
+struct Nominal<'a> {
+    /// Where the transition of (state, parameters) is written.
+    transition: &'a mut AugmentedMatrix,
+    /// The covariance a bounce's spread is taken at, if not the estimate's.
+    covariance: Option<&'a AugmentedMatrix>,
+}
+
 struct BounceWatch<'a> {
     report: PredictReport,
     propagator: &'a Propagator,
     noise: &'a BounceNoise,
-    /// The covariance the prediction starts from.
+    /// The covariance the prediction starts from (or its nominal's: [`Nominal`]), which the
+    /// bounces' spread and sliding are taken at.
     start: &'a AugmentedMatrix,
     /// The scatter of the bounces so far at the configured sigmas (scaled in P).
     scatter: StateMatrix,
@@ -618,11 +628,16 @@ impl Ekf {
     /// the estimate's deviation from it by the nominal's transition, `x' = f(x_n) + Phi (x -
     /// x_n) + S (theta - theta_n)`, and the covariance by the same `[Phi, S]`.
     ///
+    /// A bounce's spread beyond its linearisation (`ekf.bounce_unscented`) is taken at
+    /// `nominal_covariance` when given (a smoother's covariance of the nominal, what the whole
+    /// flight knows of the state there), else at the estimate's own.
+    ///
     /// Returns the report and the transition of (state, parameters), `[[Phi, S], [0, I]]`.
     #[expect(non_snake_case, reason = "matrix notation")]
     pub fn predict_about(
         &mut self,
         nominal: (&StateVector, &ParamVector),
+        nominal_covariance: Option<&AugmentedMatrix>,
         propagator: &Propagator,
         model: &FilterNoise,
         scales: &NoiseScales,
@@ -632,7 +647,17 @@ impl Ekf {
         self.x = *nominal.0;
         self.theta = *nominal.1;
         let mut transition = AugmentedMatrix::identity();
-        let report = self.propagate(propagator, model, scales, None, dt, Some(&mut transition));
+        let report = self.propagate(
+            propagator,
+            model,
+            scales,
+            None,
+            dt,
+            Some(Nominal {
+                transition: &mut transition,
+                covariance: nominal_covariance,
+            }),
+        );
         self.theta += deviation.1;
         let (Phi, S) = (
             transition.fixed_view::<9, 9>(0, 0).into_owned(),
@@ -642,8 +667,9 @@ impl Ekf {
         (report, transition)
     }
 
-    /// [`Self::predict`], writing the transition of (state, parameters) into `transition` when
-    /// given.
+    /// [`Self::predict`], writing the transition of (state, parameters) into the nominal's
+    /// `transition` when given, and spreading a bounce's outcome by the nominal's covariance
+    /// when it has one.
     #[expect(non_snake_case, reason = "matrix notation")]
     fn propagate(
         &mut self,
@@ -652,7 +678,7 @@ impl Ekf {
         scales: &NoiseScales,
         sensitivity: Option<&mut NoiseSensitivity>,
         dt: f64,
-        transition: Option<&mut AugmentedMatrix>,
+        nominal: Option<Nominal<'_>>,
     ) -> PredictReport {
         if dt <= 0.0 {
             return PredictReport::default();
@@ -676,7 +702,10 @@ impl Ekf {
             report: PredictReport::default(),
             propagator: &propagator,
             noise: bounce_noise,
-            start: &self.P,
+            start: nominal
+                .as_ref()
+                .and_then(|n| n.covariance)
+                .unwrap_or(&self.P),
             scatter: StateMatrix::zeros(),
             excess: StateMatrix::zeros(),
             sliding: 1.0,
@@ -749,7 +778,13 @@ impl Ekf {
             }
         }
         self.x = cursor.state;
-        if let (Some(out), Some(tangent)) = (transition, &cursor.tangent) {
+        if let (
+            Some(Nominal {
+                transition: out, ..
+            }),
+            Some(tangent),
+        ) = (nominal, &cursor.tangent)
+        {
             out.fixed_view_mut::<9, 9>(0, 0)
                 .copy_from(&tangent.transition());
             if let Some(S) = tangent.params() {
@@ -1183,7 +1218,7 @@ mod tests {
         let mut plain = ekf;
         plain.predict(&propagator, &model, &scales, None, dt);
         let mut about = ekf;
-        about.predict_about((&x, &theta), &propagator, &model, &scales, dt);
+        about.predict_about((&x, &theta), None, &propagator, &model, &scales, dt);
         assert!((about.x - plain.x).amax() < 1e-12, "{}", about.x - plain.x);
         assert!((about.P - plain.P).amax() < 1e-12 * plain.P.amax());
 
@@ -1196,7 +1231,7 @@ mod tests {
         nominal_flight.predict(&propagator, &model, &scales, None, dt);
         let mut about = ekf;
         let (report, transition) =
-            about.predict_about((&nominal, &theta), &propagator, &model, &scales, dt);
+            about.predict_about((&nominal, &theta), None, &propagator, &model, &scales, dt);
         assert_eq!(report.bounces, 1);
         let linear = nominal_flight.x - transition.fixed_view::<9, 9>(0, 0) * offset;
         assert!((about.x - linear).amax() < 1e-9, "{}", about.x - linear);
