@@ -254,8 +254,6 @@ impl Observer for PredictReport {
     }
 }
 
-/// Counts the bounces of a prediction and adds up their scatter (in the state just after the
-/// last one).
 /// What a prediction about a nominal ([`Ekf::predict_about`]) writes and reads beyond the
 /// estimate's.
 struct Nominal<'a> {
@@ -265,6 +263,8 @@ struct Nominal<'a> {
     covariance: Option<&'a AugmentedMatrix>,
 }
 
+/// Counts the bounces of a prediction and adds up their scatter (in the state just after the
+/// last one).
 struct BounceWatch<'a> {
     report: PredictReport,
     propagator: &'a Propagator,

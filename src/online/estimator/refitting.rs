@@ -341,8 +341,8 @@ impl Estimator {
             self.pass_forward_on(&mut kept, &scales, PassModel::Filter { guarded });
         } else {
             // The last pass is not smoothed back: its estimate at the last detection is the
-            // lesson.
-            smooth_back(&mut kept);
+            // lesson. A lesson's passes take a bounce's spread at their own covariance.
+            smooth_back(&mut kept, false);
         }
         let done = stage + 1 == LESSON_STAGES;
         let posterior = done.then(|| self.lesson_posterior(&kept)).flatten();
@@ -393,7 +393,7 @@ impl Estimator {
     fn refit_now(&mut self) {
         for _ in 0..ITERATIONS {
             self.pass_forward();
-            smooth_back(&mut self.refit);
+            smooth_back(&mut self.refit, true);
         }
         if self.pass_agrees() {
             if self.settings.refit_when_better {
@@ -624,9 +624,10 @@ impl Estimator {
 }
 
 /// The Rauch-Tung-Striebel smoother back over the last pass: the smoothed (state, parameters)
-/// at the first estimate's time and every step's, the next pass's nominal.
+/// at the first estimate's time and every step's, the next pass's nominal, and with
+/// `covariances` their covariances (which only a live refit's pass reads).
 #[expect(non_snake_case, reason = "matrix notation")]
-fn smooth_back(kept: &mut TrackRefit) {
+fn smooth_back(kept: &mut TrackRefit, covariances: bool) {
     let Some(base) = kept.base.as_ref() else {
         return;
     };
@@ -640,7 +641,9 @@ fn smooth_back(kept: &mut TrackRefit) {
         return;
     }
     kept.smoothed.push((last.stamp, later));
-    kept.smoothed_covariance.push(later_covariance);
+    if covariances {
+        kept.smoothed_covariance.push(later_covariance);
+    }
     // Step k's filtered estimate with step k + 1's prediction and transition.
     for k in (0..kept.steps.len()).rev() {
         let next = &kept.steps[k];
@@ -660,16 +663,19 @@ fn smooth_back(kept: &mut TrackRefit) {
         // C = P_k Phi' P_{k+1|k}^-1 = (P_{k+1|k}^-1 Phi P_k)'.
         let C = chol.solve(&(next.transition * filtered.P)).transpose();
         later = augmented(filtered) + C * (later - next.predicted.0);
-        // P_k|N = P_k + C (P_k+1|N - P_k+1|k) C'.
-        later_covariance = filtered.P + C * (later_covariance - next.predicted.1) * C.transpose();
-        later_covariance = (later_covariance + later_covariance.transpose()) * 0.5;
+        if covariances {
+            // P_k|N = P_k + C (P_k+1|N - P_k+1|k) C'.
+            later_covariance =
+                filtered.P + C * (later_covariance - next.predicted.1) * C.transpose();
+            later_covariance = (later_covariance + later_covariance.transpose()) * 0.5;
+            kept.smoothed_covariance.push(later_covariance);
+        }
         if !later.iter().all(|v| v.is_finite()) {
             kept.smoothed.clear();
             kept.smoothed_covariance.clear();
             return;
         }
         kept.smoothed.push((stamp, later));
-        kept.smoothed_covariance.push(later_covariance);
     }
     kept.smoothed.reverse();
     kept.smoothed_covariance.reverse();
@@ -701,6 +707,15 @@ mod tests {
         crate::online::estimator::tests::detections_of(flight.samples.iter())
     }
 
+    /// An estimator after the detections of [`serve`]'s first `seconds`.
+    fn served(config: &Config, seconds: f64) -> Estimator {
+        let mut estimator = Estimator::new(config);
+        for (d, _) in serve(config, seconds) {
+            estimator.handle(&d);
+        }
+        estimator
+    }
+
     /// Refits due only after a second of track (the detections are kept, nothing refitted
     /// unless asked), the noise held as configured (so that the filter then and a pass now see
     /// the same: a pass at its own estimates is the filter exactly).
@@ -727,13 +742,9 @@ mod tests {
     /// pass's (what the later detections add), and one for every smoothed estimate.
     #[test]
     fn the_smoothed_covariance_is_no_larger_than_the_filtered() {
-        let config = keeping_detections();
-        let mut estimator = Estimator::new(&config);
-        for (d, _) in serve(&config, 0.3) {
-            estimator.handle(&d);
-        }
+        let mut estimator = served(&keeping_detections(), 0.3);
         estimator.pass_forward();
-        smooth_back(&mut estimator.refit);
+        smooth_back(&mut estimator.refit, true);
         let kept = &estimator.refit;
         assert!(kept.smoothed.len() > 30);
         assert_eq!(kept.smoothed_covariance.len(), kept.smoothed.len());
@@ -755,10 +766,7 @@ mod tests {
     #[test]
     fn the_spin_along_the_flight_is_guarded_only_while_no_refit_is_applied() {
         let run = |config: &Config| {
-            let mut estimator = Estimator::new(config);
-            for (d, _) in serve(config, 0.3) {
-                estimator.handle(&d);
-            }
+            let estimator = served(config, 0.3);
             let now = estimator.track.as_ref().unwrap().now;
             assert_eq!(now.bounces, 0);
             (estimator.guards_spin_along_flight(), now.ekf.x)
@@ -877,7 +885,7 @@ mod tests {
                 estimator.handle(d);
             }
             estimator.pass_forward();
-            smooth_back(&mut estimator.refit);
+            smooth_back(&mut estimator.refit, true);
             assert!(estimator.refit.smoothed.len() > 30);
             let reference = estimator.clone();
             for (_, y) in estimator.refit.smoothed.iter_mut() {
@@ -897,7 +905,7 @@ mod tests {
                 fresh.refit.smoothed.clear();
                 for _ in 1..ITERATIONS {
                     fresh.pass_forward();
-                    smooth_back(&mut fresh.refit);
+                    smooth_back(&mut fresh.refit, true);
                 }
                 let expected = fresh.refit.steps.last().unwrap().filtered.x;
                 assert!((now.ekf.x - expected).norm() < 1e-9 * expected.norm());
@@ -920,10 +928,7 @@ mod tests {
     #[test]
     fn a_pass_at_its_own_estimates_is_the_filter() {
         let config = without_guards();
-        let mut estimator = Estimator::new(&config);
-        for (d, _) in serve(&config, 0.4) {
-            estimator.handle(&d);
-        }
+        let mut estimator = served(&config, 0.4);
         assert_eq!(estimator.counters().refits, 0);
         let kept = estimator.refit.observations.len();
         assert!(kept > 40, "{kept} detections kept");
