@@ -588,7 +588,8 @@ pub struct EkfParams {
     /// extended Kalman smoother, three iterations); its estimates replace the filter's; 0 never.
     pub refit_interval: f64,
     /// Whether the refits replace the filter's estimates only while they have predicted the
-    /// flights better (a contest 0.1 s ahead, learned from the detections); false: always.
+    /// flights better (a contest over the next 0.1 s of detections, learned from them); false:
+    /// always.
     pub refit_when_better: bool,
     /// The most detections a refit runs over [-]: older ones are kept in the estimate it
     /// starts from (each refit costs about 10 us per detection, 5 us per iteration).

@@ -11,32 +11,41 @@
 //! [`super::model_noise`]): a predictive contest between the two estimates, each judged by
 //! data it had not seen (Dawid, "the prequential approach", JRSS A 1984; docs/references.md).
 //!
-//! At a refit both estimates of the newest stamp are held, the filter's and the refit's. At the
-//! track's first fused detection a horizon later (`ekf.model_noise_horizon`, or [`HORIZON`]
-//! without one), both are predicted to it and the log ratio of their position misses,
-//! l = ln(|e_filter| / |e_refit|) (each at least [`MISS_FLOOR`]), is scored: positive when the
-//! refit predicted better. The scores are averaged with a fading memory of [`MEMORY`] contests,
-//! and the mean's t statistic (against the scores' own spread, with the effective number of
-//! contests of the fading weights) decides: the refits replace the filter's estimates once it
-//! passes [`SWITCH_ON`], and no longer once it falls under [`SWITCH_OFF`] (hysteresis: the choice
-//! does not flap on a mean near zero). Until the flights have spoken the filter's estimates stay,
-//! and refits are computed only to be scored, one contest at a time.
+//! At a refit both estimates of the newest stamp are held, the filter's and the refit's. Both
+//! are flown on to each fused detection after it, until the first one a horizon later
+//! (`ekf.model_noise_horizon`, or [`HORIZON`] without one), and the contest scores the log
+//! ratio of their root mean square position misses over those detections (each weighted by the
+//! inverse of its position variance's trace), l = ln(e_filter / e_refit) (each at least
+//! [`MISS_FLOOR`]): positive when the refit predicted better. The scores are averaged with a
+//! fading memory of [`MEMORY`] contests, and the mean's t statistic (against the scores' own
+//! spread, with the effective number of contests of the fading weights) decides: the refits
+//! replace the filter's estimates once it passes [`SWITCH_ON`], and no longer once it falls
+//! under [`SWITCH_OFF`] (hysteresis: the choice does not flap on a mean near zero). Until the
+//! flights have spoken the filter's estimates stay, and refits are computed only to be scored,
+//! one contest at a time.
 //!
-//! Measured (docs/accuracy.md, "The refits contested"), refits every 0.1 s: on the 40 real
-//! launcher flights 119 contests, t at most 2.0 (after 60) and -1.7 at the end: never applied;
-//! on simulated play, whose flights follow the model, applied from the 60th contest (about the
-//! 12th shot) and t = 4.4-7.1 after 200 shots.
+//! Until 2026-12-04 a contest was the two misses of the single detection a horizon later, and
+//! the switch waited for 50 contests: that detection's own noise (2 mm) is most of either miss.
+//! On simulated play with the 150 fps camera (seeds 1-7, 0.1 s) the refits were then applied
+//! from the 12th-33rd shot (21st on average), now from the 5th-26th (15th); on the 40 real
+//! launcher flights t reached 1.9 and ended at -1.5, now 1.8 and -2.2 (never applied either way).
+//! The shots before the switch are the filter's alone, and on seed 2 they hold most of what
+//! still parts the 150 fps camera's spin at the crossing from the batch fit's
+//! (docs/accuracy.md, "The refits' contest, averaged over its horizon"). A longer horizon (0.2
+//! s) separated the real flights more clearly (t at most 0.5) but had fewer contests a shot and
+//! switched later on four seeds of seven (up to the 56th shot).
 
 /// Contests the score remembers (older ones fade by 1 - 1 / MEMORY each).
 pub const MEMORY: f64 = 500.0;
 /// The t statistic of the mean score above which the refits are applied: 3, since on the real
-/// launcher flights it passed 2 once (after 60 contests) before it fell to -1.7; simulated
-/// play passes 3 within the first 60 contests.
+/// launcher flights it passes 1.8 (the contest of a single detection 0.1 s ahead 2.0) before it
+/// falls to -2.2.
 pub const SWITCH_ON: f64 = 3.0;
 /// The t statistic under which applied refits stop.
 pub const SWITCH_OFF: f64 = 0.0;
-/// Effective contests (of the fading weights) before either switch: about ten tracks.
-pub const MIN_CONTESTS: f64 = 50.0;
+/// Effective contests (of the fading weights) before either switch: about four tracks (the
+/// t statistic's own bar does the rest).
+pub const MIN_CONTESTS: f64 = 20.0;
 /// A miss is counted as at least this [m]: below the detections' resolution neither estimate
 /// predicted better.
 pub const MISS_FLOOR: f64 = 1e-5;
@@ -44,6 +53,60 @@ pub const MISS_FLOOR: f64 = 1e-5;
 pub const HORIZON: f64 = 0.1;
 
 use super::Snapshot;
+
+/// A contest under way: the filter's and the refit's estimates held at the same stamp, each
+/// flown on to every newer fused detection, and their misses.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(super) struct HeldContest {
+    /// The stamp both estimates were held at [ns].
+    pub(super) since: i64,
+    /// The filter's estimate and the refit's, flown on to the newest detection scored.
+    pub(super) filter: Snapshot,
+    pub(super) refit: Snapshot,
+    /// Their misses of the detections since.
+    pub(super) misses: Misses,
+}
+
+impl HeldContest {
+    /// The two estimates held at the filter's stamp.
+    pub(super) fn new(filter: Snapshot, refit: Snapshot) -> Self {
+        Self {
+            since: filter.stamp,
+            filter,
+            refit,
+            misses: Misses::default(),
+        }
+    }
+}
+
+/// The weighted sums of the filter's and the refit's squared misses [m^2], and of the weights.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub(super) struct Misses {
+    filter_squared: f64,
+    refit_squared: f64,
+    weight: f64,
+}
+
+impl Misses {
+    /// Adds a detection's misses [m], weighted by `weight` (the inverse of its position
+    /// variance's trace); a weight that is not a positive number adds nothing.
+    pub(super) fn add(&mut self, filter_miss: f64, refit_miss: f64, weight: f64) {
+        if weight > 0.0 && weight.is_finite() {
+            self.filter_squared += weight * filter_miss * filter_miss;
+            self.refit_squared += weight * refit_miss * refit_miss;
+            self.weight += weight;
+        }
+    }
+
+    /// The filter's and the refit's root mean square misses so far [m] (not numbers before a
+    /// detection).
+    pub(super) fn root_mean_square(&self) -> (f64, f64) {
+        (
+            (self.filter_squared / self.weight).sqrt(),
+            (self.refit_squared / self.weight).sqrt(),
+        )
+    }
+}
 
 /// The contest's score so far.
 #[derive(Debug, Clone, Copy, PartialEq, Default, serde::Serialize)]
@@ -62,9 +125,9 @@ pub struct RefitContestScore {
 /// The contest's fading sums and its decision, and the estimates of the contest under way.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub(super) struct RefitContest {
-    /// The filter's estimate and the refit's at the same stamp, held until a detection a
-    /// horizon later scores them.
-    pub(super) held: Option<(Snapshot, Snapshot)>,
+    /// The contest under way: the filter's estimate and the refit's at the same stamp, held
+    /// until a detection a horizon later.
+    pub(super) held: Option<HeldContest>,
     /// Sum of the fading weights, of their squares, of the weighted scores and squared scores.
     weight: f64,
     weight_sq: f64,
@@ -183,6 +246,27 @@ mod tests {
         }
         assert!(!contest.applying(), "{:?}", contest.report());
         assert_eq!(contest.report().contests, 1200);
+    }
+
+    /// A contest under way scores the root mean square of its detections' misses, each
+    /// weighted by its own; a weight that is not a positive number adds nothing.
+    #[test]
+    fn a_held_contest_averages_its_detections_misses() {
+        let mut misses = Misses::default();
+        assert!(
+            misses.root_mean_square().0.is_nan(),
+            "nothing to score before a detection"
+        );
+        misses.add(0.003, 0.001, 1.0);
+        misses.add(0.001, 0.003, 3.0);
+        misses.add(1.0, 1.0, 0.0);
+        misses.add(1.0, 1.0, f64::NAN);
+        let (filter, refit) = misses.root_mean_square();
+        approx::assert_relative_eq!(filter, ((9e-6 + 3.0 * 1e-6) / 4.0_f64).sqrt());
+        approx::assert_relative_eq!(refit, ((1e-6 + 3.0 * 9e-6) / 4.0_f64).sqrt());
+        let mut contest = RefitContest::default();
+        contest.score(filter, refit);
+        approx::assert_relative_eq!(contest.report().mean_log_ratio, (filter / refit).ln());
     }
 
     /// Misses under the floor count as equal; a miss that is not a number scores nothing.

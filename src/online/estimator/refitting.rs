@@ -21,6 +21,7 @@
 //! linearised at the filter's estimates moves along the tangent of that hyperbola, below it on
 //! either side. A pass linearised along the smoothed flight lands on it (docs/estimator.md).
 
+use super::refit_contest::HeldContest;
 use super::*;
 use crate::online::ekf::{FilterNoise, NoiseScales};
 use crate::physics::ParamVector;
@@ -439,26 +440,30 @@ impl Estimator {
         if let Some(step) = self.refit.step_at(track.now.stamp) {
             let mut refitted = track.now;
             refitted.ekf = step.filtered;
-            self.contest.held = Some((track.now, refitted));
+            self.contest.held = Some(HeldContest::new(track.now, refitted));
         }
     }
 
-    /// Scores the contest under way once the newest fused detection `d` (measured as `m`) is a
-    /// horizon past its estimates: both predicted to it, their position misses compared.
+    /// Flies the contest under way on to the newest fused detection `d` (measured as `m`),
+    /// adds both estimates' position misses, and scores the contest once `d` is a horizon
+    /// past its estimates.
     pub(super) fn judge_contest(&mut self, d: &Detection, m: &Measurement) {
-        let Some((filter, refitted)) = self.contest.held else {
+        let Some(mut held) = self.contest.held.take() else {
             return;
         };
-        if d.stamp - filter.stamp < self.settings.contest_horizon {
-            return;
-        }
-        self.contest.held = None;
-        let miss = |mut ahead: Snapshot| {
-            self.advance_with(&self.propagator, &mut ahead, d.stamp, None);
-            let (z, _) = self.measurement_at(&ahead, m).0.position();
+        let miss = |ahead: &mut Snapshot| {
+            self.advance_with(&self.propagator, ahead, d.stamp, None);
+            let (z, _) = self.measurement_at(ahead, m).0.position();
             (z - ahead.ekf.x.fixed_rows::<3>(0)).norm()
         };
-        let (filter_miss, refit_miss) = (miss(filter), miss(refitted));
+        let (filter_miss, refit_miss) = (miss(&mut held.filter), miss(&mut held.refit));
+        held.misses
+            .add(filter_miss, refit_miss, 1.0 / m.position().1.trace());
+        if d.stamp - held.since < self.settings.contest_horizon {
+            self.contest.held = Some(held);
+            return;
+        }
+        let (filter_miss, refit_miss) = held.misses.root_mean_square();
         self.contest.score(filter_miss, refit_miss);
     }
 
