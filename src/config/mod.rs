@@ -591,6 +591,10 @@ pub struct EkfParams {
     /// flights better (a contest over the next 0.1 s of detections, learned from them); false:
     /// always.
     pub refit_when_better: bool,
+    /// Whether the refits replace the filter's estimates from the first track, until their
+    /// contest turns against them (`refit_when_better`), rather than only once it has spoken
+    /// for them: what a configuration written with `--learned` carries of the contest.
+    pub refits_start_applied: bool,
     /// The most detections a refit runs over [-]: older ones are kept in the estimate it
     /// starts from (each refit costs about 10 us per detection, 5 us per iteration).
     pub refit_max_detections: u32,
@@ -622,6 +626,7 @@ impl Default for EkfParams {
             model_noise_horizon: 0.1,
             refit_interval: 0.1,
             refit_when_better: true,
+            refits_start_applied: false,
             refit_max_detections: 128,
         }
     }

@@ -168,6 +168,8 @@ pub(crate) struct Settings {
     refit_when_better: bool,
     /// The horizon the refits and the filter are contested at [ns].
     contest_horizon: i64,
+    /// Whether the refits are applied before their contest has spoken.
+    refits_start_applied: bool,
     /// The most detections a refit runs over (its window).
     refit_max: usize,
     /// A track teaches its flight smoothed when it ends (`adaptation.smoothed_lessons`, with
@@ -260,6 +262,7 @@ impl Settings {
             horizon: config.prediction.horizon,
             refit_interval: seconds_to_ns(config.ekf.refit_interval),
             refit_when_better: config.ekf.refit_when_better,
+            refits_start_applied: config.ekf.refits_start_applied,
             contest_horizon: seconds_to_ns(if config.ekf.model_noise_horizon > 0.0 {
                 config.ekf.model_noise_horizon
             } else {
@@ -687,7 +690,7 @@ impl Estimator {
             } else {
                 0
             }),
-            contest: refit_contest::RefitContest::default(),
+            contest: refit_contest::RefitContest::starting(settings.refits_start_applied),
             lesson: None,
             lesson_bounces: Vec::with_capacity(history_capacity + 2),
             propagator,

@@ -138,6 +138,14 @@ pub(super) struct RefitContest {
 }
 
 impl RefitContest {
+    /// No contest yet, the refits applied from the start or not (`ekf.refits_start_applied`).
+    pub(super) fn starting(applying: bool) -> Self {
+        Self {
+            applying,
+            ..Self::default()
+        }
+    }
+
     /// The score alone, no contest under way: what another estimator starts from.
     pub(super) fn without_held(&self) -> Self {
         Self {
@@ -267,6 +275,27 @@ mod tests {
         let mut contest = RefitContest::default();
         contest.score(filter, refit);
         approx::assert_relative_eq!(contest.report().mean_log_ratio, (filter / refit).ln());
+    }
+
+    /// Refits applied from the start stay applied while the contest has not spoken, and stop
+    /// once it turns against them.
+    #[test]
+    fn refits_applied_from_the_start_stop_when_they_lose() {
+        let mut contest = RefitContest::starting(true);
+        assert!(contest.applying());
+        for _ in 0..10 {
+            contest.score(0.01, 0.015);
+        }
+        assert!(
+            contest.applying(),
+            "too few contests: {:?}",
+            contest.report()
+        );
+        for _ in 0..30 {
+            contest.score(0.01, 0.015);
+        }
+        assert!(!contest.applying(), "{:?}", contest.report());
+        assert!(!RefitContest::starting(false).applying());
     }
 
     /// Misses under the floor count as equal; a miss that is not a number scores nothing.

@@ -796,6 +796,10 @@ mod tests {
             (x_without - x_applied).norm()
         );
         assert_eq!(run(&contested), (true, x_without));
+        // Contested, but started where a won contest ended (`--learned`): applied at once.
+        let mut won = contested.clone();
+        won.ekf.refits_start_applied = true;
+        assert_eq!(run(&won), (false, x_applied));
     }
 
     /// A node runs the ended track's lesson in its idle time ([`Estimator::learn_in_idle_time`]),
