@@ -201,8 +201,12 @@ fn what_a_replay_learned_is_a_configuration_to_start_from() {
         defaults.ekf.acceleration_noise_density * acceleration,
         max_relative = 1e-12
     );
-    // Only what was learned is in the file: no topic, no table size.
+    // The refits lost their contest on these flights: the next run starts without them, and
+    // the file says so.
     let text = std::fs::read_to_string(&learned).unwrap();
+    assert!(!config.ekf.refits_start_applied);
+    assert!(text.contains("refits_start_applied: false"), "{text}");
+    // Only what was learned is in the file: no topic, no table size.
     assert!(
         !text.contains("topics") && !text.contains("length"),
         "{text}"

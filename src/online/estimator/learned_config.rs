@@ -7,9 +7,10 @@
 //! the new values (the learning goes on from there; a new ball or table is still learned as
 //! quickly). Whether the refits' contest ended applying them is carried too
 //! (`ekf.refits_start_applied`: the next run applies them from its first track, until its own
-//! contest turns against them). The learned flight-to-flight dispersion is not carried: a configured dispersion
-//! is its prior and the bound under it (`learning::DISPERSION_FLOOR`), so carrying it would
-//! lower the floor run after run; the next run learns it again from the configured one.
+//! contest turns against them). The learned flight-to-flight dispersion is not carried: a
+//! configured dispersion is its prior and the bound under it (`learning::DISPERSION_FLOOR`), so
+//! carrying it would lower the floor run after run; the next run learns it again from the
+//! configured one.
 
 use super::{
     Estimator, LearnedModelNoise, LearnedParams, LearnedSourceNoise, RefitContestScore, noise,
@@ -114,7 +115,14 @@ impl LearnedSummary {
             text.push_str(&line);
             text.push('\n');
         }
-        text.push_str(&crate::config::yaml::changed_params_yaml(base, &learned));
+        // The contest's decision is written even when it did not change: a node that keeps its
+        // file while started from it (`--config learned.yaml --learned learned.yaml`) would
+        // otherwise drop a decision it started with and kept.
+        let mut compared = base.clone();
+        compared.ekf.refits_start_applied = !learned.ekf.refits_start_applied;
+        text.push_str(&crate::config::yaml::changed_params_yaml(
+            &compared, &learned,
+        ));
         Ok(text)
     }
 }
@@ -327,6 +335,15 @@ mod tests {
             crate::config::yaml::load_str::<&str>(&text, std::path::Path::new("l.yaml"), &[])
                 .unwrap();
         assert_eq!(loaded, learned.configuration(&base));
+        assert!(text.contains("refits_start_applied: false"), "{text}");
+        // Started from a file whose contest had ended applying the refits, and still applying
+        // them: the decision is kept.
+        let mut started = base.clone();
+        started.ekf.refits_start_applied = true;
+        let mut kept = learned.clone();
+        kept.refit_contest.applying = true;
+        let text = kept.file_text(&started, &started, "a test").unwrap();
+        assert!(text.contains("refits_start_applied: true"), "{text}");
         let mut wrong = learned;
         wrong.params.params.friction = -1.0;
         assert!(wrong.file_text(&base, &base, "a test").is_err());
