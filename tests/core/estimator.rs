@@ -1008,7 +1008,9 @@ fn the_refits_are_applied_once_they_have_predicted_better() {
     let contest = estimator.refit_contest();
     eprintln!("{contest:?}, applied from shot {switched:?}");
     let shot = switched.expect("the refits applied");
-    assert!((5..70).contains(&shot), "from shot {shot}");
+    // The contest scored over its horizon's detections decides by the 13th shot here (the
+    // single detection's, by the 12th; on seed 2 the 21st against the 33rd).
+    assert!((5..30).contains(&shot), "from shot {shot}");
     assert!(contest.applying && contest.t > 2.0, "{contest:?}");
     assert!(
         estimator.counters().refits > 100,
