@@ -1008,8 +1008,9 @@ fn the_refits_are_applied_once_they_have_predicted_better() {
     let contest = estimator.refit_contest();
     eprintln!("{contest:?}, applied from shot {switched:?}");
     let shot = switched.expect("the refits applied");
-    // The contest scored over its horizon's detections decides by the 13th shot here (the
-    // single detection's, by the 12th; on seed 2 the 21st against the 33rd).
+    // The contest scored over its horizon's detections decides at shot 12 here (counted from
+    // 0); in `ttball evaluate --cameras wide`, seed 2, at the 21st, the single detection's
+    // contest at the 33rd.
     assert!((5..30).contains(&shot), "from shot {shot}");
     assert!(contest.applying && contest.t > 2.0, "{contest:?}");
     assert!(
