@@ -283,7 +283,7 @@ mod tests {
     fn refits_applied_from_the_start_stop_when_they_lose() {
         // The refit's miss 1.2 or 1.6 of the filter's, alternately: worse, with a spread (a
         // constant score has none, and its t no sign).
-        let worse = |i: usize| if i % 2 == 0 { 0.012 } else { 0.016 };
+        let worse = |i: usize| if i.is_multiple_of(2) { 0.012 } else { 0.016 };
         let mut contest = RefitContest::starting(true);
         assert!(contest.applying());
         for i in 0..10 {
