@@ -183,6 +183,28 @@ impl Default for NoiseScales {
 /// optimal gain).
 pub type NoiseSensitivity = [StateMatrix; NOISE_SCALES];
 
+/// The covariance's sensitivity to the noise scales as an update carries it along, and whether
+/// the update also scores the scales by its innovation ([`NoiseScore`]): a filter that learns
+/// the scales from predictions further ahead (`ekf.model_noise_horizon`) carries the
+/// sensitivity through every update but scores none of them.
+#[derive(Debug)]
+pub struct NoiseCarry<'a> {
+    /// dP/ds of each scale, updated in place.
+    pub sensitivity: &'a mut NoiseSensitivity,
+    /// Whether the update computes its [`NoiseScore`] (otherwise the default, zeros).
+    pub scored: bool,
+}
+
+impl NoiseCarry<'_> {
+    /// The same carry, borrowed again for one more update.
+    pub fn reborrow(&mut self) -> NoiseCarry<'_> {
+        NoiseCarry {
+            sensitivity: self.sensitivity,
+            scored: self.scored,
+        }
+    }
+}
+
 /// What one update tells of the noise scales: the derivative of the innovation's
 /// log-likelihood, log N(y; 0, S), with respect to each scale (in the order of
 /// [`NoiseScales::NAMES`]), and its Fisher information (see [`Ekf::update`]).
@@ -796,9 +818,9 @@ impl Ekf {
     }
 
     /// Fuses a measurement of the ball's state z = H x + noise(R) when its NIS is within `gate`;
-    /// returns the NIS and, given the covariance's `sensitivity` to the noise scales (which the
-    /// update carries along), their score. The parameters move with their correlation to the
-    /// state.
+    /// returns the NIS and, given the covariance's sensitivity to the noise scales (`noise`,
+    /// which the update carries along), their score when it is asked for. The parameters move
+    /// with their correlation to the state.
     ///
     /// The score: with A = H D H' for D = dP^-/ds of each noise scale ([`NoiseSensitivity`]),
     /// d log N(y; 0, S) = -1/2 (tr(S^-1 A) - y' S^-1 A S^-1 y), information 1/2 tr(S^-1 A S^-1 A)
@@ -811,9 +833,9 @@ impl Ekf {
         H: &SMatrix<f64, M, 9>,
         R: &SMatrix<f64, M, M>,
         gate: f64,
-        sensitivity: Option<&mut NoiseSensitivity>,
+        noise: Option<NoiseCarry<'_>>,
     ) -> Result<Fused, UpdateError> {
-        self.update_partially(z, H, R, gate, sensitivity, 1.0)
+        self.update_partially(z, H, R, gate, noise, 1.0)
     }
 
     /// [`Self::update`] with only the fraction `along_flight` in [0, 1] of the gain applied to
@@ -827,7 +849,7 @@ impl Ekf {
         H: &SMatrix<f64, M, 9>,
         R: &SMatrix<f64, M, M>,
         gate: f64,
-        mut sensitivity: Option<&mut NoiseSensitivity>,
+        noise: Option<NoiseCarry<'_>>,
         along_flight: f64,
     ) -> Result<Fused, UpdateError> {
         if !z.iter().chain(R.iter()).all(|v| v.is_finite()) {
@@ -847,9 +869,10 @@ impl Ekf {
             return Err(UpdateError::Gated { nis, gate });
         }
         // The score of the noise scales, before the update moves D.
-        let score = sensitivity
-            .as_deref()
-            .map(|d| noise_score(&y, &chol, nis, H, d))
+        let score = noise
+            .as_ref()
+            .filter(|carry| carry.scored)
+            .map(|carry| noise_score(&y, &chol, nis, H, carry.sensitivity))
             .unwrap_or_default();
         // K = P H' S^-1 = (S^-1 H P)'.
         let mut K = chol.solve(&PHt.transpose()).transpose();
@@ -868,7 +891,10 @@ impl Ekf {
         let K_PHt = K * PHt.transpose();
         self.P = symmetrise(&(self.P - K_PHt - K_PHt.transpose() + K * S * K.transpose()));
         let I_KH = StateMatrix::identity() - K.fixed_rows::<9>(0) * H;
-        for d in sensitivity.iter_mut().flat_map(|d| d.iter_mut()) {
+        for d in noise
+            .into_iter()
+            .flat_map(|carry| carry.sensitivity.iter_mut())
+        {
             *d = symmetrise(&(I_KH * *d * I_KH.transpose()));
         }
         Ok(Fused {
@@ -1279,10 +1305,42 @@ mod tests {
         let (H, R) = (position_H(), Matrix3::identity() * 4e-6);
         let z = ekf.x.fixed_rows::<3>(0) + Vector3::new(0.004, -0.002, 0.003);
         let scored = ekf.score(&z, &H, &R, &d).expect("scored");
-        let fused = ekf.update(&z, &H, &R, 1e9, Some(&mut d)).expect("fused");
+        let (before, d_before) = (ekf, d);
+        let fused = ekf
+            .update(
+                &z,
+                &H,
+                &R,
+                1e9,
+                Some(NoiseCarry {
+                    sensitivity: &mut d,
+                    scored: true,
+                }),
+            )
+            .expect("fused");
         // The same arithmetic: equal to the last bit.
         assert_eq!(scored, fused);
         assert!(scored.score.information[0] > 0.0, "{scored:?}");
+
+        // An update asked for no score carries the sensitivity exactly as one that scores.
+        let (mut quiet, mut quiet_d) = (before, d_before);
+        let unscored = quiet
+            .update(
+                &z,
+                &H,
+                &R,
+                1e9,
+                Some(NoiseCarry {
+                    sensitivity: &mut quiet_d,
+                    scored: false,
+                }),
+            )
+            .expect("fused");
+        assert_eq!(unscored.score, NoiseScore::default());
+        assert_eq!(unscored.nis, fused.nis);
+        assert_eq!((quiet.x, quiet.P), (ekf.x, ekf.P));
+        assert_eq!(quiet_d, d);
+        assert_ne!(d, d_before, "the update moved the sensitivity");
     }
 
     /// The filter's dP/ds of each noise scale, carried through flight, a bounce and updates,
@@ -1342,7 +1400,18 @@ mod tests {
                 let S = H * ekf.state_covariance() * H.transpose() + R;
                 let sensitivity = d;
                 let y = z - H * ekf.x;
-                let fused = ekf.update(&z, &H, &R, 1e9, Some(&mut d)).expect("fused");
+                let fused = ekf
+                    .update(
+                        &z,
+                        &H,
+                        &R,
+                        1e9,
+                        Some(NoiseCarry {
+                            sensitivity: &mut d,
+                            scored: true,
+                        }),
+                    )
+                    .expect("fused");
                 last = Some((S, sensitivity, y, fused.score));
             }
             last.expect("steps")

@@ -44,9 +44,14 @@ impl Estimator {
         sensitivity: Option<&mut NoiseSensitivity>,
     ) -> Result<f64, Rejection> {
         let prior = *snapshot;
-        let scoring = sensitivity.is_some();
+        // With a horizon the scales learn from the probe's predictions, not from these updates.
+        let scoring = sensitivity.is_some() && self.probe.is_none();
+        let noise = sensitivity.map(|sensitivity| NoiseCarry {
+            sensitivity,
+            scored: scoring,
+        });
         let (mut result, innovation, spin_reset) =
-            self.predict_and_update(&self.propagator, snapshot, d, m, sensitivity);
+            self.predict_and_update(&self.propagator, snapshot, d, m, noise);
         self.innovation = innovation;
         self.counters.spin_resets += u64::from(spin_reset);
         if self.near_table_edge(snapshot) || self.lands_near_table_edge(&prior, d.stamp) {
@@ -91,9 +96,10 @@ impl Estimator {
         snapshot: &mut Snapshot,
         d: &Detection,
         m: &Measurement,
-        mut sensitivity: Option<&mut NoiseSensitivity>,
+        mut noise: Option<NoiseCarry<'_>>,
     ) -> (Result<Fused, UpdateError>, Option<noise::Innovation>, bool) {
-        self.advance_with(propagator, snapshot, d.stamp, sensitivity.as_deref_mut());
+        let sensitivity = noise.as_mut().map(|carry| &mut *carry.sensitivity);
+        self.advance_with(propagator, snapshot, d.stamp, sensitivity);
         let x = &snapshot.ekf.x;
         let velocity = x.fixed_rows::<3>(3).into_owned();
         let p = snapshot.ekf.state_covariance();
@@ -124,14 +130,14 @@ impl Estimator {
                     &position_H(),
                     r,
                     self.settings.gate_position,
-                    sensitivity,
+                    noise,
                     self.settings
                         .along_flight_gain(snapshot.bounces, self.guards_spin_along_flight()),
                 ),
                 false,
             ),
             Measurement::PositionSpin { z, r, .. } => {
-                let fused = self.fuse_position_spin(snapshot, z, r, sensitivity);
+                let fused = self.fuse_position_spin(snapshot, z, r, noise);
                 snapshot.spin_measured |= fused.0.is_ok();
                 fused
             }
@@ -204,7 +210,7 @@ impl Estimator {
         snapshot: &mut Snapshot,
         z: &SVector<f64, 6>,
         r: &Matrix6<f64>,
-        mut sensitivity: Option<&mut NoiseSensitivity>,
+        mut noise: Option<NoiseCarry<'_>>,
     ) -> (Result<Fused, UpdateError>, bool) {
         let z_position = z.fixed_rows::<3>(0).into_owned();
         let r_position = r.fixed_view::<3, 3>(0, 0).into_owned();
@@ -220,7 +226,7 @@ impl Estimator {
             &h,
             r,
             self.settings.gate_position_spin,
-            sensitivity.as_deref_mut(),
+            noise.as_mut().map(NoiseCarry::reborrow),
         );
         // A fallback below fuses part of the measurement; the spin's misfit still counts
         // against this hypothesis when two are compared (an edge ball).
@@ -236,37 +242,32 @@ impl Estimator {
             {
                 (
                     whole(
-                        snapshot.ekf.update(
-                            &z_position,
-                            &position_H(),
-                            &r_position,
-                            gate,
-                            sensitivity,
-                        ),
+                        snapshot
+                            .ekf
+                            .update(&z_position, &position_H(), &r_position, gate, noise),
                         nis,
                     ),
                     false,
                 )
             }
             Err(UpdateError::Gated { nis: whole_nis, .. }) => {
-                snapshot
-                    .ekf
-                    .reset_spin(self.settings.spin_prior_var, sensitivity.as_deref_mut());
+                snapshot.ekf.reset_spin(
+                    self.settings.spin_prior_var,
+                    noise.as_mut().map(|carry| &mut *carry.sensitivity),
+                );
                 let refit = match snapshot.ekf.update(
                     z,
                     &h,
                     r,
                     self.settings.gate_position_spin,
-                    sensitivity.as_deref_mut(),
+                    noise.as_mut().map(NoiseCarry::reborrow),
                 ) {
                     Ok(fused) => Ok(fused),
-                    Err(_) => snapshot.ekf.update(
-                        &z_position,
-                        &position_H(),
-                        &r_position,
-                        gate,
-                        sensitivity,
-                    ),
+                    Err(_) => {
+                        snapshot
+                            .ekf
+                            .update(&z_position, &position_H(), &r_position, gate, noise)
+                    }
                 };
                 (whole(refit, whole_nis), true)
             }

@@ -40,7 +40,7 @@ use crate::model::detection::{Detection, seconds_to_ns};
 use crate::model::stats::chi_square_quantile;
 use crate::online::contact_side::with_contact_side;
 use crate::online::ekf::{
-    BounceNoise, Ekf, FilterNoise, Fused, NOISE_SCALES, NoiseScore, NoiseSensitivity,
+    BounceNoise, Ekf, FilterNoise, Fused, NOISE_SCALES, NoiseCarry, NoiseScore, NoiseSensitivity,
     ParamCovariance, ProcessNoise, UpdateError, position_H, position_spin_H,
 };
 use crate::online::intercept::{Intercept, InterceptQuery, InterceptTracker};
@@ -422,7 +422,7 @@ pub struct Estimator {
     /// What the estimator has learned of how far the flights stray from the model.
     model_noise: ModelNoiseLearner,
     /// The score of the noise scales of the detection `fuse` just fused, and whether its
-    /// prediction started after the track's spin was measured.
+    /// prediction started after the track's spin was measured (without a model-noise horizon).
     score: Option<(NoiseScore, bool)>,
     /// How the live track's covariance depends on the noise scales, when they are learned:
     /// carried along the track's newest detections (a late one, fused by rolling back, neither
@@ -1078,10 +1078,9 @@ impl Estimator {
                 &innovation,
             );
         }
-        // With a horizon the scales learn from the probe's predictions instead.
-        if let Some((score, spin_measured)) = self.score.take()
-            && self.probe.is_none()
-        {
+        // Only without a horizon (with one the scales learn from the probe's predictions, and
+        // the updates score nothing).
+        if let Some((score, spin_measured)) = self.score.take() {
             self.model_noise.learn(&score, spin_measured);
         }
     }
