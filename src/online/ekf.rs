@@ -1307,16 +1307,7 @@ mod tests {
         let scored = ekf.score(&z, &H, &R, &d).expect("scored");
         let (before, d_before) = (ekf, d);
         let fused = ekf
-            .update(
-                &z,
-                &H,
-                &R,
-                1e9,
-                Some(NoiseCarry {
-                    sensitivity: &mut d,
-                    scored: true,
-                }),
-            )
+            .update(&z, &H, &R, 1e9, carry(&mut d, true))
             .expect("fused");
         // The same arithmetic: equal to the last bit.
         assert_eq!(scored, fused);
@@ -1325,22 +1316,21 @@ mod tests {
         // An update asked for no score carries the sensitivity exactly as one that scores.
         let (mut quiet, mut quiet_d) = (before, d_before);
         let unscored = quiet
-            .update(
-                &z,
-                &H,
-                &R,
-                1e9,
-                Some(NoiseCarry {
-                    sensitivity: &mut quiet_d,
-                    scored: false,
-                }),
-            )
+            .update(&z, &H, &R, 1e9, carry(&mut quiet_d, false))
             .expect("fused");
         assert_eq!(unscored.score, NoiseScore::default());
         assert_eq!(unscored.nis, fused.nis);
         assert_eq!((quiet.x, quiet.P), (ekf.x, ekf.P));
         assert_eq!(quiet_d, d);
         assert_ne!(d, d_before, "the update moved the sensitivity");
+    }
+
+    /// The sensitivity `d` carried through an update, scored or not.
+    fn carry(d: &mut NoiseSensitivity, scored: bool) -> Option<NoiseCarry<'_>> {
+        Some(NoiseCarry {
+            sensitivity: d,
+            scored,
+        })
     }
 
     /// The filter's dP/ds of each noise scale, carried through flight, a bounce and updates,
@@ -1401,16 +1391,7 @@ mod tests {
                 let sensitivity = d;
                 let y = z - H * ekf.x;
                 let fused = ekf
-                    .update(
-                        &z,
-                        &H,
-                        &R,
-                        1e9,
-                        Some(NoiseCarry {
-                            sensitivity: &mut d,
-                            scored: true,
-                        }),
-                    )
+                    .update(&z, &H, &R, 1e9, carry(&mut d, true))
                     .expect("fused");
                 last = Some((S, sensitivity, y, fused.score));
             }
