@@ -451,14 +451,15 @@ impl Estimator {
         let Some(mut held) = self.contest.held.take() else {
             return;
         };
+        // The detected position (an estimate's view of the detection, `measurement_at`, moves
+        // only its covariance).
+        let (z, r) = m.position();
         let miss = |ahead: &mut Snapshot| {
             self.advance_with(&self.propagator, ahead, d.stamp, None);
-            let (z, _) = self.measurement_at(ahead, m).0.position();
             (z - ahead.ekf.x.fixed_rows::<3>(0)).norm()
         };
         let (filter_miss, refit_miss) = (miss(&mut held.filter), miss(&mut held.refit));
-        held.misses
-            .add(filter_miss, refit_miss, 1.0 / m.position().1.trace());
+        held.misses.add(filter_miss, refit_miss, 1.0 / r.trace());
         if d.stamp - held.since < self.settings.contest_horizon {
             self.contest.held = Some(held);
             return;
