@@ -286,6 +286,26 @@ pub struct Overrides {
 #[error("{0}")]
 pub struct BadUsage(pub String);
 
+/// The configuration of `layers` without the learned files among them
+/// ([`yaml::without_learned_files`]), for the node `node_fqn`: what a run's learned file is
+/// written against. None where there is no learned file among them (the configuration of every
+/// layer is the own one), or where the rest alone does not load (said on stderr: the file then
+/// holds only what this run moved).
+pub fn own_configuration(layers: &[Layer], node_fqn: Option<&str>) -> Option<Config> {
+    let own = yaml::without_learned_files(layers);
+    if own.len() == layers.len() {
+        return None;
+    }
+    yaml::load_layers(&own, node_fqn)
+        .inspect_err(|e| {
+            eprintln!(
+                "warning: the configuration without its learned files does not load ({e}); \
+                 the learned file holds only what this run moved"
+            );
+        })
+        .ok()
+}
+
 /// A `--learned FILE` whose directory does not exist is refused before any work (a node would
 /// otherwise run, and a replay finish, with nowhere to keep what was learned).
 pub fn check_learned_file(path: &std::path::Path) -> Result<(), BadUsage> {

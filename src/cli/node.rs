@@ -172,7 +172,8 @@ impl NodeArgs {
         let layers: Vec<Layer> = (self.config.layers().into_iter())
             .chain(ros.layers.iter().cloned())
             .collect();
-        let mut config = yaml::load_layers(&layers, remapped_node_fqn(&ros.remaps).as_deref())?;
+        let node_fqn = remapped_node_fqn(&ros.remaps);
+        let mut config = yaml::load_layers(&layers, node_fqn.as_deref())?;
         let unused = apply_remaps(&mut config, &ros.remaps);
         config
             .validate()
@@ -189,6 +190,11 @@ impl NodeArgs {
             .filter(|path| !path.as_os_str().is_empty());
         if let Some(path) = &placement.learned_file {
             super::check_learned_file(path)?;
+            placement.learned_base =
+                super::own_configuration(&layers, node_fqn.as_deref()).map(|mut own| {
+                    apply_remaps(&mut own, &ros.remaps);
+                    own
+                });
         }
 
         let (signal_tx, signal_rx) = crossbeam::channel::bounded::<()>(1);

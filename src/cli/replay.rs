@@ -225,9 +225,10 @@ impl ReplayArgs {
             return Ok(());
         };
         let by = format!("`ttball replay --learned` from {}", summary.input.display());
+        let own = super::own_configuration(&self.config.layers(), None);
         let text = summary
             .learned
-            .file_text(config, config, &by)
+            .file_text(own.as_ref().unwrap_or(config), config, &by)
             .context("what the estimator learned is not a valid configuration")?;
         std::fs::write(path, text).with_context(|| format!("cannot write {}", path.display()))?;
         eprintln!(

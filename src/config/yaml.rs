@@ -194,6 +194,35 @@ pub enum Layer {
     Param(String),
 }
 
+/// What the first line of a learned configuration file (`--learned`) says after who wrote it:
+/// "# Written by WHO: what the estimator learned; ...".
+pub const LEARNED_FILE_MARK: &str = ": what the estimator learned";
+
+/// Whether the file at `path` is a learned configuration (its first line, [`LEARNED_FILE_MARK`]);
+/// false when it cannot be read.
+pub fn is_learned_file(path: &Path) -> bool {
+    use std::io::BufRead;
+    let Ok(file) = std::fs::File::open(path) else {
+        return false;
+    };
+    let mut first = String::new();
+    std::io::BufReader::new(file).read_line(&mut first).is_ok()
+        && first.starts_with("# Written by ")
+        && first.contains(LEARNED_FILE_MARK)
+}
+
+/// `layers` without the learned configuration files among them ([`is_learned_file`]): the
+/// configuration a run's own learning is told apart from. A learned file compared against a
+/// configuration that holds an earlier one would drop every value learned then and not moved
+/// since (a camera that sent nothing this run).
+pub fn without_learned_files(layers: &[Layer]) -> Vec<Layer> {
+    layers
+        .iter()
+        .filter(|layer| !matches!(layer, Layer::File(path) if is_learned_file(path)))
+        .cloned()
+        .collect()
+}
+
 /// Loads the configuration: defaults, then `file` if given, then `overrides` (`NAME:=VALUE`,
 /// the value parsed as YAML), then [`Config::validate`]; the file's sections that apply to the
 /// node the configuration names (`node.namespace`, `node.name`).
@@ -1144,6 +1173,52 @@ mod tests {
             let back: f64 = serde_norway::from_str(text).unwrap();
             assert_eq!(back, f, "{text}");
         }
+    }
+
+    /// A learned file is told by its first line: its layers leave, every other layer stays in
+    /// its order (a file that cannot be read as well: loading it says why).
+    #[test]
+    fn learned_files_are_told_by_their_first_line() {
+        let dir = std::env::temp_dir().join(format!("ttball-learned-mark-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let write = |name: &str, text: &str| {
+            let path = dir.join(name);
+            std::fs::write(&path, text).unwrap();
+            path
+        };
+        let learned = write(
+            "learned.yaml",
+            &format!(
+                "# Written by `ttball replay --learned` from a.mcap{LEARNED_FILE_MARK}; ...\n"
+            ),
+        );
+        let own = write(
+            "robot.yaml",
+            "# what the estimator learned is not in here\n",
+        );
+        let quoted = write(
+            "notes.yaml",
+            &format!("# Copied from a file that said{LEARNED_FILE_MARK}\n"),
+        );
+        let missing = dir.join("missing.yaml");
+        assert!(is_learned_file(&learned));
+        assert!(!is_learned_file(&own) && !is_learned_file(&quoted));
+        assert!(!is_learned_file(&missing));
+        let layers = vec![
+            Layer::File(own.clone()),
+            Layer::File(learned),
+            Layer::Param("aero.drag_scale:=0.9".into()),
+            Layer::File(missing.clone()),
+        ];
+        assert_eq!(
+            without_learned_files(&layers),
+            vec![
+                Layer::File(own),
+                Layer::Param("aero.drag_scale:=0.9".into()),
+                Layer::File(missing),
+            ]
+        );
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 
     /// The changed parameters alone, loaded over the defaults, give the changed configuration;

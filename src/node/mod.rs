@@ -129,7 +129,7 @@ pub enum NodeError {
 
 /// Where the node runs: DDS domain and interfaces. [`Placement::from_env`] reads them as ROS 2
 /// does.
-#[derive(Debug, Clone, PartialEq, Eq, Default)]
+#[derive(Debug, Clone, PartialEq, Default)]
 pub struct Placement {
     /// DDS domain (`ROS_DOMAIN_ID`).
     pub domain: u16,
@@ -140,6 +140,10 @@ pub struct Placement {
     /// Where to keep what the estimator learns (`--learned FILE`), rewritten as it learns and
     /// when the node stops; `None`: nowhere.
     pub learned_file: Option<std::path::PathBuf>,
+    /// What that file is written against: the node's configuration without the learned files
+    /// among its layers (`config::yaml::without_learned_files`), so that what an earlier run
+    /// learned and this one did not move stays in it; `None`: the node's configuration.
+    pub learned_base: Option<Config>,
 }
 
 impl Placement {
@@ -156,6 +160,7 @@ impl Placement {
             ),
             live_view: None,
             learned_file: None,
+            learned_base: None,
         })
     }
 
@@ -403,8 +408,15 @@ fn start_here(config: &Config, placement: &Placement) -> Result<NodeHandle, Node
     };
     let keeper = match &placement.learned_file {
         Some(path) => Some(
-            keeper::LearnedKeeper::start(path.clone(), config.clone(), fq_name.clone())
-                .map_err(|e| NodeError::Thread(e.to_string()))?,
+            keeper::LearnedKeeper::start(
+                path.clone(),
+                placement
+                    .learned_base
+                    .clone()
+                    .unwrap_or_else(|| config.clone()),
+                fq_name.clone(),
+            )
+            .map_err(|e| NodeError::Thread(e.to_string()))?,
         ),
         None => None,
     };

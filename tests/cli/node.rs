@@ -233,6 +233,40 @@ fn a_killed_node_has_kept_what_it_learned() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
+/// A node started from its own learned file (`--config learned.yaml --learned learned.yaml`, as
+/// a bringup that keeps its lessons runs it) keeps what it learned before: stopped before any
+/// detection came, the file it rewrites is the one it started from, value for value.
+#[test]
+fn a_node_started_from_its_learned_file_keeps_it() {
+    let dir = common::scratch("node-learned-kept");
+    let earlier = replay_learned(&dir);
+    assert_ne!(earlier, ttball::config::Config::default());
+    std::fs::copy(dir.join("replayed.yaml"), dir.join("learned.yaml")).unwrap();
+    let script = format!(
+        r#"
+export ROS_DOMAIN_ID=47 ROS_LOCALHOST_ONLY=1
+cd "{dir}"
+"{ttball}" node --config learned.yaml --learned learned.yaml > node.out 2> node.err &
+node=$!
+for i in $(seq 100); do grep -qs ttball-dds /proc/$node/task/*/comm && break; sleep 0.1; done
+kill -TERM $node
+wait $node
+exit 0
+"#,
+        dir = dir.display(),
+        ttball = env!("CARGO_BIN_EXE_ttball"),
+    );
+    assert!(common::run_on_loopback_only(&script).success());
+    let text = std::fs::read_to_string(dir.join("learned.yaml")).unwrap();
+    assert!(
+        text.starts_with("# Written by `ttball node --learned`"),
+        "{text}"
+    );
+    let kept = ttball::config::yaml::load::<&str>(Some(&dir.join("learned.yaml")), &[]).unwrap();
+    assert_eq!(kept, earlier, "{text}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
 /// A `--learned` file in a directory that does not exist is refused before the node starts.
 #[test]
 fn node_refuses_a_learned_file_it_could_not_keep() {

@@ -255,3 +255,63 @@ fn what_a_replay_learned_is_a_configuration_to_start_from() {
     );
     assert!(!dir.join("nowhere.mcap").exists());
 }
+
+/// A learned file written by a run started from an earlier one keeps what the earlier run
+/// learned and this one did not move: replayed from the two cameras' lessons, a bag of the
+/// 150 fps camera alone leaves the 900 fps camera's learned noise (and the model noise of a
+/// measured spin) in the new file, and writes over the whole file it was started from.
+#[test]
+fn a_learned_file_keeps_what_earlier_runs_learned() {
+    let dir = common::scratch("learned-kept");
+    let first = dir.join("first.yaml");
+    common::ok(&[
+        "replay",
+        "bags/sim_rally_2cams.mcap",
+        "-o",
+        dir.join("first.mcap").to_str().unwrap(),
+        "--learned",
+        first.to_str().unwrap(),
+    ]);
+    let earlier = ttball::config::yaml::load::<&str>(Some(&first), &[]).unwrap();
+    let defaults = ttball::config::Config::default();
+    let high_speed = &earlier.sources.highspeed_900fps;
+    assert_ne!(
+        high_speed.position_sigma,
+        defaults.sources.highspeed_900fps.position_sigma
+    );
+    assert_ne!(
+        earlier.ekf.spin_measured_acceleration_noise_density,
+        defaults.ekf.spin_measured_acceleration_noise_density
+    );
+    // Kept in place: the next run reads the file and rewrites it.
+    let kept = dir.join("kept.yaml");
+    std::fs::copy(&first, &kept).unwrap();
+    let replayed = common::ok(&[
+        "replay",
+        "bags/sim_rally_wide.mcap",
+        "-o",
+        dir.join("second.mcap").to_str().unwrap(),
+        "--config",
+        kept.to_str().unwrap(),
+        "--learned",
+        kept.to_str().unwrap(),
+    ]);
+    assert!(
+        !replayed.contains("highspeed_900fps position sigma"),
+        "{replayed}"
+    );
+    let text = std::fs::read_to_string(&kept).unwrap();
+    assert!(text.contains("sim_rally_wide.mcap"), "{text}");
+    let later = ttball::config::yaml::load::<&str>(Some(&kept), &[]).unwrap();
+    assert_eq!(later.sources.highspeed_900fps, *high_speed);
+    assert_eq!(
+        later.ekf.spin_measured_acceleration_noise_density,
+        earlier.ekf.spin_measured_acceleration_noise_density
+    );
+    // What this run learned replaces the earlier lesson.
+    assert_ne!(later.aero.drag_scale, earlier.aero.drag_scale);
+    assert_ne!(
+        later.sources.wide_150fps.position_sigma,
+        earlier.sources.wide_150fps.position_sigma
+    );
+}

@@ -95,8 +95,11 @@ impl LearnedSummary {
 
     /// The learned configuration as a ROS 2 parameters file headed by comments (who wrote it,
     /// `written_by`, and [`Self::lines`]): the values of [`Self::configuration`] of `running`
-    /// (the configuration the estimator ran with) that differ from `base` (the one it was
-    /// started with). An error if what was learned is not a valid configuration.
+    /// (the configuration the estimator ran with) that differ from `base` (the user's own: the
+    /// one it was started with, without any learned file among its layers,
+    /// [`crate::config::yaml::without_learned_files`], so that what an earlier run learned and
+    /// this one did not move stays in the file). An error if what was learned is not a valid
+    /// configuration.
     #[cfg(feature = "interface")]
     pub fn file_text(
         &self,
@@ -107,17 +110,17 @@ impl LearnedSummary {
         let learned = self.configuration(running);
         learned.validate()?;
         let mut text = format!(
-            "# Written by {written_by}: what the estimator learned; pass it to --config (after\n\
-             # your own files) to start the node or a replay from it.\n"
+            "# Written by {written_by}{}; pass it to --config (after\n\
+             # your own files) to start the node or a replay from it.\n",
+            crate::config::yaml::LEARNED_FILE_MARK
         );
         for line in self.lines() {
             text.push_str("# ");
             text.push_str(&line);
             text.push('\n');
         }
-        // The contest's decision is written even when it did not change: a node that keeps its
-        // file while started from it (`--config learned.yaml --learned learned.yaml`) would
-        // otherwise drop a decision it started with and kept.
+        // The contest's decision is written even where it is the base's: the file says how the
+        // contest ended either way.
         let mut compared = base.clone();
         compared.ekf.refits_start_applied = !learned.ekf.refits_start_applied;
         text.push_str(&crate::config::yaml::changed_params_yaml(
