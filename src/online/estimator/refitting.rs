@@ -119,9 +119,12 @@ pub(super) struct TrackRefit {
     /// The smoothed (state, parameters) at the window's start and each step's stamp: the next
     /// pass's nominal; allocated once.
     smoothed: Vec<(i64, AugmentedVector)>,
-    /// The smoothed covariance of each of `smoothed`, which a live refit's pass takes a
-    /// bounce's spread at; allocated once.
+    /// The smoothed covariance of each of `smoothed` from the index `covariance_from` on, which
+    /// a live refit's pass takes a bounce's spread at ([`first_covariance_needed`]); allocated
+    /// once.
     smoothed_covariance: Vec<AugmentedMatrix>,
+    /// The index into `smoothed` of `smoothed_covariance`'s first.
+    covariance_from: usize,
     /// The track they belong to (0: none).
     track: u32,
     /// The track's first estimate's stamp, from which its age is counted [ns].
@@ -137,6 +140,19 @@ pub(super) struct TrackRefit {
 }
 
 impl TrackRefit {
+    /// The smoothed covariance at index `at` of `smoothed`, where the last smoothing computed it.
+    fn smoothed_covariance_at(&self, at: usize) -> Option<&AugmentedMatrix> {
+        at.checked_sub(self.covariance_from)
+            .and_then(|i| self.smoothed_covariance.get(i))
+    }
+
+    /// Forgets the smoothed flight.
+    fn forget_smoothed(&mut self) {
+        self.smoothed.clear();
+        self.smoothed_covariance.clear();
+        self.covariance_from = 0;
+    }
+
     /// The last pass's step at `stamp`, if it has one.
     fn step_at(&self, stamp: i64) -> Option<&Step> {
         let at = self.steps.partition_point(|step| step.stamp < stamp);
@@ -172,6 +188,7 @@ impl TrackRefit {
             steps: Vec::new(),
             smoothed: Vec::new(),
             smoothed_covariance: Vec::new(),
+            covariance_from: 0,
             track: 0,
             start: 0,
             base: None,
@@ -187,6 +204,7 @@ impl TrackRefit {
             steps: Vec::with_capacity(BUFFER_WINDOWS * capacity),
             smoothed: Vec::with_capacity(BUFFER_WINDOWS * capacity + 1),
             smoothed_covariance: Vec::with_capacity(BUFFER_WINDOWS * capacity + 1),
+            covariance_from: 0,
             track: 0,
             start: 0,
             base: None,
@@ -216,8 +234,7 @@ impl Estimator {
             kept.track = track.id;
             kept.start = track.base.stamp;
             kept.base = Some(track.base);
-            kept.smoothed.clear();
-            kept.smoothed_covariance.clear();
+            kept.forget_smoothed();
             kept.next = interval;
             kept.done = false;
             kept.observations.clear();
@@ -343,7 +360,7 @@ impl Estimator {
         } else {
             // The last pass is not smoothed back: its estimate at the last detection is the
             // lesson. A lesson's passes take a bounce's spread at their own covariance.
-            smooth_back(&mut kept, false);
+            smooth_back(&mut kept, usize::MAX);
         }
         let done = stage + 1 == LESSON_STAGES;
         let posterior = done.then(|| self.lesson_posterior(&kept)).flatten();
@@ -394,7 +411,8 @@ impl Estimator {
     fn refit_now(&mut self) {
         for _ in 0..ITERATIONS {
             self.pass_forward();
-            smooth_back(&mut self.refit, true);
+            let from = first_covariance_needed(&self.refit, self.flight.radius());
+            smooth_back(&mut self.refit, from);
         }
         if self.pass_agrees() {
             if self.settings.refit_when_better {
@@ -407,8 +425,7 @@ impl Estimator {
         } else {
             // The pass and the filter disagree on the bounces (or the pass failed): the next
             // refit linearises afresh, at its own estimates, rather than along this flight.
-            self.refit.smoothed.clear();
-            self.refit.smoothed_covariance.clear();
+            self.refit.forget_smoothed();
         }
         self.slide_window();
     }
@@ -492,8 +509,11 @@ impl Estimator {
         // The smoothed flight before the new window's start leaves with its covariances.
         let before = kept.smoothed.partition_point(|(s, _)| *s < stamp);
         kept.smoothed.drain(..before);
-        kept.smoothed_covariance
-            .drain(..before.min(kept.smoothed_covariance.len()));
+        let covariances_before = before
+            .saturating_sub(kept.covariance_from)
+            .min(kept.smoothed_covariance.len());
+        kept.smoothed_covariance.drain(..covariances_before);
+        kept.covariance_from = kept.covariance_from.saturating_sub(before);
     }
 
     /// The filter run over the kept detections from the track's first estimate, each
@@ -533,7 +553,7 @@ impl Estimator {
             let smoothed = &kept.smoothed;
             let at = smoothed.partition_point(|(k, _)| *k < previous);
             let (nominal, nominal_covariance) = match smoothed.get(at) {
-                Some((k, y)) if *k == previous => (*y, kept.smoothed_covariance.get(at)),
+                Some((k, y)) if *k == previous => (*y, kept.smoothed_covariance_at(at)),
                 _ => (augmented(&snapshot.ekf), None),
             };
             // A live refit takes a bounce's spread at what the whole flight knows of the state
@@ -629,25 +649,57 @@ impl Estimator {
     }
 }
 
+/// Steps before the last pass's first bounce whose smoothed covariances a live refit keeps: the
+/// next pass, along the new smoothed flight, may bounce a step or two earlier.
+const COVARIANCE_STEPS_BEFORE_BOUNCE: usize = 3;
+
+/// Height above its contact with the table [m] under which an estimate of the last pass keeps
+/// its smoothed covariance, bounce or not (and the [`COVARIANCE_STEPS_BEFORE_BOUNCE`] before
+/// it): a pass that did not bounce may where the ball came this close.
+const COVARIANCE_HEIGHT: f64 = 0.05;
+
+/// The first index of the smoothed flight (0: the window's first estimate, k + 1: step k) whose
+/// covariance the next pass may read: a prediction that bounces spreads the bounce at the
+/// covariance of the estimate it starts from. [`COVARIANCE_STEPS_BEFORE_BOUNCE`] before the last
+/// pass's first bounce or its first estimate within [`COVARIANCE_HEIGHT`] of the table
+/// (`contact_height`, the ball's centre at contact); past the end where neither is (most
+/// refits, before the first bounce: their smoothing then computes no covariance). Until
+/// 2026-12-04 every estimate's was computed, a 13 x 13 triple product a step.
+fn first_covariance_needed(kept: &TrackRefit, contact_height: f64) -> usize {
+    let heights = kept
+        .base
+        .iter()
+        .map(|b| b.ekf.x[2])
+        .chain(kept.steps.iter().map(|s| s.filtered.x[2]));
+    let low = heights
+        .enumerate()
+        .find(|(_, z)| *z - contact_height < COVARIANCE_HEIGHT)
+        .map(|(index, _)| index);
+    let bounce = kept.steps.iter().position(|s| s.bounces > 0);
+    low.into_iter()
+        .chain(bounce)
+        .min()
+        .map_or(usize::MAX, |index| {
+            index.saturating_sub(COVARIANCE_STEPS_BEFORE_BOUNCE)
+        })
+}
+
 /// The Rauch-Tung-Striebel smoother back over the last pass: the smoothed (state, parameters)
-/// at the first estimate's time and every step's, the next pass's nominal, and with
-/// `covariances` their covariances (which only a live refit's pass reads).
+/// at the first estimate's time and every step's, the next pass's nominal, and from the index
+/// `covariances_from` on (0: all, `usize::MAX`: none) their covariances (which only a live
+/// refit's pass reads, [`first_covariance_needed`]).
 #[expect(non_snake_case, reason = "matrix notation")]
-fn smooth_back(kept: &mut TrackRefit, covariances: bool) {
-    let Some(base) = kept.base.as_ref() else {
+fn smooth_back(kept: &mut TrackRefit, covariances_from: usize) {
+    let (Some(base), Some(&last)) = (kept.base, kept.steps.last()) else {
         return;
     };
-    let Some(last) = kept.steps.last() else {
-        return;
-    };
-    kept.smoothed.clear();
-    kept.smoothed_covariance.clear();
+    kept.forget_smoothed();
     let (mut later, mut later_covariance) = (augmented(&last.filtered), last.filtered.P);
     if !later.iter().all(|v| v.is_finite()) {
         return;
     }
     kept.smoothed.push((last.stamp, later));
-    if covariances {
+    if kept.steps.len() >= covariances_from {
         kept.smoothed_covariance.push(later_covariance);
     }
     // Step k's filtered estimate with step k + 1's prediction and transition.
@@ -669,7 +721,7 @@ fn smooth_back(kept: &mut TrackRefit, covariances: bool) {
         // C = P_k Phi' P_{k+1|k}^-1 = (P_{k+1|k}^-1 Phi P_k)'.
         let C = chol.solve(&(next.transition * filtered.P)).transpose();
         later = augmented(filtered) + C * (later - next.predicted.0);
-        if covariances {
+        if k >= covariances_from {
             // P_k|N = P_k + C (P_k+1|N - P_k+1|k) C'.
             later_covariance =
                 filtered.P + C * (later_covariance - next.predicted.1) * C.transpose();
@@ -677,14 +729,15 @@ fn smooth_back(kept: &mut TrackRefit, covariances: bool) {
             kept.smoothed_covariance.push(later_covariance);
         }
         if !later.iter().all(|v| v.is_finite()) {
-            kept.smoothed.clear();
-            kept.smoothed_covariance.clear();
+            kept.forget_smoothed();
             return;
         }
         kept.smoothed.push((stamp, later));
     }
     kept.smoothed.reverse();
     kept.smoothed_covariance.reverse();
+    // The covariances are of the newest estimates.
+    kept.covariance_from = kept.smoothed.len() - kept.smoothed_covariance.len();
 }
 
 #[cfg(test)]
@@ -750,7 +803,7 @@ mod tests {
     fn the_smoothed_covariance_is_no_larger_than_the_filtered() {
         let mut estimator = served(&keeping_detections(), 0.3);
         estimator.pass_forward();
-        smooth_back(&mut estimator.refit, true);
+        smooth_back(&mut estimator.refit, 0);
         let kept = &estimator.refit;
         assert!(kept.smoothed.len() > 30);
         assert_eq!(kept.smoothed_covariance.len(), kept.smoothed.len());
@@ -764,6 +817,51 @@ mod tests {
         }
         let first = &kept.steps[0].filtered.P;
         assert!(kept.smoothed_covariance[1].trace() < 0.5 * first.trace());
+    }
+
+    /// A live refit keeps the smoothed covariances only where its next pass may spread a bounce
+    /// at them: none while the ball is far above the table, and from a few steps before the
+    /// first bounce once the window holds one; there they are the whole smoothing's, and the
+    /// next pass is the same as with every covariance kept.
+    #[test]
+    fn a_refit_keeps_the_smoothed_covariances_a_bounce_may_read() {
+        let config = keeping_detections();
+        let mut early = served(&config, 0.3);
+        early.pass_forward();
+        let radius = early.flight.radius();
+        assert_eq!(first_covariance_needed(&early.refit, radius), usize::MAX);
+        smooth_back(&mut early.refit, usize::MAX);
+        assert!(early.refit.smoothed.len() > 30);
+        assert!(early.refit.smoothed_covariance.is_empty());
+
+        let mut kept = served(&config, 0.5);
+        kept.pass_forward();
+        let first_bounce = kept
+            .refit
+            .steps
+            .iter()
+            .position(|s| s.bounces > 0)
+            .expect("the window holds the bounce");
+        let from = first_covariance_needed(&kept.refit, radius);
+        assert!(from > 0 && from + COVARIANCE_STEPS_BEFORE_BOUNCE <= first_bounce);
+        let mut every = kept.clone();
+        smooth_back(&mut every.refit, 0);
+        smooth_back(&mut kept.refit, from);
+        assert_eq!(kept.refit.smoothed, every.refit.smoothed);
+        assert_eq!(kept.refit.smoothed_covariance_at(from - 1), None);
+        for at in from..every.refit.smoothed.len() {
+            assert_eq!(
+                kept.refit.smoothed_covariance_at(at),
+                every.refit.smoothed_covariance_at(at),
+                "{at}"
+            );
+        }
+        kept.pass_forward();
+        every.pass_forward();
+        assert_eq!(kept.refit.steps.len(), every.refit.steps.len());
+        for (a, b) in kept.refit.steps.iter().zip(&every.refit.steps) {
+            assert_eq!((a.filtered, a.bounces), (b.filtered, b.bounces));
+        }
     }
 
     /// The filter guards the spin along the flight (`ekf.spin_along_flight_gain`) only while no
@@ -895,7 +993,7 @@ mod tests {
                 estimator.handle(d);
             }
             estimator.pass_forward();
-            smooth_back(&mut estimator.refit, true);
+            smooth_back(&mut estimator.refit, 0);
             assert!(estimator.refit.smoothed.len() > 30);
             let reference = estimator.clone();
             for (_, y) in estimator.refit.smoothed.iter_mut() {
@@ -915,7 +1013,7 @@ mod tests {
                 fresh.refit.smoothed.clear();
                 for _ in 1..ITERATIONS {
                     fresh.pass_forward();
-                    smooth_back(&mut fresh.refit, true);
+                    smooth_back(&mut fresh.refit, 0);
                 }
                 let expected = fresh.refit.steps.last().unwrap().filtered.x;
                 assert!((now.ekf.x - expected).norm() < 1e-9 * expected.norm());
