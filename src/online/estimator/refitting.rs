@@ -119,12 +119,10 @@ pub(super) struct TrackRefit {
     /// The smoothed (state, parameters) at the window's start and each step's stamp: the next
     /// pass's nominal; allocated once.
     smoothed: Vec<(i64, AugmentedVector)>,
-    /// The smoothed covariance of each of `smoothed` from the index `covariance_from` on, which
-    /// a live refit's pass takes a bounce's spread at ([`first_covariance_needed`]); allocated
-    /// once.
+    /// The smoothed covariance of the newest of `smoothed` (as many as the last smoothing
+    /// computed, [`first_covariance_needed`]), which a live refit's pass takes a bounce's spread
+    /// at; allocated once.
     smoothed_covariance: Vec<AugmentedMatrix>,
-    /// The index into `smoothed` of `smoothed_covariance`'s first.
-    covariance_from: usize,
     /// The track they belong to (0: none).
     track: u32,
     /// The track's first estimate's stamp, from which its age is counted [ns].
@@ -140,9 +138,14 @@ pub(super) struct TrackRefit {
 }
 
 impl TrackRefit {
-    /// The smoothed covariance at index `at` of `smoothed`, where the last smoothing computed it.
+    /// The smoothed covariance at index `at` of `smoothed`, where the last smoothing computed it
+    /// (the covariances are of the newest estimates).
     fn smoothed_covariance_at(&self, at: usize) -> Option<&AugmentedMatrix> {
-        at.checked_sub(self.covariance_from)
+        let first = self
+            .smoothed
+            .len()
+            .saturating_sub(self.smoothed_covariance.len());
+        at.checked_sub(first)
             .and_then(|i| self.smoothed_covariance.get(i))
     }
 
@@ -150,7 +153,6 @@ impl TrackRefit {
     fn forget_smoothed(&mut self) {
         self.smoothed.clear();
         self.smoothed_covariance.clear();
-        self.covariance_from = 0;
     }
 
     /// The last pass's step at `stamp`, if it has one.
@@ -188,7 +190,6 @@ impl TrackRefit {
             steps: Vec::new(),
             smoothed: Vec::new(),
             smoothed_covariance: Vec::new(),
-            covariance_from: 0,
             track: 0,
             start: 0,
             base: None,
@@ -204,7 +205,6 @@ impl TrackRefit {
             steps: Vec::with_capacity(BUFFER_WINDOWS * capacity),
             smoothed: Vec::with_capacity(BUFFER_WINDOWS * capacity + 1),
             smoothed_covariance: Vec::with_capacity(BUFFER_WINDOWS * capacity + 1),
-            covariance_from: 0,
             track: 0,
             start: 0,
             base: None,
@@ -509,11 +509,12 @@ impl Estimator {
         // The smoothed flight before the new window's start leaves with its covariances.
         let before = kept.smoothed.partition_point(|(s, _)| *s < stamp);
         kept.smoothed.drain(..before);
-        let covariances_before = before
-            .saturating_sub(kept.covariance_from)
-            .min(kept.smoothed_covariance.len());
-        kept.smoothed_covariance.drain(..covariances_before);
-        kept.covariance_from = kept.covariance_from.saturating_sub(before);
+        // The covariances are of the newest estimates: those of the estimates gone go too.
+        let gone = kept
+            .smoothed_covariance
+            .len()
+            .saturating_sub(kept.smoothed.len());
+        kept.smoothed_covariance.drain(..gone);
     }
 
     /// The filter run over the kept detections from the track's first estimate, each
@@ -736,8 +737,6 @@ fn smooth_back(kept: &mut TrackRefit, covariances_from: usize) {
     }
     kept.smoothed.reverse();
     kept.smoothed_covariance.reverse();
-    // The covariances are of the newest estimates.
-    kept.covariance_from = kept.smoothed.len() - kept.smoothed_covariance.len();
 }
 
 #[cfg(test)]
