@@ -194,11 +194,15 @@ pub enum Layer {
     Param(String),
 }
 
-/// What the first line of a learned configuration file (`--learned`) says after who wrote it:
-/// "# Written by WHO: what the estimator learned; ...".
+/// How the first line of a learned configuration file (`--learned`) begins, before who wrote
+/// it: "# Written by WHO: what the estimator learned; ...".
+pub const LEARNED_FILE_START: &str = "# Written by ";
+
+/// What that first line says after who wrote it.
 pub const LEARNED_FILE_MARK: &str = ": what the estimator learned";
 
-/// Whether the file at `path` is a learned configuration (its first line, [`LEARNED_FILE_MARK`]);
+/// Whether the file at `path` is a learned configuration (its first line,
+/// [`LEARNED_FILE_START`] and [`LEARNED_FILE_MARK`]);
 /// false when it cannot be read.
 pub fn is_learned_file(path: &Path) -> bool {
     use std::io::BufRead;
@@ -207,7 +211,7 @@ pub fn is_learned_file(path: &Path) -> bool {
     };
     let mut first = String::new();
     std::io::BufReader::new(file).read_line(&mut first).is_ok()
-        && first.starts_with("# Written by ")
+        && first.starts_with(LEARNED_FILE_START)
         && first.contains(LEARNED_FILE_MARK)
 }
 
@@ -1189,7 +1193,7 @@ mod tests {
         let learned = write(
             "learned.yaml",
             &format!(
-                "# Written by `ttball replay --learned` from a.mcap{LEARNED_FILE_MARK}; ...\n"
+                "{LEARNED_FILE_START}`ttball replay --learned` from a.mcap{LEARNED_FILE_MARK}; ...\n"
             ),
         );
         let own = write(

@@ -110,8 +110,9 @@ impl LearnedSummary {
         let learned = self.configuration(running);
         learned.validate()?;
         let mut text = format!(
-            "# Written by {written_by}{}; pass it to --config (after\n\
+            "{}{written_by}{}; pass it to --config (after\n\
              # your own files) to start the node or a replay from it.\n",
+            crate::config::yaml::LEARNED_FILE_START,
             crate::config::yaml::LEARNED_FILE_MARK
         );
         for line in self.lines() {
