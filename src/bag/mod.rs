@@ -1048,6 +1048,21 @@ fn read_summary(f: &mut File) -> Option<Vec<u8>> {
     Some(summary)
 }
 
+/// An error's message followed by its causes' (the `mcap` crate's I/O error names what failed,
+/// its cause why: "No space left on device").
+fn with_causes(e: &dyn std::error::Error) -> String {
+    let mut text = e.to_string();
+    let mut cause = e.source();
+    while let Some(c) = cause {
+        let next = c.to_string();
+        if !text.ends_with(&next) {
+            text = format!("{text}: {next}");
+        }
+        cause = c.source();
+    }
+    text
+}
+
 /// Writes a ROS 2 MCAP bag.
 pub struct BagWriter<W: Write + Seek> {
     writer: mcap::Writer<W>,
@@ -1062,7 +1077,7 @@ pub struct BagWriter<W: Write + Seek> {
 
 /// Sees every message a [`BagWriter`] writes, after it is written: its channel, log time and
 /// payload (e.g. the live view, [`crate::bag::live_view`]).
-pub type Observer = Box<dyn FnMut(&ChannelInfo, u64, &[u8])>;
+pub type Observer = Box<dyn FnMut(&ChannelInfo, u64, &[u8]) + Send>;
 
 impl BagWriter<BufWriter<File>> {
     /// Creates (or replaces) a bag file.
@@ -1087,7 +1102,7 @@ impl<W: Write + Seek> BagWriter<W> {
             .create(out)
             .map_err(|e| BagError::Write {
                 path: path.to_path_buf(),
-                reason: e.to_string(),
+                reason: with_causes(&e),
             })?;
         Ok(Self {
             writer,
@@ -1105,10 +1120,15 @@ impl<W: Write + Seek> BagWriter<W> {
         self.observer = Some(observer);
     }
 
+    /// The file it writes (as named in its errors).
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+
     fn write_error(&self, e: mcap::McapError) -> BagError {
         BagError::Write {
             path: self.path.clone(),
-            reason: e.to_string(),
+            reason: with_causes(&e),
         }
     }
 

@@ -203,6 +203,160 @@ impl Outputs {
     }
 }
 
+/// What the replay's writing thread is given to write, in the output's order.
+enum Writing {
+    /// The input's next channel, copied to the output.
+    Channel(ChannelInfo),
+    /// An input message, copied unchanged (its channel is the input's index).
+    Copy(BagMessage),
+    /// What the pipeline published for a detection of this log time.
+    Published(u64, Box<Published>),
+}
+
+/// The output bag as the replay writes it: its writer, the pipeline's channels, the channels
+/// copied from the input (by the input's index) and how many messages it holds.
+struct OutputBag {
+    writer: BagWriter<std::io::BufWriter<std::fs::File>>,
+    outputs: Outputs,
+    copied: Vec<u16>,
+    written: u64,
+}
+
+impl OutputBag {
+    fn write(&mut self, writing: Writing) -> Result<(), BagError> {
+        match writing {
+            Writing::Channel(info) => self.copied.push(self.writer.add_channel(&info)?),
+            Writing::Copy(m) => {
+                let channel =
+                    self.copied
+                        .get(m.channel)
+                        .copied()
+                        .ok_or_else(|| BagError::Write {
+                            path: self.writer.path().to_path_buf(),
+                            reason: format!("input channel {} was never added", m.channel),
+                        })?;
+                self.writer
+                    .write_raw(channel, m.log_time, m.publish_time, &m.data)?;
+                self.written += 1;
+            }
+            Writing::Published(t, published) => {
+                self.written += self.outputs.write(&mut self.writer, t, &published)?;
+            }
+        }
+        Ok(())
+    }
+
+    /// Finishes the file (also after an error, which `result` holds and is given first); how
+    /// many messages it holds.
+    fn finish(self, result: Result<(), BagError>) -> Result<u64, BagError> {
+        let finished = self.writer.finish();
+        result?;
+        finished?;
+        Ok(self.written)
+    }
+}
+
+/// How many messages go to the writing thread at once: one hand-over, one wake-up.
+const WRITING_BATCH: usize = 1024;
+/// How many batches the replay's loop may run ahead of the writing thread.
+const WRITING_QUEUE: usize = 4;
+
+/// Where the replay's writes go. With more than one core to run on, to a thread of its own:
+/// encoding, compressing and writing off the estimator's thread, so that the whole run takes
+/// about its processing. With one, in the replay's own thread: a second thread there would
+/// only take its turns in the middle of detections. The file is the same, byte for byte,
+/// either way: one writer writes it, in the order it is given.
+enum Writes {
+    /// Written at once; the first error, after which nothing more is written.
+    Inline(Box<OutputBag>, Option<BagError>),
+    /// Batched to the writing thread.
+    Threaded {
+        /// What is given but not yet sent.
+        batch: Vec<Writing>,
+        queue: std::sync::mpsc::SyncSender<Vec<Writing>>,
+        thread: std::thread::JoinHandle<Result<u64, BagError>>,
+        path: PathBuf,
+    },
+}
+
+impl Writes {
+    /// Starts writing `bag`: on a thread of its own when the process may run on more than one
+    /// core.
+    fn start(bag: OutputBag, path: &Path) -> Result<Self, BagError> {
+        if std::thread::available_parallelism().map_or(1, |n| n.get()) < 2 {
+            return Ok(Self::Inline(Box::new(bag), None));
+        }
+        let (queue, given) = std::sync::mpsc::sync_channel(WRITING_QUEUE);
+        let thread = std::thread::Builder::new()
+            .name("replay-writer".into())
+            .spawn(move || {
+                let mut bag = bag;
+                let written = given
+                    .iter()
+                    .flatten()
+                    .try_for_each(|writing| bag.write(writing));
+                bag.finish(written)
+            })
+            .map_err(|error| BagError::Io {
+                path: path.to_path_buf(),
+                error,
+            })?;
+        Ok(Self::Threaded {
+            batch: Vec::with_capacity(WRITING_BATCH),
+            queue,
+            thread,
+            path: path.to_path_buf(),
+        })
+    }
+
+    /// Gives one thing to write; false once writing has failed (the error is
+    /// [`Self::finish`]'s).
+    fn send(&mut self, writing: Writing) -> bool {
+        match self {
+            Self::Inline(bag, error) => {
+                if error.is_none()
+                    && let Err(e) = bag.write(writing)
+                {
+                    *error = Some(e);
+                }
+                error.is_none()
+            }
+            Self::Threaded { batch, queue, .. } => {
+                batch.push(writing);
+                if batch.len() < WRITING_BATCH {
+                    return true;
+                }
+                let full = std::mem::replace(batch, Vec::with_capacity(WRITING_BATCH));
+                queue.send(full).is_ok()
+            }
+        }
+    }
+
+    /// Writes what is given, finishes the file and gives how many messages it holds, or the
+    /// first error.
+    fn finish(self) -> Result<u64, BagError> {
+        match self {
+            Self::Inline(bag, error) => bag.finish(error.map_or(Ok(()), Err)),
+            Self::Threaded {
+                batch,
+                queue,
+                thread,
+                path,
+            } => {
+                // A thread that stopped on an error gives it below.
+                let _ = queue.send(batch);
+                drop(queue);
+                thread.join().unwrap_or_else(|_| {
+                    Err(BagError::Write {
+                        path,
+                        reason: "the writing thread stopped unexpectedly".into(),
+                    })
+                })
+            }
+        }
+    }
+}
+
 /// The truth a bag carries, indexed for scoring.
 struct BagTruth {
     /// Truth at a stamp: (shot index, state).
@@ -359,10 +513,16 @@ pub fn replay_observed(
         writer.observe(observer);
     }
     let outputs = Outputs::new(&mut writer, config)?;
-    let mut session = Session {
-        pipeline: Pipeline::new(config),
+    let bag = OutputBag {
+        writer,
         outputs,
         copied: Vec::new(),
+        written: 0,
+    };
+    let mut writing = Writes::start(bag, output)?;
+    let mut session = Session {
+        pipeline: Pipeline::new(config),
+        copied: 0,
         detections_on,
         tf_static_on: None,
         robot_hits_on: None,
@@ -373,7 +533,6 @@ pub fn replay_observed(
         detections: 0,
         undecodable: 0,
         robot_hits_refused: 0,
-        written: 0,
         times: DurationHistogram::new(),
         first_last: None,
     };
@@ -384,8 +543,12 @@ pub fn replay_observed(
                 interrupted = true;
                 break;
             }
-            session.on_message(&reader, &mut writer, &m, topic, input)?;
-            if session.detections.is_multiple_of(1024) && Some(m.channel) == session.detections_on {
+            let channel = m.channel;
+            if !session.on_message(&reader, &mut writing, m, topic, input)? {
+                // The writing thread stopped on an error, which its end gives.
+                break;
+            }
+            if session.detections.is_multiple_of(1024) && Some(channel) == session.detections_on {
                 let (done, total) = reader.progress();
                 progress(done, total);
             }
@@ -396,21 +559,27 @@ pub fn replay_observed(
         Ok(())
     })();
     // The output is finished whatever happened above.
-    let finished = writer.finish();
+    let written = writing.finish();
     result?;
-    finished?;
+    let written = written?;
     let (done, total) = reader.progress();
     progress(done, total);
-    Ok(session.summary(input, output, reader.damage().to_vec(), interrupted))
+    Ok(session.summary(
+        input,
+        output,
+        reader.damage().to_vec(),
+        interrupted,
+        written,
+    ))
 }
 
-/// One replay in progress: the node's pipeline, the output channels, where the inputs are, and
-/// what is counted. Each input message goes through [`Session::on_message`], in log-time order.
+/// One replay in progress: the node's pipeline, where the inputs are, and what is counted. Each
+/// input message goes through [`Session::on_message`], in log-time order; what is written goes
+/// to [`Writes`].
 struct Session {
     pipeline: Pipeline,
-    outputs: Outputs,
-    /// The output channel of each input channel copied so far, by the input's index.
-    copied: Vec<u16>,
+    /// How many input channels the output copies so far (the reader's first ones).
+    copied: usize,
     detections_on: Option<usize>,
     tf_static_on: Option<usize>,
     robot_hits_on: Option<usize>,
@@ -421,7 +590,6 @@ struct Session {
     detections: u64,
     undecodable: u64,
     robot_hits_refused: u64,
-    written: u64,
     times: DurationHistogram,
     /// Log times of the first and the latest detection [ns].
     first_last: Option<(u64, u64)>,
@@ -429,22 +597,43 @@ struct Session {
 
 impl Session {
     /// Copies one input message to the output and, as the node would, feeds it to the pipeline
-    /// (a detection, a static transform or an announced robot hit), writing what it publishes.
+    /// (a detection, a static transform or an announced robot hit), writing what it publishes
+    /// after it. False when the writing thread has stopped (on an error).
     fn on_message(
         &mut self,
         reader: &BagReader,
-        writer: &mut BagWriter<std::io::BufWriter<std::fs::File>>,
+        writing: &mut Writes,
+        m: BagMessage,
+        topic: &str,
+        input: &Path,
+    ) -> Result<bool, ReplayError> {
+        self.messages += 1;
+        while self.copied < reader.channels().len() {
+            let info = reader.channels()[self.copied].clone();
+            if !writing.send(Writing::Channel(info)) {
+                return Ok(false);
+            }
+            self.copied += 1;
+        }
+        let published = self.feed(reader, &m, topic, input)?;
+        let log_time = m.log_time;
+        if !writing.send(Writing::Copy(m)) {
+            return Ok(false);
+        }
+        Ok(match published {
+            Some(published) => writing.send(Writing::Published(log_time, Box::new(published))),
+            None => true,
+        })
+    }
+
+    /// Feeds one input message to the pipeline; what it published, when it is a detection.
+    fn feed(
+        &mut self,
+        reader: &BagReader,
         m: &BagMessage,
         topic: &str,
         input: &Path,
-    ) -> Result<(), ReplayError> {
-        self.messages += 1;
-        while self.copied.len() < reader.channels().len() {
-            let info = &reader.channels()[self.copied.len()];
-            self.copied.push(writer.add_channel(info)?);
-        }
-        writer.write_raw(self.copied[m.channel], m.log_time, m.publish_time, &m.data)?;
-        self.written += 1;
+    ) -> Result<Option<Published>, ReplayError> {
         if self.detections_on.is_none() && reader.channel(topic).is_some() {
             self.detections_on = Some(detection_channel(reader.channels(), topic, input)?);
         }
@@ -456,7 +645,7 @@ impl Session {
             if let Ok(msg) = decode::<TFMessage>(&m.data) {
                 self.pipeline.on_static_transforms(&msg);
             }
-            return Ok(());
+            return Ok(None);
         }
         // The robot's announced hits seed the return's track, as in the node.
         if self.robot_hits_on.is_none() {
@@ -470,15 +659,15 @@ impl Session {
                 Err(_) => true,
             };
             self.robot_hits_refused += u64::from(refused);
-            return Ok(());
+            return Ok(None);
         }
         if Some(m.channel) != self.detections_on {
-            return Ok(());
+            return Ok(None);
         }
         self.detections += 1;
         let Ok(msg) = decode::<BallDetection>(&m.data) else {
             self.undecodable += 1;
-            return Ok(());
+            return Ok(None);
         };
         let started = Instant::now();
         let step = self.pipeline.on_detection(&msg);
@@ -488,7 +677,6 @@ impl Session {
             self.first_last
                 .map_or((m.log_time, m.log_time), |(a, _)| (a, m.log_time)),
         );
-        self.written += self.outputs.write(writer, m.log_time, &step.published)?;
         if let (Some(scorer), Some(truth), Some(out), Some(d)) = (
             self.scorer.as_mut(),
             self.truth.as_ref(),
@@ -499,7 +687,7 @@ impl Session {
             let outlier = (d.position - state.position).norm() > OUTLIER_DISTANCE;
             scorer.score(*shot, d, state, outlier, out);
         }
-        Ok(())
+        Ok(Some(step.published))
     }
 
     /// What the replay did.
@@ -509,6 +697,7 @@ impl Session {
         output: &Path,
         damage: Vec<Damage>,
         interrupted: bool,
+        written: u64,
     ) -> ReplaySummary {
         let timing = self.times.summary();
         // The bag has ended: the live track's lesson is learned, as when a node stops.
@@ -525,7 +714,7 @@ impl Session {
             counters,
             intercepts: estimator.intercept_counts(),
             learned: estimator.learned_summary(),
-            written: self.written,
+            written,
             processing_mean_ns: timing.mean,
             processing_p99_ns: timing.p99,
             recorded_seconds: self.first_last.map_or(0.0, |(a, b)| (b - a) as f64 * 1e-9),

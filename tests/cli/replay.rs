@@ -1,6 +1,7 @@
 //! `ttball replay` as a user runs it: Ctrl-C (SIGINT) or SIGTERM (a supervisor stopping it) in
 //! the middle of a long replay leaves a properly finished output bag and says so; the summary
-//! reports the whole run; a file that cannot be opened or created is named, with why.
+//! reports the whole run; a file that cannot be opened or created is named, with why, and so is
+//! a disk that fills; one core or more, the output is the same file.
 #![cfg(all(feature = "cli", unix))]
 #![allow(
     clippy::unwrap_used,
@@ -149,6 +150,69 @@ fn a_missing_input_or_output_is_named_with_the_reason_said_once() {
             1,
             "{stderr}"
         );
+    }
+}
+
+/// Runs `ttball` with `args` on one core (`taskset -c 0`), from the package root.
+fn run_on_one_core(args: &[&str]) -> std::process::Output {
+    Command::new("taskset")
+        .current_dir(common::root())
+        .args(["-c", "0", env!("CARGO_BIN_EXE_ttball")])
+        .args(args)
+        .output()
+        .expect("cannot run taskset (util-linux)")
+}
+
+/// With more than one core the output is written on a thread of its own, with one in the
+/// replay's: the file is the same, byte for byte.
+#[test]
+fn one_core_or_more_the_output_is_the_same_file() {
+    let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+    assert!(
+        cores >= 2,
+        "this test compares the one-core replay with the threaded one: it needs two cores, has {cores}"
+    );
+    let dir = common::scratch("one-core");
+    let (threaded, inline) = (dir.join("threaded.mcap"), dir.join("inline.mcap"));
+    let bag = "bags/sim_rally_2cams.mcap";
+    let threaded_out = common::ok(&["replay", bag, "-o", threaded.to_str().unwrap()]);
+    let out = run_on_one_core(&["replay", bag, "-o", inline.to_str().unwrap()]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let written = |stdout: &str| {
+        stdout
+            .lines()
+            .find(|l| l.contains("messages written"))
+            .and_then(|l| l.split("; ").last())
+            .map(str::to_owned)
+    };
+    assert_eq!(
+        written(&threaded_out),
+        written(&String::from_utf8_lossy(&out.stdout)),
+        "{threaded_out}"
+    );
+    assert!(written(&threaded_out).is_some(), "{threaded_out}");
+    let (a, b) = (
+        std::fs::read(&threaded).unwrap(),
+        std::fs::read(&inline).unwrap(),
+    );
+    assert!(a.len() > 100_000, "{} bytes", a.len());
+    assert!(a == b, "the threaded and the one-core outputs differ");
+}
+
+/// A disk that fills while the replay writes: the replay fails, says why, and ends (on one core,
+/// where it writes in its own thread, and on more, where a thread of its own writes).
+#[test]
+fn a_full_disk_fails_the_replay_with_the_reason() {
+    let args = ["replay", "bags/sim_rally_2cams.mcap", "-o", "/dev/full"];
+    for out in [common::run(&args), run_on_one_core(&args)] {
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success(), "{stderr}");
+        assert!(stderr.contains("/dev/full"), "{stderr}");
+        assert!(stderr.contains("No space left on device"), "{stderr}");
     }
 }
 
