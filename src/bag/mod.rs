@@ -1120,6 +1120,11 @@ impl<W: Write + Seek> BagWriter<W> {
         self.observer = Some(observer);
     }
 
+    /// Whether an observer sees what it writes ([`Self::observe`]).
+    pub fn is_observed(&self) -> bool {
+        self.observer.is_some()
+    }
+
     /// The file it writes (as named in its errors).
     pub fn path(&self) -> &Path {
         &self.path

@@ -264,8 +264,9 @@ const WRITING_QUEUE: usize = 4;
 /// Where the replay's writes go. With more than one core to run on, to a thread of its own:
 /// encoding, compressing and writing off the estimator's thread, so that the whole run takes
 /// about its processing. With one, in the replay's own thread: a second thread there would
-/// only take its turns in the middle of detections. The file is the same, byte for byte,
-/// either way: one writer writes it, in the order it is given.
+/// only take its turns in the middle of detections. Watched (the live view at recorded pace),
+/// in the replay's own thread too, so that an interrupted replay stops showing at once. The
+/// file is the same, byte for byte, either way: one writer writes it, in the order it is given.
 enum Writes {
     /// Written at once; the first error, after which nothing more is written.
     Inline(Box<OutputBag>, Option<BagError>),
@@ -281,9 +282,11 @@ enum Writes {
 
 impl Writes {
     /// Starts writing `bag`: on a thread of its own when the process may run on more than one
-    /// core.
+    /// core and no one watches what is written.
     fn start(bag: OutputBag, path: &Path) -> Result<Self, BagError> {
-        if std::thread::available_parallelism().map_or(1, |n| n.get()) < 2 {
+        if bag.writer.is_observed()
+            || std::thread::available_parallelism().map_or(1, |n| n.get()) < 2
+        {
             return Ok(Self::Inline(Box::new(bag), None));
         }
         let (queue, given) = std::sync::mpsc::sync_channel(WRITING_QUEUE);
