@@ -19,12 +19,12 @@ use crate::bag::{
     decode, read_bag_file,
 };
 use crate::config::Config;
-use crate::eval::{EvalReport, Scorer, ShotTruth};
+use crate::eval::{EvalReport, Scorer};
 use crate::model::detection::Detection;
 use crate::model::frames::Frames;
 use crate::model::stats::DurationHistogram;
 use crate::offline::smooth::{SmoothedState, Smoothing, smooth};
-use crate::online::estimator::{Counters, Estimate, TrackStatus};
+use crate::online::estimator::{Counters, Estimate, Output, TrackStatus};
 use crate::ros::msgs::convert::{
     add_static_transforms, detection_from_msg_in, state_from_msg, state_msg,
     truth_intercept_from_msg,
@@ -360,54 +360,87 @@ impl Writes {
     }
 }
 
-/// The truth a bag carries, indexed for scoring.
+/// The true states a bag carries, by stamp (for `ttball smooth`'s errors).
 struct BagTruth {
-    /// Truth at a stamp: (shot index, state).
-    states: BTreeMap<i64, (usize, crate::physics::BallState)>,
-    shots: Vec<ShotTruth>,
+    states: BTreeMap<i64, crate::physics::BallState>,
 }
 
-/// The channels of the truth topics (states, shot events) among a bag's, when it has both.
-fn truth_channels(channels: &[ChannelInfo], config: &Config) -> Option<(usize, usize)> {
+/// The channels of the truth topics (states on `topic`, shot events beside it) among a bag's,
+/// when it has both.
+fn truth_channels(channels: &[ChannelInfo], topic: &str) -> Option<(usize, usize)> {
     Some((
-        channel_of(channels, &config.resolved_topics().truth)?,
-        channel_of(
-            channels,
-            &truth_intercept_topic(&config.resolved_topics().truth),
-        )?,
+        channel_of(channels, topic)?,
+        channel_of(channels, &truth_intercept_topic(topic))?,
     ))
 }
 
-/// The truth among `messages`, its states and shot events on these channels
-/// ([`truth_channels`]).
+/// Scoring against the simulator's truth as the bag tells it, in one pass: each shot's event
+/// (written at its launch, before its detections) and each detection's true state (written
+/// straight after the detection, at its log time). A detection's output waits for its true
+/// state; one whose truth does not come before the next detection is not scored.
+struct TruthScoring {
+    scorer: Scorer,
+    /// Each shot's index in the scorer, by its id.
+    shots: BTreeMap<u32, usize>,
+    /// The latest detection and the estimator's output for it, waiting for its true state.
+    waiting: Option<(Detection, Output)>,
+}
+
+impl TruthScoring {
+    fn new() -> Self {
+        Self {
+            scorer: Scorer::new(Vec::new()),
+            shots: BTreeMap::new(),
+            waiting: None,
+        }
+    }
+
+    /// A shot's event: its true crossing and bounce.
+    fn add_shot(&mut self, msg: &InterceptPrediction) {
+        let (id, shot) = truth_intercept_from_msg(msg);
+        let index = self.scorer.add_shot(shot);
+        self.shots.insert(id, index);
+    }
+
+    /// A true state: the waiting detection's, when the stamps and a known shot agree, scored.
+    fn true_state(&mut self, msg: &BallState) {
+        let (stamp, id, state) = state_from_msg(msg);
+        let Some(&shot) = self.shots.get(&id) else {
+            return;
+        };
+        if let Some((d, out)) = self.waiting.take_if(|(d, _)| d.stamp == stamp) {
+            let outlier = (d.position - state.position).norm() > OUTLIER_DISTANCE;
+            self.scorer.score(shot, &d, &state, outlier, &out);
+        }
+    }
+}
+
+/// The truth among `messages` on these channels ([`truth_channels`]): the true states of its
+/// shots (those with an event).
 fn read_truth<M: Borrow<BagMessage>>(
     (state_channel, event_channel): (usize, usize),
     messages: impl IntoIterator<Item = M>,
 ) -> BagTruth {
-    let mut shots: BTreeMap<u32, ShotTruth> = BTreeMap::new();
+    let mut shots = std::collections::BTreeSet::new();
     let mut shot_states = Vec::new();
     for m in messages {
         let m = m.borrow();
         if m.channel == event_channel
             && let Ok(msg) = decode::<InterceptPrediction>(&m.data)
         {
-            let (shot, truth) = truth_intercept_from_msg(&msg);
-            shots.insert(shot, truth);
+            shots.insert(truth_intercept_from_msg(&msg).0);
         } else if m.channel == state_channel
             && let Ok(msg) = decode::<BallState>(&m.data)
         {
             shot_states.push(state_from_msg(&msg));
         }
     }
-    let index: BTreeMap<u32, usize> = shots.keys().enumerate().map(|(i, id)| (*id, i)).collect();
     let states = shot_states
         .into_iter()
-        .filter_map(|(stamp, shot, state)| index.get(&shot).map(|i| (stamp, (*i, state))))
+        .filter(|(_, shot, _)| shots.contains(shot))
+        .map(|(stamp, _, state)| (stamp, state))
         .collect();
-    BagTruth {
-        states,
-        shots: shots.into_values().collect(),
-    }
+    BagTruth { states }
 }
 
 /// The channel of `topic` in a bag read from `path`, checked to carry `BallDetection`.
@@ -462,10 +495,11 @@ pub fn detection_channel(
 /// A detection further than this from the truth is an outlier for scoring [m].
 const OUTLIER_DISTANCE: f64 = 0.03;
 
-/// Replays `input` into `output` (see the module doc), streaming: the input is read a chunk at a
-/// time and nothing grows with the length of the bag, except the truth of a bag that has one
-/// (read in a first pass, to score against). `progress` is called with (bytes read, bytes) now
-/// and then; setting `cancel` stops early with a properly finished output.
+/// Replays `input` into `output` (see the module doc), streaming, in one pass: the input is read
+/// a chunk at a time, each detection scored against its true state as it follows (a bag with
+/// the simulator's truth), and nothing grows with the length of the bag but the scorer's
+/// errors. `progress` is called with (bytes read, bytes) now and then; setting `cancel` stops
+/// early with a properly finished output.
 pub fn replay(
     input: &Path,
     output: &Path,
@@ -495,22 +529,6 @@ pub fn replay_observed(
     } else {
         Some(detection_channel(reader.channels(), topic, input)?)
     };
-    let truth = match truth_channels(reader.channels(), config) {
-        Some(channels) => {
-            let mut pass = BagReader::open(input)?;
-            Some(read_truth(
-                channels,
-                std::iter::from_fn(|| pass.next_message()),
-            ))
-        }
-        None => None,
-    };
-    // Truth channels without a shot in them: nothing to score against.
-    let scorer = truth
-        .as_ref()
-        .filter(|t| !t.shots.is_empty())
-        .map(|t| Scorer::new(t.shots.clone()));
-
     let mut writer = BagWriter::create(output)?;
     if let Some(observer) = observer {
         writer.observe(observer);
@@ -530,8 +548,9 @@ pub fn replay_observed(
         tf_static_on: None,
         robot_hits_on: None,
         robot_hits_topic: config.resolved_topics().robot_hits,
-        truth,
-        scorer,
+        truth_on: None,
+        truth_topic: config.resolved_topics().truth,
+        truth: None,
         messages: 0,
         detections: 0,
         undecodable: 0,
@@ -587,8 +606,11 @@ struct Session {
     tf_static_on: Option<usize>,
     robot_hits_on: Option<usize>,
     robot_hits_topic: String,
-    truth: Option<BagTruth>,
-    scorer: Option<Scorer>,
+    /// The truth's channels (states, shot events), once both are known.
+    truth_on: Option<(usize, usize)>,
+    truth_topic: String,
+    /// The scoring against the truth, from the bag's first shot event.
+    truth: Option<TruthScoring>,
     messages: usize,
     detections: u64,
     undecodable: u64,
@@ -617,6 +639,9 @@ impl Session {
                 return Ok(false);
             }
             self.copied += 1;
+            if self.truth_on.is_none() {
+                self.truth_on = truth_channels(reader.channels(), &self.truth_topic);
+            }
         }
         let published = self.feed(reader, &m, topic, input)?;
         let log_time = m.log_time;
@@ -650,6 +675,23 @@ impl Session {
             }
             return Ok(None);
         }
+        // The simulator's truth, scored against as it comes.
+        if let Some((states, events)) = self.truth_on
+            && (m.channel == states || m.channel == events)
+        {
+            if m.channel == events {
+                if let Ok(msg) = decode::<InterceptPrediction>(&m.data) {
+                    self.truth
+                        .get_or_insert_with(TruthScoring::new)
+                        .add_shot(&msg);
+                }
+            } else if let (Some(truth), Ok(msg)) =
+                (self.truth.as_mut(), decode::<BallState>(&m.data))
+            {
+                truth.true_state(&msg);
+            }
+            return Ok(None);
+        }
         // The robot's announced hits seed the return's track, as in the node.
         if self.robot_hits_on.is_none() {
             self.robot_hits_on = reader
@@ -680,15 +722,8 @@ impl Session {
             self.first_last
                 .map_or((m.log_time, m.log_time), |(a, _)| (a, m.log_time)),
         );
-        if let (Some(scorer), Some(truth), Some(out), Some(d)) = (
-            self.scorer.as_mut(),
-            self.truth.as_ref(),
-            step.output.as_ref(),
-            step.detection.as_ref(),
-        ) && let Some((shot, state)) = truth.states.get(&d.stamp)
-        {
-            let outlier = (d.position - state.position).norm() > OUTLIER_DISTANCE;
-            scorer.score(*shot, d, state, outlier, out);
+        if let Some(truth) = self.truth.as_mut() {
+            truth.waiting = step.detection.zip(step.output);
         }
         Ok(Some(step.published))
     }
@@ -724,7 +759,7 @@ impl Session {
             processing_seconds: timing.total * 1e-9,
             damage,
             interrupted,
-            accuracy: self.scorer.map(|s| s.report(counters)),
+            accuracy: self.truth.map(|t| t.scorer.report(counters)),
         }
     }
 }
@@ -844,7 +879,7 @@ pub fn smooth_bag(
         unknown_frame,
     } = read_detections(input, config)?;
     let count = message_detection.iter().flatten().count() as u64 + undecodable + unknown_frame;
-    let truth = truth_channels(&contents.channels, config)
+    let truth = truth_channels(&contents.channels, &config.resolved_topics().truth)
         .map(|channels| read_truth(channels, &contents.messages));
     let smoothing = smooth(config, &detections, progress, cancel);
     let mut by_detection: Vec<Option<&SmoothedState>> = vec![None; detections.len()];
@@ -882,7 +917,7 @@ pub fn smooth_bag(
     let truth_errors = truth.map(|truth| {
         let mut sums = TruthErrors::default();
         for s in &smoothing.states {
-            if let Some((_, t)) = truth.states.get(&s.stamp) {
+            if let Some(t) = truth.states.get(&s.stamp) {
                 let e = &s.fitted.state;
                 sums.count += 1;
                 sums.position += (e.position - t.position).norm_squared();

@@ -179,6 +179,14 @@ impl Scorer {
         }
     }
 
+    /// Adds a shot (for shots told one at a time, as a bag tells them); its index for
+    /// [`Scorer::score`].
+    pub fn add_shot(&mut self, shot: ShotTruth) -> usize {
+        self.shots.push(shot);
+        self.records.push(ShotRecord::default());
+        self.shots.len() - 1
+    }
+
     /// Scores the output of one detection of shot `shot`, whose true state at the detection's
     /// stamp is `truth`; `outlier` marks a detection that is not the ball.
     pub fn score(

@@ -71,6 +71,9 @@ fn replays_are_byte_identical_and_hold_every_output_topic() {
     );
     assert_eq!(c.tracks, 3);
     let accuracy = summary.accuracy.expect("the simulated bag carries truth");
+    // Scored in the one pass: every detection against the true state that follows it.
+    assert_eq!(accuracy.shots, 3);
+    assert_eq!(accuracy.detections, session.stream.len());
     assert!(
         accuracy.leads[2].position_error.rms < 0.005,
         "{:?}",
