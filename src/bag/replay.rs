@@ -633,17 +633,17 @@ impl Session {
         input: &Path,
     ) -> Result<bool, ReplayError> {
         self.messages += 1;
-        while self.copied < reader.channels().len() {
-            let info = reader.channels()[self.copied].clone();
-            if !writing.send(Writing::Channel(info)) {
-                return Ok(false);
+        if self.copied < reader.channels().len() {
+            while self.copied < reader.channels().len() {
+                let info = reader.channels()[self.copied].clone();
+                if !writing.send(Writing::Channel(info)) {
+                    return Ok(false);
+                }
+                self.copied += 1;
             }
-            self.copied += 1;
-            if self.truth_on.is_none() {
-                self.truth_on = truth_channels(reader.channels(), &self.truth_topic);
-            }
+            self.find_channels(reader, topic, input)?;
         }
-        let published = self.feed(reader, &m, topic, input)?;
+        let published = self.feed(&m);
         let log_time = m.log_time;
         if !writing.send(Writing::Copy(m)) {
             return Ok(false);
@@ -654,26 +654,41 @@ impl Session {
         })
     }
 
-    /// Feeds one input message to the pipeline; what it published, when it is a detection.
-    fn feed(
+    /// Looks up the channels the replay reads among the reader's, once new ones appear (a bag
+    /// without a summary names its channels as it goes; a topic's first channel is the one
+    /// read): the detections (checked to be `BallDetection`), `/tf_static`, the robot's hits
+    /// and the simulator's truth.
+    fn find_channels(
         &mut self,
         reader: &BagReader,
-        m: &BagMessage,
         topic: &str,
         input: &Path,
-    ) -> Result<Option<Published>, ReplayError> {
+    ) -> Result<(), ReplayError> {
         if self.detections_on.is_none() && reader.channel(topic).is_some() {
             self.detections_on = Some(detection_channel(reader.channels(), topic, input)?);
         }
         if self.tf_static_on.is_none() {
             self.tf_static_on = reader.channel(TF_STATIC_TOPIC);
         }
+        if self.robot_hits_on.is_none() {
+            self.robot_hits_on = reader
+                .channel(&self.robot_hits_topic)
+                .filter(|&c| reader.channels()[c].schema_name == ROBOT_HIT_TYPE);
+        }
+        if self.truth_on.is_none() {
+            self.truth_on = truth_channels(reader.channels(), &self.truth_topic);
+        }
+        Ok(())
+    }
+
+    /// Feeds one input message to the pipeline; what it published, when it is a detection.
+    fn feed(&mut self, m: &BagMessage) -> Option<Published> {
         // Static transforms bring detections in other frames into `table`, as in the node.
         if Some(m.channel) == self.tf_static_on {
             if let Ok(msg) = decode::<TFMessage>(&m.data) {
                 self.pipeline.on_static_transforms(&msg);
             }
-            return Ok(None);
+            return None;
         }
         // The simulator's truth, scored against as it comes.
         if let Some((states, events)) = self.truth_on
@@ -690,29 +705,24 @@ impl Session {
             {
                 truth.true_state(&msg);
             }
-            return Ok(None);
+            return None;
         }
         // The robot's announced hits seed the return's track, as in the node.
-        if self.robot_hits_on.is_none() {
-            self.robot_hits_on = reader
-                .channel(&self.robot_hits_topic)
-                .filter(|&c| reader.channels()[c].schema_name == ROBOT_HIT_TYPE);
-        }
         if Some(m.channel) == self.robot_hits_on {
             let refused = match decode::<RobotHit>(&m.data) {
                 Ok(msg) => self.pipeline.on_robot_hit(&msg).is_err(),
                 Err(_) => true,
             };
             self.robot_hits_refused += u64::from(refused);
-            return Ok(None);
+            return None;
         }
         if Some(m.channel) != self.detections_on {
-            return Ok(None);
+            return None;
         }
         self.detections += 1;
         let Ok(msg) = decode::<BallDetection>(&m.data) else {
             self.undecodable += 1;
-            return Ok(None);
+            return None;
         };
         let started = Instant::now();
         let step = self.pipeline.on_detection(&msg);
@@ -725,7 +735,7 @@ impl Session {
         if let Some(truth) = self.truth.as_mut() {
             truth.waiting = step.detection.zip(step.output);
         }
-        Ok(Some(step.published))
+        Some(step.published)
     }
 
     /// What the replay did.
