@@ -24,7 +24,7 @@ use crate::model::detection::Detection;
 use crate::model::frames::Frames;
 use crate::model::stats::DurationHistogram;
 use crate::offline::smooth::{SmoothedState, Smoothing, smooth};
-use crate::online::estimator::{Counters, Estimate, Output, TrackStatus};
+use crate::online::estimator::{Counters, Estimate, Output, TrackStatus, Waiting};
 use crate::ros::msgs::convert::{
     add_static_transforms, detection_from_msg_in, state_from_msg, state_msg,
     truth_intercept_from_msg,
@@ -541,8 +541,14 @@ pub fn replay_observed(
         written: 0,
     };
     let mut writing = Writes::start(bag, output)?;
+    let mut pipeline = Pipeline::new(config);
+    if std::thread::available_parallelism().map_or(1, |n| n.get()) >= 2 {
+        // The lessons are waited for where they are due: the same output as inline. A thread
+        // that cannot start leaves them inline.
+        let _ = pipeline.run_lessons_on_a_worker(Waiting::Wait);
+    }
     let mut session = Session {
-        pipeline: Pipeline::new(config),
+        pipeline,
         copied: 0,
         detections_on,
         tf_static_on: None,

@@ -128,15 +128,9 @@ impl EvaluateArgs {
             let elapsed = started.elapsed().as_secs_f64();
             write_stdout(&table(name, &report, elapsed))?;
             write_stdout(&format!(
-                "{}\n{}\n",
+                "{}\n",
                 ttball::online::estimator::describe_params(&learning.params),
-                ttball::online::estimator::describe_model_noise(&learning.model_noise)
             ))?;
-            if let Some(line) =
-                ttball::online::estimator::describe_refit_contest(&learning.refit_contest)
-            {
-                write_stdout(&format!("{line}\n"))?;
-            }
             let efficiency = if self.efficiency {
                 eprintln!("fitting every shot as a whole at each lead...");
                 let lines = efficiency(&config, &session);
@@ -226,19 +220,6 @@ impl EvaluateArgs {
                 ttball::online::estimator::describe_params(learned)
             ));
         }
-        if let Some(model_noise) = &report.model_noise {
-            text.push_str(&format!(
-                "            {}\n",
-                ttball::online::estimator::describe_model_noise(model_noise)
-            ));
-        }
-        if let Some(line) = report
-            .refit_contest
-            .as_ref()
-            .and_then(ttball::online::estimator::describe_refit_contest)
-        {
-            text.push_str(&format!("            {line}\n"));
-        }
         write_stdout(&text)?;
         if let Some(path) = &self.json {
             let json =
@@ -309,13 +290,7 @@ learned physics at the end (relative error against the truth):
                 .enumerate()
                 .map(|(i, name)| format!("{name} {:.3} ({:+.1} %)", values[i], errors[i] * 100.0))
                 .collect();
-            write_stdout(&format!(
-                "  {:<13} {}; {}
-",
-                r.set.name,
-                parts.join(", "),
-                ttball::online::estimator::describe_model_noise(&r.model_noise)
-            ))?;
+            write_stdout(&format!("  {:<13} {}\n", r.set.name, parts.join(", ")))?;
         }
         if let Some(path) = &self.json {
             let json: Vec<serde_json::Value> = reports
@@ -328,7 +303,6 @@ learned physics at the end (relative error against the truth):
                         "clean_bounce_fraction": r.clean_bounce_fraction(),
                         "settled": r.settled,
                         "learned": super::replay::learned_json(&r.learned),
-                        "learned_model_noise": super::replay::model_noise_json(&r.model_noise),
                         "learned_relative_errors": r.learned_errors(),
                         "report": r.report,
                         "reference": r.reference,
@@ -524,6 +498,5 @@ fn real_report_json(
         "groups": groups,
         "flights": flights,
         "learned": report.learned.as_ref().map(super::replay::learned_json),
-        "learned_model_noise": report.model_noise.as_ref().map(super::replay::model_noise_json),
     })
 }

@@ -12,7 +12,7 @@ use clap::Args;
 use ttball::bag::damage_text;
 use ttball::bag::live_view::LiveView;
 use ttball::bag::replay::{ReplaySummary, replay, replay_observed};
-use ttball::online::estimator::{LearnedModelNoise, LearnedParams, LearnedSourceNoise, Rejection};
+use ttball::online::estimator::{Dropped, LearnedParams, LearnedSourceNoise, Rejection};
 use ttball::physics::PhysicsParams;
 
 use super::report::accuracy_table;
@@ -302,13 +302,6 @@ pub fn summary_text(s: &ReplaySummary, whole_seconds: Option<f64>) -> String {
             String::new()
         }
     );
-    if c.bounce_retries > 0 {
-        let _ = writeln!(
-            out,
-            "  bounces explained again with the spin before them forgotten: {}",
-            c.bounce_retries
-        );
-    }
     if c.seeded_by_hit + c.hits_not_seeded + s.robot_hits_refused > 0 {
         let _ = writeln!(
             out,
@@ -332,18 +325,16 @@ pub fn summary_text(s: &ReplaySummary, whole_seconds: Option<f64>) -> String {
         "  late detections rolled back and re-applied {}; interceptions predicted in full {}, moved from the last full one {}",
         c.rollbacks, s.intercepts.full, s.intercepts.moved
     );
-    if c.refits > 0 {
+    if c.smoothed_lessons > 0 || c.lessons_dropped.iter().any(|n| *n > 0) {
+        let dropped: Vec<String> = Dropped::ALL
+            .iter()
+            .map(|r| format!("{} {}", r.name(), c.lessons_dropped(*r)))
+            .collect();
         let _ = writeln!(
             out,
-            "  tracks refitted {} times (ekf.refit_interval)",
-            c.refits
-        );
-    }
-    if c.smoothed_lessons > 0 {
-        let _ = writeln!(
-            out,
-            "  tracks that taught their flight smoothed {} (adaptation.smoothed_lessons)",
-            c.smoothed_lessons
+            "  tracks that taught their flight smoothed {}; lessons dropped: {}",
+            c.smoothed_lessons,
+            dropped.join(", ")
         );
     }
     for line in s.learned.lines() {
@@ -378,21 +369,6 @@ pub fn summary_text(s: &ReplaySummary, whole_seconds: Option<f64>) -> String {
         }
     }
     out
-}
-
-/// The learned model noise as JSON: each scale by name with the sigma of its log.
-pub fn model_noise_json(m: &LearnedModelNoise) -> serde_json::Value {
-    let scales: serde_json::Map<String, serde_json::Value> = m
-        .named()
-        .into_iter()
-        .map(|(name, scale, sigma)| {
-            (
-                (*name).to_string(),
-                serde_json::json!({"scale": scale, "log_sigma": sigma}),
-            )
-        })
-        .collect();
-    serde_json::Value::Object(scales)
 }
 
 /// The learned noise of each source as JSON.
@@ -441,6 +417,10 @@ fn summary_json(s: &ReplaySummary, whole_seconds: f64) -> serde_json::Value {
         .iter()
         .map(|r| (r.name().to_string(), c.rejected(*r).into()))
         .collect();
+    let lessons_dropped: serde_json::Map<String, serde_json::Value> = Dropped::ALL
+        .iter()
+        .map(|r| (r.name().to_string(), c.lessons_dropped(*r).into()))
+        .collect();
     serde_json::json!({
         "input": s.input,
         "output": s.output,
@@ -453,15 +433,13 @@ fn summary_json(s: &ReplaySummary, whole_seconds: f64) -> serde_json::Value {
         "rejected": rejected,
         "tracks": c.tracks,
         "reanchored": c.reanchored,
-        "bounce_retries": c.bounce_retries,
         "rollbacks": c.rollbacks,
-        "refits": c.refits,
         "smoothed_lessons": c.smoothed_lessons,
+        "lessons_dropped": lessons_dropped,
         "intercepts_full": s.intercepts.full,
         "intercepts_moved": s.intercepts.moved,
         "learned_physics": learned_json(&s.learned.params),
         "learned_noise": noise_json(&s.learned.source_noise),
-        "learned_model_noise": model_noise_json(&s.learned.model_noise),
         "zero_spin_ignored": c.zero_spin_ignored,
         "seeded_by_hit": c.seeded_by_hit,
         "hits_not_seeded": c.hits_not_seeded,

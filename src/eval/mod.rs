@@ -395,16 +395,11 @@ pub fn evaluate(config: &Config, session: &Session) -> EvalReport {
     run(config, session).report()
 }
 
-/// What the estimator had learned at the end of a session: the physics and how far the flights
-/// stray from its model.
+/// What the estimator had learned at the end of a session.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Learning {
     /// The physical parameters and their flight-to-flight dispersion.
     pub params: crate::online::estimator::LearnedParams,
-    /// The process noise and bounce scatter scales.
-    pub model_noise: crate::online::estimator::LearnedModelNoise,
-    /// The refits' contest with the filter at the end.
-    pub refit_contest: crate::online::estimator::RefitContestScore,
 }
 
 /// [`evaluate`], with what the estimator had learned at the end.
@@ -414,8 +409,6 @@ pub fn evaluate_learning(config: &Config, session: &Session) -> (EvalReport, Lea
         run.report(),
         Learning {
             params: run.learned,
-            model_noise: run.model_noise,
-            refit_contest: run.refit_contest,
         },
     )
 }
@@ -426,9 +419,6 @@ pub(crate) struct Run {
     pub(crate) counters: Counters,
     /// The physical parameters it had learned at the end.
     pub(crate) learned: crate::online::estimator::LearnedParams,
-    /// How far it had learned the flights stray from its model, at the end.
-    pub(crate) model_noise: crate::online::estimator::LearnedModelNoise,
-    pub(crate) refit_contest: crate::online::estimator::RefitContestScore,
     /// The physical parameters it had learned when each shot's first detection came.
     pub(crate) physics_at_start: Vec<Option<crate::physics::PhysicsParams>>,
 }
@@ -455,8 +445,6 @@ pub(crate) fn run(config: &Config, session: &Session) -> Run {
         scorer,
         counters: estimator.counters(),
         learned: estimator.learned_params(),
-        model_noise: estimator.learned_model_noise(),
-        refit_contest: estimator.refit_contest(),
         physics_at_start,
     }
 }

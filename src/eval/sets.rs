@@ -208,8 +208,6 @@ pub struct SetReport {
     pub settled: Vec<LeadComparison>,
     /// What the filter learned of the physics by the end.
     pub learned: LearnedParams,
-    /// What it learned of how far the flights stray from its model by the end.
-    pub model_noise: crate::online::estimator::LearnedModelNoise,
     /// The true physics.
     pub truth: PhysicsParams,
 }
@@ -333,7 +331,6 @@ pub fn run_set(
         reference: referenced.report(),
         settled,
         learned: filtered.learned,
-        model_noise: filtered.model_noise,
         truth: PhysicsParams::from_config(&truth),
     })
 }

@@ -7,7 +7,7 @@
 
 use crate::model::stats::DurationSummary;
 use crate::online::estimator::{Counters, Rejection};
-use crate::online::estimator::{LearnedModelNoise, LearnedParams, LearnedSourceNoise};
+use crate::online::estimator::{Dropped, LearnedParams, LearnedSourceNoise};
 use crate::physics::PhysicsParams;
 use crate::ros::msgs::builtin_interfaces::Time;
 use crate::ros::msgs::diagnostic_msgs::{DiagnosticArray, DiagnosticStatus, KeyValue};
@@ -84,8 +84,6 @@ pub struct Snapshot<'a> {
     /// What it has learned of each source's noise (reported for the sources that taught it
     /// something).
     pub learned_noise: &'a [LearnedSourceNoise],
-    /// What it has learned of how far the flights stray from its model.
-    pub learned_model_noise: &'a LearnedModelNoise,
 }
 
 /// Builds the diagnostics message of one period and empties `window`.
@@ -164,6 +162,12 @@ pub fn diagnostics_msg(snapshot: &Snapshot<'_>, window: &mut Window) -> Diagnost
             c.rejected(*r).to_string(),
         )
     }));
+    values.extend(Dropped::ALL.iter().map(|r| {
+        kv(
+            &format!("lessons dropped: {}", r.name()),
+            c.lessons_dropped(*r).to_string(),
+        )
+    }));
     values.extend([
         kv("tracks", c.tracks.to_string()),
         kv(
@@ -175,12 +179,7 @@ pub fn diagnostics_msg(snapshot: &Snapshot<'_>, window: &mut Window) -> Diagnost
             "tracks re-anchored on their own detections",
             c.reanchored.to_string(),
         ),
-        kv(
-            "bounces explained again with the spin before them forgotten",
-            c.bounce_retries.to_string(),
-        ),
         kv("late detections fused by rollback", c.rollbacks.to_string()),
-        kv("track refits", c.refits.to_string()),
         kv(
             "tracks that taught their flight smoothed",
             c.smoothed_lessons.to_string(),
@@ -211,12 +210,6 @@ pub fn diagnostics_msg(snapshot: &Snapshot<'_>, window: &mut Window) -> Diagnost
         values.push(kv(
             &format!("learned {name} flight-to-flight sigma"),
             format!("{:.4}", s.learned.flight_sigma[i]),
-        ));
-    }
-    for (name, scale, _) in s.learned_model_noise.named() {
-        values.push(kv(
-            &format!("learned {name} noise scale"),
-            format!("{scale:.4}"),
         ));
     }
     values.push(kv("learned physics: tracks", s.learned.tracks.to_string()));
@@ -529,7 +522,6 @@ mod tests {
                 track: Some(4),
                 learned: &learned(),
                 learned_noise: &learned_noise(),
-                learned_model_noise: &model_noise(),
             },
             &mut window,
         );
@@ -590,18 +582,6 @@ mod tests {
         ]
     }
 
-    fn model_noise() -> LearnedModelNoise {
-        LearnedModelNoise {
-            scales: crate::online::ekf::NoiseScales {
-                acceleration: 0.2,
-                spin: 0.5,
-                bounce: 1.5,
-            },
-            spin_measured_acceleration: 0.05,
-            log_sigma: [0.3, 0.4, 0.5, 0.6],
-        }
-    }
-
     fn learned() -> LearnedParams {
         LearnedParams {
             params: PhysicsParams {
@@ -636,7 +616,6 @@ mod tests {
                 track: None,
                 learned: &learned(),
                 learned_noise: &[],
-                learned_model_noise: &model_noise(),
             },
             &mut Window::default(),
         )

@@ -61,7 +61,7 @@ use crate::bag::replay::{ODOMETRY_TYPE, TF_MESSAGE_TYPE, TF_STATIC_TOPIC};
 use crate::config::{Config, SourceIndex};
 use crate::model::detection::Source;
 use crate::model::stats::{DurationHistogram, DurationSummary};
-use crate::online::estimator::{Counters, LearnedSummary, Verdict};
+use crate::online::estimator::{Counters, LearnedSummary, Verdict, Waiting};
 use crate::ros::msgs::diagnostic_msgs::DiagnosticArray;
 use crate::ros::msgs::geometry_msgs::{Quaternion, Transform, TransformStamped, Vector3};
 use crate::ros::msgs::nav_msgs::Odometry;
@@ -391,6 +391,10 @@ fn start_here(config: &Config, placement: &Placement) -> Result<NodeHandle, Node
 
     let parameters = Parameters::new(config);
     let mut pipeline = Pipeline::new(config);
+    // The ended tracks' lessons off the detection path: never waited for on a detection.
+    if let Err(e) = pipeline.run_lessons_on_a_worker(Waiting::Never) {
+        warn!("no thread for the tracks' lessons ({e}): they run between detections");
+    }
     if let Some(msg) = &table_pose {
         pipeline.on_static_transforms(msg);
     }
@@ -806,18 +810,7 @@ impl EstimatorThread {
             // Requests and diagnostics between detections; the thread waits only when no
             // detection is queued (the doorbell rings for the next).
             let operation = if queue.is_empty() {
-                if self.pipeline.estimator().has_idle_work() {
-                    // An ended track's lesson, a stage at a time while no detection waits.
-                    match wake_on.try_select() {
-                        Ok(operation) => operation,
-                        Err(_) => {
-                            self.pipeline.learn_in_idle_time();
-                            continue;
-                        }
-                    }
-                } else {
-                    wake_on.select()
-                }
+                wake_on.select()
             } else {
                 match wake_on.try_select() {
                     Ok(operation) => operation,
@@ -1068,7 +1061,6 @@ impl EstimatorThread {
         let estimator = self.pipeline.estimator();
         let learned = estimator.learned_params();
         let learned_noise = estimator.learned_noise();
-        let learned_model_noise = estimator.learned_model_noise();
         let msg = diagnostics_msg(
             &Snapshot {
                 node: &self.node_name,
@@ -1082,7 +1074,6 @@ impl EstimatorThread {
                 track: estimator.estimate().map(|e| e.track_id),
                 learned: &learned,
                 learned_noise: &learned_noise,
-                learned_model_noise: &learned_model_noise,
             },
             window,
         );

@@ -28,7 +28,7 @@
 use nalgebra::{SMatrix, SVector, Vector2, Vector3};
 
 use crate::config::RefreshParams;
-use crate::online::ekf::{BounceNoise, bounce_inputs_at_event, bounce_scatter, unscented_excess};
+use crate::online::ekf::{BounceNoise, bounce_scatter};
 use crate::physics::params::{FRICTION, RESTITUTION, with_known_params};
 use crate::physics::{
     AUGMENTED, AugmentedMatrix, BallState, Cursor, Event, EventKind, EventSensitivity, Flow,
@@ -224,8 +224,8 @@ struct Watcher<'a> {
     propagator: &'a Propagator,
     robot_half_bounces: u32,
     bounce: Option<(PredictedBounce, Option<BounceSensitivity>)>,
-    /// The robot-half bounce's states just before and after, its time and sensitivities.
-    bounce_event: Option<(StateVector, StateVector, f64, EventSensitivity)>,
+    /// The robot-half bounce's states just before and after, and its time.
+    bounce_event: Option<(StateVector, StateVector, f64)>,
     result: Option<Result<Event, NoIntercept>>,
     branches: Branches,
 }
@@ -276,9 +276,7 @@ impl Observer for Watcher<'_> {
                         .map(|p| (p.before.fixed_rows::<3>(0).into_owned(), p.time_gradient)),
                 });
                 self.bounce = Some((bounce, sensitivity));
-                self.bounce_event = event
-                    .sensitivity
-                    .map(|s| (event.before, event.after, event.t, s));
+                self.bounce_event = Some((event.before, event.after, event.t));
             }
             EventKind::Plane { .. } if event.before[3] < 0.0 => {
                 self.result = Some(if self.robot_half_bounces == 1 {
@@ -372,7 +370,7 @@ fn predict_in_full(
             time: s.time_gradient,
             params: s.params.map(|p| (p.before, p.time_gradient)),
             bounce_spread: watcher.bounce_event.as_ref().and_then(|bounce| {
-                bounce_spread_at_crossing(propagator, p, query, bounce, event.t)
+                bounce_spread_at_crossing(propagator, query, bounce, event.t)
             }),
         })
     });
@@ -412,23 +410,16 @@ impl Observer for PlaneCrossing {
 }
 
 /// What a bounce ahead adds to the crossing's covariance beyond J P J': its scatter at the
-/// configured sigmas and its outcome's spread beyond the linearisation (sigma points of the
-/// state and the table's parameters at the bounce), both in the state just after it, carried to
-/// the crossing by the flight from the bounce (its own tangent); with the crossing time's
-/// variance. `None` when nothing is added.
+/// configured sigmas, in the state just after it, carried to the crossing by the flight from
+/// the bounce (its own tangent); with the crossing time's variance. `None` when nothing is
+/// added.
 fn bounce_spread_at_crossing(
     propagator: &Propagator,
-    p: &AugmentedMatrix,
     query: &InterceptQuery,
-    (before, after, t_bounce, sensitivity): &(StateVector, StateVector, f64, EventSensitivity),
+    (before, after, t_bounce): &(StateVector, StateVector, f64),
     t_crossing: f64,
 ) -> Option<(StateMatrix, f64)> {
-    let noise = &query.bounce_noise;
-    let mut q = bounce_scatter(propagator, noise, before);
-    if noise.unscented {
-        let inputs = bounce_inputs_at_event(sensitivity, p);
-        q += unscented_excess(propagator, before, after, &inputs);
-    }
+    let q = bounce_scatter(propagator, &query.bounce_noise, before);
     if q == StateMatrix::zeros() {
         return None;
     }
@@ -1094,78 +1085,6 @@ mod tests {
         }
         assert!(worst < 2e-4, "worst {worst}");
         assert!(tracker.counts().moved > 40, "{:?}", tracker.counts());
-    }
-
-    /// A spin about the flight direction known to 110 rad/s sets where a bounce kicks the ball
-    /// sideways, and the kick saturates with the slip (its direction is what the spin moves):
-    /// the crossing's spread over the state's uncertainty (Monte Carlo) is several times what
-    /// the linearisation at the estimate says, and the bounce's outcome over sigma points
-    /// brings the predicted covariance to it.
-    #[test]
-    fn a_bounce_ahead_spreads_the_crossing_as_the_spin_s_uncertainty_does() {
-        let propagator = Propagator::new(&Config::default());
-        let x = shot([-0.2, 0.0, 0.15], [-6.0, 0.0, -1.5], [-140.0, -150.0, 0.0]);
-        let mut p = StateMatrix::zeros();
-        let sigmas = [1e-3, 1e-3, 1e-3, 0.01, 0.01, 0.01, 110.0, 30.0, 15.0];
-        for (i, s) in sigmas.iter().enumerate() {
-            p[(i, i)] = s * s;
-        }
-        let sigma_y = |noise: BounceNoise| {
-            let query = InterceptQuery {
-                bounce_noise: noise,
-                ..query()
-            };
-            let crossing = predict_intercept(&propagator, &x, &p, &query)
-                .crossing
-                .expect("valid");
-            crossing.covariance[(1, 1)].sqrt()
-        };
-        let linearised = sigma_y(BounceNoise::default());
-        let noise = BounceNoise {
-            unscented: true,
-            ..BounceNoise::default()
-        };
-        let unscented = sigma_y(noise);
-        // The interception kept between full predictions keeps the spread.
-        let mut tracker = InterceptTracker::new(refresh());
-        let q = InterceptQuery {
-            bounce_noise: noise,
-            ..query()
-        };
-        let augmented = with_known_params(&p);
-        tracker.predict(&propagator, 1, 0, &x, &augmented, &q);
-        let mut cursor = Cursor::new(0.0, &BallState::from_vector(&x));
-        propagator.advance(&mut cursor, 1e-3, Watch::FLIGHT, &mut ());
-        let moved = tracker.predict(&propagator, 1, MS, &cursor.state, &augmented, &q);
-        assert_eq!(tracker.counts().moved, 1);
-        let moved_sigma = moved.crossing.expect("valid").covariance[(1, 1)].sqrt();
-        assert!(
-            (moved_sigma / unscented - 1.0).abs() < 0.1,
-            "{moved_sigma} vs {unscented}"
-        );
-        let l = p.cholesky().expect("positive").l();
-        let mut rng = crate::model::rng::Rng::new(5);
-        let zero = StateMatrix::zeros();
-        let ys: Vec<f64> = (0..2000)
-            .filter_map(|_| {
-                let z = StateVector::from_fn(|_, _| rng.normal());
-                let sample = x + l * z;
-                let crossing = predict_intercept(&propagator, &sample, &zero, &query()).crossing;
-                crossing.ok().map(|c| c.state.position.y)
-            })
-            .collect();
-        assert!(ys.len() > 1900, "{} valid", ys.len());
-        let mean = ys.iter().sum::<f64>() / ys.len() as f64;
-        let monte_carlo =
-            (ys.iter().map(|y| (y - mean).powi(2)).sum::<f64>() / (ys.len() - 1) as f64).sqrt();
-        assert!(
-            linearised < 0.65 * monte_carlo,
-            "linearised {linearised} vs Monte Carlo {monte_carlo}"
-        );
-        assert!(
-            (0.75 * monte_carlo..1.33 * monte_carlo).contains(&unscented),
-            "unscented {unscented} vs Monte Carlo {monte_carlo} (linearised {linearised})"
-        );
     }
 
     #[test]

@@ -10,7 +10,7 @@ use crate::config::Config;
 use crate::model::detection::Detection;
 use crate::model::frames::{FrameError, Frames};
 use crate::online::estimator::{
-    Counters, Estimator, InterceptEstimate, Output, Rejection, Verdict,
+    Counters, Estimator, InterceptEstimate, Output, Rejection, Verdict, Waiting,
 };
 use crate::online::stroke::{Aim, PlanError, Stroke};
 use crate::physics::{self, StateMatrix};
@@ -61,7 +61,7 @@ pub struct Step {
 
 /// The estimator with the node's publishing rules, and the stroke model its racket services
 /// answer with.
-#[derive(Debug, Clone)]
+#[derive(Debug)]
 pub struct Pipeline {
     estimator: Estimator,
     stroke: Stroke,
@@ -120,10 +120,10 @@ impl Pipeline {
         self.horizon = config.prediction.horizon;
     }
 
-    /// One stage of an ended track's pending lesson, off the detections' path (see
-    /// [`Estimator::learn_in_idle_time`]); true while stages remain.
-    pub fn learn_in_idle_time(&mut self) -> bool {
-        self.estimator.learn_in_idle_time()
+    /// Runs the ended tracks' lessons on a worker thread (see
+    /// [`Estimator::run_lessons_on_a_worker`]).
+    pub fn run_lessons_on_a_worker(&mut self, waiting: Waiting) -> std::io::Result<()> {
+        self.estimator.run_lessons_on_a_worker(waiting)
     }
 
     /// The input has ended: the live track teaches what it learned (see

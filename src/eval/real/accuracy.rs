@@ -37,8 +37,7 @@ use crate::model::detection::{Source, seconds_to_ns};
 use crate::model::stats::ErrorStats;
 use crate::offline::ballistic::{MeasuredBounce, detect_bounce, fit_ballistic};
 use crate::online::estimator::{
-    Counters, Estimator, InterceptEstimate, LearnedModelNoise, LearnedParams, LearnedPhysics,
-    RefitContestScore, Rejection, Verdict,
+    Counters, Estimator, InterceptEstimate, LearnedParams, LearnedPhysics, Rejection, Verdict,
 };
 use crate::online::intercept::NoIntercept;
 use crate::physics::BallState;
@@ -344,10 +343,6 @@ pub struct RealReport {
     /// What the last flight's estimator had learned of the physics at its end (with
     /// [`RealEvalOptions::carry_over`], over all the flights).
     pub learned: Option<LearnedParams>,
-    /// What the last flight's estimator had learned of how far the flights stray from the model.
-    pub model_noise: Option<LearnedModelNoise>,
-    /// The last flight's estimator's contest of its refits with its filter.
-    pub refit_contest: Option<RefitContestScore>,
 }
 
 impl RealReport {
@@ -455,15 +450,11 @@ pub fn evaluate_flights(
 ) -> RealReport {
     let mut learned: Option<LearnedPhysics> = None;
     let mut last = None;
-    let mut model_noise = None;
-    let mut refit_contest = None;
     let results: Vec<FlightResult> = flights
         .iter()
         .map(|f| {
             let (result, after) = evaluate_flight(config, f, options, learned.as_ref());
             last = Some(after.params());
-            model_noise = Some(after.model_noise());
-            refit_contest = Some(after.refit_contest());
             if options.carry_over {
                 learned = Some(after);
             }
@@ -481,8 +472,6 @@ pub fn evaluate_flights(
         flights: results,
         groups,
         learned: last,
-        model_noise,
-        refit_contest,
     }
 }
 

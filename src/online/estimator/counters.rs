@@ -65,7 +65,7 @@ impl Rejection {
         }
     }
 
-    pub(super) fn index(self) -> usize {
+    pub(crate) fn index(self) -> usize {
         Self::ALL.iter().position(|r| *r == self).unwrap_or(0)
     }
 }
@@ -88,19 +88,16 @@ pub struct Counters {
     pub reanchored: u64,
     /// Late detections fused by rolling back.
     pub rollbacks: u64,
-    /// Refits of a track that moved its estimate (`ekf.refit_interval`).
-    pub refits: u64,
-    /// Tracks whose lesson of the physics was their flight smoothed
-    /// (`adaptation.smoothed_lessons`).
+    /// Tracks whose lesson of the physics was their flight smoothed.
     pub smoothed_lessons: u64,
+    /// Tracks' lessons dropped, by reason in the order of
+    /// [`Dropped::ALL`](super::Dropped::ALL): too many waiting, late for a caller that never
+    /// waits, failed on the worker.
+    pub lessons_dropped: [u64; super::Dropped::ALL.len()],
     /// Spin measurements that disagreed with the filter's spin and replaced it.
     pub spin_resets: u64,
     /// Detections near the table's edge that the other bounce hypothesis explained better.
     pub edge_retries: u64,
-    /// Detections gated after a bounce that the bounce explained once the spin before it was
-    /// forgotten (the flight's curvature had misread it): the track kept, its estimates since
-    /// the bounce redone.
-    pub bounce_retries: u64,
     /// Detections that claimed a spin of exactly zero (a detector's placeholder, not a
     /// measurement): their spin was ignored, the detection judged as a position alone.
     pub zero_spin_ignored: u64,
@@ -116,6 +113,14 @@ impl Counters {
     /// Rejected detections of one reason.
     pub fn rejected(&self, reason: Rejection) -> u64 {
         self.rejected[reason.index()]
+    }
+
+    /// Lessons dropped for one reason.
+    pub fn lessons_dropped(&self, reason: super::Dropped) -> u64 {
+        super::Dropped::ALL
+            .iter()
+            .position(|r| *r == reason)
+            .map_or(0, |i| self.lessons_dropped[i])
     }
 
     /// All rejected detections.
@@ -156,7 +161,8 @@ pub enum Verdict {
     /// Taken by the initialiser of a new track.
     Initializing,
     /// Its stamp jumped beyond `tracking.timeout`: held until the next detection confirms the
-    /// jump or shows a glitch (see [`Estimator::update`](super::Estimator::update)); counted as initialising meanwhile.
+    /// jump or shows a glitch (see [`Estimator::update`](super::Estimator::update)); counted as
+    /// initialising meanwhile.
     Held,
     /// Not fused.
     Rejected(Rejection),

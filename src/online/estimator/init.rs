@@ -10,7 +10,6 @@
 
 use nalgebra::{Matrix2, Vector2, Vector3};
 
-use super::Settings;
 use crate::model::detection::Detection;
 use crate::physics::{FlightModel, StateMatrix, StateVector};
 
@@ -47,7 +46,7 @@ pub(crate) fn fit(
     weights: &dyn Fn(&Detection) -> Option<Weights>,
     flight: &FlightModel,
     gravity: f64,
-    settings: &Settings,
+    spin_prior_var: f64,
 ) -> Option<InitialFit> {
     let newest = detections.last()?;
     let stamp = newest.stamp;
@@ -125,7 +124,7 @@ pub(crate) fn fit(
         flight.magnus_factor()
             * flight.scales().1
             * flight.magnus_coefficient(0.0)
-            * settings.spin_prior_var.sqrt()
+            * spin_prior_var.sqrt()
             * v.norm()
     };
     let mut x = StateVector::zeros();
@@ -141,7 +140,7 @@ pub(crate) fn fit(
         big_p[(axis + 6, axis + 6)] = if spin_measured {
             1.0 / spin_weight[axis]
         } else {
-            settings.spin_prior_var
+            spin_prior_var
         };
     }
     let n = u32::try_from(detections.len()).unwrap_or(u32::MAX);

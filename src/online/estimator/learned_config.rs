@@ -1,31 +1,16 @@
 //! What an estimator learned ([`LearnedSummary`]), in words and as a configuration to start the
 //! next one from: the physical parameters it learned over its tracks in place of the configured
-//! ones (`aero.drag_scale`, `aero.magnus_scale`, `table.restitution`, `table.friction`), the
-//! model noise it learned folded into the configured densities and scatters (`ekf.*`), and each
-//! camera's noise it learned in place of the source's configured sigmas (`sources.*`). A node or
-//! replay started from it begins where this one ended, with the configured priors' widths around
-//! the new values (the learning goes on from there; a new ball or table is still learned as
-//! quickly). Whether the refits' contest ended applying them is carried too
-//! (`ekf.refits_start_applied`: the next run applies them from its first track, until its own
-//! contest turns against them). The learned flight-to-flight dispersion is not carried: a
-//! configured dispersion is its prior and the bound under it (`learning::DISPERSION_FLOOR`), so
-//! carrying it would lower the floor run after run; the next run learns it again from the
-//! configured one.
+//! ones (`aero.drag_scale`, `aero.magnus_scale`, `table.restitution`, `table.friction`), and
+//! each camera's noise it learned in place of the source's configured sigmas (`sources.*`). A
+//! node or replay started from it begins where this one ended, with the configured priors'
+//! widths around the new values (the learning goes on from there; a new ball or table is still
+//! learned as quickly).
 
-use super::{
-    Estimator, LearnedModelNoise, LearnedParams, LearnedSourceNoise, RefitContestScore, noise,
-};
+use super::{Estimator, LearnedParams, LearnedSourceNoise, camera_noise};
 use crate::config::Config;
 #[cfg(feature = "interface")]
 use crate::config::ConfigError;
 use crate::physics::PhysicsParams;
-
-/// The smallest model-noise scale a learned configuration carries: flights that follow the
-/// model exactly (the simulator's) teach scales near zero (0.0001x after 120 simulated shots),
-/// and a run started from no process noise at all follows no flight that strays from it (a
-/// replay of `bags/sim_rally_wide.mcap` from such a file kept a quarter of its interceptions
-/// valid). The next run learns the scale again from a tenth.
-pub const CARRIED_NOISE_SCALE_FLOOR: f64 = 0.1;
 
 /// Everything an estimator has learned, as it stands.
 #[derive(Debug, Clone, PartialEq)]
@@ -34,10 +19,6 @@ pub struct LearnedSummary {
     pub params: LearnedParams,
     /// Each camera source's noise, in the order of the configuration's sources.
     pub source_noise: Vec<LearnedSourceNoise>,
-    /// How far the flights stray from the model.
-    pub model_noise: LearnedModelNoise,
-    /// Whether the live refits predict the flights better than the filter.
-    pub refit_contest: RefitContestScore,
 }
 
 impl Estimator {
@@ -46,8 +27,6 @@ impl Estimator {
         LearnedSummary {
             params: self.learned_params(),
             source_noise: self.learned_noise(),
-            model_noise: self.learned_model_noise(),
-            refit_contest: self.refit_contest(),
         }
     }
 }
@@ -58,38 +37,23 @@ impl LearnedSummary {
     pub fn configuration(&self, base: &Config) -> Config {
         let mut config = base.clone();
         self.params.params.apply_to(&mut config);
-        let scales = &self.model_noise.scales;
-        let carried = |scale: f64| scale.max(CARRIED_NOISE_SCALE_FLOOR);
-        let ekf = &mut config.ekf;
-        ekf.acceleration_noise_density *= carried(scales.acceleration);
-        ekf.spin_measured_acceleration_noise_density *=
-            carried(self.model_noise.spin_measured_acceleration);
-        ekf.spin_noise_density *= carried(scales.spin);
-        // The bounce's scale is on the scatter's variance.
-        ekf.bounce_impulse_sigma *= carried(scales.bounce).sqrt();
-        ekf.bounce_restitution_sigma *= carried(scales.bounce).sqrt();
-        // Where the refits' contest ended, the next run starts.
-        ekf.refits_start_applied = self.refit_contest.applying;
         for learned in self.source_noise.iter().filter(|n| n.has_learned()) {
             let Some(source) = config.sources.by_name_mut(&learned.source) else {
                 continue;
             };
             source.position_sigma = learned.position_sigma;
             source.stamp_sigma = learned.stamp_sigma;
-            if learned.estimate.spin_weight > noise::PRIOR_WEIGHT {
+            if learned.estimate.spin_weight > camera_noise::PRIOR_WEIGHT {
                 source.spin_sigma *= learned.estimate.spin_scale.sqrt();
             }
         }
         config
     }
 
-    /// What was learned, a line each: the physics, the cameras' noise (where learned), the model
-    /// noise.
+    /// What was learned, a line each: the physics, the cameras' noise (where learned).
     pub fn lines(&self) -> Vec<String> {
         let mut lines = vec![describe_params(&self.params)];
         lines.extend(describe_source_noise(&self.source_noise));
-        lines.push(describe_model_noise(&self.model_noise));
-        lines.extend(describe_refit_contest(&self.refit_contest));
         lines
     }
 
@@ -120,13 +84,7 @@ impl LearnedSummary {
             text.push_str(&line);
             text.push('\n');
         }
-        // The contest's decision is written even where it is the base's: the file says how the
-        // contest ended either way.
-        let mut compared = base.clone();
-        compared.ekf.refits_start_applied = !learned.ekf.refits_start_applied;
-        text.push_str(&crate::config::yaml::changed_params_yaml(
-            &compared, &learned,
-        ));
+        text.push_str(&crate::config::yaml::changed_params_yaml(base, &learned));
         Ok(text)
     }
 }
@@ -154,32 +112,6 @@ pub fn describe_params(l: &LearnedParams) -> String {
     )
 }
 
-/// How far the flights stray from the model, in one line: "learned model noise: acceleration
-/// 0.030x, spin 0.100x, bounce 0.090x the configured".
-pub fn describe_model_noise(m: &LearnedModelNoise) -> String {
-    let parts: Vec<String> = m
-        .named()
-        .iter()
-        .map(|(name, scale, _)| format!("{name} {scale:.3}x"))
-        .collect();
-    format!("learned model noise: {} the configured", parts.join(", "))
-}
-
-/// The refits' contest with the filter in one line ("refits applied: ..."), or `None` before
-/// the first contest.
-pub fn describe_refit_contest(c: &RefitContestScore) -> Option<String> {
-    (c.contests > 0).then(|| {
-        format!(
-            "refits {} (ekf.refit_when_better): {} contests 0.1 s ahead, the refit's miss {:.2}x \
-             the filter's (geometric mean, t = {:.1})",
-            if c.applying { "applied" } else { "not applied" },
-            c.contests,
-            (-c.mean_log_ratio).exp(),
-            c.t
-        )
-    })
-}
-
 /// The noise learned of the sources that sent detections, in one line: "learned noise:
 /// wide_150fps position sigma 3.0 mm (1.50x configured), stamps 0.3 ms; ...", or `None` when no
 /// source has learned anything.
@@ -203,9 +135,8 @@ pub fn describe_source_noise(noise: &[LearnedSourceNoise]) -> Option<String> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::online::ekf::NoiseScales;
-    use crate::online::estimator::LEARNED_SCALES;
     use crate::online::estimator::SourceNoiseEstimate;
+    use camera_noise::PRIOR_WEIGHT;
 
     fn source(name: &str, weight: f64, spin_weight: f64) -> LearnedSourceNoise {
         LearnedSourceNoise {
@@ -224,7 +155,6 @@ mod tests {
 
     fn lesson() -> LearnedSummary {
         LearnedSummary {
-            refit_contest: RefitContestScore::default(),
             params: LearnedParams {
                 params: PhysicsParams {
                     drag_scale: 0.93,
@@ -237,43 +167,22 @@ mod tests {
                 flight_sigma: [0.0; 4],
             },
             source_noise: vec![
-                source("wide_150fps", 2000.0, noise::PRIOR_WEIGHT),
-                source("highspeed_900fps", noise::PRIOR_WEIGHT, noise::PRIOR_WEIGHT),
+                source("wide_150fps", 2000.0, PRIOR_WEIGHT),
+                source("highspeed_900fps", PRIOR_WEIGHT, PRIOR_WEIGHT),
                 source("not_a_source", 2000.0, 2000.0),
             ],
-            model_noise: LearnedModelNoise {
-                scales: NoiseScales {
-                    acceleration: 1.5,
-                    spin: 0.5,
-                    bounce: 4.0,
-                },
-                spin_measured_acceleration: 0.25,
-                log_sigma: [0.1; LEARNED_SCALES],
-            },
         }
     }
 
-    /// The learned physics replace the configured, the model noise's scales are folded into
-    /// the densities (the bounce's on its variance), and a camera's noise is taken only where
-    /// it learned something.
+    /// The learned physics replace the configured, and a camera's noise is taken only where it
+    /// learned something.
     #[test]
     fn what_was_learned_replaces_what_was_configured() {
         let base = Config::default();
         let learned = lesson();
         let c = learned.configuration(&base);
         assert_eq!(PhysicsParams::from_config(&c), learned.params.params);
-        let (e, b) = (&c.ekf, &base.ekf);
-        assert_eq!(
-            e.acceleration_noise_density,
-            1.5 * b.acceleration_noise_density
-        );
-        assert_eq!(
-            e.spin_measured_acceleration_noise_density,
-            0.25 * b.spin_measured_acceleration_noise_density
-        );
-        assert_eq!(e.spin_noise_density, 0.5 * b.spin_noise_density);
-        assert_eq!(e.bounce_impulse_sigma, 2.0 * b.bounce_impulse_sigma);
-        assert_eq!(e.bounce_restitution_sigma, 2.0 * b.bounce_restitution_sigma);
+        assert_eq!(c.ekf, base.ekf);
         let wide = &c.sources.wide_150fps;
         assert_eq!((wide.position_sigma, wide.stamp_sigma), (0.0007, 0.0004));
         // Its spin noise learned nothing beyond the prior.
@@ -281,42 +190,13 @@ mod tests {
         // The 900 fps camera learned nothing: as configured.
         assert_eq!(c.sources.highspeed_900fps, base.sources.highspeed_900fps);
         assert!(c.validate().is_ok());
-        // A scale near zero is carried as the floor.
-        let mut exact = learned.clone();
-        exact.model_noise.scales.acceleration = 1e-4;
-        exact.model_noise.scales.bounce = 1e-4;
-        let e = exact.configuration(&base).ekf;
-        approx::assert_relative_eq!(
-            e.acceleration_noise_density,
-            CARRIED_NOISE_SCALE_FLOOR * b.acceleration_noise_density
-        );
-        approx::assert_relative_eq!(
-            e.bounce_impulse_sigma,
-            CARRIED_NOISE_SCALE_FLOOR.sqrt() * b.bounce_impulse_sigma
-        );
-        // The refits' contest carried: where it ended, the next run starts.
-        assert!(!c.ekf.refits_start_applied);
-        let won = LearnedSummary {
-            refit_contest: RefitContestScore {
-                applying: true,
-                ..RefitContestScore::default()
-            },
-            ..learned.clone()
-        };
-        assert!(won.configuration(&base).ekf.refits_start_applied);
         // Nothing learned, nothing changed.
         let nothing = LearnedSummary {
-            refit_contest: RefitContestScore::default(),
             params: LearnedParams {
                 params: PhysicsParams::from_config(&base),
                 ..learned.params
             },
             source_noise: Vec::new(),
-            model_noise: LearnedModelNoise {
-                scales: NoiseScales::default(),
-                spin_measured_acceleration: 1.0,
-                log_sigma: [0.5; LEARNED_SCALES],
-            },
         };
         assert_eq!(nothing.configuration(&base), base);
     }
@@ -339,15 +219,6 @@ mod tests {
             crate::config::yaml::load_str::<&str>(&text, std::path::Path::new("l.yaml"), &[])
                 .unwrap();
         assert_eq!(loaded, learned.configuration(&base));
-        assert!(text.contains("refits_start_applied: false"), "{text}");
-        // Started from a file whose contest had ended applying the refits, and still applying
-        // them: the decision is kept.
-        let mut started = base.clone();
-        started.ekf.refits_start_applied = true;
-        let mut kept = learned.clone();
-        kept.refit_contest.applying = true;
-        let text = kept.file_text(&started, &started, "a test").unwrap();
-        assert!(text.contains("refits_start_applied: true"), "{text}");
         let mut wrong = learned;
         wrong.params.params.friction = -1.0;
         assert!(wrong.file_text(&base, &base, "a test").is_err());

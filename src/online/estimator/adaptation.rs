@@ -1,4 +1,5 @@
-//! The physical parameters learned across tracks: a two-level model.
+//! What the estimator learns across tracks: the physical parameters of this ball and table
+//! (a two-level model) and each camera's noise ([`super::camera_noise`]).
 //!
 //! Each flight has its own parameters theta_f (its ball, its spin axis, the part of the table it
 //! hits), scattered about the global ones theta_g of this ball and table: theta_f = theta_g + d,
@@ -8,7 +9,8 @@
 //!
 //! - A track starts its filter at theta_g with covariance P_g (drifted) + D: the filter learns
 //!   its own flight's parameters, beside its state.
-//! - When it ends, what it learned updates theta_g. Its posterior N(theta_t, P_t) over its prior
+//! - When it ends, what it learned (its lesson: its flight smoothed, [`super::smoother`], or the
+//!   filter's own estimate) updates theta_g. Its posterior N(theta_t, P_t) over its prior
 //!   N(theta_g, P_pr) is the likelihood of theta_f with information J = P_t^-1 - P_pr^-1 and
 //!   information-weighted mean b = P_t^-1 theta_t - P_pr^-1 theta_g; as a likelihood of theta_g
 //!   (theta_f = theta_g + d) its information is J_g = (I + J D)^-1 J and its weighted mean
@@ -20,36 +22,12 @@
 
 use nalgebra::SymmetricEigen;
 
+use super::camera_noise::{NoiseLearner, NoiseSample, SourceNoiseEstimate};
+use super::lessons::{LessonCounts, Lessons, Waiting};
+use super::smoother::{Lesson, LessonJob, ParamEstimate, TrackRecord};
+use crate::config::Config;
 use crate::online::ekf::ParamCovariance;
-use crate::physics::{PARAMS, ParamVector};
-
-/// The configured dispersion counts as this many flights that each measure their own parameters
-/// exactly, when D is learned.
-pub const DISPERSION_PRIOR_FLIGHTS: f64 = 20.0;
-
-/// A track teaches D only when its information on a parameter is at least this fraction of its
-/// prior's (1/p_pr).
-const MIN_DISPERSION_EVIDENCE: f64 = 0.1;
-
-/// A learned dispersion stays at least this fraction of the configured one (as variances: about
-/// a thirtieth of its sigma; a tenth of the sigma until 2026-12-04, when the live refits' third
-/// iteration took over what that floor held on the 150 fps camera, and a tenth of the variance
-/// before the published covariance took in the side of a bounce,
-/// [`crate::online::contact_side`]). Learned to nothing, it would leave each flight no
-/// parameters of its own (a flight whose spin the filter misreads could no longer absorb it:
-/// with the 150 fps camera alone the covariance grows overconfident), and the lower it is, the
-/// slower it grows again when the ball, the table or the spins change (about 1.5x every 25
-/// flights from the floor).
-pub const DISPERSION_FLOOR: f64 = 0.001;
-
-/// The learned dispersion's memory, in tracks: the weight of the evidence behind it fades by
-/// 1/50 a track, so that a dispersion learned on flights that hardly scatter grows again within
-/// some tens of flights when they start to (another ball, a player after a launcher).
-pub const DISPERSION_MEMORY_TRACKS: f64 = 50.0;
-
-/// A squared deviation counts at most this many times its expected variance (one wild track
-/// moves D little).
-const SAMPLE_LIMIT: f64 = 9.0;
+use crate::physics::{PARAMS, ParamVector, PhysicsParams};
 
 /// What the estimator knows of the physical parameters between tracks.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -68,12 +46,6 @@ pub(crate) struct Learned {
     drift_density: ParamVector,
     /// D, the flight-to-flight dispersion (diagonal).
     dispersion: ParamVector,
-    /// The configured D (zero: the parameter has no dispersion, learned or not).
-    configured_dispersion: ParamVector,
-    /// The weight of the evidence behind each of D's variances (see [`Self::dispersion_after`]).
-    dispersion_weight: ParamVector,
-    /// Whether D is learned from the tracks.
-    learn_dispersion: bool,
 }
 
 impl Learned {
@@ -83,7 +55,6 @@ impl Learned {
         prior_var: ParamVector,
         drift_density: ParamVector,
         dispersion: ParamVector,
-        learn_dispersion: bool,
     ) -> Self {
         let active = |v: &ParamVector| {
             ParamVector::from_fn(|i, _| if prior_var[i] > 0.0 { v[i] } else { 0.0 })
@@ -96,12 +67,6 @@ impl Learned {
             prior_var,
             drift_density: active(&drift_density),
             dispersion: active(&dispersion),
-            configured_dispersion: active(&dispersion),
-            dispersion_weight: ParamVector::from_fn(|i, _| {
-                DISPERSION_PRIOR_FLIGHTS
-                    / (2.0 * dispersion[i] * dispersion[i]).max(f64::MIN_POSITIVE)
-            }),
-            learn_dispersion,
         }
     }
 
@@ -170,7 +135,6 @@ impl Learned {
         );
         // The equations failed (a singular matrix): the track's posterior.
         let updated = self.fuse(&prior, posterior, stamp).unwrap_or(*posterior);
-        let (dispersion, dispersion_weight) = self.dispersion_after(&prior, posterior, stamp);
         let active = |i: usize| self.prior_var[i] > 0.0;
         let mut theta = updated.0;
         let mut covariance = updated.1;
@@ -188,56 +152,8 @@ impl Learned {
             covariance: (covariance + covariance.transpose()) * 0.5,
             stamp: Some(stamp),
             tracks: self.tracks + 1,
-            dispersion,
-            dispersion_weight,
             ..*self
         }
-    }
-
-    /// D and the weight behind it after a track that started from `prior` (compared at its end)
-    /// and ended at `posterior`: per parameter, what the track alone measured, m (its prior and
-    /// posterior marginal variances p_pr and p_t give it the information j = 1/p_t - 1/p_pr and
-    /// the mean m = (theta_t/p_t - theta_g/p_pr)/j), lies from theta_g by d ~ N(0, D + P_g +
-    /// 1/j); d^2 - P_g - 1/j is a sample of D, weighted by its Fisher information 1/(2 V^2)
-    /// with V = D + P_g + 1/j, and averaged from the configured D with the weight of
-    /// [`DISPERSION_PRIOR_FLIGHTS`] flights that measure their parameters exactly, the weight
-    /// fading with a memory of [`DISPERSION_MEMORY_TRACKS`] tracks, never below
-    /// [`DISPERSION_FLOOR`] times the configured D. A parameter configured without dispersion
-    /// keeps none.
-    fn dispersion_after(
-        &self,
-        (theta_prior, p_prior): &(ParamVector, ParamCovariance),
-        (theta_track, p_track): &(ParamVector, ParamCovariance),
-        stamp: i64,
-    ) -> (ParamVector, ParamVector) {
-        let (mut dispersion, mut weight) = (self.dispersion, self.dispersion_weight);
-        if !self.learn_dispersion {
-            return (dispersion, weight);
-        }
-        let p_global = self.drifted(stamp);
-        for i in (0..PARAMS).filter(|&i| self.configured_dispersion[i] > 0.0) {
-            let (p_pr, p_t) = (p_prior[(i, i)], p_track[(i, i)]);
-            if !(p_pr > 0.0 && p_t > 0.0) {
-                continue;
-            }
-            let j = 1.0 / p_t - 1.0 / p_pr;
-            // A track that learned next to nothing of it says nothing of D.
-            if j * p_pr < MIN_DISPERSION_EVIDENCE {
-                continue;
-            }
-            let m = (theta_track[i] / p_t - theta_prior[i] / p_pr) / j;
-            let variance = dispersion[i] + p_global[(i, i)] + 1.0 / j;
-            let d = m - self.theta[i];
-            let sample = (d * d).min(SAMPLE_LIMIT * variance) - p_global[(i, i)] - 1.0 / j;
-            let w = 1.0 / (2.0 * variance * variance);
-            if !(sample.is_finite() && w.is_finite()) {
-                continue;
-            }
-            weight[i] = weight[i] * (1.0 - 1.0 / DISPERSION_MEMORY_TRACKS) + w;
-            dispersion[i] = (dispersion[i] + w * (sample - dispersion[i]) / weight[i])
-                .max(DISPERSION_FLOOR * self.configured_dispersion[i]);
-        }
-        (dispersion, weight)
     }
 
     /// The two-level update in information form; `None` when a matrix is singular.
@@ -288,6 +204,150 @@ fn positive_part(m: &ParamCovariance) -> ParamCovariance {
     eigen.eigenvectors * ParamCovariance::from_diagonal(&clipped) * eigen.eigenvectors.transpose()
 }
 
+/// The prior variances of the learned physical parameters (`adaptation.*_sigma` squared; zero,
+/// not adapted, without the adaptation).
+pub(crate) fn param_prior_variances(config: &Config) -> ParamVector {
+    let adaptation = &config.adaptation;
+    let sigmas = ParamVector::new(
+        adaptation.drag_scale_sigma,
+        adaptation.magnus_scale_sigma,
+        adaptation.restitution_sigma,
+        adaptation.friction_sigma,
+    ) * if adaptation.enabled { 1.0 } else { 0.0 };
+    sigmas.component_mul(&sigmas)
+}
+
+/// The random walk's density of each parameter [unit^2/s]: its prior variance drifting over
+/// `adaptation.drift_per_hour` of it an hour.
+pub(crate) fn drift_density(config: &Config) -> ParamVector {
+    let drift = config.adaptation.drift_per_hour;
+    param_prior_variances(config) * (drift * drift / 3600.0)
+}
+
+/// What the estimator learns across tracks (see the module doc): the physical parameters, each
+/// camera's noise, and the lessons of the ended tracks on their way in.
+#[derive(Debug)]
+pub(crate) struct Adaptation {
+    physics: Learned,
+    cameras: NoiseLearner,
+    lessons: Lessons,
+}
+
+impl Adaptation {
+    /// Nothing learned yet: the configured values.
+    pub(crate) fn new(config: &Config) -> Self {
+        let adaptation = &config.adaptation;
+        let dispersion = ParamVector::new(
+            adaptation.drag_scale_flight_sigma,
+            adaptation.magnus_scale_flight_sigma,
+            adaptation.restitution_flight_sigma,
+            adaptation.friction_flight_sigma,
+        );
+        Self {
+            physics: Learned::new(
+                PhysicsParams::from_config(config).to_vector(),
+                param_prior_variances(config),
+                drift_density(config),
+                dispersion.component_mul(&dispersion),
+            ),
+            cameras: NoiseLearner::new(config),
+            lessons: Lessons::new(),
+        }
+    }
+
+    /// The ball's and table's parameters learned over the tracks so far.
+    pub(crate) fn physics(&self) -> &Learned {
+        &self.physics
+    }
+
+    /// Starts from parameters another estimator learned.
+    pub(crate) fn adopt_physics(&mut self, physics: Learned) {
+        self.physics = physics;
+    }
+
+    /// The prior of a track starting at `stamp` (see [`Learned::track_prior`]).
+    pub(crate) fn track_prior(&self, stamp: i64) -> ParamEstimate {
+        self.physics.track_prior(stamp)
+    }
+
+    /// What is learned of the camera source at `index`.
+    pub(crate) fn camera(&self, index: usize) -> SourceNoiseEstimate {
+        self.cameras.of(index)
+    }
+
+    /// What is learned of every camera source, in index order.
+    pub(crate) fn cameras(&self) -> &[SourceNoiseEstimate] {
+        self.cameras.all()
+    }
+
+    /// Learns from one detection of the source at `index`.
+    pub(crate) fn learn_camera(&mut self, index: usize, sample: &NoiseSample) {
+        self.cameras.learn(index, sample);
+    }
+
+    /// Starts learning the cameras' noise again from `config`'s.
+    pub(crate) fn forget_cameras(&mut self, config: &Config) {
+        self.cameras = NoiseLearner::new(config);
+    }
+
+    /// A track's lesson learned now.
+    fn absorb(&mut self, lesson: &Lesson) {
+        self.physics =
+            self.physics
+                .absorbed(&lesson.prior, &lesson.posterior, lesson.started, lesson.ended);
+    }
+
+    /// A track has ended, at the detection stamped `now`: its flight to smooth, off the
+    /// detection path ([`super::lessons`]), or the filter's lesson to learn now.
+    pub(crate) fn track_ended(&mut self, ended: Result<LessonJob, Lesson>, now: i64) {
+        let now_lesson = match ended {
+            Ok(job) => self.lessons.queue(job, now),
+            Err(lesson) => Some(lesson),
+        };
+        if let Some(lesson) = now_lesson {
+            self.absorb(&lesson);
+        }
+    }
+
+    /// Learns the lessons due before a detection stamped `stamp`.
+    pub(crate) fn learn_due(&mut self, stamp: i64) {
+        while let Some(lesson) = self.lessons.next_due(stamp, false) {
+            self.absorb(&lesson);
+        }
+    }
+
+    /// Learns every lesson still waiting (the input's end).
+    pub(crate) fn settle(&mut self) {
+        while let Some(lesson) = self.lessons.next_due(i64::MAX, true) {
+            self.absorb(&lesson);
+        }
+    }
+
+    /// A record for the next track's detections ([`Lessons::buffer`]).
+    pub(crate) fn record(&mut self) -> TrackRecord {
+        self.lessons.buffer()
+    }
+
+    /// What became of the lessons so far.
+    pub(crate) fn lesson_counts(&self) -> LessonCounts {
+        self.lessons.counts()
+    }
+
+    /// Forgets what was learned and the lessons waiting, as a new adaptation of `config` would
+    /// start, keeping the lessons' counts and their worker.
+    pub(crate) fn reset(&mut self, config: &Config) {
+        let mut lessons = std::mem::replace(&mut self.lessons, Lessons::new());
+        lessons.forget();
+        *self = Self::new(config);
+        self.lessons = lessons;
+    }
+
+    /// Runs the lessons on a worker thread ([`Lessons::spawn_worker`]).
+    pub(crate) fn spawn_worker(&mut self, waiting: Waiting) -> std::io::Result<()> {
+        self.lessons.spawn_worker(waiting)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -298,7 +358,6 @@ mod tests {
             ParamVector::new(0.01, 0.04, 0.0, 0.01),
             ParamVector::zeros(),
             ParamVector::new(dispersion, dispersion, 0.0, 0.0),
-            false,
         )
     }
 
@@ -376,47 +435,5 @@ mod tests {
         let much_later = l.drifted(100 * an_hour);
         assert!((much_later[(1, 1)] - 0.04).abs() < 1e-12);
         assert!((much_later[(0, 0)] - 0.01).abs() < 1e-12);
-    }
-
-    /// Learned from flights that do not scatter, the dispersion falls to its floor, not to
-    /// nothing; when the flights then scatter (another ball, other spins) it grows again, its
-    /// evidence fading.
-    #[test]
-    fn a_learned_dispersion_stops_at_its_floor_and_grows_again() {
-        let configured = ParamVector::new(0.03f64.powi(2), 0.1f64.powi(2), 0.0, 0.0);
-        let mut l = Learned::new(
-            ParamVector::new(1.0, 1.0, 0.9, 0.25),
-            ParamVector::new(0.01, 0.04, 0.0, 0.01),
-            ParamVector::zeros(),
-            configured,
-            true,
-        );
-        // A track whose filter measured the Magnus scale `measured` with variance `r`.
-        let track = |l: &Learned, measured: f64, r: f64, stamp: i64| {
-            let prior = l.track_prior(stamp);
-            let mut posterior = prior;
-            let p = prior.1[(1, 1)];
-            posterior.0[1] = prior.0[1] + p / (p + r) * (measured - prior.0[1]);
-            posterior.1[(1, 1)] = p * r / (p + r);
-            l.absorbed(&prior, &posterior, stamp, stamp)
-        };
-        for k in 0..200 {
-            l = track(&l, l.theta[1], 1e-6, k);
-        }
-        let floor = DISPERSION_FLOOR * configured[1];
-        assert!(
-            (l.dispersion()[1] - floor).abs() < 1e-15,
-            "{}",
-            l.dispersion()[1]
-        );
-        // The drag scale, which no track measured, keeps its configured dispersion.
-        assert_eq!(l.dispersion()[0], configured[0]);
-        // It grows about 1.5x every 25 flights (each sample capped at SAMPLE_LIMIT times its
-        // expected variance, the quiet flights' evidence fading): 2.5x in 50, 5.8x in 100.
-        for k in 200..300 {
-            let side = if k % 2 == 0 { 0.3 } else { -0.3 };
-            l = track(&l, l.theta[1] + side, 1e-4, k);
-        }
-        assert!(l.dispersion()[1] > 4.0 * floor, "{}", l.dispersion()[1]);
     }
 }

@@ -1,5 +1,5 @@
 //! The measurement noise each camera source really has, learned from the filter's innovations
-//! and carried from track to track (`ekf.learn_noise`).
+//! and carried from track to track.
 //!
 //! A source's position noise is modelled as R = s R_0 + tau v v': its configured (or the
 //! detection's own) covariance R_0 times a scale s, and the error of its stamps (variance tau
@@ -15,9 +15,11 @@
 //! prediction is less certain than its noise (a new track, just after a bounce, a spin just
 //! reset) teaches nothing: its sample would be mostly the prediction's error.
 
-use nalgebra::{Matrix3, Vector3};
+use nalgebra::Matrix3;
 
+use super::fusion::Innovation;
 use crate::config::Config;
+use crate::online::measurement::Measurement;
 
 /// The configured noise counts as this many detections when the learning starts.
 pub const PRIOR_WEIGHT: f64 = 20.0;
@@ -54,19 +56,14 @@ impl SourceNoiseEstimate {
     }
 }
 
-/// The prior innovation of one position (and spin) measurement.
+/// What one detection shows of its camera's noise: its prior innovation
+/// ([`Innovation`]) and the camera's own covariances before the learned scales, R_0 of the
+/// position [m^2] and of the spin [(rad/s)^2] when measured.
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub(crate) struct Innovation {
-    /// z - H x^- of the position [m].
-    pub y: Vector3<f64>,
-    /// H P^- H' of the position [m^2].
-    pub hph: Matrix3<f64>,
-    /// The measurement's own covariance before the learned scale, R_0 [m^2].
-    pub r0: Matrix3<f64>,
-    /// The predicted velocity [m/s].
-    pub velocity: Vector3<f64>,
-    /// The spin's innovation, H P^- H' and R_0, when measured.
-    pub spin: Option<(Vector3<f64>, Matrix3<f64>, Matrix3<f64>)>,
+pub(crate) struct NoiseSample {
+    pub(crate) innovation: Innovation,
+    pub(crate) r0: Matrix3<f64>,
+    pub(crate) spin_r0: Option<Matrix3<f64>>,
 }
 
 /// The learned noise of every source, in the order of
@@ -103,14 +100,16 @@ impl NoiseLearner {
         &self.sources
     }
 
-    /// Learns from one detection's prior innovation (of the source at `index`).
-    pub(crate) fn learn(&mut self, index: usize, innovation: &Innovation) {
+    /// Learns from one detection of the source at `index`.
+    pub(crate) fn learn(&mut self, index: usize, observed: &NoiseSample) {
         if !self.enabled {
             return;
         }
         let memory = self.memory;
-        let e = &mut self.sources[index];
-        let i = innovation;
+        let Some(e) = self.sources.get_mut(index) else {
+            return;
+        };
+        let (i, r0) = (&observed.innovation, &observed.r0);
         let speed = i.velocity.norm();
         let (across, along) = if speed >= MIN_SPEED {
             let u = i.velocity / speed;
@@ -118,7 +117,7 @@ impl NoiseLearner {
         } else {
             (Matrix3::identity(), None)
         };
-        let r0_across = (across * i.r0 * across).trace();
+        let r0_across = (across * r0 * across).trace();
         let hph_across = (across * i.hph * across).trace();
         // Only where the prediction is sharper than the noise: a sample is the difference of
         // the innovation and the prediction's variance, and where the prediction dominates
@@ -134,7 +133,7 @@ impl NoiseLearner {
         e.position_scale = e.position_scale.max(1e-3);
         if let Some(u) = along {
             let y_a = u.dot(&i.y);
-            let position_along = e.position_scale * u.dot(&(i.r0 * u));
+            let position_along = e.position_scale * u.dot(&(r0 * u));
             let timing_along = e.timing_variance * speed * speed;
             let excess = y_a * y_a - u.dot(&(i.hph * u)) - position_along;
             let limit = SAMPLE_LIMIT * (position_along + timing_along);
@@ -142,7 +141,7 @@ impl NoiseLearner {
             e.timing_variance += (sample - e.timing_variance) / e.weight;
             e.timing_variance = e.timing_variance.max(0.0);
         }
-        if let Some((y_w, hph_w, r0_w)) = i.spin {
+        if let (Some((y_w, hph_w)), Some(r0_w)) = (i.spin, observed.spin_r0) {
             let r0 = r0_w.trace();
             if r0 > 0.0 && hph_w.trace() <= e.spin_scale * r0 {
                 e.spin_weight = (e.spin_weight + 1.0).min(memory);
@@ -155,10 +154,32 @@ impl NoiseLearner {
     }
 }
 
+impl Measurement {
+    /// The measurement with its noise as the estimator has learned its source's
+    /// ([`SourceNoiseEstimate`]): its position and spin covariances scaled, its timing noise set.
+    pub(crate) fn with_learned_noise(mut self, noise: &SourceNoiseEstimate) -> Self {
+        match &mut self {
+            Self::Position { r, timing, .. } => {
+                *r *= noise.position_scale;
+                *timing = noise.timing_variance;
+            }
+            Self::PositionSpin { r, timing, .. } => {
+                let mut position = r.fixed_view_mut::<3, 3>(0, 0);
+                position *= noise.position_scale;
+                let mut spin = r.fixed_view_mut::<3, 3>(3, 3);
+                spin *= noise.spin_scale;
+                *timing = noise.timing_variance;
+            }
+        }
+        self
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::model::rng::Rng;
+    use nalgebra::Vector3;
 
     /// Innovations of a source whose noise is twice (in sigma) the configured, with stamps off
     /// by 1 ms (sigma) at 8 m/s, over a prior of a fifth of the noise: the learner finds the
@@ -176,14 +197,17 @@ mod tests {
         for _ in 0..20_000 {
             let noise = rng.normal3() * 4e-3 + u * (velocity.norm() * 1e-3 * rng.normal());
             let prior = rng.normal3() * (4e-6f64 / 5.0).sqrt();
-            let innovation = Innovation {
-                y: noise + prior,
-                hph,
+            let sample = NoiseSample {
+                innovation: Innovation {
+                    y: noise + prior,
+                    hph,
+                    velocity,
+                    spin: None,
+                },
                 r0,
-                velocity,
-                spin: None,
+                spin_r0: None,
             };
-            learner.learn(1, &innovation);
+            learner.learn(1, &sample);
         }
         let e = learner.of(1);
         assert!((e.position_scale - 4.0).abs() < 0.1, "{e:?}");
@@ -197,14 +221,17 @@ mod tests {
         let mut config = Config::default();
         config.ekf.learn_noise = false;
         let mut learner = NoiseLearner::new(&config);
-        let innovation = Innovation {
-            y: Vector3::new(0.01, 0.01, 0.01),
-            hph: Matrix3::zeros(),
+        let sample = NoiseSample {
+            innovation: Innovation {
+                y: Vector3::new(0.01, 0.01, 0.01),
+                hph: Matrix3::zeros(),
+                velocity: Vector3::new(-5.0, 0.0, 0.0),
+                spin: None,
+            },
             r0: Matrix3::identity() * 4e-6,
-            velocity: Vector3::new(-5.0, 0.0, 0.0),
-            spin: None,
+            spin_r0: None,
         };
-        learner.learn(1, &innovation);
+        learner.learn(1, &sample);
         assert_eq!(learner, NoiseLearner::new(&config));
     }
 }

@@ -1,0 +1,321 @@
+//! The lessons of ended tracks on their way into the adaptation, off the detection path.
+//!
+//! A track of positions alone teaches its flight smoothed ([`super::smoother`]): a few
+//! milliseconds of work that the next estimate does not need. It is queued when the track ends
+//! and enters the adaptation at a point the data decide: before the first detection stamped
+//! [`LESSON_DELAY`] or more after the detection that ended the track (and at the input's end).
+//! What is learned, and from which detection on, is therefore the same however the smoothing is
+//! run:
+//!
+//! - inline (the default of an [`super::Estimator`]): on the caller's thread, at that point;
+//! - on a worker thread ([`Lessons::spawn_worker`]) fed over crossbeam channels, which the
+//!   adapters start: a replay waits at that point for a lesson not yet done ([`Waiting::Wait`]),
+//!   so that it is the same with one core or more; the live node never waits on a detection
+//!   ([`Waiting::Never`]): a lesson not done by then is dropped and counted
+//!   ([`Dropped::Late`]).
+//!
+//! At most [`MAX_PENDING`] lessons wait at a time; one more is dropped and counted
+//! ([`Dropped::Backlog`]): a count the data decide too. A smoothing that panics on the worker is
+//! caught there and counted ([`Dropped::Failed`]), and a worker that is gone leaves the lessons
+//! to be run inline. The detections' buffers travel with the jobs and come back with the
+//! lessons: nothing is allocated per detection.
+
+use std::collections::VecDeque;
+
+use crossbeam::channel::{Receiver, Sender, TryRecvError, bounded};
+
+use super::smoother::{Lesson, LessonJob, Smoother, TrackRecord};
+
+/// How long after the detection that ended a track its lesson enters the adaptation [ns]: a
+/// second of play, several hundred times what a smoothing takes, so that a live node's worker is
+/// done long before and a replay hundreds of times faster than real time rarely waits for it.
+pub const LESSON_DELAY: i64 = 1_000_000_000;
+
+/// The most lessons waiting at a time.
+pub const MAX_PENDING: usize = 4;
+
+/// Why a track's lesson was not learned.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Dropped {
+    /// [`MAX_PENDING`] lessons were already waiting (a burst of short tracks).
+    Backlog,
+    /// The worker had not finished it when it was due, and the caller does not wait (the node).
+    Late,
+    /// The smoothing failed on the worker (it panicked), or the worker was gone.
+    Failed,
+}
+
+impl Dropped {
+    /// Every reason, in the order of [`LessonCounts::dropped`].
+    pub const ALL: [Self; 3] = [Self::Backlog, Self::Late, Self::Failed];
+
+    /// A short snake_case name for summaries and diagnostics.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Backlog => "backlog",
+            Self::Late => "late",
+            Self::Failed => "failed",
+        }
+    }
+
+    fn index(self) -> usize {
+        match self {
+            Self::Backlog => 0,
+            Self::Late => 1,
+            Self::Failed => 2,
+        }
+    }
+}
+
+/// What became of the ended tracks' lessons.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct LessonCounts {
+    /// Tracks whose lesson was their flight smoothed.
+    pub smoothed: u64,
+    /// Lessons dropped, by reason in the order of [`Dropped::ALL`].
+    pub dropped: [u64; Dropped::ALL.len()],
+}
+
+impl LessonCounts {
+    /// Lessons dropped for one reason.
+    pub fn dropped(&self, reason: Dropped) -> u64 {
+        self.dropped[reason.index()]
+    }
+}
+
+/// Whether the caller waits for a lesson the worker has not finished when it is due.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Waiting {
+    /// Wait (a replay: the same lessons, at the same points, with one core or more).
+    Wait,
+    /// Never wait on a detection: drop the lesson and count it (the live node).
+    Never,
+}
+
+/// What the worker returns for a job: its number, the lesson (`None`: the smoothing failed) and
+/// the job's detections' buffer.
+type Done = (u64, Option<Lesson>, TrackRecord);
+
+/// The worker thread's ends of its channels.
+#[derive(Debug)]
+struct Worker {
+    jobs: Sender<(u64, LessonJob)>,
+    done: Receiver<Done>,
+    waiting: Waiting,
+}
+
+/// A lesson waiting to enter the adaptation.
+#[derive(Debug)]
+struct Pending {
+    /// Its number.
+    id: u64,
+    /// The first stamp it enters before [ns].
+    due: i64,
+    /// The job, until the worker took it (inline, it stays here until due).
+    job: Option<LessonJob>,
+    /// What the worker returned for it (`None` inside: the smoothing failed).
+    done: Option<Option<Lesson>>,
+}
+
+/// The lessons of ended tracks (see the module doc).
+#[derive(Debug)]
+pub(crate) struct Lessons {
+    pending: VecDeque<Pending>,
+    next_id: u64,
+    worker: Option<Worker>,
+    /// The buffers inline smoothing works in.
+    smoother: Smoother,
+    /// Detections' buffers back from lessons, for the next tracks.
+    spare: Vec<TrackRecord>,
+    counts: LessonCounts,
+}
+
+impl Lessons {
+    /// No lesson waiting; lessons run inline.
+    pub(crate) fn new() -> Self {
+        Self {
+            pending: VecDeque::with_capacity(MAX_PENDING),
+            next_id: 0,
+            worker: None,
+            smoother: Smoother::new(),
+            spare: Vec::with_capacity(MAX_PENDING + 1),
+            counts: LessonCounts::default(),
+        }
+    }
+
+    /// What became of the lessons so far.
+    pub(crate) fn counts(&self) -> LessonCounts {
+        self.counts
+    }
+
+    /// Runs the smoothing on a thread of its own from now on, the caller `waiting` for a lesson
+    /// due and not done or not. The thread ends when these lessons are dropped.
+    pub(crate) fn spawn_worker(&mut self, waiting: Waiting) -> std::io::Result<()> {
+        let (jobs, inbox) = bounded::<(u64, LessonJob)>(MAX_PENDING);
+        let (outbox, done) = bounded::<Done>(MAX_PENDING);
+        std::thread::Builder::new()
+            .name("ttball-lessons".into())
+            .spawn(move || work(&inbox, &outbox))?;
+        self.worker = Some(Worker {
+            jobs,
+            done,
+            waiting,
+        });
+        Ok(())
+    }
+
+    /// A record for a track's detections: one back from an earlier lesson, else a new one.
+    pub(crate) fn buffer(&mut self) -> TrackRecord {
+        self.spare.pop().unwrap_or_else(TrackRecord::new)
+    }
+
+    /// Takes a buffer back for the next tracks.
+    fn recycle(&mut self, mut buffer: TrackRecord) {
+        buffer.clear();
+        if self.spare.len() <= MAX_PENDING {
+            self.spare.push(buffer);
+        }
+    }
+
+    /// Queues an ended track's job, due [`LESSON_DELAY`] after `now` (the stamp of the
+    /// detection that ended it); returns the lesson to learn now in its stead when it cannot
+    /// wait (the backlog full: the filter's own).
+    pub(crate) fn queue(&mut self, job: LessonJob, now: i64) -> Option<Lesson> {
+        self.collect();
+        if self.pending.len() >= MAX_PENDING {
+            return Some(self.drop_job(job));
+        }
+        let id = self.next_id;
+        self.next_id += 1;
+        let job = match &self.worker {
+            None => Some(job),
+            Some(worker) => match worker.jobs.try_send((id, job)) {
+                Ok(()) => None,
+                // The worker is still busy with lessons already dropped as late: this one is
+                // dropped too rather than run on a caller that never waits.
+                Err(e) if worker.waiting == Waiting::Never => {
+                    return Some(self.drop_job(e.into_inner().1));
+                }
+                Err(e) => Some(e.into_inner().1),
+            },
+        };
+        self.pending.push_back(Pending {
+            id,
+            due: now.saturating_add(LESSON_DELAY),
+            job,
+            done: None,
+        });
+        None
+    }
+
+    /// A job that cannot wait, counted: its track teaches the filter's lesson.
+    fn drop_job(&mut self, job: LessonJob) -> Lesson {
+        self.counts.dropped[Dropped::Backlog.index()] += 1;
+        let lesson = job.filter;
+        self.recycle(job.record);
+        lesson
+    }
+
+    /// The next lesson due before `stamp` (every waiting one with `all`: the input's end),
+    /// if any.
+    pub(crate) fn next_due(&mut self, stamp: i64, all: bool) -> Option<Lesson> {
+        loop {
+            if !all && stamp < self.pending.front()?.due {
+                return None;
+            }
+            self.collect();
+            let mut pending = self.pending.pop_front()?;
+            if let Some(job) = pending.job.take() {
+                let lesson = self.smoother.lesson(&job);
+                self.recycle(job.record);
+                return Some(self.count(lesson));
+            }
+            let waits = all
+                || self
+                    .worker
+                    .as_ref()
+                    .is_some_and(|w| w.waiting == Waiting::Wait);
+            if pending.done.is_none() && waits {
+                pending.done = self.wait_for(pending.id);
+            }
+            match pending.done {
+                Some(Some(lesson)) => return Some(self.count(lesson)),
+                Some(None) => self.counts.dropped[Dropped::Failed.index()] += 1,
+                None if waits || self.worker.is_none() => {
+                    self.counts.dropped[Dropped::Failed.index()] += 1;
+                }
+                None => self.counts.dropped[Dropped::Late.index()] += 1,
+            }
+        }
+    }
+
+    /// Takes what the worker has returned into the lessons waiting for it (a lesson no longer
+    /// waited for gives its buffer back); a worker that is gone is forgotten.
+    fn collect(&mut self) {
+        while let Some(worker) = &self.worker {
+            match worker.done.try_recv() {
+                Ok(done) => self.file(done),
+                Err(TryRecvError::Empty) => return,
+                Err(TryRecvError::Disconnected) => self.worker = None,
+            }
+        }
+    }
+
+    /// Waits for the worker's lesson of job `id` (the ones before it filed as they come);
+    /// `None` when the worker is gone.
+    fn wait_for(&mut self, id: u64) -> Option<Option<Lesson>> {
+        loop {
+            let received = self.worker.as_ref()?.done.recv();
+            let Ok((done_id, lesson, buffer)) = received else {
+                self.worker = None;
+                return None;
+            };
+            self.recycle(buffer);
+            if done_id == id {
+                return Some(lesson);
+            }
+            if let Some(p) = self.pending.iter_mut().find(|p| p.id == done_id) {
+                p.done = Some(lesson);
+            }
+        }
+    }
+
+    /// Files one returned lesson with the lesson waiting for it.
+    fn file(&mut self, (id, lesson, buffer): Done) {
+        self.recycle(buffer);
+        if let Some(p) = self.pending.iter_mut().find(|p| p.id == id) {
+            p.done = Some(lesson);
+        }
+    }
+
+    fn count(&mut self, lesson: Lesson) -> Lesson {
+        self.counts.smoothed += u64::from(lesson.smoothed);
+        lesson
+    }
+
+    /// Forgets every waiting lesson (a reset).
+    pub(crate) fn forget(&mut self) {
+        while let Some(pending) = self.pending.pop_front() {
+            if let Some(job) = pending.job {
+                self.recycle(job.record);
+            }
+        }
+    }
+}
+
+/// The worker thread: each job's lesson, in order, a panicking smoothing caught and reported as
+/// failed, until the jobs' channel closes or no one takes the lessons any more.
+fn work(inbox: &Receiver<(u64, LessonJob)>, outbox: &Sender<Done>) {
+    let mut smoother = Smoother::new();
+    for (id, job) in inbox {
+        let lesson = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+            smoother.lesson(&job)
+        }));
+        if lesson.is_err() {
+            smoother = Smoother::new();
+        }
+        if outbox.send((id, lesson.ok(), job.record)).is_err() {
+            return;
+        }
+    }
+}
