@@ -44,7 +44,7 @@ fn benches(c: &mut Criterion) {
     group.bench_function("position", |b| {
         b.iter_batched(
             || ekf,
-            |mut e| e.update(black_box(&z3), &position_H(), &r3, 100.0, None),
+            |e| e.update(black_box(&z3), &position_H(), &r3, 100.0),
             BatchSize::SmallInput,
         )
     });
@@ -55,7 +55,7 @@ fn benches(c: &mut Criterion) {
     group.bench_function("position_spin", |b| {
         b.iter_batched(
             || ekf,
-            |mut e| e.update(black_box(&z6), &position_spin_H(), &r6, 100.0, None),
+            |e| e.update(black_box(&z6), &position_spin_H(), &r6, 100.0),
             BatchSize::SmallInput,
         )
     });
@@ -139,16 +139,8 @@ fn benches(c: &mut Criterion) {
         }
         group.finish();
 
-        // The track refitted (`ekf.refit_interval`): one shot seen by the 150 fps camera alone
-        // (where a track is refitted longest, up to its bounce and beyond) through
-        // `Estimator::handle`, with refits every 50 ms of track and without: the difference over
-        // the refits is what one costs. Applied always (no contest: a contest under way keeps
-        // the next refits from running), and the default's own refits off in "without".
-        let mut refitting = config.clone();
-        refitting.ekf.refit_interval = 0.05;
-        refitting.ekf.refit_when_better = false;
-        let mut without = config.clone();
-        without.ekf.refit_interval = 0.0;
+        // A track's lesson (its flight smoothed, off the detection path): one shot seen by the
+        // 150 fps camera alone, its track ended, its lesson run inline.
         let wide = simulate(
             &config,
             &SimOptions {
@@ -159,32 +151,26 @@ fn benches(c: &mut Criterion) {
             },
         );
         if let Ok(wide) = wide {
-            let detections: Vec<_> = wide.stream.iter().map(|d| d.detection).collect();
-            let mut group = c.benchmark_group("track_refit");
-            group.sample_size(20);
-            for (name, config) in [("without", &without), ("every_50ms", &refitting)] {
-                let fresh = Estimator::new(config);
-                let mut counted = fresh.clone();
-                for d in &detections {
-                    counted.handle(d);
-                }
-                println!(
-                    "track_refit/{name}: {} detections, {} refits",
-                    detections.len(),
-                    counted.counters().refits
-                );
-                group.bench_function(name, |b| {
-                    b.iter_batched(
-                        || fresh.clone(),
-                        |mut e| {
-                            for d in &detections {
-                                e.handle(black_box(d));
-                            }
-                        },
-                        BatchSize::SmallInput,
-                    )
-                });
+            let mut fed = Estimator::new(&config);
+            for d in &wide.stream {
+                fed.handle(&d.detection);
             }
+            let mut counted = fed.clone();
+            counted.end_of_input();
+            println!(
+                "track_lesson: {} detections, {} smoothed",
+                wide.stream.len(),
+                counted.counters().smoothed_lessons
+            );
+            let mut group = c.benchmark_group("track_lesson");
+            group.sample_size(20);
+            group.bench_function("smoothed", |b| {
+                b.iter_batched(
+                    || fed.clone(),
+                    |mut e| e.end_of_input(),
+                    BatchSize::SmallInput,
+                )
+            });
             group.finish();
         }
 

@@ -49,37 +49,12 @@ fn handling_detections_allocates_nothing() {
     assert_eq!(info.count_total, 0, "{info:?}");
 }
 
-/// With the track refitted every 50 ms (`ekf.refit_interval`, applied always): its detections,
-/// the passes and the smoothed flight kept in buffers allocated once, each step on fixed-size
-/// matrices. (By default the refits are contested, and the contest holds two estimates by
-/// value: the first test covers it.)
-#[test]
-fn refitting_the_track_allocates_nothing() {
-    let mut config = Config::default();
-    config.ekf.refit_interval = 0.05;
-    config.ekf.refit_when_better = false;
-    let session = session(&config);
-    let mut estimator = Estimator::new(&config);
-    let first_of_second = session.stream.iter().position(|d| d.shot == 1).unwrap();
-    for sim in &session.stream[..first_of_second] {
-        estimator.handle(&sim.detection);
-    }
-    let refits_before = estimator.counters().refits;
-    let rest = &session.stream[first_of_second..];
-    let info = allocation_counter::measure(|| {
-        for sim in rest {
-            estimator.handle(&sim.detection);
-        }
-    });
-    assert!(estimator.counters().refits > refits_before + 2);
-    assert_eq!(info.count_total, 0, "{info:?}");
-}
-
-/// The 150 fps camera alone: every ended track's lesson is its flight smoothed
-/// (`adaptation.smoothed_lessons`), run stage by stage in idle time as the node does and at once
-/// when the next track starts as a replay does, in buffers allocated once.
+/// The 150 fps camera alone: every ended track's lesson is its flight smoothed, inline and on a
+/// worker thread, in buffers allocated once (the detections' records go to the worker and come
+/// back).
 #[test]
 fn smoothed_lessons_allocate_nothing() {
+    use ttball::online::estimator::Waiting;
     let config = Config::default();
     let session = simulate(
         &config,
@@ -91,8 +66,11 @@ fn smoothed_lessons_allocate_nothing() {
         },
     )
     .unwrap();
-    for idle in [false, true] {
+    for worker in [false, true] {
         let mut estimator = Estimator::new(&config);
+        if worker {
+            estimator.run_lessons_on_a_worker(Waiting::Wait).unwrap();
+        }
         let first_of_second = session.stream.iter().position(|d| d.shot == 1).unwrap();
         for sim in &session.stream[..first_of_second] {
             estimator.handle(&sim.detection);
@@ -101,13 +79,13 @@ fn smoothed_lessons_allocate_nothing() {
         let info = allocation_counter::measure(|| {
             for sim in rest {
                 estimator.handle(&sim.detection);
-                while idle && estimator.has_idle_work() {
-                    estimator.learn_in_idle_time();
-                }
             }
         });
-        assert!(estimator.counters().smoothed_lessons >= 3, "idle {idle}");
-        assert_eq!(info.count_total, 0, "idle {idle}: {info:?}");
+        assert!(
+            estimator.counters().smoothed_lessons >= 2,
+            "worker {worker}"
+        );
+        assert_eq!(info.count_total, 0, "worker {worker}: {info:?}");
     }
 }
 

@@ -795,7 +795,7 @@ echo $? > node.rc
     assert_eq!(get["table.restitution"], 0.9);
     assert_eq!(get["node.namespace"], "/robot1");
     assert_eq!(get["use_sim_time"], false);
-    assert_eq!(get["ekf.init_detections"], 4);
+    assert_eq!(get["gating.max_consecutive_rejections"], 5);
     assert_eq!(
         get["aero.drag_coefficients"],
         serde_json::json!([0.42, 0.15])
@@ -844,7 +844,7 @@ echo $? > node.rc
     );
     assert_eq!(params["atomic"]["successful"], true, "{context}");
     assert_eq!(params["get_after"]["intercept.plane_x"], -1.45);
-    assert_eq!(params["get_after"]["ekf.init_detections"], 4);
+    assert_eq!(params["get_after"]["gating.max_consecutive_rejections"], 5);
     assert_eq!(params["reset"]["success"], true);
     // /parameter_events: the two accepted sets, nothing for the refused ones.
     let events: Vec<&Value> = params["events"]

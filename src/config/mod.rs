@@ -395,7 +395,7 @@ pub struct SourceParams {
     /// Standard deviation of a detection's stamp about its true exposure time [s]: it moves the
     /// measured position along the flight by the velocity times as much (millisecond stamps:
     /// 0.29 ms; a jittered exposure clock: more). 0: exact stamps. The estimator learns the
-    /// timing and position noise each source really has (`ekf.learn_noise`), starting here.
+    /// timing and position noise each source really has, starting here.
     pub stamp_sigma: f64,
     /// Frames per second the source delivers while it sees the ball [Hz]: the node's
     /// `/diagnostics` warns when its stamps show another rate and reports it STALE when it falls
@@ -506,168 +506,85 @@ impl Default for SourcesParams {
     }
 }
 
-/// The extended Kalman filter: state (position, velocity, spin), 9 components.
+/// The extended Kalman filter's noise: what the physics leaves out, what a new track does not
+/// know, and what a detection is worth (docs/estimator.md, "The filter").
 ///
 /// Process noise over a step dt, per axis (white-acceleration model plus spin random walk):
 /// Q_pp = q_a dt^3 / 3, Q_pv = q_a dt^2 / 2, Q_vv = q_a dt, Q_ww = q_w dt.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct EkfParams {
-    /// Power spectral density q_a of the white acceleration noise [m^2/s^3]; lets the velocity
-    /// wander by 0.045 m/s over 1 s. The filter learns spin from the flight's curvature, where
-    /// 1 rad/s changes the acceleration by only ~5 mm/s^2: larger values hide it. Tuning value.
+    /// q_a: the power spectral density of the white acceleration the flight model leaves out
+    /// [m^2/s^3], > 0. The velocity wanders by sqrt(q_a t): 0.045 m/s over 1 s at the default.
+    /// Source: the white-noise acceleration model (Bar-Shalom, Li & Kirubarajan, "Estimation
+    /// with Applications to Tracking and Navigation", 2001, sec. 6.2); its size is a tuning
+    /// value, small because 1 rad/s of spin changes the acceleration by only about 5 mm/s^2.
     pub acceleration_noise_density: f64,
-    /// Power spectral density of the white acceleration noise once the track's spin has been
-    /// measured (a spin camera's detection fused) [m^2/s^3]: the Magnus force is then known,
-    /// and the model misses less. Learned apart from `acceleration_noise_density` (see
-    /// `learn_model_noise`). Tuning value.
-    pub spin_measured_acceleration_noise_density: f64,
-    /// Power spectral density q_w of the spin random walk [(rad/s)^2/s]; the model keeps spin
-    /// constant in flight, this lets the estimate drift by about 3 rad/s per sqrt(s). Tuning value.
+    /// q_w: the power spectral density of the spin's random walk [(rad/s)^2/s], >= 0. The
+    /// flight model keeps the spin constant (docs/models.md); this lets the estimate drift by
+    /// sqrt(q_w t) rad/s. Tuning value.
     pub spin_noise_density: f64,
-    /// Number of detections fitted by least squares to start a track [-]; at least 3 (position
-    /// and velocity need 2, a third checks them), 4 tolerates one poor detection.
-    pub init_detections: u32,
-    /// The detections of the initialisation must lie within this time span [s]; over longer
-    /// spans drag bends the flight away from the fitted parabola.
-    pub init_max_span: f64,
-    /// Prior standard deviation of the spin at initialisation, per axis, about zero [rad/s];
-    /// covers spins up to about 600 rad/s at 2 sigma (real rally balls reach 363 rad/s).
+    /// The prior standard deviation of a new track's spin about zero, per axis [rad/s], > 0,
+    /// unless a camera measured it. 300 covers 600 rad/s at 2 sigma; real rally balls reach
+    /// 363 rad/s (Google DeepMind's initial ball states, docs/references.md).
     pub spin_prior_sigma: f64,
-    /// Detections with a confidence below this are ignored [-] in [0, 1]; 0 accepts all.
+    /// Detections with a confidence below this are ignored [-], in [0, 1]; 0 accepts all. The
+    /// detector's own scale.
     pub min_confidence: f64,
-    /// The scatter of one table bounce about the model: the tangential impulse per unit mass,
-    /// per axis [m/s] (it moves the velocity and, through the shell's inertia, the spin).
+    /// sigma_i: the scatter of one table bounce about the impulse model, its tangential impulse
+    /// per unit mass per axis [m/s], in [0, 5]; it moves the velocity and, through the shell's
+    /// inertia, the spin by 3/(2r) per m/s. Published fits of the friction range 0.1-0.3
+    /// (Nakashima et al. 2010, docs/models.md): a spread of that size at 2-4 m/s of slip.
     pub bounce_impulse_sigma: f64,
-    /// The scatter of one bounce's restitution about the table's [-].
+    /// sigma_e: the scatter of one bounce's restitution about the table's [-], in [0, 0.5].
+    /// Published fits range 0.88-0.93 (Nakashima et al. 2010).
     pub bounce_restitution_sigma: f64,
     /// The extra position noise of a detection of a ball at the table (its centre within
-    /// [`CONTACT_BAND`](crate::online::estimator::CONTACT_BAND) of its contact height over the table)
-    /// [m], added in quadrature to its source's: a ball touching or nearly touching the surface
-    /// merges with its reflection and shadow in the image, and is squashed for a millisecond.
+    /// [`CONTACT_BAND`](crate::online::estimator::CONTACT_BAND) of its contact height) [m], in
+    /// [0, 0.05], added in quadrature to its source's: a ball touching the surface merges with
+    /// its reflection and shadow in the image. A few millimetres: a fraction of the ball's
+    /// radius.
     pub contact_position_sigma: f64,
-    /// kappa: the filter's prediction evaluates C_D and C_M at the spin parameter of
-    /// sqrt(|w_perp|^2 + kappa^2 tr P_w_perp), the spin's magnitude across the flight widened by
-    /// kappa times its spread, instead of its estimate's [-]. A spin learned from curvature
-    /// starts at zero, the smallest magnitude a spin can have; the drag and the Magnus force of
-    /// the spins it may be are those of a larger one.
-    pub spin_parameter_spread: f64,
-    /// The fraction of its Kalman gain a position detection applies to the spin along the
-    /// flight before the track's first bounce [-], in [0, 1]; 1 is the plain filter's update.
-    /// Positions see that spin only through how the sideways Magnus force changes as gravity
-    /// turns the flight, a signal the linearised filter reads at its own uncertain spin and so
-    /// grows sure of too fast (a partial-update Schmidt-Kalman filter, Brink 2017; the
-    /// covariance is that of the gain applied). Only while no refit replaces the filter's
-    /// estimates (`refit_interval`, `refit_when_better`): the refits mend a misread spin.
-    pub spin_along_flight_gain: f64,
-    /// Whether the filter carries the state's uncertainty through a bounce by sigma points
-    /// (the unscented transform of the bounce map: both regimes, the spin along every
-    /// direction), adding its spread beyond the linearised one.
-    pub bounce_unscented: bool,
-    /// Learn each source's real noise from its innovations: a scale on its position (and spin)
-    /// variance and the variance of its stamps' timing, starting from `sources.*`.
-    pub learn_noise: bool,
-    /// How many detections of a source the learned noise averages over [-] (older ones fade).
-    pub noise_memory: u32,
-    /// Learn how far the flights really stray from the model, from the innovations of the
-    /// predictions `model_noise_horizon` ahead: a scale on the process noise
-    /// (`acceleration_noise_density`, `spin_measured_acceleration_noise_density`,
-    /// `spin_noise_density`) and one on the bounce's scatter
-    /// (`bounce_impulse_sigma`, `bounce_restitution_sigma`, as variances), starting from 1, by
-    /// recursive maximum likelihood.
-    pub learn_model_noise: bool,
-    /// How many detections the information behind the learned model noise remembers [-] (older
-    /// ones fade).
-    pub model_noise_memory: u32,
-    /// The learned model noise's horizon [s]: 0 learns it from each detection's innovation (the
-    /// prediction to the next detection); a horizon learns it from how far the predictions this
-    /// far ahead miss, so that the covariance is honest where a controller uses it.
-    pub model_noise_horizon: f64,
-    /// How often the track is refitted [s of track]: the filter run again over its detections
-    /// so far, linearised along the flight they smooth to, and smoothed back (an iterated
-    /// extended Kalman smoother, three iterations); its estimates replace the filter's; 0 never.
-    pub refit_interval: f64,
-    /// Whether the refits replace the filter's estimates only while they have predicted the
-    /// flights better (a contest over the next 0.1 s of detections, learned from them); false:
-    /// always.
-    pub refit_when_better: bool,
-    /// Whether the refits replace the filter's estimates from the first track, until their
-    /// contest turns against them (`refit_when_better`), rather than only once it has spoken
-    /// for them: what a configuration written with `--learned` carries of the contest.
-    pub refits_start_applied: bool,
-    /// The most detections a refit runs over [-]: older ones are kept in the estimate it
-    /// starts from (each refit costs about 10 us per detection, 5 us per iteration).
-    pub refit_max_detections: u32,
 }
-
-/// The range of `ekf.refit_max_detections`: the validation's and the estimator's.
-pub const REFIT_MAX_DETECTIONS: CountRange = CountRange::between(8, 4096).note("detections");
 
 impl Default for EkfParams {
     fn default() -> Self {
         Self {
             acceleration_noise_density: 0.002,
-            spin_measured_acceleration_noise_density: 0.002,
             spin_noise_density: 10.0,
-            init_detections: 4,
-            init_max_span: 0.1,
             spin_prior_sigma: 300.0,
             min_confidence: 0.0,
             bounce_impulse_sigma: 0.1,
             bounce_restitution_sigma: 0.01,
             contact_position_sigma: 0.003,
-            spin_parameter_spread: 0.5,
-            spin_along_flight_gain: 0.7,
-            bounce_unscented: true,
-            learn_noise: true,
-            noise_memory: 2000,
-            learn_model_noise: true,
-            model_noise_memory: 20000,
-            model_noise_horizon: 0.1,
-            refit_interval: 0.1,
-            refit_when_better: true,
-            refits_start_applied: false,
-            refit_max_detections: 128,
         }
     }
 }
 
-/// The physical parameters the estimator learns online and carries from track to track: scale
-/// factors on the drag and Magnus forces and the table's restitution and friction, starting
-/// from `aero.drag_scale`, `aero.magnus_scale`, `table.restitution` and `table.friction`.
+/// The physical parameters the estimator learns online and carries from track to track, in
+/// the order of [`PhysicsParams::NAMES`](crate::physics::PhysicsParams::NAMES): the scale
+/// factors k_D and k_M on the drag and Magnus forces and the table's restitution e_t and
+/// friction mu_t, starting from `aero.drag_scale`, `aero.magnus_scale`, `table.restitution` and
+/// `table.friction` (a two-level model: each flight its own parameters about the ball's and
+/// table's; docs/estimator.md, "The adaptation").
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct AdaptationParams {
     /// Learn the parameters (false: they stay at their configured values).
     pub enabled: bool,
-    /// Prior standard deviation of the drag scale k_D about its configured value [-]; 0 keeps
-    /// it fixed.
-    pub drag_scale_sigma: f64,
-    /// Prior standard deviation of the Magnus scale k_M [-]; 0 keeps it fixed.
-    pub magnus_scale_sigma: f64,
-    /// Prior standard deviation of the table's restitution e_t [-]; 0 keeps it fixed.
-    pub restitution_sigma: f64,
-    /// Prior standard deviation of the table's friction mu_t [-]; 0 keeps it fixed.
-    pub friction_sigma: f64,
-    /// How much one flight's drag scale scatters about the ball's [-] (each flight's filter
-    /// learns its own, about the global one it updates).
-    pub drag_scale_flight_sigma: f64,
-    /// How much one flight's Magnus scale scatters about the ball's [-].
-    pub magnus_scale_flight_sigma: f64,
-    /// How much the restitution a flight sees scatters about the table's [-].
-    pub restitution_flight_sigma: f64,
-    /// How much the friction a flight sees scatters about the table's [-].
-    pub friction_flight_sigma: f64,
-    /// Learn the flight-to-flight dispersion from the tracks, starting from the `*_flight_sigma`
-    /// values and never below a third of them (a parameter configured with none keeps none).
-    pub learn_dispersion: bool,
-    /// What a track teaches when it ends is its flight smoothed (the iterated extended Kalman
-    /// smoother over its detections) rather than the filter's last estimate: a filter that
-    /// learns the Magnus scale from positions alone leans low (docs/estimator.md).
-    pub smoothed_lessons: bool,
+    /// The prior standard deviation of each parameter about its configured value [-], four
+    /// values in [0, 1] (k_D, k_M, e_t, mu_t); 0 keeps that one fixed. Wide enough for the
+    /// spread of published values: drag coefficients 0.40-0.65, Magnus scales of 0.6-1.0 of
+    /// the spin-parameter polynomial on real flights, restitution 0.88-0.93, friction 0.1-0.3
+    /// (docs/models.md).
+    pub sigma: Vec<f64>,
+    /// How much one flight's parameters scatter about the ball's and table's [-], four values
+    /// in [0, 1] (k_D, k_M, e_t, mu_t): its spin axis, the seam it flies on, the part of the
+    /// table it hits. Each flight's filter learns its own parameters about the shared ones.
+    pub flight_sigma: Vec<f64>,
     /// How far each parameter may drift in an hour, as a fraction of its prior standard
-    /// deviation [-]: a random walk of variance (drift sigma)^2 t / 3600 s, capped at the prior
-    /// variance (after a long pause the estimator is back at its prior uncertainty).
+    /// deviation [-], in [0, 100]: a random walk of variance (drift sigma)^2 t / 3600 s, capped
+    /// at the prior variance (after a long pause the estimator is back at its prior).
     pub drift_per_hour: f64,
 }
 
@@ -675,18 +592,18 @@ impl Default for AdaptationParams {
     fn default() -> Self {
         Self {
             enabled: true,
-            drag_scale_sigma: 0.15,
-            magnus_scale_sigma: 0.4,
-            restitution_sigma: 0.03,
-            friction_sigma: 0.1,
-            drag_scale_flight_sigma: 0.03,
-            magnus_scale_flight_sigma: 0.10,
-            restitution_flight_sigma: 0.02,
-            friction_flight_sigma: 0.0,
-            learn_dispersion: true,
-            smoothed_lessons: true,
+            sigma: vec![0.15, 0.4, 0.03, 0.1],
+            flight_sigma: vec![0.03, 0.1, 0.02, 0.0],
             drift_per_hour: 0.5,
         }
+    }
+}
+
+impl AdaptationParams {
+    /// The value of `values` (`sigma` or `flight_sigma`) for parameter `index` (0 where the
+    /// list is short: validation requires four).
+    pub fn of(values: &[f64], index: usize) -> f64 {
+        values.get(index).copied().unwrap_or(0.0)
     }
 }
 

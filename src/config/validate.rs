@@ -6,7 +6,7 @@
 
 use thiserror::Error;
 
-use super::{Config, MAX_POLYNOMIAL_COEFFICIENTS, REFIT_MAX_DETECTIONS, SourceParams};
+use super::{Config, MAX_POLYNOMIAL_COEFFICIENTS, SourceParams};
 use crate::config::range::{CountRange, Range};
 
 /// One configuration value outside its allowed range. `key` is the dotted parameter name, as in
@@ -413,7 +413,17 @@ impl Config {
 
     fn check(&self) -> Checker {
         let mut c = Checker::default();
+        self.check_flight(&mut c);
+        self.check_racket(&mut c);
+        self.check_racket_dynamics(&mut c);
+        self.check_prediction(&mut c);
+        self.check_estimator(&mut c);
+        self.check_node(&mut c);
+        c
+    }
 
+    /// Gravity, the ball, the air, the flight model and the table.
+    fn check_flight(&self, c: &mut Checker) {
         c.real(
             "gravity",
             self.gravity,
@@ -501,7 +511,10 @@ impl Config {
             t.friction,
             Range::between(0.0, 2.0).note("published fits: 0.1 to 0.3"),
         );
+    }
 
+    /// The racket and its rubber.
+    fn check_racket(&self, c: &mut Checker) {
         let r = &self.racket;
         c.real(
             "racket.mass",
@@ -618,6 +631,11 @@ impl Config {
                 ),
             );
         }
+    }
+
+    /// The racket's restoring force and vibration, the arm and the stroke.
+    fn check_racket_dynamics(&self, c: &mut Checker) {
+        let r = &self.racket;
         c.polynomial(
             "racket.restoring_force_vs_stiffness",
             &r.restoring_force_vs_stiffness,
@@ -672,7 +690,10 @@ impl Config {
             s.net_clearance,
             Range::between(0.0, 3.0).note("metres"),
         );
+    }
 
+    /// The prediction, the interception and the camera sources.
+    fn check_prediction(&self, c: &mut Checker) {
         let p = &self.prediction;
         c.real(
             "prediction.step",
@@ -736,24 +757,16 @@ impl Config {
                 });
             }
         }
+    }
 
+    /// The filter, the adaptation, the gating and the tracking.
+    fn check_estimator(&self, c: &mut Checker) {
         let e = &self.ekf;
         c.positive(
             "ekf.acceleration_noise_density",
             e.acceleration_noise_density,
         );
-        c.positive(
-            "ekf.spin_measured_acceleration_noise_density",
-            e.spin_measured_acceleration_noise_density,
-        );
         c.non_negative("ekf.spin_noise_density", e.spin_noise_density);
-        c.count(
-            "ekf.init_detections",
-            e.init_detections,
-            CountRange::at_least(3)
-                .note("position and velocity need 2 detections, a third checks them"),
-        );
-        c.positive("ekf.init_max_span", e.init_max_span);
         c.positive("ekf.spin_prior_sigma", e.spin_prior_sigma);
         c.real(
             "ekf.min_confidence",
@@ -771,91 +784,29 @@ impl Config {
             Range::between(0.0, 0.5),
         );
         c.real(
-            "ekf.spin_parameter_spread",
-            e.spin_parameter_spread,
-            Range::between(0.0, 2.0),
-        );
-        c.real(
-            "ekf.spin_along_flight_gain",
-            e.spin_along_flight_gain,
-            Range::between(0.0, 1.0),
-        );
-        c.real(
             "ekf.contact_position_sigma",
             e.contact_position_sigma,
             Range::between(0.0, 0.05).note("m"),
         );
-        c.real(
-            "ekf.model_noise_horizon",
-            e.model_noise_horizon,
-            Range::between(0.0, 1.0).note("seconds"),
-        );
-        c.real(
-            "ekf.refit_interval",
-            e.refit_interval,
-            Range::between(0.0, 1.0).note("seconds"),
-        );
-
-        c.count(
-            "ekf.noise_memory",
-            e.noise_memory,
-            CountRange::at_least(10).note("detections"),
-        );
-        c.count(
-            "ekf.model_noise_memory",
-            e.model_noise_memory,
-            CountRange::at_least(100).note("detections"),
-        );
-        c.count(
-            "ekf.refit_max_detections",
-            e.refit_max_detections,
-            REFIT_MAX_DETECTIONS,
-        );
 
         let ad = &self.adaptation;
-        for (key, value, allowed) in [
-            (
-                "adaptation.drag_scale_sigma",
-                ad.drag_scale_sigma,
-                Range::between(0.0, 1.0).low_meaning("fixed"),
-            ),
-            (
-                "adaptation.magnus_scale_sigma",
-                ad.magnus_scale_sigma,
-                Range::between(0.0, 1.0).low_meaning("fixed"),
-            ),
-            (
-                "adaptation.restitution_sigma",
-                ad.restitution_sigma,
-                Range::between(0.0, 1.0).low_meaning("fixed"),
-            ),
-            (
-                "adaptation.friction_sigma",
-                ad.friction_sigma,
-                Range::between(0.0, 1.0).low_meaning("fixed"),
-            ),
-            (
-                "adaptation.drag_scale_flight_sigma",
-                ad.drag_scale_flight_sigma,
-                Range::between(0.0, 1.0),
-            ),
-            (
-                "adaptation.magnus_scale_flight_sigma",
-                ad.magnus_scale_flight_sigma,
-                Range::between(0.0, 1.0),
-            ),
-            (
-                "adaptation.restitution_flight_sigma",
-                ad.restitution_flight_sigma,
-                Range::between(0.0, 1.0),
-            ),
-            (
-                "adaptation.friction_flight_sigma",
-                ad.friction_flight_sigma,
-                Range::between(0.0, 1.0),
-            ),
+        for (key, values) in [
+            ("adaptation.sigma", &ad.sigma),
+            ("adaptation.flight_sigma", &ad.flight_sigma),
         ] {
-            c.real(key, value, allowed);
+            c.rule(
+                key,
+                "four values in [0, 1]: drag_scale, magnus_scale, restitution, friction",
+            );
+            if values.len() != 4 || !values.iter().all(|v| (0.0..=1.0).contains(v)) {
+                c.fail(
+                    key,
+                    format!(
+                        "is {values:?}: give four values in [0, 1] (drag_scale, magnus_scale, \
+                         restitution, friction)"
+                    ),
+                );
+            }
         }
         c.real(
             "adaptation.drift_per_hour",
@@ -892,7 +843,10 @@ impl Config {
             tr.timeout,
             "a track coasts before it times out",
         );
+    }
 
+    /// The node, its topics, frames and QoS.
+    fn check_node(&self, c: &mut Checker) {
         let n = &self.node;
         c.name(
             "node.name",
@@ -1006,8 +960,6 @@ impl Config {
             self.qos.outputs_depth,
             CountRange::at_least(1),
         );
-
-        c
     }
 }
 
@@ -1029,37 +981,17 @@ mod tests {
             .collect()
     }
 
-    /// The refit window's range is checked at its bounds and described by them.
+    /// The adaptation's two lists hold four values in [0, 1] each, and say so when they do
+    /// not.
     #[test]
-    fn the_refit_window_is_checked_against_its_range() {
-        let (fewest, most) = REFIT_MAX_DETECTIONS.interval();
+    fn the_adaptation_lists_hold_four_values_in_range() {
         let mut c = Config::default();
-        for ok in [fewest, most] {
-            c.ekf.refit_max_detections = ok;
-            assert!(violations(&c).is_empty(), "{ok}");
-        }
-        for bad in [fewest - 1, most + 1] {
-            c.ekf.refit_max_detections = bad;
-            match violations(&c).as_slice() {
-                [
-                    v @ Violation::CountOutOfRange {
-                        key,
-                        value,
-                        allowed,
-                    },
-                ] => {
-                    assert_eq!(key, "ekf.refit_max_detections");
-                    assert_eq!(*value, u64::from(bad));
-                    assert_eq!(*allowed, REFIT_MAX_DETECTIONS);
-                    assert!(
-                        v.to_string()
-                            .contains(&format!("between {fewest} and {most} (detections)")),
-                        "{v}"
-                    );
-                }
-                other => panic!("{other:?}"),
-            }
-        }
+        assert!(violations(&c).is_empty());
+        c.adaptation.sigma = vec![0.1, 0.2, 0.3];
+        c.adaptation.flight_sigma = vec![0.1, 1.5, 0.0, 0.0];
+        assert_eq!(keys(&c), ["adaptation.sigma", "adaptation.flight_sigma"]);
+        let text = violations(&c)[0].to_string();
+        assert!(text.contains("four values in [0, 1]"), "{text}");
     }
 
     #[test]
@@ -1169,7 +1101,7 @@ mod tests {
         c.ball.mass = f64::NAN;
         c.prediction.step = 0.1;
         c.gating.probability = 1.0;
-        c.ekf.init_detections = 2;
+        c.gating.max_consecutive_rejections = 0;
         c.topics.state = "ball//state".to_owned();
         c.aero.drag_coefficients.clear();
         c.aero.magnus_coefficients[1] = f64::INFINITY;
@@ -1184,8 +1116,8 @@ mod tests {
                 "table.friction",
                 "prediction.step",
                 "intercept.plane_x",
-                "ekf.init_detections",
                 "gating.probability",
+                "gating.max_consecutive_rejections",
                 "topics.state",
             ]
         );
@@ -1196,13 +1128,15 @@ mod tests {
         let mut c = Config::default();
         c.table.restitution = 1.5;
         c.ball.mass = f64::NAN;
-        c.ekf.init_detections = 2;
+        c.gating.max_consecutive_rejections = 0;
         let text = c.validate().map_err(|e| e.to_string()).unwrap_err();
         assert!(text.contains(
             "`table.restitution` = 1.5 is out of range: it must be greater than 0 and at most 1"
         ));
         assert!(text.contains("`ball.mass` = NaN is not a finite number"));
-        assert!(text.contains("`ekf.init_detections` = 2 is out of range: it must be at least 3"));
+        assert!(text.contains(
+            "`gating.max_consecutive_rejections` = 0 is out of range: it must be at least 1"
+        ));
     }
 
     #[test]
@@ -1212,7 +1146,7 @@ mod tests {
         c.table.friction = 0.0;
         c.prediction.step = 0.05;
         c.intercept.plane_x = -3.0;
-        c.ekf.init_detections = 3;
+        c.gating.max_consecutive_rejections = 1;
         c.air.density = 0.0;
         assert_eq!(c.validate(), Ok(()));
 

@@ -1234,7 +1234,7 @@ mod tests {
         changed.aero.drag_scale = 0.93;
         changed.table.friction = 0.31;
         changed.sources.wide_150fps.position_sigma = 0.00074;
-        changed.ekf.init_detections = 5;
+        changed.gating.max_consecutive_rejections = 7;
         let text = changed_params_yaml(&base, &changed);
         assert!(
             !text.contains("length") && !text.contains("topics") && text.contains("drag_scale"),

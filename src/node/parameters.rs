@@ -532,7 +532,7 @@ mod tests {
         assert_eq!(names, yaml::parameter_names(&Config::default()));
         let asked = [
             "table.restitution",
-            "ekf.init_detections",
+            "gating.max_consecutive_rejections",
             "node.name",
             "aero.drag_coefficients",
             "use_sim_time",
@@ -542,7 +542,7 @@ mod tests {
         assert_eq!(p.get_types(&asked), [3, 2, 4, 8, 1, 0]);
         let values = p.get(&asked);
         assert_eq!(values[0].double_value, 0.9);
-        assert_eq!(values[1].int_value, 4);
+        assert_eq!(values[1].int_value, 5);
         assert_eq!(values[2].string_value, "ttball");
         assert_eq!(values[3].double_array, [0.42, 0.15]);
         assert!(!values[4].boolean_value);
@@ -559,21 +559,17 @@ mod tests {
                 d[1].integer_range[0].from_value,
                 d[1].integer_range[0].to_value
             ),
-            (3, i64::from(u32::MAX))
+            (1, i64::from(u32::MAX))
         );
-        // A count with both limits, and a source's id (parsed as a byte).
-        let counts = p.describe(&[
-            "ekf.refit_max_detections".to_owned(),
-            "sources.wide_150fps.id".to_owned(),
-        ]);
+        // A count with both limits: a source's id (parsed as a byte).
+        let counts = p.describe(&["sources.wide_150fps.id".to_owned()]);
         let interval =
             |d: &ParameterDescriptor| (d.integer_range[0].from_value, d.integer_range[0].to_value);
-        assert_eq!(interval(&counts[0]), (8, 4096));
-        assert_eq!(interval(&counts[1]), (0, 255));
+        assert_eq!(interval(&counts[0]), (0, 255));
         assert!(
             counts[0]
                 .additional_constraints
-                .starts_with("between 8 and 4096 (detections)"),
+                .starts_with("between 0 and 255"),
             "{:?}",
             counts[0]
         );
@@ -631,7 +627,7 @@ mod tests {
             param("intercept.plane_x", double(-1.45)),
             param("table.restitution", double(0.8)),
             param("gating.probability", double(2.0)),
-            param("ekf.init_detections", double(5.0)),
+            param("gating.max_consecutive_rejections", double(5.0)),
             param("nope", double(1.0)),
             param(
                 "tracking.timeout",
@@ -658,7 +654,7 @@ mod tests {
             Refusal::Invalid(_)
         ));
         assert!(matches!(
-            why("ekf.init_detections", double(5.0)),
+            why("gating.max_consecutive_rejections", double(5.0)),
             Refusal::WrongType {
                 declared: "an integer",
                 found: "a double",

@@ -35,9 +35,7 @@ use nalgebra::{Cholesky, DMatrix, DVector};
 use crate::config::Config;
 use crate::model::detection::Detection;
 use crate::online::estimator::{Estimator, LearnedParams, LearnedSummary, param_prior_variances};
-use crate::physics::params::{
-    DRAG_SCALE, FRICTION, MAGNUS_SCALE, PARAMS, ParamVector, PhysicsParams, RESTITUTION,
-};
+use crate::physics::params::{PARAMS, ParamVector, PhysicsParams};
 
 /// Converged when theta_g moves by less than this fraction of each parameter's prior sigma.
 pub const CONVERGED: f64 = 5e-3;
@@ -134,11 +132,7 @@ pub fn calibrate_two_level(
                 0.0
             }
         };
-        let a = &mut at.adaptation;
-        a.drag_scale_sigma = sigma(DRAG_SCALE);
-        a.magnus_scale_sigma = sigma(MAGNUS_SCALE);
-        a.restitution_sigma = sigma(RESTITUTION);
-        a.friction_sigma = sigma(FRICTION);
+        at.adaptation.sigma = (0..PARAMS).map(sigma).collect();
         let flight_prior = sub(&param_prior_variances(&at));
         let flight_prior_information = DMatrix::from_diagonal(&flight_prior.map(|v| 1.0 / v));
         let mut information = prior_information.clone();

@@ -14,8 +14,10 @@
 //!   Q_vv = q_a dt, Q_ww = q_w dt (each times I_3), Q_theta = q_theta dt. Q_b is a table bounce's
 //!   scatter ([`BounceNoise`]): an uncertain tangential impulse (sigma_i per axis, per unit
 //!   mass, which moves the velocity and, through the shell's inertia, the spin by 3/(2r) per
-//!   m/s) and an uncertain restitution of that one bounce (sigma_e |v_z|), carried to the end of
-//!   the step by the flight after the bounce. The state keeps its correlation with the friction
+//!   m/s) and an uncertain restitution of that one bounce (sigma_e |v_z|), and the outcome's
+//!   spread over the state's uncertainty beyond its linearisation
+//!   ([`crate::online::bounce_spread`]), carried to the end of the step by the flight after the
+//!   bounce. The state keeps its correlation with the friction
 //!   only in proportion to the probability that the bounce slid (from the margin that decides
 //!   the regime, Gaussian with its propagated variance): a rolling bounce says nothing of it.
 //! - [`Ekf::update`]: y = z - H x, S = H P H' + R factored by Cholesky (a typed error when S is
@@ -31,6 +33,7 @@ use nalgebra::{SMatrix, SVector};
 
 use crate::config::Config;
 use crate::model::stats::normal_cdf;
+use crate::online::bounce_spread::{bounce_inputs_at_event, bounce_spread};
 pub use crate::physics::params::{AUGMENTED, AugmentedMatrix, ParamCovariance};
 use crate::physics::params::{FRICTION, RESTITUTION, with_known_params};
 use crate::physics::{
@@ -157,7 +160,8 @@ pub struct Prediction {
     pub F: AugmentedMatrix,
     /// Q: the white acceleration's and the spin random walk's noise over the step.
     pub Q: StateMatrix,
-    /// Q_b: the bounces' scatter, in the state at the end of the step (zero without a bounce).
+    /// Q_b: the bounces' scatter and spread, in the state at the end of the step (zero without
+    /// a bounce).
     pub Q_bounce: StateMatrix,
     /// What the step went through.
     pub report: PredictReport,
@@ -185,9 +189,10 @@ struct BounceWatch<'a> {
     report: PredictReport,
     propagator: &'a Propagator,
     noise: &'a BounceNoise,
-    /// The covariance the prediction starts from, at which a bounce's sliding is judged.
+    /// The covariance the prediction starts from, at which a bounce's sliding and spread are
+    /// judged.
     start: &'a AugmentedMatrix,
-    /// The scatter of the bounces so far.
+    /// The scatter and spread of the bounces so far.
     scatter: StateMatrix,
     /// The probability that every bounce so far slid (the regime in which its outcome depends
     /// on the friction).
@@ -201,6 +206,9 @@ impl Observer for BounceWatch<'_> {
             self.scatter += bounce_scatter(self.propagator, self.noise, &event.before);
             if let Some(s) = &event.sensitivity {
                 self.sliding *= self.sliding_probability(event, s);
+                let inputs = bounce_inputs_at_event(s, self.start);
+                self.scatter +=
+                    bounce_spread(self.propagator, &event.before, &event.after, &inputs);
             }
         }
         Flow::Continue
@@ -682,7 +690,10 @@ mod tests {
             ekf.update(&far, &position_H(), &R, 10.0),
             Err(UpdateError::Gated { .. })
         ));
-        assert_eq!(ekf.nis(&far, &position_H(), &R), Some(far.norm_squared() / 2.0));
+        let nis = ekf
+            .nis(&far, &position_H(), &R)
+            .expect("S positive definite");
+        assert!((nis - far.norm_squared() / 2.0).abs() < 1e-9, "{nis}");
     }
 
     /// A state and a covariance with every component correlated.
@@ -909,6 +920,7 @@ mod tests {
 
     /// Forgetting the spin resets its covariance block and its correlations, nothing else.
     #[test]
+    #[expect(non_snake_case, reason = "matrix notation")]
     fn forgetting_the_spin_resets_its_covariance_only() {
         let (x, P) = correlated_prior();
         let ekf = Ekf::new(x, P, ParamVector::repeat(0.5), ParamCovariance::zeros());
@@ -916,7 +928,7 @@ mod tests {
         assert_eq!(forgotten.x, ekf.x);
         for i in 0..AUGMENTED {
             for j in 0..AUGMENTED {
-                let expected = match (i >= 6 && i < 9, j >= 6 && j < 9) {
+                let expected = match ((6..9).contains(&i), (6..9).contains(&j)) {
                     (true, true) if i == j => 9e4,
                     (false, false) => ekf.P[(i, j)],
                     _ => 0.0,

@@ -28,6 +28,7 @@
 use nalgebra::{SMatrix, SVector, Vector2, Vector3};
 
 use crate::config::RefreshParams;
+use crate::online::bounce_spread::{bounce_inputs_at_event, bounce_spread};
 use crate::online::ekf::{BounceNoise, bounce_scatter};
 use crate::physics::params::{FRICTION, RESTITUTION, with_known_params};
 use crate::physics::{
@@ -224,8 +225,8 @@ struct Watcher<'a> {
     propagator: &'a Propagator,
     robot_half_bounces: u32,
     bounce: Option<(PredictedBounce, Option<BounceSensitivity>)>,
-    /// The robot-half bounce's states just before and after, and its time.
-    bounce_event: Option<(StateVector, StateVector, f64)>,
+    /// The robot-half bounce's states just before and after, its time and sensitivities.
+    bounce_event: Option<(StateVector, StateVector, f64, EventSensitivity)>,
     result: Option<Result<Event, NoIntercept>>,
     branches: Branches,
 }
@@ -276,7 +277,9 @@ impl Observer for Watcher<'_> {
                         .map(|p| (p.before.fixed_rows::<3>(0).into_owned(), p.time_gradient)),
                 });
                 self.bounce = Some((bounce, sensitivity));
-                self.bounce_event = Some((event.before, event.after, event.t));
+                self.bounce_event = event
+                    .sensitivity
+                    .map(|s| (event.before, event.after, event.t, s));
             }
             EventKind::Plane { .. } if event.before[3] < 0.0 => {
                 self.result = Some(if self.robot_half_bounces == 1 {
@@ -370,7 +373,7 @@ fn predict_in_full(
             time: s.time_gradient,
             params: s.params.map(|p| (p.before, p.time_gradient)),
             bounce_spread: watcher.bounce_event.as_ref().and_then(|bounce| {
-                bounce_spread_at_crossing(propagator, query, bounce, event.t)
+                bounce_spread_at_crossing(propagator, p, query, bounce, event.t)
             }),
         })
     });
@@ -410,16 +413,20 @@ impl Observer for PlaneCrossing {
 }
 
 /// What a bounce ahead adds to the crossing's covariance beyond J P J': its scatter at the
-/// configured sigmas, in the state just after it, carried to the crossing by the flight from
-/// the bounce (its own tangent); with the crossing time's variance. `None` when nothing is
-/// added.
+/// configured sigmas and its outcome's spread beyond the linearisation
+/// ([`crate::online::bounce_spread`]), both in the state just after it, carried to the
+/// crossing by the flight from the bounce (its own tangent); with the crossing time's variance.
+/// `None` when nothing is added.
 fn bounce_spread_at_crossing(
     propagator: &Propagator,
+    p: &AugmentedMatrix,
     query: &InterceptQuery,
-    (before, after, t_bounce): &(StateVector, StateVector, f64),
+    (before, after, t_bounce, sensitivity): &(StateVector, StateVector, f64, EventSensitivity),
     t_crossing: f64,
 ) -> Option<(StateMatrix, f64)> {
-    let q = bounce_scatter(propagator, &query.bounce_noise, before);
+    let inputs = bounce_inputs_at_event(sensitivity, p);
+    let q = bounce_scatter(propagator, &query.bounce_noise, before)
+        + bounce_spread(propagator, before, after, &inputs);
     if q == StateMatrix::zeros() {
         return None;
     }

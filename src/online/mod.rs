@@ -5,6 +5,8 @@
 //!   update.
 //! - [`ekf`]: the extended Kalman filter over (position, velocity, spin) and the physical
 //!   parameters it adapts.
+//! - [`bounce_spread`]: a table bounce's outcome spread over the state's uncertainty beyond
+//!   its linearisation (the unscented transform), for the filter and the interception.
 //! - [`contact_side`]: the published covariance near a table contact, widened by the chance that
 //!   the ball is on the other side of it.
 //! - [`measurement`]: a detection as a measurement with its noise, shared by the filter and the
@@ -13,6 +15,7 @@
 //! - [`stroke`]: the robot's hit: the ball's rebound off the racket and its return flight, and
 //!   the racket command (velocity, face normal) that returns the ball to a target.
 
+pub mod bounce_spread;
 pub mod contact_side;
 pub mod ekf;
 pub mod estimator;

@@ -61,7 +61,7 @@ pub struct Step {
 
 /// The estimator with the node's publishing rules, and the stroke model its racket services
 /// answer with.
-#[derive(Debug)]
+#[derive(Debug, Clone)]
 pub struct Pipeline {
     estimator: Estimator,
     stroke: Stroke,

@@ -210,13 +210,16 @@ robot1:
     let layers = [
         Layer::File(path.clone()),
         Layer::Param("other:gravity:=5.0".to_owned()),
-        Layer::Param("ttball:ekf.init_detections:=7".to_owned()),
+        Layer::Param("ttball:gating.max_consecutive_rejections:=7".to_owned()),
         Layer::Param("/robot2/ttball:tracking.timeout:=0.3".to_owned()),
     ];
     let robot2 = yaml::load_layers(&layers, Some("/robot2/ttball")).unwrap();
     assert_eq!((robot2.gravity, robot2.table.friction), (2.0, 0.1));
     assert_eq!(
-        (robot2.ekf.init_detections, robot2.tracking.timeout),
+        (
+            robot2.gating.max_consecutive_rejections,
+            robot2.tracking.timeout
+        ),
         (7, 0.3)
     );
     // Files and overrides apply in the order given.
@@ -266,7 +269,7 @@ fn overrides_apply_after_the_file() {
         &params("intercept:\n  plane_x: -1.5"),
         &[
             "intercept.plane_x:=-1.45",
-            "ekf.init_detections:=5",
+            "gating.max_consecutive_rejections:=6",
             "topics.state:=/robot/ball_state",
             "aero.drag_coefficients:=[0.5, 0.1]",
             "node.namespace:=/robot1",
@@ -274,7 +277,7 @@ fn overrides_apply_after_the_file() {
     )
     .unwrap();
     assert_eq!(config.intercept.plane_x, -1.45);
-    assert_eq!(config.ekf.init_detections, 5);
+    assert_eq!(config.gating.max_consecutive_rejections, 6);
     assert_eq!(config.topics.state, "/robot/ball_state");
     assert_eq!(config.aero.drag_coefficients, [0.5, 0.1]);
     assert_eq!(config.node.namespace, "/robot1");
@@ -325,15 +328,21 @@ fn wrong_type_names_the_key_and_the_expected_type() {
         ),
         "{message}"
     );
-    let message = error(&params("ekf:\n  init_detections: 4.5"), NO_OVERRIDES);
+    let message = error(
+        &params("gating:\n  max_consecutive_rejections: 4.5"),
+        NO_OVERRIDES,
+    );
     assert!(
         message.contains(
-            "`ekf.init_detections` must be a whole number from 0 to 4294967295 (default 4)"
+            "`gating.max_consecutive_rejections` must be a whole number from 0 to 4294967295 (default 5)"
         ),
         "{message}"
     );
-    let message = error(&params("ekf:\n  init_detections: -4"), NO_OVERRIDES);
-    assert!(message.contains("`ekf.init_detections` must be a whole number"));
+    let message = error(
+        &params("gating:\n  max_consecutive_rejections: -4"),
+        NO_OVERRIDES,
+    );
+    assert!(message.contains("`gating.max_consecutive_rejections` must be a whole number"));
     let message = error(&params("table: 0.9"), NO_OVERRIDES);
     assert!(
         message.contains("`table` must be a section of parameters (a map), but is the real number"),

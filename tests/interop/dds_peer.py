@@ -861,7 +861,7 @@ def cmd_params(args):
     listed = ask("list_parameters", ListParameters_Request_, ListParameters_Response_, prefixes=[], depth=0)
     out["list"] = list(listed.result.names)
     names = ["intercept.plane_x", "table.restitution", "node.namespace", "use_sim_time",
-             "ekf.init_detections", "aero.drag_coefficients", "no.such_parameter"]
+             "gating.max_consecutive_rejections", "aero.drag_coefficients", "no.such_parameter"]
     got = ask("get_parameters", GetParameters_Request_, GetParameters_Response_, names=names)
     out["get"] = {n: plain_value(v) for n, v in zip(names, got.values)}
     described = ask("describe_parameters", DescribeParameters_Request_, DescribeParameters_Response_,

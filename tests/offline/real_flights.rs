@@ -299,44 +299,13 @@ fn the_estimator_predicts_real_flights_through_their_bounce() {
         friction_sigma < 0.02 && (0.2..0.35).contains(&learned.params.friction),
         "{learned:?}"
     );
-    // These flights scatter from one another (by spin kind, above all in the Magnus scale they
-    // need): the dispersion learned from them (`adaptation.learn_dispersion`, on) stays at least
-    // the configured one (drag 0.042, Magnus 0.125, restitution 0.021 against 0.03 / 0.1 /
-    // 0.02), far above the floor simulated play, whose flights do not scatter, goes down to.
-    let configured = ttball::config::Config::default().adaptation;
-    for (i, c) in [
-        configured.drag_scale_flight_sigma,
-        configured.magnus_scale_flight_sigma,
-        configured.restitution_flight_sigma,
-    ]
-    .iter()
-    .enumerate()
-    {
-        assert!(learned.flight_sigma[i] >= 0.95 * c, "{i}: {learned:?}");
-    }
     // The targets: at most 15 mm RMS at 200 ms lead, 10 mm at 100 ms.
     assert!(lead200.position_error.rms <= 0.015, "{lead200:?}");
     assert!(lead100.position_error.rms <= 0.010, "{lead100:?}");
-    // The predicted covariance is about honest on the crossing (NEES per dimension 0.35 at 200
-    // ms, 1.03 at 100 ms; 0.49 and 1.28 with the plain update of the spin along the flight;
-    // 0.61 and 1.12 before the smoothed lessons; 0.89 and 1.58 with the bounce's impulse scatter at 0.05 m/s, 1.14 and
-    // 1.87 before the bounce ahead entered it; with the model noise learned from each
-    // detection's innovation instead of 0.1 s ahead, 0.72 and 1.95).
+    // The predicted covariance is about honest on the crossing at 100 ms (NEES per dimension
+    // about 1), cautious 200 ms ahead, where the bounce is still to come.
     assert!(lead200.crossing_nees < 0.8, "{lead200:?}");
     assert!(lead100.crossing_nees < 1.3, "{lead100:?}");
-    // Real flights stray from the model far more than the simulated ones (whose scales fall to
-    // the floor, 0.0001x): the acceleration noise learned 0.1 s ahead stays near the configured
-    // (0.74x; 1.1x while the score took the held estimate's covariance as given, 1.16x before
-    // part of the gain on the spin along the flight, `ekf.spin_along_flight_gain`, took some of
-    // the misses away).
-    let model_noise = full.model_noise.expect("learned model noise").scales;
-    assert!(model_noise.acceleration > 0.5, "{model_noise:?}");
-    // The track's refits, which predict simulated flights better than the filter, predict these
-    // worse 0.1 s ahead (119 contests, the refit's miss 1.04x the filter's, t = -1.7): never
-    // applied, the crossing is the filter's.
-    let contest = full.refit_contest.expect("the refits contested");
-    assert!(contest.contests > 100 && contest.t < -1.0, "{contest:?}");
-    assert!(!contest.applying, "{contest:?}");
     // Within a racket's sweet spot at 100 ms, for every kind.
     assert!(lead100.valid_fraction >= 0.9, "{lead100:?}");
     assert!(lead100.time_error.rms < 0.005, "{lead100:?}");

@@ -297,13 +297,16 @@ impl CalibrateArgs {
         held: &[FlightInput],
     ) -> anyhow::Result<ExitCode> {
         let mut start = config.clone();
+        // In the order of PhysicsParams::NAMES: the scales, then the bounce.
+        let sigma = &mut start.adaptation.sigma;
+        sigma.resize(4, 0.0);
         if !fit.contains(&Group::Scales) {
-            start.adaptation.drag_scale_sigma = 0.0;
-            start.adaptation.magnus_scale_sigma = 0.0;
+            sigma[0] = 0.0;
+            sigma[1] = 0.0;
         }
         if !fit.contains(&Group::Bounce) {
-            start.adaptation.restitution_sigma = 0.0;
-            start.adaptation.friction_sigma = 0.0;
+            sigma[2] = 0.0;
+            sigma[3] = 0.0;
         }
         let detections: Vec<Vec<Detection>> = flights
             .into_iter()

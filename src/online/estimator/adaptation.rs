@@ -3,7 +3,7 @@
 //!
 //! Each flight has its own parameters theta_f (its ball, its spin axis, the part of the table it
 //! hits), scattered about the global ones theta_g of this ball and table: theta_f = theta_g + d,
-//! d ~ N(0, D), D the configured flight-to-flight dispersion (`adaptation.*_flight_sigma`).
+//! d ~ N(0, D), D the configured flight-to-flight dispersion (`adaptation.flight_sigma`).
 //! theta_g follows a slow random walk (`adaptation.drift_per_hour`), its variance capped at the
 //! prior's.
 //!
@@ -25,7 +25,7 @@ use nalgebra::SymmetricEigen;
 use super::camera_noise::{NoiseLearner, NoiseSample, SourceNoiseEstimate};
 use super::lessons::{LessonCounts, Lessons, Waiting};
 use super::smoother::{Lesson, LessonJob, ParamEstimate, TrackRecord};
-use crate::config::Config;
+use crate::config::{AdaptationParams, Config};
 use crate::online::ekf::ParamCovariance;
 use crate::physics::{PARAMS, ParamVector, PhysicsParams};
 
@@ -208,12 +208,8 @@ fn positive_part(m: &ParamCovariance) -> ParamCovariance {
 /// not adapted, without the adaptation).
 pub(crate) fn param_prior_variances(config: &Config) -> ParamVector {
     let adaptation = &config.adaptation;
-    let sigmas = ParamVector::new(
-        adaptation.drag_scale_sigma,
-        adaptation.magnus_scale_sigma,
-        adaptation.restitution_sigma,
-        adaptation.friction_sigma,
-    ) * if adaptation.enabled { 1.0 } else { 0.0 };
+    let sigmas = ParamVector::from_fn(|i, _| AdaptationParams::of(&adaptation.sigma, i))
+        * if adaptation.enabled { 1.0 } else { 0.0 };
     sigmas.component_mul(&sigmas)
 }
 
@@ -226,7 +222,7 @@ pub(crate) fn drift_density(config: &Config) -> ParamVector {
 
 /// What the estimator learns across tracks (see the module doc): the physical parameters, each
 /// camera's noise, and the lessons of the ended tracks on their way in.
-#[derive(Debug)]
+#[derive(Debug, Clone)]
 pub(crate) struct Adaptation {
     physics: Learned,
     cameras: NoiseLearner,
@@ -236,13 +232,8 @@ pub(crate) struct Adaptation {
 impl Adaptation {
     /// Nothing learned yet: the configured values.
     pub(crate) fn new(config: &Config) -> Self {
-        let adaptation = &config.adaptation;
-        let dispersion = ParamVector::new(
-            adaptation.drag_scale_flight_sigma,
-            adaptation.magnus_scale_flight_sigma,
-            adaptation.restitution_flight_sigma,
-            adaptation.friction_flight_sigma,
-        );
+        let flight = &config.adaptation.flight_sigma;
+        let dispersion = ParamVector::from_fn(|i, _| AdaptationParams::of(flight, i));
         Self {
             physics: Learned::new(
                 PhysicsParams::from_config(config).to_vector(),
@@ -290,11 +281,22 @@ impl Adaptation {
         self.cameras = NoiseLearner::new(config);
     }
 
+    /// The physics with the lessons still waiting learned as far as they are known
+    /// ([`Lessons::waiting`]): what a learned file holds between two lessons' due points.
+    pub(crate) fn physics_with_waiting_lessons(&self) -> Learned {
+        self.lessons.waiting().fold(self.physics, |learned, l| {
+            learned.absorbed(&l.prior, &l.posterior, l.started, l.ended)
+        })
+    }
+
     /// A track's lesson learned now.
     fn absorb(&mut self, lesson: &Lesson) {
-        self.physics =
-            self.physics
-                .absorbed(&lesson.prior, &lesson.posterior, lesson.started, lesson.ended);
+        self.physics = self.physics.absorbed(
+            &lesson.prior,
+            &lesson.posterior,
+            lesson.started,
+            lesson.ended,
+        );
     }
 
     /// A track has ended, at the detection stamped `now`: its flight to smooth, off the
@@ -326,6 +328,11 @@ impl Adaptation {
     /// A record for the next track's detections ([`Lessons::buffer`]).
     pub(crate) fn record(&mut self) -> TrackRecord {
         self.lessons.buffer()
+    }
+
+    /// Takes a track's record back for the next tracks.
+    pub(crate) fn recycle(&mut self, record: TrackRecord) {
+        self.lessons.recycle(record);
     }
 
     /// What became of the lessons so far.

@@ -9,7 +9,7 @@
 //! (the plane perpendicular to v), s = (|y_c|^2 - tr(P_c H P^- H' P_c)) / tr(P_c R_0 P_c); along
 //! it, tau = (y_a^2 - v^ H P^- H' v^ - s v^ R_0 v^) / |v|^2; and s_w likewise from the spin. Each
 //! sample is limited to [`SAMPLE_LIMIT`] times the current estimate (an outlier moves it little)
-//! and averaged with a fading memory of `ekf.noise_memory` detections, starting from the
+//! and averaged with a fading memory of [`MEMORY`] detections, starting from the
 //! configured values with the weight of [`PRIOR_WEIGHT`] detections. Gated detections count
 //! too: leaving them out would bias the estimate low and keep it there. A detection whose
 //! prediction is less certain than its noise (a new track, just after a bounce, a spin just
@@ -21,6 +21,10 @@ use super::fusion::Innovation;
 use crate::config::Config;
 use crate::online::measurement::Measurement;
 
+/// How many detections of a source the learned noise averages over (older ones fade): some
+/// seconds of either camera, long enough that a sample's own noise averages out, short enough
+/// to follow a camera recalibrated during a session.
+pub const MEMORY: f64 = 2000.0;
 /// The configured noise counts as this many detections when the learning starts.
 pub const PRIOR_WEIGHT: f64 = 20.0;
 /// A sample is cut to this many times the current estimate of its variance.
@@ -72,8 +76,6 @@ pub(crate) struct NoiseSample {
 #[derive(Debug, Clone, PartialEq)]
 pub(crate) struct NoiseLearner {
     sources: Vec<SourceNoiseEstimate>,
-    memory: f64,
-    enabled: bool,
 }
 
 impl NoiseLearner {
@@ -85,8 +87,6 @@ impl NoiseLearner {
                 .into_iter()
                 .map(|(_, p)| SourceNoiseEstimate::prior(p.stamp_sigma))
                 .collect(),
-            memory: f64::from(config.ekf.noise_memory).max(PRIOR_WEIGHT),
-            enabled: config.ekf.learn_noise,
         }
     }
 
@@ -102,10 +102,7 @@ impl NoiseLearner {
 
     /// Learns from one detection of the source at `index`.
     pub(crate) fn learn(&mut self, index: usize, observed: &NoiseSample) {
-        if !self.enabled {
-            return;
-        }
-        let memory = self.memory;
+        let memory = MEMORY;
         let Some(e) = self.sources.get_mut(index) else {
             return;
         };
@@ -186,8 +183,7 @@ mod tests {
     /// scale (4) and the timing variance (1e-6 s^2) within a few percent.
     #[test]
     fn finds_the_scale_and_the_timing_noise() {
-        let mut config = Config::default();
-        config.ekf.noise_memory = 20_000;
+        let config = Config::default();
         let mut learner = NoiseLearner::new(&config);
         let mut rng = Rng::new(7);
         let r0 = Matrix3::identity() * 4e-6;
@@ -216,15 +212,16 @@ mod tests {
         assert_eq!(learner.of(2).position_scale, 1.0);
     }
 
+    /// A detection whose prediction is less certain than its noise (a new track, a bounce)
+    /// teaches nothing: its innovation is mostly the prediction's error.
     #[test]
-    fn learns_nothing_when_switched_off() {
-        let mut config = Config::default();
-        config.ekf.learn_noise = false;
+    fn an_uncertain_prediction_teaches_nothing() {
+        let config = Config::default();
         let mut learner = NoiseLearner::new(&config);
         let sample = NoiseSample {
             innovation: Innovation {
                 y: Vector3::new(0.01, 0.01, 0.01),
-                hph: Matrix3::zeros(),
+                hph: Matrix3::identity() * 1e-4,
                 velocity: Vector3::new(-5.0, 0.0, 0.0),
                 spin: None,
             },

@@ -5,7 +5,7 @@
 //!   `ekf.contact_position_sigma` (its image meets its reflection and shadow on the surface).
 //! - A stamp's timing noise (learned per source) moves the measured position along the
 //!   estimate's velocity: R + tau v v'.
-//! - A position takes only `ekf.spin_along_flight_gain` of its gain on the spin along the flight
+//! - A position takes only [`SPIN_ALONG_FLIGHT_GAIN`] of its gain on the spin along the flight
 //!   before the track's first bounce: positions see that spin only through the turning flight's
 //!   sideways force, and a filter linearised at its own uncertain spin would grow sure of a
 //!   misread (the partial update, [`Ekf::update_partially`]).
@@ -39,6 +39,19 @@ const BOUNCE_SPIN_MARGIN: f64 = 0.015;
 /// How far from the table's edge [m] an estimate's bounce is a close call: the tracker tries
 /// the table grown and shrunk by as much.
 pub(super) const EDGE_MARGIN: f64 = 0.02;
+
+/// The share of a position's gain the filter applies to the spin along the flight before the
+/// track's first bounce (the partial update, Brink 2017). On the real launcher flights the whole
+/// gain (1) predicts the crossing worse at 200 and at 100 ms lead (docs/real_flights.md).
+pub const SPIN_ALONG_FLIGHT_GAIN: f64 = 0.7;
+
+/// kappa: the filter's prediction evaluates C_D and C_M at the spin parameter of
+/// sqrt(|w_perp|^2 + kappa^2 tr P_w_perp), the spin's magnitude across the flight widened by
+/// kappa times its spread, instead of its estimate's. A spin learned from curvature starts at
+/// zero, the smallest magnitude a spin can have; the forces of the spins it may be are those of
+/// a larger one. On the real launcher flights kappa = 0 predicts the crossing 200 ms ahead half
+/// as badly again (docs/real_flights.md).
+pub const SPIN_PARAMETER_SPREAD: f64 = 0.5;
 
 /// The estimate at one time, with what the track knows at that time.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -152,10 +165,10 @@ impl Fusion {
                     param_density,
                 },
                 bounce: BounceNoise::from_config(config),
-                spin_spread: ekf.spin_parameter_spread,
+                spin_spread: SPIN_PARAMETER_SPREAD,
             },
             contact_var: ekf.contact_position_sigma * ekf.contact_position_sigma,
-            spin_along_flight_gain: ekf.spin_along_flight_gain,
+            spin_along_flight_gain: SPIN_ALONG_FLIGHT_GAIN,
             spin_prior_var: ekf.spin_prior_sigma * ekf.spin_prior_sigma,
             gate_position: chi_square_quantile(p, 3),
             gate_position_spin: chi_square_quantile(p, 6),
@@ -192,7 +205,11 @@ impl Fusion {
 
     /// The measurement as the estimate `snapshot` sees it: with the extra noise of a ball at the
     /// table (the flag says so), and its stamp's timing noise along the estimate's velocity.
-    pub(crate) fn measurement_at(&self, snapshot: &Snapshot, m: &Measurement) -> (Measurement, bool) {
+    pub(crate) fn measurement_at(
+        &self,
+        snapshot: &Snapshot,
+        m: &Measurement,
+    ) -> (Measurement, bool) {
         let at_contact = self.contact_var > 0.0 && self.at_the_table(snapshot, CONTACT_BAND);
         let m = if at_contact {
             m.with_extra_position_variance(self.contact_var)
@@ -303,7 +320,9 @@ impl Fusion {
             // At the table the measured spin may be of the other side of the bounce (the
             // bounce's time is uncertain by a millisecond or two, and it changes the spin by
             // hundreds of rad/s): the position alone.
-            Err(UpdateError::Gated { nis, .. }) if self.at_the_table(snapshot, BOUNCE_SPIN_MARGIN) => {
+            Err(UpdateError::Gated { nis, .. })
+                if self.at_the_table(snapshot, BOUNCE_SPIN_MARGIN) =>
+            {
                 let update = position_alone(&snapshot.ekf);
                 (self.take(snapshot, update, Some(nis)), false)
             }

@@ -105,7 +105,7 @@ struct Worker {
 }
 
 /// A lesson waiting to enter the adaptation.
-#[derive(Debug)]
+#[derive(Debug, Clone)]
 struct Pending {
     /// Its number.
     id: u64,
@@ -115,6 +115,8 @@ struct Pending {
     job: Option<LessonJob>,
     /// What the worker returned for it (`None` inside: the smoothing failed).
     done: Option<Option<Lesson>>,
+    /// The filter's lesson of the same track.
+    filter: Lesson,
 }
 
 /// The lessons of ended tracks (see the module doc).
@@ -130,6 +132,22 @@ pub(crate) struct Lessons {
     counts: LessonCounts,
 }
 
+impl Clone for Lessons {
+    /// The same lessons waiting, run inline: a lesson the worker has taken and not yet returned
+    /// is not in the clone (it is counted as failed there when due), so a clone of lessons run
+    /// inline (an estimator's default) is exact.
+    fn clone(&self) -> Self {
+        Self {
+            pending: self.pending.clone(),
+            next_id: self.next_id,
+            worker: None,
+            smoother: Smoother::new(),
+            spare: Vec::with_capacity(MAX_PENDING + 1),
+            counts: self.counts,
+        }
+    }
+}
+
 impl Lessons {
     /// No lesson waiting; lessons run inline.
     pub(crate) fn new() -> Self {
@@ -138,9 +156,17 @@ impl Lessons {
             next_id: 0,
             worker: None,
             smoother: Smoother::new(),
-            spare: Vec::with_capacity(MAX_PENDING + 1),
+            spare: Self::first_records(),
             counts: LessonCounts::default(),
         }
+    }
+
+    /// A live track's record and one waiting, with room for as many as may wait: no
+    /// allocation per track in steady play.
+    fn first_records() -> Vec<TrackRecord> {
+        let mut records = Vec::with_capacity(MAX_PENDING + 1);
+        records.extend([TrackRecord::with_room(), TrackRecord::with_room()]);
+        records
     }
 
     /// What became of the lessons so far.
@@ -156,6 +182,9 @@ impl Lessons {
         std::thread::Builder::new()
             .name("ttball-lessons".into())
             .spawn(move || work(&inbox, &outbox))?;
+        // crossbeam keeps a context per thread, allocated at the thread's first wait on a
+        // channel: taken here (nothing is sent yet), not when a detection first waits.
+        let _ = done.recv_timeout(std::time::Duration::from_millis(1));
         self.worker = Some(Worker {
             jobs,
             done,
@@ -166,13 +195,13 @@ impl Lessons {
 
     /// A record for a track's detections: one back from an earlier lesson, else a new one.
     pub(crate) fn buffer(&mut self) -> TrackRecord {
-        self.spare.pop().unwrap_or_else(TrackRecord::new)
+        self.spare.pop().unwrap_or_else(TrackRecord::with_room)
     }
 
-    /// Takes a buffer back for the next tracks.
-    fn recycle(&mut self, mut buffer: TrackRecord) {
+    /// Takes a record back for the next tracks (one never allocated is let go).
+    pub(crate) fn recycle(&mut self, mut buffer: TrackRecord) {
         buffer.clear();
-        if self.spare.len() <= MAX_PENDING {
+        if buffer.observations.capacity() > 0 && self.spare.len() <= MAX_PENDING {
             self.spare.push(buffer);
         }
     }
@@ -187,6 +216,7 @@ impl Lessons {
         }
         let id = self.next_id;
         self.next_id += 1;
+        let filter = job.filter;
         let job = match &self.worker {
             None => Some(job),
             Some(worker) => match worker.jobs.try_send((id, job)) {
@@ -204,8 +234,17 @@ impl Lessons {
             due: now.saturating_add(LESSON_DELAY),
             job,
             done: None,
+            filter,
         });
         None
+    }
+
+    /// The lessons waiting, as far as they are known now: the smoothed flight where the worker
+    /// has returned it, else the filter's lesson of the same track.
+    pub(crate) fn waiting(&self) -> impl Iterator<Item = Lesson> + '_ {
+        self.pending
+            .iter()
+            .map(|p| p.done.flatten().unwrap_or(p.filter))
     }
 
     /// A job that cannot wait, counted: its track teaches the filter's lesson.
@@ -308,9 +347,8 @@ impl Lessons {
 fn work(inbox: &Receiver<(u64, LessonJob)>, outbox: &Sender<Done>) {
     let mut smoother = Smoother::new();
     for (id, job) in inbox {
-        let lesson = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
-            smoother.lesson(&job)
-        }));
+        let lesson =
+            std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| smoother.lesson(&job)));
         if lesson.is_err() {
             smoother = Smoother::new();
         }

@@ -4,11 +4,11 @@
 //!
 //! Three parts, each with its own state, behind this facade:
 //!
-//! - the tracker ([`tracker`]): initialisation, gating, the history and out-of-order fusion,
-//!   each detection fused by the EKF ([`fusion`], [`crate::online::ekf`]);
-//! - the adaptation ([`adaptation`]): what is learned across tracks, the ball's and table's
+//! - the tracker (`tracker.rs`): initialisation, gating, the history and out-of-order fusion,
+//!   each detection fused by the EKF (`fusion.rs`, [`crate::online::ekf`]);
+//! - the adaptation (`adaptation.rs`): what is learned across tracks, the ball's and table's
 //!   physical parameters (a two-level model) and each camera's noise;
-//! - the lessons ([`lessons`], [`smoother`]): an ended track's flight smoothed, off the
+//! - the lessons (`lessons.rs`, `smoother.rs`): an ended track's flight smoothed, off the
 //!   detection path, entering the adaptation at a point the data decide.
 //!
 //! After every detection the interception is predicted from the track's estimate
@@ -36,16 +36,16 @@ use crate::physics::{
     BallState, PARAMS, ParamVector, PhysicsParams, PredictOptions, Propagator, StateMatrix,
     Trajectory, predict,
 };
-use adaptation::{Adaptation, Learned, drift_density};
 pub(crate) use adaptation::param_prior_variances;
+use adaptation::{Adaptation, Learned, drift_density};
 pub use camera_noise::SourceNoiseEstimate;
 pub use counters::{Counters, Rejection, Verdict};
+pub use fusion::{CONTACT_BAND, SPIN_ALONG_FLIGHT_GAIN, SPIN_PARAMETER_SPREAD};
 use fusion::{Fusion, Snapshot};
-pub use fusion::CONTACT_BAND;
 pub use learned_config::{LearnedSummary, describe_params, describe_source_noise};
 pub use lessons::{Dropped, LESSON_DELAY, LessonCounts, MAX_PENDING, Waiting};
+pub use tracker::{INIT_DETECTIONS, REANCHOR_DISTANCE, RobotHit};
 use tracker::{Track, Tracker};
-pub use tracker::{REANCHOR_DISTANCE, RobotHit};
 
 /// Track status, with the codes of `BallState.msg`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -209,7 +209,7 @@ impl Publishing {
 }
 
 /// The estimator (see the module doc).
-#[derive(Debug)]
+#[derive(Debug, Clone)]
 pub struct Estimator {
     tracker: Tracker,
     adaptation: Adaptation,
@@ -238,7 +238,7 @@ impl Estimator {
     /// Runs the ended tracks' lessons (their flights smoothed) on a worker thread from now on,
     /// fed over channels: off the detection path. What is learned, and from which detection on,
     /// is the same as inline; with [`Waiting::Never`] (a live node) a lesson not done when due
-    /// is dropped and counted rather than waited for ([`lessons`]). An error when the thread
+    /// is dropped and counted rather than waited for (`lessons.rs`). An error when the thread
     /// cannot be started (the lessons then go on inline).
     pub fn run_lessons_on_a_worker(&mut self, waiting: Waiting) -> std::io::Result<()> {
         self.adaptation.spawn_worker(waiting)
@@ -277,10 +277,7 @@ impl Estimator {
             bounce: BounceNoise::from_config(config),
             ..Publishing::new(config)
         };
-        if previous.sources != config.sources
-            || previous.ekf.learn_noise != config.ekf.learn_noise
-            || previous.ekf.noise_memory != config.ekf.noise_memory
-        {
+        if previous.sources != config.sources {
             self.adaptation.forget_cameras(config);
         }
     }
@@ -323,8 +320,8 @@ impl Estimator {
     }
 
     /// What the estimator has learned of the physical parameters, to start another estimator
-    /// from ([`Self::adopt_learned_physics`]): the ball's and table's, the live track's lesson
-    /// included.
+    /// from ([`Self::adopt_learned_physics`]): the ball's and table's, the lessons waiting and
+    /// the live track's included as far as they are known.
     pub fn learned_physics(&self) -> LearnedPhysics {
         LearnedPhysics {
             params: self.learned_with_live_track(),
@@ -344,10 +341,15 @@ impl Estimator {
     }
 
     fn learned_with_live_track(&self) -> Learned {
-        let learned = *self.adaptation.physics();
+        let learned = self.adaptation.physics_with_waiting_lessons();
         self.tracker.track.as_ref().map_or(learned, |track| {
             let lesson = track.filter_lesson();
-            learned.absorbed(&lesson.prior, &lesson.posterior, lesson.started, lesson.ended)
+            learned.absorbed(
+                &lesson.prior,
+                &lesson.posterior,
+                lesson.started,
+                lesson.ended,
+            )
         })
     }
 

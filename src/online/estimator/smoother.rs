@@ -78,7 +78,7 @@ pub(crate) struct TrackRecord {
 
 impl TrackRecord {
     /// Room for [`MAX_DETECTIONS`] detections.
-    pub(crate) fn new() -> Self {
+    pub(crate) fn with_room() -> Self {
         Self {
             observations: Vec::with_capacity(MAX_DETECTIONS),
             recent_bounces: Vec::with_capacity(MAX_DETECTIONS),

@@ -1,6 +1,6 @@
 //! The tracker: which detections are the ball and which track they belong to.
 //!
-//! - Initialisation from the first `ekf.init_detections` detections within `ekf.init_max_span`
+//! - Initialisation from the first [`INIT_DETECTIONS`] detections within `tracking.timeout`
 //!   ([`super::init`]); a track that starts on the robot's half with the ball rising toward the
 //!   robot counts the bounce it must already have made.
 //! - Gating by the Mahalanobis distance at `gating.probability`; a run of
@@ -46,6 +46,10 @@ use crate::physics::{BallState, FlightModel, Propagator, StateVector};
 /// 50 ms).
 pub const REANCHOR_DISTANCE: f64 = 0.2;
 
+/// Detections fitted to start a track: position and velocity need 2, a third checks them, a
+/// fourth tolerates one poor detection.
+pub const INIT_DETECTIONS: usize = 4;
+
 /// Most detections re-applied when an edge ball's bounce hypothesis is tried again: 9 ms of the
 /// 900 fps camera.
 const EDGE_RETRY_LIMIT: usize = 8;
@@ -83,9 +87,11 @@ pub(crate) struct Track {
     param_prior: ParamEstimate,
     /// Its first estimate, from which its lesson is smoothed.
     first: Snapshot,
-    /// Its fused positions after the first estimate, for its lesson; `None` once it cannot be
-    /// smoothed (a spin measured, the record outgrown).
-    record: Option<TrackRecord>,
+    /// Its fused positions after the first estimate, for its lesson (a buffer allocated once,
+    /// back to the adaptation when the track ends).
+    record: TrackRecord,
+    /// Whether its flight can be smoothed: positions alone, the record not outgrown.
+    smoothable: bool,
 }
 
 impl Track {
@@ -125,8 +131,8 @@ struct Settings {
 impl Settings {
     fn new(config: &Config) -> Self {
         Self {
-            init_count: config.ekf.init_detections.max(3) as usize,
-            init_span: seconds_to_ns(config.ekf.init_max_span),
+            init_count: INIT_DETECTIONS,
+            init_span: seconds_to_ns(config.tracking.timeout),
             gate_probability: config.gating.probability,
             max_rejections: config.gating.max_consecutive_rejections.max(1),
             timeout: seconds_to_ns(config.tracking.timeout),
@@ -161,7 +167,7 @@ fn same_frame(a: &Detection, b: &Detection) -> bool {
 }
 
 /// The tracker (see the module doc).
-#[derive(Debug)]
+#[derive(Debug, Clone)]
 pub(crate) struct Tracker {
     settings: Settings,
     /// How a detection moves an estimate.
@@ -264,7 +270,11 @@ impl Tracker {
     }
 
     /// A detection as a measurement with its noise as learned of its source.
-    fn measurement(&self, d: &Detection, adaptation: &Adaptation) -> Result<Measurement, Rejection> {
+    fn measurement(
+        &self,
+        d: &Detection,
+        adaptation: &Adaptation,
+    ) -> Result<Measurement, Rejection> {
         let source = self.measurement.source_index(d.source);
         Ok(self
             .measurement
@@ -273,7 +283,12 @@ impl Tracker {
     }
 
     /// Teaches the camera-noise learner what a detection's prior `innovation` shows.
-    fn learn_noise(&self, d: &Detection, innovation: Option<Innovation>, adaptation: &mut Adaptation) {
+    fn learn_noise(
+        &self,
+        d: &Detection,
+        innovation: Option<Innovation>,
+        adaptation: &mut Adaptation,
+    ) {
         let (Some(innovation), Ok(base)) = (innovation, self.measurement.measure(d)) else {
             return;
         };
@@ -310,7 +325,12 @@ impl Tracker {
     }
 
     /// Holds, confirms or dismisses a jump in the stamps (see the module doc).
-    fn screen_jump(&mut self, d: &Detection, m: Measurement, adaptation: &mut Adaptation) -> Verdict {
+    fn screen_jump(
+        &mut self,
+        d: &Detection,
+        m: Measurement,
+        adaptation: &mut Adaptation,
+    ) -> Verdict {
         let Some(current) = self.current_stamp() else {
             return self.process(d, m, adaptation);
         };
@@ -419,22 +439,23 @@ impl Tracker {
             return;
         };
         let filter = track.filter_lesson();
-        let ended = match track.record.take() {
-            Some(mut record) if record.observations.len() >= smoother::MIN_DETECTIONS => {
-                record.recent_bounces.extend(
-                    std::iter::once(&track.base)
-                        .chain(track.history.iter().map(|e| &e.after))
-                        .chain(std::iter::once(&track.now))
-                        .map(|s| (s.stamp, s.bounces)),
-                );
-                Ok(LessonJob {
-                    fusion: self.fusion,
-                    base: track.first,
-                    record,
-                    filter,
-                })
-            }
-            _ => Err(filter),
+        let mut record = std::mem::take(&mut track.record);
+        let ended = if track.smoothable && record.observations.len() >= smoother::MIN_DETECTIONS {
+            record.recent_bounces.extend(
+                std::iter::once(&track.base)
+                    .chain(track.history.iter().map(|e| &e.after))
+                    .chain(std::iter::once(&track.now))
+                    .map(|s| (s.stamp, s.bounces)),
+            );
+            Ok(LessonJob {
+                fusion: self.fusion,
+                base: track.first,
+                record,
+                filter,
+            })
+        } else {
+            adaptation.recycle(record);
+            Err(filter)
         };
         adaptation.track_ended(ended, now);
         // Keep the history's buffer for the next track: no allocation per track.
@@ -503,7 +524,9 @@ impl Tracker {
         init::fit(
             &self.pending,
             &weights,
-            &self.flight.with_scales(theta[DRAG_SCALE], theta[MAGNUS_SCALE]),
+            &self
+                .flight
+                .with_scales(theta[DRAG_SCALE], theta[MAGNUS_SCALE]),
             self.flight.gravity(),
             self.fusion.spin_prior_var,
         )
@@ -521,8 +544,11 @@ impl Tracker {
         }
         let param_prior = adaptation.track_prior(fit.stamp);
         let (theta, p_theta) = param_prior;
-        let mut snapshot =
-            Snapshot::starting(Ekf::new(fit.x, fit.P, theta, p_theta), fit.stamp, fit.spin_measured);
+        let mut snapshot = Snapshot::starting(
+            Ekf::new(fit.x, fit.P, theta, p_theta),
+            fit.stamp,
+            fit.spin_measured,
+        );
         snapshot.robot_half_bounces = u32::from(already_bounced(&fit.x));
         let first_seen = self.pending.first().map_or(fit.stamp, |d| d.stamp);
         let continued = self
@@ -562,7 +588,12 @@ impl Tracker {
         param_prior: ParamEstimate,
         adaptation: &mut Adaptation,
     ) {
-        let record = (self.settings.lessons && !first.spin_measured).then(|| adaptation.record());
+        let smoothable = self.settings.lessons && !first.spin_measured;
+        let record = if smoothable {
+            adaptation.record()
+        } else {
+            TrackRecord::default()
+        };
         self.track = Some(Track {
             id,
             now,
@@ -572,6 +603,7 @@ impl Tracker {
             param_prior,
             first,
             record,
+            smoothable,
         });
     }
 
@@ -665,15 +697,12 @@ impl Tracker {
         let Some(track) = self.track.as_mut() else {
             return;
         };
-        let Some(record) = track.record.as_mut() else {
-            return;
-        };
+        let record = &mut track.record;
         let full = record.observations.len() >= smoother::MAX_DETECTIONS;
         if matches!(m, Measurement::PositionSpin { .. }) || full {
-            track.record = None;
-            return;
+            track.smoothable = false;
         }
-        if d.stamp > track.first.stamp {
+        if track.smoothable && d.stamp > track.first.stamp {
             let at = record.observations.partition_point(|(k, _)| *k <= d.stamp);
             record.observations.insert(at, (d.stamp, *m));
         }
@@ -689,7 +718,11 @@ impl Tracker {
         let Some(track) = &self.track else {
             return Err(Rejection::TooOld);
         };
-        if track.history.back().is_some_and(|e| same_frame(&e.detection, d)) {
+        if track
+            .history
+            .back()
+            .is_some_and(|e| same_frame(&e.detection, d))
+        {
             return Err(Rejection::Duplicate);
         }
         let mut snapshot = track.now;
@@ -816,14 +849,23 @@ impl Tracker {
         if again == 0 || again > EDGE_RETRY_LIMIT {
             return None;
         }
-        let kept: f64 = history.iter().skip(from + 1).map(|e| e.after.whole_nis).sum();
+        let kept: f64 = history
+            .iter()
+            .skip(from + 1)
+            .map(|e| e.after.whole_nis)
+            .sum();
         let mut best: Option<([Snapshot; EDGE_RETRY_LIMIT], Snapshot, f64, f64)> = None;
         for alternative in &self.edge_alternatives {
             let mut snapshot = history[from].after;
             let mut afters = [snapshot; EDGE_RETRY_LIMIT];
             let mut total = 0.0;
             for (slot, entry) in afters.iter_mut().zip(history.iter().skip(from + 1)) {
-                total += match self.reapply(alternative, &mut snapshot, &entry.detection, &entry.measurement) {
+                total += match self.reapply(
+                    alternative,
+                    &mut snapshot,
+                    &entry.detection,
+                    &entry.measurement,
+                ) {
                     Some(f) => f.whole_nis,
                     // A detection the hypothesis cannot explain counts as at the gate.
                     None => self.whole_gate(&entry.measurement),
@@ -855,7 +897,10 @@ impl Tracker {
         d: &Detection,
         m: &Measurement,
     ) -> Option<Fused> {
-        self.fusion.fuse(propagator, snapshot, d.stamp, m).fused.ok()
+        self.fusion
+            .fuse(propagator, snapshot, d.stamp, m)
+            .fused
+            .ok()
     }
 
     /// The gate of a measurement's every dimension: what a detection a hypothesis cannot
@@ -883,7 +928,9 @@ impl Tracker {
         if track.history.iter().any(|e| same_frame(&e.detection, d)) {
             return Err(Rejection::Duplicate);
         }
-        let index = track.history.partition_point(|e| e.detection.stamp <= d.stamp);
+        let index = track
+            .history
+            .partition_point(|e| e.detection.stamp <= d.stamp);
         let mut snapshot = match index {
             0 => track.base,
             i => track.history[i - 1].after,
@@ -897,7 +944,11 @@ impl Tracker {
         for entry in track.history.iter_mut().skip(index) {
             // A re-applied detection that no longer passes the gate is skipped.
             let mut next = snapshot;
-            if self.fuse(&mut next, &entry.detection, &entry.measurement).0.is_ok() {
+            if self
+                .fuse(&mut next, &entry.detection, &entry.measurement)
+                .0
+                .is_ok()
+            {
                 snapshot = next;
             } else {
                 self.fusion.advance(&mut snapshot, entry.detection.stamp);
