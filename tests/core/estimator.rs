@@ -1110,3 +1110,91 @@ fn the_spin_along_the_flight_is_learned_at_part_of_the_gain() {
     assert!(rms < 200.0, "{rms}");
     assert!(nees < 1.0, "{nees}");
 }
+
+/// The 150 fps camera alone, eight shots: every ended track's lesson is its flight smoothed.
+fn wide_session() -> ttball::eval::sim::Session {
+    let config = Config::default();
+    simulate(
+        &config,
+        &SimOptions {
+            cameras: Cameras::WideOnly,
+            shots: 8,
+            seed: 3,
+            ..SimOptions::default()
+        },
+    )
+    .unwrap()
+}
+
+/// The tracks' lessons on a worker thread (waited for where due, as a replay does) give every
+/// output of the inline estimator, to the bit: what is learned, and from which detection on,
+/// is the data's to say, not the thread's.
+#[test]
+fn lessons_on_a_worker_give_the_inline_outputs() {
+    use ttball::online::estimator::Waiting;
+    let config = Config::default();
+    let session = wide_session();
+    let mut inline = Estimator::new(&config);
+    let mut threaded = Estimator::new(&config);
+    threaded.run_lessons_on_a_worker(Waiting::Wait).unwrap();
+    for sim in &session.stream {
+        assert_eq!(
+            inline.handle(&sim.detection),
+            threaded.handle(&sim.detection)
+        );
+    }
+    inline.end_of_input();
+    threaded.end_of_input();
+    assert_eq!(inline.counters(), threaded.counters());
+    assert_eq!(inline.learned_params(), threaded.learned_params());
+    assert!(
+        inline.counters().smoothed_lessons >= 6,
+        "{:?}",
+        inline.counters()
+    );
+}
+
+/// A track's lesson enters the adaptation at the first detection stamped
+/// [`LESSON_DELAY`](ttball::online::estimator::LESSON_DELAY) or more after the detection that
+/// ended the track, not before, not later.
+#[test]
+fn a_lesson_enters_at_the_first_detection_a_second_after_its_track_ended() {
+    use ttball::online::estimator::LESSON_DELAY;
+    let config = Config::default();
+    let session = wide_session();
+    let mut estimator = Estimator::new(&config);
+    let (mut ended, mut live, mut learned) = (Vec::new(), None, 0);
+    let mut entered = Vec::new();
+    for sim in &session.stream {
+        let d = &sim.detection;
+        let out = estimator.handle(d);
+        let track = out
+            .estimate
+            .filter(|e| e.status != TrackStatus::Initializing)
+            .map(|e| e.track_id);
+        if live.is_some() && track != live {
+            ended.push(d.stamp);
+        }
+        live = track.or(live.filter(|_| out.verdict != Verdict::Initializing));
+        let now = estimator.counters().smoothed_lessons;
+        if now > learned {
+            entered.push(d.stamp);
+            learned = now;
+        }
+    }
+    assert!(entered.len() >= 5, "{entered:?} {ended:?}");
+    for (k, stamp) in entered.iter().enumerate() {
+        let due = ended[k] + LESSON_DELAY;
+        let before = session
+            .stream
+            .iter()
+            .map(|s| s.detection.stamp)
+            .filter(|s| *s < *stamp)
+            .max()
+            .unwrap();
+        assert!(
+            *stamp >= due && before < due,
+            "lesson {k}: {stamp} due {due}"
+        );
+    }
+}

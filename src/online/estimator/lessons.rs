@@ -357,3 +357,119 @@ fn work(inbox: &Receiver<(u64, LessonJob)>, outbox: &Sender<Done>) {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::config::Config;
+    use crate::online::ekf::Ekf;
+    use crate::online::estimator::fusion::{Fusion, Snapshot};
+    use crate::physics::{ParamCovariance, ParamVector, StateMatrix, StateVector};
+
+    /// A job whose filter's lesson is told by its posterior's drag scale `tag`, of a track
+    /// with too few detections to be smoothed (its lesson is the filter's).
+    fn job(tag: f64) -> LessonJob {
+        let config = Config::default();
+        let prior = (ParamVector::repeat(1.0), ParamCovariance::identity() * 0.01);
+        let mut posterior = prior;
+        posterior.0[0] = tag;
+        LessonJob {
+            fusion: Fusion::new(&config, ParamVector::zeros()),
+            base: Snapshot::starting(
+                Ekf::new(
+                    StateVector::zeros(),
+                    StateMatrix::identity(),
+                    prior.0,
+                    prior.1,
+                ),
+                0,
+                false,
+            ),
+            record: TrackRecord::with_room(),
+            filter: Lesson {
+                prior,
+                posterior,
+                started: 0,
+                ended: 0,
+                smoothed: false,
+            },
+        }
+    }
+
+    /// A lesson enters at the first stamp [`LESSON_DELAY`] after the detection that ended its
+    /// track, not one nanosecond before, in the order the tracks ended.
+    #[test]
+    fn a_lesson_is_due_a_fixed_time_after_its_track_ended() {
+        let mut lessons = Lessons::new();
+        assert_eq!(lessons.queue(job(0.9), 1_000), None);
+        assert_eq!(lessons.queue(job(0.8), 2_000), None);
+        assert_eq!(lessons.next_due(1_000 + LESSON_DELAY - 1, false), None);
+        let first = lessons.next_due(1_000 + LESSON_DELAY, false).expect("due");
+        assert_eq!(first.posterior.0[0], 0.9);
+        assert_eq!(lessons.next_due(1_000 + LESSON_DELAY, false), None);
+        let second = lessons.next_due(i64::MIN, true).expect("the input's end");
+        assert_eq!(second.posterior.0[0], 0.8);
+        assert_eq!(lessons.counts(), LessonCounts::default());
+    }
+
+    /// One lesson more than [`MAX_PENDING`] is dropped and counted; its track teaches the
+    /// filter's lesson at once.
+    #[test]
+    fn a_full_backlog_drops_the_lesson_and_counts_it() {
+        let mut lessons = Lessons::new();
+        for k in 0..MAX_PENDING {
+            assert_eq!(lessons.queue(job(0.5 + k as f64 * 0.1), 0), None);
+        }
+        let now = lessons.queue(job(0.4), 0).expect("the filter's lesson");
+        assert_eq!(now.posterior.0[0], 0.4);
+        assert_eq!(lessons.counts().dropped(Dropped::Backlog), 1);
+        assert_eq!(lessons.waiting().count(), MAX_PENDING);
+    }
+
+    /// A worker that has not finished a lesson when it is due: a caller that never waits drops
+    /// it (counted late) and does not block; the lesson the worker returns later is thrown
+    /// away, its record kept. A worker that is gone fails its lessons, counted.
+    #[test]
+    fn a_lesson_not_done_in_time_is_dropped_for_a_caller_that_never_waits() {
+        let mut lessons = Lessons::new();
+        // A worker that takes jobs and returns nothing until told: its channels, no thread.
+        let (jobs, inbox) = bounded::<(u64, LessonJob)>(MAX_PENDING);
+        let (outbox, done) = bounded::<Done>(MAX_PENDING);
+        lessons.worker = Some(Worker {
+            jobs,
+            done,
+            waiting: Waiting::Never,
+        });
+        assert_eq!(lessons.queue(job(0.9), 0), None);
+        assert_eq!(lessons.next_due(LESSON_DELAY, false), None);
+        assert_eq!(lessons.counts().dropped(Dropped::Late), 1);
+        // The worker finishes it afterwards: filed nowhere, its record back.
+        let (id, taken) = inbox.try_recv().expect("the job was sent");
+        let spare = lessons.spare.len();
+        outbox
+            .send((id, Some(taken.filter), taken.record))
+            .expect("sent");
+        assert_eq!(lessons.queue(job(0.8), LESSON_DELAY), None);
+        assert_eq!(lessons.spare.len(), spare + 1);
+        // The worker gone: the lesson waiting fails.
+        drop((inbox, outbox));
+        assert_eq!(lessons.next_due(2 * LESSON_DELAY, false), None);
+        assert_eq!(lessons.counts().dropped(Dropped::Failed), 1);
+        assert!(lessons.worker.is_none());
+    }
+
+    /// The worker thread's lessons are the inline ones, waited for where they are due.
+    #[test]
+    fn the_worker_learns_what_inline_smoothing_learns() {
+        let mut inline = Lessons::new();
+        let mut threaded = Lessons::new();
+        threaded.spawn_worker(Waiting::Wait).expect("a thread");
+        for (k, lessons) in [&mut inline, &mut threaded].into_iter().enumerate() {
+            assert_eq!(lessons.queue(job(0.7), 0), None, "{k}");
+        }
+        let a = inline.next_due(LESSON_DELAY, false);
+        let b = threaded.next_due(LESSON_DELAY, false);
+        assert!(a.is_some());
+        assert_eq!(a, b);
+    }
+}
