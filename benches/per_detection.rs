@@ -24,7 +24,8 @@ use criterion::{Criterion, criterion_group, criterion_main};
 use ttball::bag::replay::read_detections;
 use ttball::config::Config;
 use ttball::eval::sim::{Cameras, SimOptions, simulate};
-use ttball::online::estimator::Waiting;
+use ttball::model::detection::Detection;
+use ttball::online::estimator::{Estimator, Waiting};
 use ttball::ros::msgs::convert::detection_to_msg;
 use ttball::ros::msgs::ttball_msgs::msg::BallDetection;
 use ttball::ros::pipeline::Pipeline;
@@ -61,8 +62,11 @@ fn node_pipeline(config: &Config) -> Pipeline {
     pipeline
 }
 
+/// A stream: its name, its messages and the detections in them.
+type Stream = (&'static str, Vec<BallDetection>, Vec<Detection>);
+
 /// The streams: the real launcher flights, and a simulated session of both cameras.
-fn streams(config: &Config) -> Vec<(&'static str, Vec<BallDetection>)> {
+fn streams(config: &Config) -> Vec<Stream> {
     let bag = Path::new(env!("CARGO_MANIFEST_DIR")).join("bags/real_launcher.mcap");
     let real = read_detections(&bag, config).expect("the shipped bag reads");
     let session = simulate(
@@ -79,6 +83,7 @@ fn streams(config: &Config) -> Vec<(&'static str, Vec<BallDetection>)> {
         (
             "real_launcher",
             real.detections.iter().map(detection_to_msg).collect(),
+            real.detections.clone(),
         ),
         (
             "simulated_2cams",
@@ -87,6 +92,7 @@ fn streams(config: &Config) -> Vec<(&'static str, Vec<BallDetection>)> {
                 .iter()
                 .map(|d| detection_to_msg(&d.detection))
                 .collect(),
+            session.stream.iter().map(|d| d.detection).collect(),
         ),
     ]
 }
@@ -96,7 +102,7 @@ fn benches(c: &mut Criterion) {
     let streams = streams(&config);
     let mut group = c.benchmark_group("per_detection");
     group.sample_size(10);
-    for (name, messages) in &streams {
+    for (name, messages, _) in &streams {
         group.bench_function(*name, |b| {
             b.iter_custom(|iterations| {
                 let mut total = Duration::ZERO;
@@ -119,17 +125,35 @@ fn benches(c: &mut Criterion) {
         "{:<32} {:>8} {:>7} {:>7} {:>7} {:>7} {:>7} {:>8}",
         "stream", "calls", "mean", "p50", "p90", "p99", "p99.9", "max"
     );
-    for (name, messages) in &streams {
-        let mut times = Vec::with_capacity(RUNS * messages.len());
+    for (name, messages, detections) in &streams {
+        let (mut node, mut handle, mut update) = (vec![], vec![], vec![]);
         for _ in 0..RUNS {
             let mut pipeline = node_pipeline(&config);
             for msg in messages {
                 let started = Instant::now();
                 black_box(pipeline.on_detection(black_box(msg)));
-                times.push(started.elapsed().as_nanos() as u64);
+                node.push(started.elapsed().as_nanos() as u64);
+            }
+            // The parts: the estimator alone (filter and interception), the filter alone.
+            for (times, whole) in [(&mut handle, true), (&mut update, false)] {
+                let mut estimator = Estimator::new(&config);
+                estimator
+                    .run_lessons_on_a_worker(Waiting::Never)
+                    .expect("the lessons' thread starts");
+                for d in detections {
+                    let started = Instant::now();
+                    if whole {
+                        black_box(estimator.handle(black_box(d)));
+                    } else {
+                        black_box(estimator.update(black_box(d)));
+                    }
+                    times.push(started.elapsed().as_nanos() as u64);
+                }
             }
         }
-        report(name, times);
+        report(name, node);
+        report("  Estimator::handle", handle);
+        report("  Estimator::update (the filter)", update);
     }
 }
 

@@ -503,10 +503,20 @@ fn crossing_with(
     }
 }
 
-/// True when a drift of the state from the anchor is within the limits.
-fn within_limits(limits: &RefreshParams, drift: &StateVector) -> bool {
-    let norm = |i: usize| drift.fixed_rows::<3>(i).norm();
-    norm(0) <= limits.position && norm(3) <= limits.velocity && norm(6) <= limits.spin
+/// The share of its own standard deviation a state's or a parameter's drift from the anchor may
+/// reach before the interception is predicted in full again, where that is more than the
+/// configured limit: the moved interception's error is of second order in the drift, the
+/// covariance's own linearisation of first order in the standard deviation.
+const RELATIVE_REFRESH: f64 = 0.5;
+
+/// True when a drift of the state from the anchor is within the limits: each block's within
+/// the configured limit or [`RELATIVE_REFRESH`] of its standard deviation in `p`.
+fn within_limits(limits: &RefreshParams, drift: &StateVector, p: &AugmentedMatrix) -> bool {
+    let within = |i: usize, limit: f64| {
+        let sigma = (p.fixed_view::<3, 3>(i, i).trace() / 3.0).max(0.0).sqrt();
+        drift.fixed_rows::<3>(i).norm() <= limit.max(RELATIVE_REFRESH * sigma)
+    };
+    within(0, limits.position) && within(3, limits.velocity) && within(6, limits.spin)
 }
 
 /// How many interceptions a tracker predicted in full and how many it moved.
@@ -780,7 +790,9 @@ impl InterceptTracker {
         }
         let theta = propagator.params().to_vector();
         let param_drift = theta - anchor.params;
-        if (0..PARAMS).any(|i| param_drift[i].abs() > PARAM_REFRESH[i]) {
+        let param_limit =
+            |i: usize| PARAM_REFRESH[i].max(RELATIVE_REFRESH * p[(9 + i, 9 + i)].max(0.0).sqrt());
+        if (0..PARAMS).any(|i| param_drift[i].abs() > param_limit(i)) {
             return None;
         }
         let dt = (stamp - anchor.stamp) as f64 * 1e-9;
@@ -796,7 +808,7 @@ impl InterceptTracker {
         }
         let anchor = self.anchor.as_ref()?;
         let drift = x - anchor.flown;
-        if !within_limits(&self.refresh, &drift)
+        if !within_limits(&self.refresh, &drift, p)
             || !anchor.sensitivity.branches.kept_by(&drift, &param_drift)
         {
             return None;

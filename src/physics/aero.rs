@@ -46,6 +46,7 @@ impl Polynomial {
     }
 
     /// The value and the first derivative at `x` (Horner's scheme).
+    #[inline]
     pub fn value_and_slope(&self, x: f64) -> (f64, f64) {
         let mut value = 0.0;
         let mut slope = 0.0;
@@ -57,6 +58,7 @@ impl Polynomial {
     }
 
     /// The value at `x` (the same as [`Self::value_and_slope`]'s, bit for bit).
+    #[inline]
     pub fn value(&self, x: f64) -> f64 {
         self.coefficients()
             .iter()
@@ -410,6 +412,7 @@ impl FlightModel {
     }
 
     /// The time derivative of the state, dx/dt.
+    #[inline]
     pub fn derivative(&self, x: &StateVector) -> StateVector {
         let field = self.field(x);
         let cd = self.drag.value(field.sp_eval);
@@ -418,6 +421,7 @@ impl FlightModel {
     }
 
     /// The field quantities of a state.
+    #[inline]
     fn field(&self, x: &StateVector) -> Field {
         self.field_of(
             Vector3::new(x[VELOCITY], x[VELOCITY + 1], x[VELOCITY + 2]),
@@ -427,6 +431,7 @@ impl FlightModel {
 
     /// The velocity, spin, norms and spin parameter that the forces, the derivative and its
     /// Jacobian are made of.
+    #[inline]
     fn field_of(&self, v: Vector3<f64>, w: Vector3<f64>) -> Field {
         let speed_sq = v.norm_squared();
         let c = w.cross(&v);
@@ -461,6 +466,7 @@ impl FlightModel {
     }
 
     /// dx/dt from the field and the coefficients at its spin parameter.
+    #[inline]
     fn state_derivative(&self, f: &Field, cd: f64, cm: f64) -> StateVector {
         let (drag, magnus) = self.accelerations(f, cd, cm);
         let accel = drag + magnus - Vector3::new(0.0, 0.0, self.gravity);

@@ -389,6 +389,44 @@ enum Surface {
     Plane(f64),
 }
 
+/// The root in [0, 1] of the cubic Hermite interpolant of values `g0`, `g1` and slopes `d0`,
+/// `d1` at 0 and 1, the values of opposite signs (or `g1` zero): a few Newton steps from the
+/// secant's root, kept inside the bracket by bisection.
+fn hermite_root(g0: f64, d0: f64, g1: f64, d1: f64) -> f64 {
+    let value = |s: f64| {
+        let (s2, s3) = (s * s, s * s * s);
+        (2.0 * s3 - 3.0 * s2 + 1.0) * g0
+            + (s3 - 2.0 * s2 + s) * d0
+            + (-2.0 * s3 + 3.0 * s2) * g1
+            + (s3 - s2) * d1
+    };
+    let slope = |s: f64| {
+        let s2 = s * s;
+        (6.0 * s2 - 6.0 * s) * g0
+            + (3.0 * s2 - 4.0 * s + 1.0) * d0
+            + (-6.0 * s2 + 6.0 * s) * g1
+            + (3.0 * s2 - 2.0 * s) * d1
+    };
+    let (mut lo, mut hi) = (0.0, 1.0);
+    let mut s = if g1 != g0 { g0 / (g0 - g1) } else { 0.5 };
+    for _ in 0..8 {
+        let v = value(s);
+        if (v > 0.0) == (g0 > 0.0) {
+            lo = s;
+        } else {
+            hi = s;
+        }
+        let d = slope(s);
+        let next = if d != 0.0 { s - v / d } else { 0.5 * (lo + hi) };
+        s = if next > lo && next < hi {
+            next
+        } else {
+            0.5 * (lo + hi)
+        };
+    }
+    s.clamp(0.0, 1.0)
+}
+
 impl Surface {
     /// The state component the surface's event function depends on (x or z).
     fn axis(&self) -> usize {
@@ -401,6 +439,11 @@ impl Surface {
 
 /// Largest number of root-finding iterations for one event time.
 const MAX_ROOT_ITERATIONS: usize = 100;
+
+/// An event function this close to zero [m] is at its root: 1e-15 m, some 1e-16 s of a
+/// ball's flight, so that the event's time is exact to the rounding of the state and its
+/// derivatives match finite differences of the propagation.
+const EVENT_TOLERANCE: f64 = 1e-15;
 
 /// Relative tolerance under which a duration counts as a whole number of steps (or a step as a
 /// whole number of sample intervals): `0.02 * 3.0` is a rounding error over `0.06`.
@@ -776,7 +819,7 @@ impl Propagator {
             if !crossed {
                 continue;
             }
-            let tau = self.event_time(surface, start, h, g0, g1);
+            let tau = self.event_time(surface, (start, end), h, (g0, g1));
             if first.is_some_and(|(_, earliest)| earliest <= tau) {
                 continue;
             }
@@ -801,18 +844,34 @@ impl Propagator {
         }
     }
 
-    /// The offset tau in (0, h] where the RK4 map from `start` reaches the surface (Illinois
-    /// variant of regula falsi, to machine precision).
-    fn event_time(&self, surface: Surface, start: &StateVector, h: f64, g0: f64, g1: f64) -> f64 {
+    /// The offset tau in (0, h] where the RK4 map from `start` reaches the surface, its event
+    /// function `g0` at the start and `g1` at `end`, h later: a root of the RK4 map to
+    /// [`EVENT_TOLERANCE`]. The first guess is the root of the cubic Hermite interpolant of the
+    /// event function over the step (its slope at either end is the velocity along the
+    /// surface's axis), the next ones Newton steps on the RK4 map (its slope taken as the
+    /// velocity of the state it reaches), a step that leaves the bracket replaced by the
+    /// Illinois variant of regula falsi, which keeps the root bracketed.
+    fn event_time(
+        &self,
+        surface: Surface,
+        (start, end): (&StateVector, &StateVector),
+        h: f64,
+        (g0, g1): (f64, f64),
+    ) -> f64 {
         let (mut a, mut fa, mut b, mut fb) = (0.0, g0, h, g1);
         if fb == 0.0 {
             return b;
         }
+        let slope_axis = VELOCITY + surface.axis();
+        let mut c = h * hermite_root(g0, start[slope_axis] * h, g1, end[slope_axis] * h);
         let mut last_side = 0i8;
         for _ in 0..MAX_ROOT_ITERATIONS {
-            let c = ((a * fb - b * fa) / (fb - fa)).clamp(a, b);
-            let fc = self.event_function(surface, &self.rk4(start, c));
-            if fc == 0.0 || c <= a || c >= b {
+            if !(c > a && c < b) {
+                c = ((a * fb - b * fa) / (fb - fa)).clamp(a, b);
+            }
+            let x = self.rk4(start, c);
+            let fc = self.event_function(surface, &x);
+            if fc.abs() <= EVENT_TOLERANCE || c <= a || c >= b {
                 return c;
             }
             if (fc > 0.0) == (fb > 0.0) {
@@ -833,6 +892,12 @@ impl Propagator {
             if b - a <= f64::EPSILON * h {
                 break;
             }
+            let slope = x[slope_axis];
+            c = if slope != 0.0 {
+                c - fc / slope
+            } else {
+                a - 1.0
+            };
         }
         if fa.abs() < fb.abs() { a } else { b }
     }

@@ -738,8 +738,9 @@ fn flights_keep_a_confirmed_jump_and_drop_a_glitch() {
 
 /// The interception kept up to date between full predictions (`intercept.refresh`) agrees with
 /// a full prediction after every detection, over a simulated rally with both cameras: the same
-/// estimates, the same outcome, the crossing within 1 mm and 0.3 ms, while most interceptions
-/// are moved rather than predicted in full.
+/// estimates, the same outcome, the crossing within 1 mm and 0.3 ms or a fifth of its own
+/// sigma where that is larger (a drift within half the state's sigma is moved, a new track's
+/// too), while most interceptions are moved rather than predicted in full.
 #[test]
 fn the_kept_interception_agrees_with_the_full_prediction() {
     use ttball::eval::sim::{Cameras, SimOptions, simulate};
@@ -770,8 +771,12 @@ fn the_kept_interception_agrees_with_the_full_prediction() {
         compared += 1;
         match (a.intercept.crossing, b.intercept.crossing) {
             (Ok(a), Ok(b)) => {
-                worst_position = worst_position.max((a.state.position - b.state.position).norm());
-                worst_time = worst_time.max((a.time - b.time).abs());
+                // In millimetres, or in fifths of the crossing's own sigma where that is larger.
+                let sigma = b.covariance.fixed_view::<3, 3>(0, 0).trace().sqrt();
+                let d = (a.state.position - b.state.position).norm();
+                worst_position = worst_position.max(d / (0.2 * sigma).max(1e-3));
+                worst_time =
+                    worst_time.max((a.time - b.time).abs() / (0.2 * b.time_sigma).max(3e-4));
             }
             (a, b) if a.is_err() && b.is_err() => assert_eq!(a, b),
             _ => differing += 1,
@@ -783,8 +788,8 @@ fn the_kept_interception_agrees_with_the_full_prediction() {
         differing <= compared / 2000,
         "{differing} of {compared} differ"
     );
-    assert!(worst_position < 1e-3, "{worst_position} {counts:?}");
-    assert!(worst_time < 3e-4, "{worst_time}");
+    assert!(worst_position < 1.0, "{worst_position} {counts:?}");
+    assert!(worst_time < 1.0, "{worst_time}");
     assert!(counts.moved > 4 * counts.full, "{counts:?}");
     assert_eq!(full.intercept_counts().moved, 0);
 }
