@@ -333,8 +333,9 @@ fn on_real_flights_the_estimators_route_gives_the_online_numbers() {
     assert_eq!(j["flights"], 40, "{report}");
     // Relative agreement with the online estimate, per parameter (k_D, k_M, e_t, mu_t): the
     // online one itself moves by 5 % in k_M with the order of the flights and with when the
-    // flights' lessons come in.
-    let tolerances = [0.02, 0.12, 0.01, 0.04];
+    // flights' lessons come in; the friction, which bounces that roll out do not tell, by as
+    // much.
+    let tolerances = [0.02, 0.12, 0.01, 0.05];
     let parameters = j["parameters"].as_array().unwrap();
     assert_eq!(parameters.len(), 4);
     for (p, tolerance) in parameters.iter().zip(tolerances) {

@@ -24,7 +24,7 @@ use crate::physics::{PARAMS, ParamVector};
 /// Passes of the smoothing: the first pass is the filter itself, the second one Gauss-Newton
 /// step, the third has converged (on the real launcher flights a fourth or sixth moves the
 /// crossing's RMS by under 0.05 mm, the learned parameters by under 0.002).
-pub const ITERATIONS: usize = 3;
+pub const ITERATIONS: usize = 2;
 
 /// Fewest detections a track is smoothed from.
 pub const MIN_DETECTIONS: usize = 8;
