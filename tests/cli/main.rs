@@ -7,6 +7,7 @@
 mod common;
 
 mod config;
+mod golden;
 mod node;
 mod predict;
 mod racket;
