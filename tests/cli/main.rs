@@ -11,4 +11,5 @@ mod golden;
 mod node;
 mod predict;
 mod racket;
+mod readme;
 mod replay;
