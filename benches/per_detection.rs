@@ -1,15 +1,18 @@
-//! The per-detection cost as the node pays it: every detection message of a stream, in arrival
-//! order, through `Pipeline::on_detection` (conversion, the filter's update with rollbacks, the
-//! interception with covariance, the `/ball/state` and `/ball/intercept` messages, and the
-//! `/ball/trajectory` + markers at their 50 Hz), the tracks' lessons on a worker thread that
-//! the detections never wait for, as in the node.
+//! The per-detection cost as the node pays it, and the whole replay as a user waits for it, on
+//! the shipped bags: the real launcher flights (`bags/real_launcher.mcap`, 40 flights at about
+//! 180 Hz, positions only) and the simulated play of both cameras and of the 150 fps camera
+//! alone.
 //!
-//! Two streams: the real launcher flights (`bags/real_launcher.mcap`, 40 flights at about
-//! 180 Hz, positions only) and a simulated session of both cameras (150 + 900 fps, seed 11).
-//! Criterion times each whole stream (its mean per detection is the time over the count);
-//! each call is then timed alone over [`RUNS`] runs for the tail: mean, p50, p90, p99, p99.9
-//! and max. `cargo bench --bench per_detection` (pin it to one core, `taskset -c 1`, for the
-//! detection path alone; the worker then shares that core).
+//! Per detection: every detection message, in arrival order, through `Pipeline::on_detection`
+//! (conversion, the filter's update with rollbacks, the interception with covariance, the
+//! `/ball/state` and `/ball/intercept` messages, and the `/ball/trajectory` + markers at their
+//! 50 Hz), the tracks' lessons on a worker thread that the detections never wait for, as in the
+//! node. Criterion times each whole stream (its time over its count is the mean per
+//! detection); each call is then timed alone over [`RUNS`] runs for the tail. The whole replay
+//! (`ttball::bag::replay::replay`: reading, decoding, the pipeline, encoding, compressing,
+//! writing) is timed [`RUNS`] times, its median quoted as a multiple of real time.
+//!
+//! `cargo bench --bench per_detection` prints README.md's performance table last.
 #![allow(
     clippy::unwrap_used,
     clippy::expect_used,
@@ -17,40 +20,30 @@
 )]
 
 use std::hint::black_box;
-use std::path::Path;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::AtomicBool;
 use std::time::{Duration, Instant};
 
 use criterion::{Criterion, criterion_group, criterion_main};
-use ttball::bag::replay::read_detections;
+use ttball::bag::replay::{read_detections, replay};
 use ttball::config::Config;
-use ttball::eval::sim::{Cameras, SimOptions, simulate};
-use ttball::model::detection::Detection;
-use ttball::online::estimator::{Estimator, Waiting};
+use ttball::online::estimator::Waiting;
 use ttball::ros::msgs::convert::detection_to_msg;
 use ttball::ros::msgs::ttball_msgs::msg::BallDetection;
 use ttball::ros::pipeline::Pipeline;
 
-/// Runs of each stream timed call by call.
+/// Runs of each stream timed call by call, and of each whole replay.
 const RUNS: usize = 5;
 
-fn quantile(sorted: &[u64], q: f64) -> f64 {
-    sorted[((sorted.len() - 1) as f64 * q).round() as usize] as f64 * 1e-3
-}
+/// The shipped bags, with what README.md calls them.
+const BAGS: [(&str, &str); 3] = [
+    ("real_launcher", "real launcher flights, 180 Hz"),
+    ("sim_rally_2cams", "simulated play, 150 + 900 fps"),
+    ("sim_rally_wide", "simulated play, 150 fps alone"),
+];
 
-/// One line of the table: the calls' count, mean and quantiles [us].
-fn report(name: &str, mut ns: Vec<u64>) {
-    ns.sort_unstable();
-    let mean = ns.iter().sum::<u64>() as f64 / ns.len().max(1) as f64 * 1e-3;
-    println!(
-        "{name:<32} {:>8} {:>7.1} {:>7.1} {:>7.1} {:>7.1} {:>7.1} {:>8.1}",
-        ns.len(),
-        mean,
-        quantile(&ns, 0.5),
-        quantile(&ns, 0.9),
-        quantile(&ns, 0.99),
-        quantile(&ns, 0.999),
-        ns.last().copied().unwrap_or(0) as f64 * 1e-3,
-    );
+fn bag(name: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join(format!("bags/{name}.mcap"))
 }
 
 /// A pipeline as the node starts it.
@@ -62,47 +55,25 @@ fn node_pipeline(config: &Config) -> Pipeline {
     pipeline
 }
 
-/// A stream: its name, its messages and the detections in them.
-type Stream = (&'static str, Vec<BallDetection>, Vec<Detection>);
+/// The detection messages of a shipped bag.
+fn messages(config: &Config, name: &str) -> Vec<BallDetection> {
+    let read = read_detections(&bag(name), config).expect("the shipped bag reads");
+    read.detections.iter().map(detection_to_msg).collect()
+}
 
-/// The streams: the real launcher flights, and a simulated session of both cameras.
-fn streams(config: &Config) -> Vec<Stream> {
-    let bag = Path::new(env!("CARGO_MANIFEST_DIR")).join("bags/real_launcher.mcap");
-    let real = read_detections(&bag, config).expect("the shipped bag reads");
-    let session = simulate(
-        config,
-        &SimOptions {
-            cameras: Cameras::WideAndHighSpeed,
-            shots: 20,
-            seed: 11,
-            ..SimOptions::default()
-        },
-    )
-    .expect("simulate");
-    vec![
-        (
-            "real_launcher",
-            real.detections.iter().map(detection_to_msg).collect(),
-            real.detections.clone(),
-        ),
-        (
-            "simulated_2cams",
-            session
-                .stream
-                .iter()
-                .map(|d| detection_to_msg(&d.detection))
-                .collect(),
-            session.stream.iter().map(|d| d.detection).collect(),
-        ),
-    ]
+fn quantile(sorted: &[u64], q: f64) -> f64 {
+    sorted[((sorted.len() - 1) as f64 * q).round() as usize] as f64 * 1e-3
 }
 
 fn benches(c: &mut Criterion) {
     let config = Config::default();
-    let streams = streams(&config);
+    let streams: Vec<_> = BAGS
+        .iter()
+        .map(|(name, what)| (*name, *what, messages(&config, name)))
+        .collect();
     let mut group = c.benchmark_group("per_detection");
     group.sample_size(10);
-    for (name, messages, _) in &streams {
+    for (name, _, messages) in &streams {
         group.bench_function(*name, |b| {
             b.iter_custom(|iterations| {
                 let mut total = Duration::ZERO;
@@ -120,40 +91,42 @@ fn benches(c: &mut Criterion) {
     }
     group.finish();
 
-    println!("each call timed alone, {RUNS} runs; times in us");
+    let machine = std::thread::available_parallelism().map_or(1, |n| n.get());
     println!(
-        "{:<32} {:>8} {:>7} {:>7} {:>7} {:>7} {:>7} {:>8}",
-        "stream", "calls", "mean", "p50", "p90", "p99", "p99.9", "max"
+        "\n| bag ({machine} cores) | per detection, the node's path: mean / p50 / p99 / p99.9 / \
+         max [us] | whole replay [x real time] |\n|---|---|---|"
     );
-    for (name, messages, detections) in &streams {
-        let (mut node, mut handle, mut update) = (vec![], vec![], vec![]);
+    let cancel = AtomicBool::new(false);
+    let output = Path::new(env!("CARGO_TARGET_TMPDIR")).join("bench-per-detection.mcap");
+    for (name, what, messages) in &streams {
+        let mut times = Vec::with_capacity(RUNS * messages.len());
         for _ in 0..RUNS {
             let mut pipeline = node_pipeline(&config);
             for msg in messages {
                 let started = Instant::now();
                 black_box(pipeline.on_detection(black_box(msg)));
-                node.push(started.elapsed().as_nanos() as u64);
-            }
-            // The parts: the estimator alone (filter and interception), the filter alone.
-            for (times, whole) in [(&mut handle, true), (&mut update, false)] {
-                let mut estimator = Estimator::new(&config);
-                estimator
-                    .run_lessons_on_a_worker(Waiting::Never)
-                    .expect("the lessons' thread starts");
-                for d in detections {
-                    let started = Instant::now();
-                    if whole {
-                        black_box(estimator.handle(black_box(d)));
-                    } else {
-                        black_box(estimator.update(black_box(d)));
-                    }
-                    times.push(started.elapsed().as_nanos() as u64);
-                }
+                times.push(started.elapsed().as_nanos() as u64);
             }
         }
-        report(name, node);
-        report("  Estimator::handle", handle);
-        report("  Estimator::update (the filter)", update);
+        times.sort_unstable();
+        let mean = times.iter().sum::<u64>() as f64 / times.len() as f64 * 1e-3;
+        let mut factors: Vec<f64> = (0..RUNS)
+            .map(|_| {
+                let started = Instant::now();
+                let summary = replay(&bag(name), &output, &config, &mut |_, _| {}, &cancel)
+                    .expect("the shipped bag replays");
+                summary.recorded_seconds / started.elapsed().as_secs_f64()
+            })
+            .collect();
+        factors.sort_by(f64::total_cmp);
+        println!(
+            "| {what} (`bags/{name}.mcap`) | {mean:.1} / {:.1} / {:.1} / {:.1} / {:.1} | {:.0} |",
+            quantile(&times, 0.5),
+            quantile(&times, 0.99),
+            quantile(&times, 0.999),
+            times.last().copied().unwrap_or(0) as f64 * 1e-3,
+            factors[RUNS / 2]
+        );
     }
 }
 

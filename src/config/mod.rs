@@ -346,8 +346,9 @@ impl Default for InterceptParams {
     }
 }
 
-/// Limits of the first-order interception update (see `intercept::InterceptTracker`): past any
-/// of them, or at an event or a change of branch, the interception is predicted in full.
+/// Limits of the first-order interception update (see `intercept::InterceptTracker`): a drift
+/// past one of them and past half the state's own standard deviation, the age past `max_age`,
+/// an event or a change of branch, and the interception is predicted in full.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct RefreshParams {
