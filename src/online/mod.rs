@@ -11,6 +11,8 @@
 //!   the ball is on the other side of it.
 //! - [`measurement`]: a detection as a measurement with its noise, shared by the filter and the
 //!   batch fit.
+//! - [`learned`]: what an estimator learned, in words and as a configuration file to start the
+//!   next one from.
 //! - [`intercept`]: the predicted crossing of the robot's hitting plane, with its covariance.
 //! - [`stroke`]: the robot's hit: the ball's rebound off the racket and its return flight, and
 //!   the racket command (velocity, face normal) that returns the ball to a target.
@@ -20,5 +22,6 @@ pub mod contact_side;
 pub mod ekf;
 pub mod estimator;
 pub mod intercept;
+pub mod learned;
 pub mod measurement;
 pub mod stroke;

@@ -22,9 +22,9 @@
 
 use nalgebra::SymmetricEigen;
 
-use super::camera_noise::{NoiseLearner, NoiseSample, SourceNoiseEstimate};
-use super::lessons::{LessonCounts, Lessons, Waiting};
-use super::smoother::{Lesson, LessonJob, ParamEstimate, TrackRecord};
+use super::camera_noise::NoiseLearner;
+use super::lessons::Lessons;
+use super::smoother::{Lesson, LessonJob};
 use crate::config::{AdaptationParams, Config};
 use crate::online::ekf::ParamCovariance;
 use crate::physics::{PARAMS, ParamVector, PhysicsParams};
@@ -224,9 +224,12 @@ pub(crate) fn drift_density(config: &Config) -> ParamVector {
 /// camera's noise, and the lessons of the ended tracks on their way in.
 #[derive(Debug, Clone)]
 pub(crate) struct Adaptation {
-    physics: Learned,
-    cameras: NoiseLearner,
-    lessons: Lessons,
+    /// The ball's and table's parameters.
+    pub(crate) physics: Learned,
+    /// Each camera's noise.
+    pub(crate) cameras: NoiseLearner,
+    /// The ended tracks' lessons on their way in.
+    pub(crate) lessons: Lessons,
 }
 
 impl Adaptation {
@@ -244,41 +247,6 @@ impl Adaptation {
             cameras: NoiseLearner::new(config),
             lessons: Lessons::new(),
         }
-    }
-
-    /// The ball's and table's parameters learned over the tracks so far.
-    pub(crate) fn physics(&self) -> &Learned {
-        &self.physics
-    }
-
-    /// Starts from parameters another estimator learned.
-    pub(crate) fn adopt_physics(&mut self, physics: Learned) {
-        self.physics = physics;
-    }
-
-    /// The prior of a track starting at `stamp` (see [`Learned::track_prior`]).
-    pub(crate) fn track_prior(&self, stamp: i64) -> ParamEstimate {
-        self.physics.track_prior(stamp)
-    }
-
-    /// What is learned of the camera source at `index`.
-    pub(crate) fn camera(&self, index: usize) -> SourceNoiseEstimate {
-        self.cameras.of(index)
-    }
-
-    /// What is learned of every camera source, in index order.
-    pub(crate) fn cameras(&self) -> &[SourceNoiseEstimate] {
-        self.cameras.all()
-    }
-
-    /// Learns from one detection of the source at `index`.
-    pub(crate) fn learn_camera(&mut self, index: usize, sample: &NoiseSample) {
-        self.cameras.learn(index, sample);
-    }
-
-    /// Starts learning the cameras' noise again from `config`'s.
-    pub(crate) fn forget_cameras(&mut self, config: &Config) {
-        self.cameras = NoiseLearner::new(config);
     }
 
     /// The physics with the lessons still waiting learned as far as they are known
@@ -325,21 +293,6 @@ impl Adaptation {
         }
     }
 
-    /// A record for the next track's detections ([`Lessons::buffer`]).
-    pub(crate) fn record(&mut self) -> TrackRecord {
-        self.lessons.buffer()
-    }
-
-    /// Takes a track's record back for the next tracks.
-    pub(crate) fn recycle(&mut self, record: TrackRecord) {
-        self.lessons.recycle(record);
-    }
-
-    /// What became of the lessons so far.
-    pub(crate) fn lesson_counts(&self) -> LessonCounts {
-        self.lessons.counts()
-    }
-
     /// Forgets what was learned and the lessons waiting, as a new adaptation of `config` would
     /// start, keeping the lessons' counts and their worker.
     pub(crate) fn reset(&mut self, config: &Config) {
@@ -347,11 +300,6 @@ impl Adaptation {
         lessons.forget();
         *self = Self::new(config);
         self.lessons = lessons;
-    }
-
-    /// Runs the lessons on a worker thread ([`Lessons::spawn_worker`]).
-    pub(crate) fn spawn_worker(&mut self, waiting: Waiting) -> std::io::Result<()> {
-        self.lessons.spawn_worker(waiting)
     }
 }
 

@@ -21,7 +21,6 @@ mod camera_noise;
 mod counters;
 mod fusion;
 mod init;
-mod learned_config;
 mod lessons;
 mod smoother;
 mod tracker;
@@ -31,6 +30,7 @@ use crate::model::detection::{Detection, seconds_to_ns};
 use crate::online::contact_side::with_contact_side;
 use crate::online::ekf::{BounceNoise, ParamCovariance};
 use crate::online::intercept::{Intercept, InterceptQuery, InterceptTracker};
+pub use crate::online::learned::{LearnedSummary, describe_params, describe_source_noise};
 pub use crate::online::measurement::{MAX_RANGE, Measurement};
 use crate::physics::{
     BallState, PARAMS, ParamVector, PhysicsParams, PredictOptions, Propagator, StateMatrix,
@@ -38,11 +38,11 @@ use crate::physics::{
 };
 pub(crate) use adaptation::param_prior_variances;
 use adaptation::{Adaptation, Learned, drift_density};
+pub use camera_noise::PRIOR_WEIGHT;
 pub use camera_noise::SourceNoiseEstimate;
 pub use counters::{Counters, Rejection, Verdict};
 pub use fusion::{CONTACT_BAND, SPIN_ALONG_FLIGHT_GAIN, SPIN_PARAMETER_SPREAD};
 use fusion::{Fusion, Snapshot};
-pub use learned_config::{LearnedSummary, describe_params, describe_source_noise};
 pub use lessons::{Dropped, LESSON_DELAY, LessonCounts, MAX_PENDING, Waiting};
 pub use tracker::{INIT_DETECTIONS, REANCHOR_DISTANCE, RobotHit};
 use tracker::{Track, Tracker};
@@ -127,6 +127,11 @@ impl LearnedSourceNoise {
     /// Whether its detections have taught anything yet (beyond the configured prior's weight).
     pub fn has_learned(&self) -> bool {
         self.estimate.weight > camera_noise::PRIOR_WEIGHT
+    }
+
+    /// Whether its spins have taught anything yet.
+    pub fn has_learned_spin(&self) -> bool {
+        self.estimate.spin_weight > camera_noise::PRIOR_WEIGHT
     }
 }
 
@@ -241,7 +246,7 @@ impl Estimator {
     /// is dropped and counted rather than waited for (`lessons.rs`). An error when the thread
     /// cannot be started (the lessons then go on inline).
     pub fn run_lessons_on_a_worker(&mut self, waiting: Waiting) -> std::io::Result<()> {
-        self.adaptation.spawn_worker(waiting)
+        self.adaptation.lessons.spawn_worker(waiting)
     }
 
     /// Takes `config`'s estimator, gating, source-noise, tracking and interception values from
@@ -278,7 +283,7 @@ impl Estimator {
             ..Publishing::new(config)
         };
         if previous.sources != config.sources {
-            self.adaptation.forget_cameras(config);
+            self.adaptation.cameras = camera_noise::NoiseLearner::new(config);
         }
     }
 
@@ -337,7 +342,7 @@ impl Estimator {
     /// Starts from what another estimator (of the same configuration) learned of the physical
     /// parameters, as if its tracks had been this one's.
     pub fn adopt_learned_physics(&mut self, learned: &LearnedPhysics) {
-        self.adaptation.adopt_physics(learned.params);
+        self.adaptation.physics = learned.params;
     }
 
     fn learned_with_live_track(&self) -> Learned {
@@ -360,7 +365,7 @@ impl Estimator {
         Some(LearnedParams::new(
             &ekf.theta,
             &ekf.param_covariance(),
-            self.adaptation.physics().tracks() + 1,
+            self.adaptation.physics.tracks() + 1,
             &ParamVector::zeros(),
         ))
     }
@@ -378,7 +383,7 @@ impl Estimator {
             .measurement
             .sources()
             .iter()
-            .zip(self.adaptation.cameras())
+            .zip(self.adaptation.cameras.all())
             .map(|(source, estimate)| LearnedSourceNoise {
                 source: source.name.clone(),
                 position_sigma: source.position_var.sqrt() * estimate.position_scale.sqrt(),
@@ -388,9 +393,17 @@ impl Estimator {
             .collect()
     }
 
+    /// Everything it has learned so far ([`LearnedSummary`]).
+    pub fn learned_summary(&self) -> LearnedSummary {
+        LearnedSummary {
+            params: self.learned_params(),
+            source_noise: self.learned_noise(),
+        }
+    }
+
     /// What happened to the detections and to the tracks' lessons so far.
     pub fn counters(&self) -> Counters {
-        let lessons = self.adaptation.lesson_counts();
+        let lessons = self.adaptation.lessons.counts();
         Counters {
             smoothed_lessons: lessons.smoothed,
             lessons_dropped: lessons.dropped,

@@ -279,7 +279,7 @@ impl Tracker {
         Ok(self
             .measurement
             .measure(d)?
-            .with_learned_noise(&adaptation.camera(source)))
+            .with_learned_noise(&adaptation.cameras.of(source)))
     }
 
     /// Teaches the camera-noise learner what a detection's prior `innovation` shows.
@@ -304,7 +304,9 @@ impl Tracker {
             r0,
             spin_r0,
         };
-        adaptation.learn_camera(self.measurement.source_index(d.source), &sample);
+        adaptation
+            .cameras
+            .learn(self.measurement.source_index(d.source), &sample);
     }
 
     /// The stamp the current detections run on: the track's last fused one, else the newest
@@ -454,7 +456,7 @@ impl Tracker {
                 filter,
             })
         } else {
-            adaptation.recycle(record);
+            adaptation.lessons.recycle(record);
             Err(filter)
         };
         adaptation.track_ended(ended, now);
@@ -520,7 +522,7 @@ impl Tracker {
                 },
             })
         };
-        let theta = adaptation.physics().global().0;
+        let theta = adaptation.physics.global().0;
         init::fit(
             &self.pending,
             &weights,
@@ -542,7 +544,7 @@ impl Tracker {
         if fit.chi_square > gate || speed > 40.0 {
             return false;
         }
-        let param_prior = adaptation.track_prior(fit.stamp);
+        let param_prior = adaptation.physics.track_prior(fit.stamp);
         let (theta, p_theta) = param_prior;
         let mut snapshot = Snapshot::starting(
             Ekf::new(fit.x, fit.P, theta, p_theta),
@@ -590,7 +592,7 @@ impl Tracker {
     ) {
         let smoothable = self.settings.lessons && !first.spin_measured;
         let record = if smoothable {
-            adaptation.record()
+            adaptation.lessons.buffer()
         } else {
             TrackRecord::default()
         };
@@ -635,7 +637,7 @@ impl Tracker {
         self.end_track(d.stamp, adaptation);
         let id = self.new_track_id();
         self.counters.seeded_by_hit += 1;
-        let param_prior = adaptation.track_prior(hit.stamp);
+        let param_prior = adaptation.physics.track_prior(hit.stamp);
         self.start(id, seed, snapshot, param_prior, adaptation);
         self.push_entry(Entry {
             detection: *d,
@@ -661,7 +663,7 @@ impl Tracker {
         let covariance =
             self.racket
                 .rebound_covariance(&ball, &incoming.ekf.state_covariance(), &hit.racket)?;
-        let (theta, p_theta) = adaptation.track_prior(hit.stamp);
+        let (theta, p_theta) = adaptation.physics.track_prior(hit.stamp);
         Some(Snapshot::starting(
             Ekf::new(after.to_vector(), covariance, theta, p_theta),
             hit.stamp,

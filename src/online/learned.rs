@@ -6,10 +6,10 @@
 //! widths around the new values (the learning goes on from there; a new ball or table is still
 //! learned as quickly).
 
-use super::{Estimator, LearnedParams, LearnedSourceNoise, camera_noise};
 use crate::config::Config;
 #[cfg(feature = "interface")]
 use crate::config::ConfigError;
+use crate::online::estimator::{LearnedParams, LearnedSourceNoise};
 use crate::physics::PhysicsParams;
 
 /// Everything an estimator has learned, as it stands.
@@ -19,16 +19,6 @@ pub struct LearnedSummary {
     pub params: LearnedParams,
     /// Each camera source's noise, in the order of the configuration's sources.
     pub source_noise: Vec<LearnedSourceNoise>,
-}
-
-impl Estimator {
-    /// Everything it has learned so far ([`LearnedSummary`]).
-    pub fn learned_summary(&self) -> LearnedSummary {
-        LearnedSummary {
-            params: self.learned_params(),
-            source_noise: self.learned_noise(),
-        }
-    }
 }
 
 impl LearnedSummary {
@@ -43,7 +33,7 @@ impl LearnedSummary {
             };
             source.position_sigma = learned.position_sigma;
             source.stamp_sigma = learned.stamp_sigma;
-            if learned.estimate.spin_weight > camera_noise::PRIOR_WEIGHT {
+            if learned.has_learned_spin() {
                 source.spin_sigma *= learned.estimate.spin_scale.sqrt();
             }
         }
@@ -135,8 +125,7 @@ pub fn describe_source_noise(noise: &[LearnedSourceNoise]) -> Option<String> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::online::estimator::SourceNoiseEstimate;
-    use camera_noise::PRIOR_WEIGHT;
+    use crate::online::estimator::{PRIOR_WEIGHT, SourceNoiseEstimate};
 
     fn source(name: &str, weight: f64, spin_weight: f64) -> LearnedSourceNoise {
         LearnedSourceNoise {
