@@ -19,7 +19,7 @@ use crate::config::Config;
 use crate::eval::sim::Session;
 use crate::model::detection::{Detection, Source, seconds_to_ns};
 use crate::model::stats::ErrorStats;
-use crate::offline::batch::fit_whole_flight;
+use crate::offline::batch::{FittedState, fit_whole_flight};
 use crate::online::ekf::BounceNoise;
 use crate::online::estimator::{
     Counters, Estimate, Estimator, Output, Rejection, TrackStatus, Verdict,
@@ -547,6 +547,64 @@ pub fn efficiency_with_truth(
         .map(|physics| efficiency_of(&run, config, session, physics, truth))
 }
 
+/// The filter's crossing at one lead (`slot` of [`LEADS`]) against the batch fit's of the same
+/// detections (`fitted`: the fit of a shot's detections among the first `arrived`, at a stamp).
+fn lead_efficiency(
+    run: &Run,
+    config: &Config,
+    slot: usize,
+    lead: f64,
+    fitted: &dyn Fn(usize, usize, i64) -> Option<(FittedState, Propagator)>,
+) -> LeadEfficiency {
+    let query = |bounced| InterceptQuery {
+        plane_x: config.intercept.plane_x,
+        horizon: config.prediction.horizon,
+        bounced_on_robot_half: bounced,
+        bounce_noise: BounceNoise::default(),
+    };
+    let (mut online, mut batch) = (Vec::new(), Vec::new());
+    let (mut online_spin, mut batch_spin) = (Vec::new(), Vec::new());
+    for (index, (truth, record)) in run.scorer.shots.iter().zip(&run.scorer.records).enumerate() {
+        let Some((arrived, published)) = record.at_lead[slot] else {
+            continue;
+        };
+        let Some(estimate) = published.intercept else {
+            continue;
+        };
+        let Ok(online_crossing) = estimate.intercept.crossing else {
+            continue;
+        };
+        let Some((fitted, propagator)) = fitted(index, arrived, estimate.stamp) else {
+            continue;
+        };
+        let predicted = predict_intercept(
+            &propagator,
+            &fitted.state.to_vector(),
+            &fitted.covariance,
+            &query(fitted.robot_half_bounces > 0),
+        );
+        let Ok(batch_crossing) = predicted.crossing else {
+            continue;
+        };
+        let miss = |p: &Vector3<f64>| {
+            Vector2::new(
+                p.y - truth.intercept_position.y,
+                p.z - truth.intercept_position.z,
+            )
+            .norm()
+        };
+        online.push(miss(&online_crossing.state.position));
+        batch.push(miss(&batch_crossing.state.position));
+        online_spin.push((online_crossing.state.spin - truth.intercept_spin).norm());
+        batch_spin.push((batch_crossing.state.spin - truth.intercept_spin).norm());
+    }
+    LeadEfficiency {
+        lead,
+        position: Comparison::of(&online, &batch),
+        spin: Comparison::of(&online_spin, &batch_spin),
+    }
+}
+
 /// One line of [`efficiency`]: the filter's `run` of `session` against the batch fit flying
 /// `physics` (`truth`, the session's own, for [`BatchPhysics::True`]).
 fn efficiency_of(
@@ -556,12 +614,6 @@ fn efficiency_of(
     physics: BatchPhysics,
     truth: &PhysicsParams,
 ) -> Efficiency {
-    let query = |bounced| InterceptQuery {
-        plane_x: config.intercept.plane_x,
-        horizon: config.prediction.horizon,
-        bounced_on_robot_half: bounced,
-        bounce_noise: BounceNoise::default(),
-    };
     let physics_of = |index: usize| -> Config {
         let mut c = config.clone();
         match physics {
@@ -594,51 +646,7 @@ fn efficiency_of(
     let leads = LEADS
         .iter()
         .enumerate()
-        .map(|(slot, &lead)| {
-            let (mut online, mut batch) = (Vec::new(), Vec::new());
-            let (mut online_spin, mut batch_spin) = (Vec::new(), Vec::new());
-            for (index, (truth, record)) in
-                run.scorer.shots.iter().zip(&run.scorer.records).enumerate()
-            {
-                let Some((arrived, published)) = record.at_lead[slot] else {
-                    continue;
-                };
-                let Some(estimate) = published.intercept else {
-                    continue;
-                };
-                let Ok(online_crossing) = estimate.intercept.crossing else {
-                    continue;
-                };
-                let Some((fitted, propagator)) = fitted(index, arrived, estimate.stamp) else {
-                    continue;
-                };
-                let predicted = predict_intercept(
-                    &propagator,
-                    &fitted.state.to_vector(),
-                    &fitted.covariance,
-                    &query(fitted.robot_half_bounces > 0),
-                );
-                let Ok(batch_crossing) = predicted.crossing else {
-                    continue;
-                };
-                let miss = |p: &Vector3<f64>| {
-                    Vector2::new(
-                        p.y - truth.intercept_position.y,
-                        p.z - truth.intercept_position.z,
-                    )
-                    .norm()
-                };
-                online.push(miss(&online_crossing.state.position));
-                batch.push(miss(&batch_crossing.state.position));
-                online_spin.push((online_crossing.state.spin - truth.intercept_spin).norm());
-                batch_spin.push((batch_crossing.state.spin - truth.intercept_spin).norm());
-            }
-            LeadEfficiency {
-                lead,
-                position: Comparison::of(&online, &batch),
-                spin: Comparison::of(&online_spin, &batch_spin),
-            }
-        })
+        .map(|(slot, &lead)| lead_efficiency(run, config, slot, lead, &fitted))
         .collect();
     // A state error of the filter's estimate and of the fit at the estimate's stamp.
     let state_errors = |pick: &dyn Fn(&ShotRecord) -> Option<(usize, Estimate)>,

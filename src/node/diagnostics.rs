@@ -86,18 +86,15 @@ pub struct Snapshot<'a> {
     pub learned_noise: &'a [LearnedSourceNoise],
 }
 
-/// Builds the diagnostics message of one period and empties `window`.
-pub fn diagnostics_msg(snapshot: &Snapshot<'_>, window: &mut Window) -> DiagnosticArray {
-    let s = snapshot;
-    let processing = DurationSummary::of(&mut window.processing);
-    let wait = DurationSummary::of(&mut window.queue_wait);
-    window.processing.clear();
-    window.queue_wait.clear();
-    let rate = processing.count as f64 / s.period.max(1e-9);
-    let dropped_now = s.transport.dropped_queue_full - s.transport_before.dropped_queue_full;
-    let undecodable_now = s.transport.undecodable - s.transport_before.undecodable;
-    let lost_now = s.transport.lost_before_node - s.transport_before.lost_before_node;
-    let (level, message) = if dropped_now > 0 {
+/// The estimator's status and its message: a warning when detections were dropped, lost or
+/// undecodable in the period (`now`: those three counts), else what it tracks.
+fn status(
+    s: &Snapshot<'_>,
+    (dropped_now, lost_now, undecodable_now): (u64, u64, u64),
+    count: usize,
+    rate: f64,
+) -> (u8, String) {
+    if dropped_now > 0 {
         (
             DiagnosticStatus::WARN,
             format!(
@@ -121,7 +118,7 @@ pub fn diagnostics_msg(snapshot: &Snapshot<'_>, window: &mut Window) -> Diagnost
                 s.detections_topic
             ),
         )
-    } else if processing.count == 0 {
+    } else if count == 0 {
         (
             DiagnosticStatus::OK,
             format!("waiting for detections on {}", s.detections_topic),
@@ -134,7 +131,56 @@ pub fn diagnostics_msg(snapshot: &Snapshot<'_>, window: &mut Window) -> Diagnost
                 None => format!("no ball tracked ({rate:.0} detections/s)"),
             },
         )
-    };
+    }
+}
+
+/// The learned physics and the cameras' learned noise, as key-value pairs.
+fn learned_values(s: &Snapshot<'_>) -> Vec<KeyValue> {
+    let mut values = Vec::new();
+    let learned = s.learned.params.to_vector();
+    for (i, name) in PhysicsParams::NAMES.iter().enumerate() {
+        values.push(kv(&format!("learned {name}"), format!("{:.4}", learned[i])));
+        values.push(kv(
+            &format!("learned {name} sigma"),
+            format!("{:.4}", s.learned.sigma[i]),
+        ));
+        values.push(kv(
+            &format!("learned {name} flight-to-flight sigma"),
+            format!("{:.4}", s.learned.flight_sigma[i]),
+        ));
+    }
+    values.push(kv("learned physics: tracks", s.learned.tracks.to_string()));
+    for n in s.learned_noise.iter().filter(|n| n.has_learned()) {
+        let source = &n.source;
+        values.push(kv(
+            &format!("learned noise {source}: position sigma [mm]"),
+            format!("{:.2}", n.position_sigma * 1e3),
+        ));
+        values.push(kv(
+            &format!("learned noise {source}: stamp sigma [ms]"),
+            format!("{:.2}", n.stamp_sigma * 1e3),
+        ));
+    }
+    values
+}
+
+/// Builds the diagnostics message of one period and empties `window`.
+pub fn diagnostics_msg(snapshot: &Snapshot<'_>, window: &mut Window) -> DiagnosticArray {
+    let s = snapshot;
+    let processing = DurationSummary::of(&mut window.processing);
+    let wait = DurationSummary::of(&mut window.queue_wait);
+    window.processing.clear();
+    window.queue_wait.clear();
+    let rate = processing.count as f64 / s.period.max(1e-9);
+    let dropped_now = s.transport.dropped_queue_full - s.transport_before.dropped_queue_full;
+    let undecodable_now = s.transport.undecodable - s.transport_before.undecodable;
+    let lost_now = s.transport.lost_before_node - s.transport_before.lost_before_node;
+    let (level, message) = status(
+        s,
+        (dropped_now, lost_now, undecodable_now),
+        processing.count,
+        rate,
+    );
     let c = s.counters;
     let t = s.transport;
     let us = |ns: f64| format!("{:.1}", ns * 1e-3);
@@ -200,30 +246,7 @@ pub fn diagnostics_msg(snapshot: &Snapshot<'_>, window: &mut Window) -> Diagnost
             t.service_busy.to_string(),
         ),
     ]);
-    let learned = s.learned.params.to_vector();
-    for (i, name) in PhysicsParams::NAMES.iter().enumerate() {
-        values.push(kv(&format!("learned {name}"), format!("{:.4}", learned[i])));
-        values.push(kv(
-            &format!("learned {name} sigma"),
-            format!("{:.4}", s.learned.sigma[i]),
-        ));
-        values.push(kv(
-            &format!("learned {name} flight-to-flight sigma"),
-            format!("{:.4}", s.learned.flight_sigma[i]),
-        ));
-    }
-    values.push(kv("learned physics: tracks", s.learned.tracks.to_string()));
-    for n in s.learned_noise.iter().filter(|n| n.has_learned()) {
-        let source = &n.source;
-        values.push(kv(
-            &format!("learned noise {source}: position sigma [mm]"),
-            format!("{:.2}", n.position_sigma * 1e3),
-        ));
-        values.push(kv(
-            &format!("learned noise {source}: stamp sigma [ms]"),
-            format!("{:.2}", n.stamp_sigma * 1e3),
-        ));
-    }
+    values.extend(learned_values(s));
     DiagnosticArray {
         header: Header {
             stamp: Time::from_nanos(s.stamp),

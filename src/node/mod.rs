@@ -301,47 +301,45 @@ pub fn start(config: &Config, placement: &Placement) -> Result<NodeHandle, NodeE
     affinity::start_on(&cpus, || start_here(config, placement))
 }
 
-fn start_here(config: &Config, placement: &Placement) -> Result<NodeHandle, NodeError> {
-    let context = dds::context(placement.domain, placement.interfaces.as_deref())?;
-    let node_name = dds::node_name(config)?;
-    let mut node = dds::node(&context, node_name.clone(), false)?;
-    let fq_name = node_name.fully_qualified_name();
-
+/// The node's publishers of its outputs (`topics.*`, reliable at `qos.outputs_depth`) and of
+/// `/parameter_events`.
+fn create_outputs(
+    node: &mut Node,
+    context: &ros2_client::Context,
+    config: &Config,
+) -> Result<Outputs, NodeError> {
     let topics = &config.resolved_topics();
     let output_qos = dds::reliable(config.qos.outputs_depth);
-    let detections_topic = dds::detections_topic(&mut node, config)?;
-    let subscription: Subscription<BallDetection> = node
-        .create_subscription(&detections_topic, None)
-        .map_err(dds::error)?;
     let parameter_events = node
         .create_publisher(&context.get_parameter_events_topic(), None)
         .map_err(dds::error)?;
-    let outputs = Outputs {
+    Ok(Outputs {
         odometry: match topics.odometry.as_str() {
             "" => None,
-            topic => Some(publisher(&mut node, topic, ODOMETRY_TYPE, &output_qos)?),
+            topic => Some(publisher(node, topic, ODOMETRY_TYPE, &output_qos)?),
         },
         parameter_events,
-        state: publisher(&mut node, &topics.state, STATE_TYPE, &output_qos)?,
-        intercept: publisher(&mut node, &topics.intercept, INTERCEPT_TYPE, &output_qos)?,
-        trajectory: publisher(&mut node, &topics.trajectory, TRAJECTORY_TYPE, &output_qos)?,
-        markers: publisher(&mut node, &topics.markers, MARKERS_TYPE, &output_qos)?,
-        diagnostics: publisher(
-            &mut node,
-            &topics.diagnostics,
-            DIAGNOSTICS_TYPE,
-            &output_qos,
-        )?,
-    };
-    let clock = if config.use_sim_time {
-        Some(clock_subscription(&mut node)?)
-    } else {
-        None
-    };
-    // The DDS thread makes the /clock reader when `use_sim_time` is first set on the running
-    // node (it holds the node), and hands it to the estimator thread.
-    let (clock_wanted_tx, clock_wanted_rx) = mpsc::unbounded::<()>();
-    let (clock_made_tx, clock_made_rx) = channel::bounded::<Subscription<Clock>>(1);
+        state: publisher(node, &topics.state, STATE_TYPE, &output_qos)?,
+        intercept: publisher(node, &topics.intercept, INTERCEPT_TYPE, &output_qos)?,
+        trajectory: publisher(node, &topics.trajectory, TRAJECTORY_TYPE, &output_qos)?,
+        markers: publisher(node, &topics.markers, MARKERS_TYPE, &output_qos)?,
+        diagnostics: publisher(node, &topics.diagnostics, DIAGNOSTICS_TYPE, &output_qos)?,
+    })
+}
+
+/// The node's other inputs: `/tf_static` (its topic, to publish the table's pose on too) and
+/// the robot's announced hits.
+fn create_transform_and_hit_inputs(
+    node: &mut Node,
+    config: &Config,
+) -> Result<
+    (
+        ros2_client::dds::rustdds::Topic,
+        Subscription<TFMessage>,
+        Subscription<RobotHit>,
+    ),
+    NodeError,
+> {
     let tf_topic = node
         .create_topic(
             &dds::name(TF_STATIC_TOPIC)?,
@@ -349,7 +347,7 @@ fn start_here(config: &Config, placement: &Placement) -> Result<NodeHandle, Node
             &dds::tf_static(),
         )
         .map_err(dds::error)?;
-    let tf_static: Subscription<TFMessage> = node
+    let tf_static = node
         .create_subscription(&tf_topic, None)
         .map_err(dds::error)?;
     let robot_hits_topic = node
@@ -359,107 +357,84 @@ fn start_here(config: &Config, placement: &Placement) -> Result<NodeHandle, Node
             &dds::reliable(10),
         )
         .map_err(dds::error)?;
-    let robot_hits: Subscription<RobotHit> = node
+    let robot_hits = node
         .create_subscription(&robot_hits_topic, None)
         .map_err(dds::error)?;
-    let table_pose = table_transform(config, wall_clock_ns());
-    let tf_publisher = match &table_pose {
-        Some(msg) => {
-            let publisher: Publisher<TFMessage> =
-                node.create_publisher(&tf_topic, None).map_err(dds::error)?;
-            if publisher.publish(msg.clone()).is_err() {
-                warn!("the table's pose could not be published on {TF_STATIC_TOPIC}");
-            }
-            Some(publisher)
-        }
-        None => None,
+    Ok((tf_topic, tf_static, robot_hits))
+}
+
+/// The table's pose published on `/tf_static`, when the configuration places the table in a
+/// parent frame; the publisher is kept for the node's life (the topic is transient local).
+fn publish_table_pose(
+    node: &mut Node,
+    tf_topic: &ros2_client::dds::rustdds::Topic,
+    table_pose: Option<&TFMessage>,
+) -> Result<Option<Publisher<TFMessage>>, NodeError> {
+    let Some(msg) = table_pose else {
+        return Ok(None);
     };
-    let servers = Servers::new(&mut node, &node_name, config.node.service_mapping)?;
-    rosout::install(
-        node.create_publisher(&context.get_rosout_topic(), None)
-            .map_err(dds::error)?,
-        &fq_name,
-    );
-    let spinner = dds::spawn_spinner(&mut node)?;
+    let publisher: Publisher<TFMessage> =
+        node.create_publisher(tf_topic, None).map_err(dds::error)?;
+    if publisher.publish(msg.clone()).is_err() {
+        warn!("the table's pose could not be published on {TF_STATIC_TOPIC}");
+    }
+    Ok(Some(publisher))
+}
 
-    let shared = Arc::new(Shared::default());
-    let capacity = usize::try_from(config.node.queue_capacity).unwrap_or(usize::MAX);
-    let (request_tx, request_rx) = channel::bounded::<PendingRequest>(REQUEST_QUEUE);
-    let (reply_tx, reply_rx) = mpsc::unbounded::<PendingReply>();
-    let (stop_tx, stop_rx) = oneshot::channel::<()>();
-    let (ended_tx, ended_rx) = channel::bounded::<()>(0);
-
-    let parameters = Parameters::new(config);
+/// The node's pipeline: its lessons on a worker the detections never wait for, the table's
+/// pose taken when the node publishes one.
+fn node_pipeline(config: &Config, table_pose: Option<&TFMessage>) -> Pipeline {
     let mut pipeline = Pipeline::new(config);
-    // The ended tracks' lessons off the detection path: never waited for on a detection.
     if let Err(e) = pipeline.run_lessons_on_a_worker(Waiting::Never) {
         warn!("no thread for the tracks' lessons ({e}): they run between detections");
     }
-    if let Some(msg) = &table_pose {
+    if let Some(msg) = table_pose {
         pipeline.on_static_transforms(msg);
     }
-    let live_view = match &placement.live_view {
-        Some(address) => {
-            let view = LiveView::start(address)?;
-            info!(
-                "Foxglove live view on ws://{}:{} (in Foxglove: Open connection)",
-                address.rsplit_once(':').map_or("", |(host, _)| host),
-                view.port()
-            );
-            Some((view, topics.clone()))
-        }
-        None => None,
-    };
-    let keeper = match &placement.learned_file {
-        Some(path) => Some(
-            keeper::LearnedKeeper::start(
-                path.clone(),
-                placement
-                    .learned_base
-                    .clone()
-                    .unwrap_or_else(|| config.clone()),
-                fq_name.clone(),
-            )
-            .map_err(|e| NodeError::Thread(e.to_string()))?,
-        ),
-        None => None,
-    };
-    let estimator = EstimatorThread {
-        keeper,
-        live_view,
-        pipeline,
-        tf_static,
-        robot_hits,
-        _tf_publisher: tf_publisher,
-        clock: NodeClock {
-            simulated: config.use_sim_time,
-            asked: clock.is_some(),
-            subscription: clock,
-            latest: None,
-            wanted: clock_wanted_tx,
-            made: clock_made_rx,
-        },
-        outputs,
-        shared: Arc::clone(&shared),
-        node_name: fq_name.clone(),
-        detections_topic: topics.detections.clone(),
-        period: Duration::from_secs_f64(config.node.diagnostics_period),
-        capacity,
-        parameters,
-        sources: config
-            .sources
-            .all()
-            .iter()
-            .map(|_| (SourceWindow::new(), None))
-            .collect(),
-        source_index: config.sources.index(),
-        started: Instant::now(),
-    };
-    let estimator = std::thread::Builder::new()
-        .name("ttball-estimator".to_owned())
-        .spawn(move || estimator.run(subscription, &request_rx, &reply_tx))
-        .map_err(|e| NodeError::Thread(e.to_string()))?;
+    pipeline
+}
 
+/// The Foxglove live view, when asked for.
+fn start_live_view(
+    placement: &Placement,
+    topics: &crate::config::TopicsParams,
+) -> Result<Option<(LiveView, crate::config::TopicsParams)>, NodeError> {
+    let Some(address) = &placement.live_view else {
+        return Ok(None);
+    };
+    let view = LiveView::start(address)?;
+    info!(
+        "Foxglove live view on ws://{}:{} (in Foxglove: Open connection)",
+        address.rsplit_once(':').map_or("", |(host, _)| host),
+        view.port()
+    );
+    Ok(Some((view, topics.clone())))
+}
+
+/// The keeper of the learned file, when asked for.
+fn start_keeper(
+    placement: &Placement,
+    config: &Config,
+    fq_name: &str,
+) -> Result<Option<keeper::LearnedKeeper>, NodeError> {
+    let Some(path) = &placement.learned_file else {
+        return Ok(None);
+    };
+    keeper::LearnedKeeper::start(
+        path.clone(),
+        placement
+            .learned_base
+            .clone()
+            .unwrap_or_else(|| config.clone()),
+        fq_name.to_owned(),
+    )
+    .map(Some)
+    .map_err(|e| NodeError::Thread(e.to_string()))
+}
+
+/// Logs where the node runs and what it reads and writes.
+fn log_start(config: &Config, placement: &Placement, fq_name: &str) {
+    let topics = config.resolved_topics();
     let service_names = Service::ALL
         .iter()
         .map(|s| format!("{fq_name}/{}", s.name()))
@@ -489,6 +464,77 @@ fn start_here(config: &Config, placement: &Placement) -> Result<NodeHandle, Node
             String::new()
         },
     );
+}
+
+fn start_here(config: &Config, placement: &Placement) -> Result<NodeHandle, NodeError> {
+    let context = dds::context(placement.domain, placement.interfaces.as_deref())?;
+    let node_name = dds::node_name(config)?;
+    let mut node = dds::node(&context, node_name.clone(), false)?;
+    let fq_name = node_name.fully_qualified_name();
+
+    let topics = &config.resolved_topics();
+    let detections_topic = dds::detections_topic(&mut node, config)?;
+    let subscription: Subscription<BallDetection> = node
+        .create_subscription(&detections_topic, None)
+        .map_err(dds::error)?;
+    let outputs = create_outputs(&mut node, &context, config)?;
+    // The DDS thread makes the /clock reader when `use_sim_time` is first set on the running
+    // node (it holds the node), and hands it to the estimator thread.
+    let (clock_wanted_tx, clock_wanted_rx) = mpsc::unbounded::<()>();
+    let (clock_made_tx, clock_made_rx) = channel::bounded::<Subscription<Clock>>(1);
+    let clock = NodeClock::start(&mut node, config, clock_wanted_tx, clock_made_rx)?;
+    let (tf_topic, tf_static, robot_hits) = create_transform_and_hit_inputs(&mut node, config)?;
+    let table_pose = table_transform(config, wall_clock_ns());
+    let tf_publisher = publish_table_pose(&mut node, &tf_topic, table_pose.as_ref())?;
+    let servers = Servers::new(&mut node, &node_name, config.node.service_mapping)?;
+    rosout::install(
+        node.create_publisher(&context.get_rosout_topic(), None)
+            .map_err(dds::error)?,
+        &fq_name,
+    );
+    let spinner = dds::spawn_spinner(&mut node)?;
+
+    let shared = Arc::new(Shared::default());
+    let capacity = usize::try_from(config.node.queue_capacity).unwrap_or(usize::MAX);
+    let (request_tx, request_rx) = channel::bounded::<PendingRequest>(REQUEST_QUEUE);
+    let (reply_tx, reply_rx) = mpsc::unbounded::<PendingReply>();
+    let (stop_tx, stop_rx) = oneshot::channel::<()>();
+    let (ended_tx, ended_rx) = channel::bounded::<()>(0);
+
+    let parameters = Parameters::new(config);
+    let pipeline = node_pipeline(config, table_pose.as_ref());
+    let live_view = start_live_view(placement, topics)?;
+    let keeper = start_keeper(placement, config, &fq_name)?;
+    let estimator = EstimatorThread {
+        keeper,
+        live_view,
+        pipeline,
+        tf_static,
+        robot_hits,
+        _tf_publisher: tf_publisher,
+        clock,
+        outputs,
+        shared: Arc::clone(&shared),
+        node_name: fq_name.clone(),
+        detections_topic: topics.detections.clone(),
+        period: Duration::from_secs_f64(config.node.diagnostics_period),
+        capacity,
+        parameters,
+        sources: config
+            .sources
+            .all()
+            .iter()
+            .map(|_| (SourceWindow::new(), None))
+            .collect(),
+        source_index: config.sources.index(),
+        started: Instant::now(),
+    };
+    let estimator = std::thread::Builder::new()
+        .name("ttball-estimator".to_owned())
+        .spawn(move || estimator.run(subscription, &request_rx, &reply_tx))
+        .map_err(|e| NodeError::Thread(e.to_string()))?;
+
+    log_start(config, placement, &fq_name);
 
     let dds = std::thread::Builder::new()
         .name("ttball-dds".to_owned())
@@ -715,6 +761,29 @@ struct NodeClock {
 }
 
 impl NodeClock {
+    /// The node's clock: `/clock` with `use_sim_time` (its reader made now), else the system's;
+    /// a reader asked for later is `wanted` from the DDS thread and comes back on `made`.
+    fn start(
+        node: &mut Node,
+        config: &Config,
+        wanted: mpsc::UnboundedSender<()>,
+        made: Receiver<Subscription<Clock>>,
+    ) -> Result<Self, NodeError> {
+        let subscription = if config.use_sim_time {
+            Some(clock_subscription(node)?)
+        } else {
+            None
+        };
+        Ok(Self {
+            simulated: config.use_sim_time,
+            asked: subscription.is_some(),
+            subscription,
+            latest: None,
+            wanted,
+            made,
+        })
+    }
+
     /// Now [ns since the epoch].
     fn now_ns(&mut self) -> i64 {
         if !self.simulated {
@@ -822,23 +891,7 @@ impl EstimatorThread {
                     let _ = operation.recv(&rung);
                 }
                 i if i == on_request => match operation.recv(requests) {
-                    Ok((id, request)) => {
-                        let (reply, effect) =
-                            request.answer(&mut self.pipeline, &mut self.parameters);
-                        let (success, message) = reply.outcome();
-                        debug!("{}: success {success} {message}", request.service().name());
-                        let _ = replies.unbounded_send((id, reply));
-                        if let Effect::Changed(change) = effect {
-                            let names: Vec<&str> =
-                                change.changed.iter().map(|p| p.name.as_str()).collect();
-                            info!("parameters set: {}", names.join(", "));
-                            self.clock
-                                .set_simulated(self.parameters.config().use_sim_time);
-                            let now = self.now();
-                            let event = parameters::change_event(&change, now, &self.node_name);
-                            self.publish_parameter_event(event);
-                        }
-                    }
+                    Ok(pending) => self.answer(pending, replies),
                     // The DDS thread stopped: the node stops.
                     Err(_) => break,
                 },
@@ -877,7 +930,33 @@ impl EstimatorThread {
             &transport_before,
             0,
         );
-        // The stream has ended: the live track's lesson is learned before it is kept.
+        self.finish(&timings)
+    }
+
+    /// Answers one service request, publishing the parameter event of an accepted change.
+    fn answer(
+        &mut self,
+        (id, request): PendingRequest,
+        replies: &mpsc::UnboundedSender<PendingReply>,
+    ) {
+        let (reply, effect) = request.answer(&mut self.pipeline, &mut self.parameters);
+        let (success, message) = reply.outcome();
+        debug!("{}: success {success} {message}", request.service().name());
+        let _ = replies.unbounded_send((id, reply));
+        if let Effect::Changed(change) = effect {
+            let names: Vec<&str> = change.changed.iter().map(|p| p.name.as_str()).collect();
+            info!("parameters set: {}", names.join(", "));
+            self.clock
+                .set_simulated(self.parameters.config().use_sim_time);
+            let now = self.now();
+            let event = parameters::change_event(&change, now, &self.node_name);
+            self.publish_parameter_event(event);
+        }
+    }
+
+    /// The stream has ended: the live track's lesson and every lesson waiting are learned, the
+    /// learned file written, and what the thread did summed up.
+    fn finish(mut self, timings: &Timings) -> EstimatorResult {
         self.pipeline.end_of_input();
         let learned = NodeLearned {
             config: self.parameters.config().clone(),

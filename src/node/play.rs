@@ -168,16 +168,11 @@ pub struct PlaySummary {
 /// Gap between two passes of a repeated play, in both wall and stamp time [ns].
 const PASS_GAP_NS: i64 = 500_000_000;
 
-/// Plays the detections of `bag` (see the module doc). `progress` gets (published in this pass,
-/// detections per pass); `cancel` stops at the next detection.
-pub fn play(
+/// The detection messages of `bag` with their log times, and how many did not decode.
+fn detections_of(
     bag: &Path,
     config: &Config,
-    placement: &Placement,
-    options: &PlayOptions,
-    cancel: &AtomicBool,
-    progress: &mut dyn FnMut(u64, u64),
-) -> Result<PlaySummary, NodeError> {
+) -> Result<(Vec<(u64, BallDetection)>, u64), NodeError> {
     let contents = read_bag_file(bag).map_err(crate::bag::replay::ReplayError::from)?;
     let channel = detection_channel(
         &contents.channels,
@@ -185,7 +180,7 @@ pub fn play(
         bag,
     )?;
     let mut undecodable = 0u64;
-    let detections: Vec<(u64, BallDetection)> = contents
+    let detections = contents
         .messages
         .iter()
         .filter(|m| m.channel == channel)
@@ -197,6 +192,48 @@ pub fn play(
             }
         })
         .collect();
+    Ok((detections, undecodable))
+}
+
+/// Waits up to `options.wait_for_subscriber` for a subscriber of the detections and says how
+/// many there are.
+fn wait_for_subscribers(
+    node: &ros2_client::Node,
+    config: &Config,
+    options: &PlayOptions,
+    cancel: &AtomicBool,
+) -> usize {
+    let topic = config.resolved_topics().detections;
+    let deadline = Instant::now() + options.wait_for_subscriber;
+    while node.subscription_count(&topic) == 0
+        && Instant::now() < deadline
+        && !cancel.load(Ordering::Relaxed)
+    {
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    let subscribers = node.subscription_count(&topic);
+    if subscribers == 0 && !options.wait_for_subscriber.is_zero() {
+        warn!(
+            "no subscriber of {topic} after {:.1} s; playing anyway",
+            options.wait_for_subscriber.as_secs_f64()
+        );
+    } else {
+        info!("{subscribers} subscriber(s) of {topic}");
+    }
+    subscribers
+}
+
+/// Plays the detections of `bag` (see the module doc). `progress` gets (published in this pass,
+/// detections per pass); `cancel` stops at the next detection.
+pub fn play(
+    bag: &Path,
+    config: &Config,
+    placement: &Placement,
+    options: &PlayOptions,
+    cancel: &AtomicBool,
+    progress: &mut dyn FnMut(u64, u64),
+) -> Result<PlaySummary, NodeError> {
+    let (detections, undecodable) = detections_of(bag, config)?;
     let (Some((first, _)), Some((last, _))) = (detections.first(), detections.last()) else {
         return Ok(PlaySummary {
             undecodable,
@@ -219,26 +256,7 @@ pub fn play(
     let spinner = dds::spawn_spinner(&mut node)?;
 
     let started = Instant::now();
-    let deadline = started + options.wait_for_subscriber;
-    while node.subscription_count(&config.resolved_topics().detections) == 0
-        && Instant::now() < deadline
-        && !cancel.load(Ordering::Relaxed)
-    {
-        std::thread::sleep(Duration::from_millis(20));
-    }
-    let subscribers = node.subscription_count(&config.resolved_topics().detections);
-    if subscribers == 0 && !options.wait_for_subscriber.is_zero() {
-        warn!(
-            "no subscriber of {} after {:.1} s; playing anyway",
-            config.resolved_topics().detections,
-            options.wait_for_subscriber.as_secs_f64()
-        );
-    } else {
-        info!(
-            "{subscribers} subscriber(s) of {}",
-            config.resolved_topics().detections
-        );
-    }
+    let subscribers = wait_for_subscribers(&node, config, options, cancel);
 
     let mut summary = PlaySummary {
         undecodable,

@@ -739,32 +739,9 @@ pub fn calibrate_rubber(
     set: &HitSet,
     options: &RubberOptions,
 ) -> Result<RubberCalibration, RubberCalibrationError> {
-    if let Some(order) = options.restitution_order
-        && order > MAX_RESTITUTION_ORDER
-    {
-        return Err(RubberCalibrationError::Order(order));
-    }
-    let parameters = options.parameters();
-    if parameters.is_empty() {
-        return Err(RubberCalibrationError::NothingToFit);
-    }
+    let parameters = check_inputs(start, set, options)?;
     let n = set.hits.len();
-    if options.folds == 1 || options.folds > n {
-        return Err(RubberCalibrationError::Folds {
-            folds: options.folds,
-            hits: n,
-        });
-    }
     let start_model = RacketModel::new(start);
-    for (index, hit) in set.hits.iter().enumerate() {
-        if let Err(e) = predict(&start_model, hit) {
-            return Err(RubberCalibrationError::Unpredictable {
-                index,
-                group: set.groups.get(hit.group).cloned().unwrap_or_default(),
-                reason: e.to_string(),
-            });
-        }
-    }
     let axes = set.measured_velocity_axes();
     let problem = Problem {
         start: start.clone(),
@@ -781,30 +758,9 @@ pub fn calibrate_rubber(
     let fitted_model = RacketModel::new(&fit.config);
     let mut iterations = fit.iterations;
 
-    // Held-out predictions, fold by fold.
-    let mut held_out: Vec<Option<(Vector3<f64>, Vector3<f64>)>> = vec![None; n];
-    let mut fold_values: Vec<Vec<f64>> = vec![Vec::new(); parameters.len()];
-    for fold in 0..options.folds {
-        let training = set.subset(|i| i % options.folds != fold);
-        let fold_fit = Problem {
-            hits: &training,
-            ..problem.clone()
-        }
-        .fit()?;
-        iterations += fold_fit.iterations;
-        for (k, p) in parameters.iter().enumerate() {
-            fold_values[k].push(p.get(&fold_fit.config));
-        }
-        let model = RacketModel::new(&fold_fit.config);
-        for (i, hit) in set
-            .hits
-            .iter()
-            .enumerate()
-            .filter(|(i, _)| i % options.folds == fold)
-        {
-            held_out[i] = predict(&model, hit).ok();
-        }
-    }
+    let folds = held_out_fits(&problem, set, options.folds)?;
+    iterations += folds.iterations;
+    let (held_out, fold_values) = (folds.predictions, folds.values);
 
     let mut predictions = Vec::with_capacity(n);
     let groups = set.groups.len();
@@ -892,6 +848,91 @@ pub fn calibrate_rubber(
         cross_validation,
         predictions,
         iterations,
+    })
+}
+
+/// Checks `options` against `set` and that the starting model predicts every hit;
+/// returns the parameters to fit.
+fn check_inputs(
+    start: &Config,
+    set: &HitSet,
+    options: &RubberOptions,
+) -> Result<Vec<RubberParameter>, RubberCalibrationError> {
+    if let Some(order) = options.restitution_order
+        && order > MAX_RESTITUTION_ORDER
+    {
+        return Err(RubberCalibrationError::Order(order));
+    }
+    let parameters = options.parameters();
+    if parameters.is_empty() {
+        return Err(RubberCalibrationError::NothingToFit);
+    }
+    let n = set.hits.len();
+    if options.folds == 1 || options.folds > n {
+        return Err(RubberCalibrationError::Folds {
+            folds: options.folds,
+            hits: n,
+        });
+    }
+    let start_model = RacketModel::new(start);
+    for (index, hit) in set.hits.iter().enumerate() {
+        if let Err(e) = predict(&start_model, hit) {
+            return Err(RubberCalibrationError::Unpredictable {
+                index,
+                group: set.groups.get(hit.group).cloned().unwrap_or_default(),
+                reason: e.to_string(),
+            });
+        }
+    }
+    Ok(parameters)
+}
+
+/// The k-fold cross-validation's fits: each hit predicted by the fit to the other folds.
+struct HeldOut {
+    /// Per hit, the prediction of the fit that did not see it.
+    predictions: Vec<Option<(Vector3<f64>, Vector3<f64>)>>,
+    /// Per fitted parameter, its value in each fold's fit.
+    values: Vec<Vec<f64>>,
+    /// The folds' solver iterations together.
+    iterations: usize,
+}
+
+/// Fits `problem` once per fold with that fold's hits left out (none when `folds` is 0).
+fn held_out_fits(
+    problem: &Problem<'_>,
+    set: &HitSet,
+    folds: usize,
+) -> Result<HeldOut, RubberCalibrationError> {
+    let parameters = &problem.parameters;
+    let n = set.hits.len();
+    let mut held_out: Vec<Option<(Vector3<f64>, Vector3<f64>)>> = vec![None; n];
+    let mut fold_values: Vec<Vec<f64>> = vec![Vec::new(); parameters.len()];
+    let mut held_iterations = 0;
+    for fold in 0..folds {
+        let training = set.subset(|i| i % folds != fold);
+        let fold_fit = Problem {
+            hits: &training,
+            ..problem.clone()
+        }
+        .fit()?;
+        held_iterations += fold_fit.iterations;
+        for (k, p) in parameters.iter().enumerate() {
+            fold_values[k].push(p.get(&fold_fit.config));
+        }
+        let model = RacketModel::new(&fold_fit.config);
+        for (i, hit) in set
+            .hits
+            .iter()
+            .enumerate()
+            .filter(|(i, _)| i % folds == fold)
+        {
+            held_out[i] = predict(&model, hit).ok();
+        }
+    }
+    Ok(HeldOut {
+        predictions: held_out,
+        values: fold_values,
+        iterations: held_iterations,
     })
 }
 

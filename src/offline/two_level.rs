@@ -133,27 +133,10 @@ pub fn calibrate_two_level(
             }
         };
         at.adaptation.sigma = (0..PARAMS).map(sigma).collect();
-        let flight_prior = sub(&param_prior_variances(&at));
-        let flight_prior_information = DMatrix::from_diagonal(&flight_prior.map(|v| 1.0 / v));
-        let mut information = prior_information.clone();
-        let mut weighted = &prior_information * sub(&theta_0);
-        for flight in flights.iter().filter(|f| !f.is_empty()) {
-            let mut estimator = Estimator::new(&at);
-            for d in flight {
-                estimator.handle(d);
-            }
-            estimator.end_of_input();
-            let (theta, covariance) = estimator.learned_global();
-            let covariance = DMatrix::from_fn(n, n, |r, c| covariance[(active[r], active[c])]);
-            let Some(posterior) = Cholesky::new(covariance) else {
-                return Err(TwoLevelError::Singular(iterations));
-            };
-            let posterior_information = posterior.inverse();
-            // J = P'^-1 - P_pr^-1, b = P'^-1 theta' - P_pr^-1 theta_g.
-            information += &posterior_information - &flight_prior_information;
-            weighted +=
-                &posterior_information * sub(&theta) - &flight_prior_information * sub(&theta_g);
-        }
+        let (flights_information, flights_weighted) =
+            flights_information(&at, flights, &active, &theta_g, iterations)?;
+        let information = &prior_information + flights_information;
+        let weighted = &prior_information * sub(&theta_0) + flights_weighted;
         let Some(joint) = Cholesky::new(information) else {
             return Err(TwoLevelError::Singular(iterations));
         };
@@ -200,6 +183,39 @@ pub fn calibrate_two_level(
         converged,
         history,
     })
+}
+
+/// The flights' information on theta_g in sum, each flight alone through an estimator of `at`
+/// (the parameters `active`): J = P'^-1 - P_pr^-1 and b = P'^-1 theta' - P_pr^-1 theta_g.
+fn flights_information(
+    at: &Config,
+    flights: &[Vec<Detection>],
+    active: &[usize],
+    theta_g: &ParamVector,
+    iteration: usize,
+) -> Result<(DMatrix<f64>, DVector<f64>), TwoLevelError> {
+    let n = active.len();
+    let sub = |v: &ParamVector| DVector::from_iterator(n, active.iter().map(|&i| v[i]));
+    let flight_prior = sub(&param_prior_variances(at));
+    let flight_prior_information = DMatrix::from_diagonal(&flight_prior.map(|v| 1.0 / v));
+    let mut information = DMatrix::zeros(n, n);
+    let mut weighted = DVector::zeros(n);
+    for flight in flights.iter().filter(|f| !f.is_empty()) {
+        let mut estimator = Estimator::new(at);
+        for d in flight {
+            estimator.handle(d);
+        }
+        estimator.end_of_input();
+        let (theta, covariance) = estimator.learned_global();
+        let covariance = DMatrix::from_fn(n, n, |r, c| covariance[(active[r], active[c])]);
+        let Some(posterior) = Cholesky::new(covariance) else {
+            return Err(TwoLevelError::Singular(iteration));
+        };
+        let posterior_information = posterior.inverse();
+        information += &posterior_information - &flight_prior_information;
+        weighted += &posterior_information * sub(&theta) - &flight_prior_information * sub(theta_g);
+    }
+    Ok((information, weighted))
 }
 
 /// The four parameters in a line.

@@ -521,8 +521,24 @@ fn draw_view<DB: DrawingBackend>(
     };
     draw_mesh(&mut chart, fig, ("x [m]", y_desc))?;
 
-    let d = &fig.data;
-    let s = &d.scene;
+    draw_scene(&mut chart, fig, view, ys)?;
+    let inside = |p: &Vector3<f64>| {
+        let (a, b) = view.project(p);
+        finite(p) && xs.contains(a) && ys.contains(b)
+    };
+    draw_measured(&mut chart, fig, view, &inside)?;
+    draw_predicted(&mut chart, fig, view, &inside)?;
+    Ok(())
+}
+
+/// The table, the net and the hitting plane.
+fn draw_scene<DB: DrawingBackend>(
+    chart: &mut Chart<'_, DB, RangedCoordf64>,
+    fig: &Figure,
+    view: View,
+    ys: Span,
+) -> Result<(), PlotError> {
+    let s = &fig.data.scene;
     let (hl, hw) = (0.5 * s.table_length, 0.5 * s.table_width);
     let post = hw + s.net_overhang;
     let edge = TABLE_EDGE.stroke_width(fig.px(2.0) as u32);
@@ -558,11 +574,17 @@ fn draw_view<DB: DrawingBackend>(
         PLANE.stroke_width(fig.px(2.0) as u32),
     )])?;
 
-    let inside = |p: &Vector3<f64>| {
-        let (a, b) = view.project(p);
-        finite(p) && xs.contains(a) && ys.contains(b)
-    };
+    Ok(())
+}
 
+/// The true flight, the detections and the filtered track.
+fn draw_measured<DB: DrawingBackend>(
+    chart: &mut Chart<'_, DB, RangedCoordf64>,
+    fig: &Figure,
+    view: View,
+    inside: &dyn Fn(&Vector3<f64>) -> bool,
+) -> Result<(), PlotError> {
+    let d = &fig.data;
     // Truth, dashed, broken between shots.
     let mut truth: Vec<_> = d.truth.iter().filter(|t| inside(&t.position)).collect();
     truth.sort_by_key(|t| t.stamp);
@@ -616,6 +638,17 @@ fn draw_view<DB: DrawingBackend>(
         )])?;
     }
 
+    Ok(())
+}
+
+/// The predicted flights, bounces and crossings.
+fn draw_predicted<DB: DrawingBackend>(
+    chart: &mut Chart<'_, DB, RangedCoordf64>,
+    fig: &Figure,
+    view: View,
+    inside: &dyn Fn(&Vector3<f64>) -> bool,
+) -> Result<(), PlotError> {
+    let d = &fig.data;
     // Predicted flights over the track, later ones darker.
     let shown = chosen_trajectories(&d.trajectories, fig.predictions);
     let n = shown.len();

@@ -170,35 +170,7 @@ impl CalibrateArgs {
             }
             return rubber::run(&self, &config);
         }
-        if let Some(g) = self.fit.iter().find(|g| rubber_groups.contains(g)) {
-            bail!(BadUsage(format!(
-                "--fit {}: the rubber is calibrated from recorded hits: give them with --rebound HITS.csv",
-                g.to_possible_value()
-                    .map_or_else(String::new, |v| v.get_name().to_owned())
-            )));
-        }
-        let fit = match (self.fit.is_empty(), self.method) {
-            (true, Method::Batch) => vec![Group::Aero, Group::Bounce],
-            (true, Method::Estimator) => vec![Group::Scales, Group::Bounce],
-            (false, _) => self.fit.clone(),
-        };
-        if self.method == Method::Estimator {
-            if let Some(g) = fit
-                .iter()
-                .find(|g| !matches!(g, Group::Scales | Group::Bounce))
-            {
-                bail!(BadUsage(format!(
-                    "--fit {}: --method estimator fits what the estimator learns, scales and bounce; use --method batch for the rest",
-                    g.to_possible_value()
-                        .map_or_else(String::new, |v| v.get_name().to_owned())
-                )));
-            }
-            if self.plot.is_some() || self.drag_order.is_some() || self.magnus_order.is_some() {
-                bail!(BadUsage(
-                    "--plot, --drag-order and --magnus-order are for --method batch".to_owned()
-                ));
-            }
-        }
+        let fit = self.flight_groups(&rubber_groups)?;
         let options = Options {
             aero: fit.contains(&Group::Aero),
             scales: fit.contains(&Group::Scales),
@@ -207,20 +179,7 @@ impl CalibrateArgs {
             drag_order: self.drag_order,
             magnus_order: self.magnus_order,
         };
-        let mut flights = Vec::new();
-        for (recording, input) in self.inputs.iter().enumerate() {
-            let bag = read_detections(input, &config)
-                .with_context(|| format!("cannot read {}", input.display()))?;
-            let (tracks, _) = split_flights(&config, &bag.detections);
-            eprintln!("{}: {} flights", input.display(), tracks.len());
-            flights.extend(tracks.into_iter().map(|f| FlightInput {
-                label: FlightLabel {
-                    recording,
-                    track_id: f.track_id,
-                },
-                detections: f.members.iter().map(|&i| bag.detections[i]).collect(),
-            }));
-        }
+        let flights = self.read_flights(&config)?;
         let (fitted, held): (Vec<_>, Vec<_>) = if self.holdout {
             let (a, b): (Vec<_>, Vec<_>) = flights
                 .into_iter()
@@ -287,6 +246,60 @@ impl CalibrateArgs {
 }
 
 impl CalibrateArgs {
+    /// The flight's groups to fit (`--fit`, else the method's default), refused with the reason
+    /// where the method cannot fit them.
+    fn flight_groups(&self, rubber_groups: &[Group]) -> anyhow::Result<Vec<Group>> {
+        if let Some(g) = self.fit.iter().find(|g| rubber_groups.contains(g)) {
+            bail!(BadUsage(format!(
+                "--fit {}: the rubber is calibrated from recorded hits: give them with --rebound HITS.csv",
+                g.to_possible_value()
+                    .map_or_else(String::new, |v| v.get_name().to_owned())
+            )));
+        }
+        let fit = match (self.fit.is_empty(), self.method) {
+            (true, Method::Batch) => vec![Group::Aero, Group::Bounce],
+            (true, Method::Estimator) => vec![Group::Scales, Group::Bounce],
+            (false, _) => self.fit.clone(),
+        };
+        if self.method == Method::Estimator {
+            if let Some(g) = fit
+                .iter()
+                .find(|g| !matches!(g, Group::Scales | Group::Bounce))
+            {
+                bail!(BadUsage(format!(
+                    "--fit {}: --method estimator fits what the estimator learns, scales and bounce; use --method batch for the rest",
+                    g.to_possible_value()
+                        .map_or_else(String::new, |v| v.get_name().to_owned())
+                )));
+            }
+            if self.plot.is_some() || self.drag_order.is_some() || self.magnus_order.is_some() {
+                bail!(BadUsage(
+                    "--plot, --drag-order and --magnus-order are for --method batch".to_owned()
+                ));
+            }
+        }
+        Ok(fit)
+    }
+
+    /// The flights of every input, cut by the estimator's own tracks.
+    fn read_flights(&self, config: &ttball::config::Config) -> anyhow::Result<Vec<FlightInput>> {
+        let mut flights = Vec::new();
+        for (recording, input) in self.inputs.iter().enumerate() {
+            let bag = read_detections(input, config)
+                .with_context(|| format!("cannot read {}", input.display()))?;
+            let (tracks, _) = split_flights(config, &bag.detections);
+            eprintln!("{}: {} flights", input.display(), tracks.len());
+            flights.extend(tracks.into_iter().map(|f| FlightInput {
+                label: FlightLabel {
+                    recording,
+                    track_id: f.track_id,
+                },
+                detections: f.members.iter().map(|&i| bag.detections[i]).collect(),
+            }));
+        }
+        Ok(flights)
+    }
+
     /// `--method estimator`: the flights through [`calibrate_two_level`], the groups not asked
     /// for held at their configured values.
     fn run_estimator(
