@@ -153,7 +153,7 @@ pub enum Command {
     /// and arm at the impact point, velocity-dependent restitution, contact time and force from
     /// the ball-rubber restoring characteristic, spin from the rubber's friction, the force on
     /// the grip; then the return flight to its first bounce. The default ball is a real rally
-    /// ball at the hitting plane; the default stroke a flat drive. --chart draws e along the
+    /// ball at the hitting plane; the default stroke a drive with a slightly closed face. --chart draws e along the
     /// racket and against impact speed.
     #[command(after_help = "Examples:\n  \
         ttball rebound                                                   # a drive on a real ball\n  \

@@ -77,9 +77,10 @@ pub struct ReboundArgs {
           default_value = "2.7,0,0")]
     pub racket_velocity: Vector3<f64>,
 
-    /// Normal of the hitting face, pointing toward the ball (normalised here).
+    /// Normal of the hitting face, pointing toward the ball (normalised here); the default
+    /// closes the face by 6 degrees.
     #[arg(long, value_name = "NX,NY,NZ", value_parser = parse_vector, allow_hyphen_values = true,
-          default_value = "1,0,0")]
+          default_value = "1,0,-0.1")]
     pub normal: Vector3<f64>,
 
     /// Also draw the racket's rebound power coefficient along its long axis and against impact
@@ -283,7 +284,7 @@ fn describe_rebound(
          contact time            {:.3} ms\n  \
          contact force           mean {:.1} N, peak {:.1} N\n  \
          deformation             {:.2} mm at the mean force (ball and rubber)\n  \
-         tangential              {} (rubber friction {})\n  \
+         tangential              {} (rubber friction {:.3})\n  \
          wrist / grip load       peak {:.1} N (chi = {:+.3}), shock {:.0} m/s^2",
         racket.impact_offset,
         (config.racket.center_of_gravity_from_grip_end + racket.impact_offset) * 1e3,
@@ -299,8 +300,14 @@ fn describe_rebound(
         contact.peak_force,
         contact.deformation_at_mean_force * 1e3,
         match hit.regime {
-            BounceRegime::Rolling => "the ball leaves rolling on the rubber",
-            BounceRegime::Sliding => "the ball slides on the rubber throughout",
+            BounceRegime::Rolling if config.racket.rubber_tangential_restitution == 0.0 => {
+                "the ball leaves rolling on the rubber".to_owned()
+            }
+            BounceRegime::Rolling => format!(
+                "the rubber grips: the contact point's slip leaves reversed, {:.2} of itself",
+                config.racket.rubber_tangential_restitution
+            ),
+            BounceRegime::Sliding => "the ball slides on the rubber throughout".to_owned(),
         },
         config.racket.rubber_friction,
         hit.wrist.peak_force,

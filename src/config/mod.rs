@@ -179,8 +179,8 @@ pub struct RacketParams {
     /// point A at b = 132 mm from the centre of gravity, 279 mm from the grip end (Kawazoe & Suzuki).
     pub face_end_from_grip_end: f64,
     /// Coefficient of restitution of the ball on the clamped rubber, e_RB(V) = c0 + c1 V + ...,
-    /// V the normal impact speed [m/s], lowest order first; clamped to [0, 1]. Kawazoe & Suzuki eq. (2):
-    /// 0.77 - 0.0123 V (38 mm ball on Tamas SRIVER, 1.9 mm sponge).
+    /// V the normal impact speed [m/s], lowest order first; clamped to [0, 1]. Default: the
+    /// inverted rubbers of tt_rackets (source in config/ttball.yaml).
     pub rubber_restitution: Vec<f64>,
     /// Coulomb friction coefficient between ball and rubber [-]: the tangential impulse is at most
     /// this times the normal impulse (docs/models.md "Racket impact"; source in config/ttball.yaml).
@@ -231,21 +231,44 @@ impl Default for RacketParams {
             sponge_thickness: 0.0019,
             face_start_from_grip_end: 0.10,
             face_end_from_grip_end: 0.279,
-            rubber_restitution: vec![0.77, -0.0123],
-            rubber_friction: RUBBER_FRICTION,
-            rubber_tangential_restitution: 0.0,
-            rubber_torsional_restitution: 1.0,
-            rubber_covariance: Vec::new(),
-            rebound_scatter: vec![0.0, 0.0],
+            rubber_restitution: vec![0.897019, -0.021778],
+            rubber_friction: 0.604901,
+            rubber_tangential_restitution: 0.678499,
+            rubber_torsional_restitution: -0.173825,
+            rubber_covariance: vec![
+                3.367062e-5,
+                -4.269639e-6,
+                -1.822356e-6,
+                0.0,
+                0.0, //
+                -4.269639e-6,
+                5.647390e-7,
+                1.775451e-7,
+                0.0,
+                0.0, //
+                -1.822356e-6,
+                1.775451e-7,
+                2.456105e-6,
+                0.0,
+                0.0, //
+                0.0,
+                0.0,
+                0.0,
+                6.396476e-6,
+                0.0, //
+                0.0,
+                0.0,
+                0.0,
+                0.0,
+                3.052353e-4,
+            ],
+            rebound_scatter: vec![0.235568, 12.480061],
             restoring_force_vs_stiffness: vec![0.0, 0.0, 0.0, HERTZ_RESTORING_CUBIC],
             vibration_mode_frequencies: Vec::new(),
             vibration_mode_masses: Vec::new(),
         }
     }
 }
-
-/// Default ball-rubber friction coefficient (source in config/ttball.yaml).
-pub const RUBBER_FRICTION: f64 = 1.0;
 
 /// Default restoring characteristic F = c3 K^3 [N per (N/m)^3]: the Hertz contact law
 /// F = k X^{3/2} written as F = f(K) (K = dF/dX gives F = 8 K^3 / (27 k^2)), with k set to

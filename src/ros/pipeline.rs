@@ -902,12 +902,24 @@ mod tests {
         given.ball.covariance = intercept.covariance;
         assert_eq!(pipeline.plan_return(&given), plan);
         // The interception's uncertainty carried to the landing: a positive variance of x, y
-        // and the flight time, a symmetric matrix; none without a covariance.
+        // and the flight time, a symmetric matrix; without the ball's covariance only the
+        // rubber's own (its calibration's covariance and scatter), none with a rubber known
+        // exactly.
         let c = plan.landing_covariance;
         assert!(c[0] > 0.0 && c[4] > 0.0 && c[8] > 0.0, "{c:?}");
         assert_eq!((c[1], c[2], c[5]), (c[3], c[6], c[7]));
         given.ball.covariance = [0.0; 81];
-        assert_eq!(pipeline.plan_return(&given).landing_covariance, [0.0; 9]);
+        let rubber_only = pipeline.plan_return(&given).landing_covariance;
+        assert!(
+            rubber_only[0] > 0.0 && rubber_only[0] < c[0],
+            "{rubber_only:?}"
+        );
+        let mut exact = config.clone();
+        exact.racket.rubber_covariance.clear();
+        exact.racket.rebound_scatter = vec![0.0, 0.0];
+        let plan_exact = Pipeline::new(&exact).plan_return(&given);
+        assert!(plan_exact.success, "{}", plan_exact.message);
+        assert_eq!(plan_exact.landing_covariance, [0.0; 9]);
         let rebound = pipeline.predict_rebound(&rebound_request(&given.ball, &plan, 0.0));
         assert!(rebound.lands_on_table);
         assert!(distance(&rebound.landing_position, &request.target) < 1e-3);

@@ -90,7 +90,26 @@ fn the_aimed_command_lands_on_the_target_through_rebound() {
         c.len() == 9 && c[0] > 0.0 && c[4] > 0.0 && c[8] > 0.0,
         "{c:?}"
     );
-    assert_eq!(plan["landing_covariance"], serde_json::Value::Null);
+    // Without it, the rubber's own (its calibration's covariance and scatter): smaller; none
+    // with a rubber known exactly.
+    let rubber_only = plan["landing_covariance"][0].as_f64().unwrap();
+    assert!(
+        rubber_only > 0.0 && rubber_only < c[0],
+        "{rubber_only} vs {}",
+        c[0]
+    );
+    let exact = json(&[
+        "aim",
+        "--target",
+        "1.0,-0.4",
+        "--config",
+        &format!(
+            "{}/config/presets/rubber_sriver_seed.yaml",
+            env!("CARGO_MANIFEST_DIR")
+        ),
+        "--json",
+    ]);
+    assert_eq!(exact["landing_covariance"], serde_json::Value::Null);
 }
 
 #[test]

@@ -15,9 +15,22 @@ use ttball::physics::bounce::BounceRegime;
 use ttball::physics::racket::{RacketModel, RacketState, rebound_power_coefficient};
 use ttball::physics::state::BallState;
 
-/// The seed's own ball: 38 mm, 2.5 g.
-fn seed_config() -> Config {
+/// The defaults with the seeds' rubber (config/presets/rubber_sriver_seed.yaml): Kawazoe &
+/// Suzuki's e_RB(V), a grip that rolls the ball out, no torsional return, known exactly.
+fn seed_rubber() -> Config {
     let mut config = Config::default();
+    config.racket.rubber_restitution = vec![0.77, -0.0123];
+    config.racket.rubber_friction = 1.0;
+    config.racket.rubber_tangential_restitution = 0.0;
+    config.racket.rubber_torsional_restitution = 1.0;
+    config.racket.rubber_covariance.clear();
+    config.racket.rebound_scatter = vec![0.0, 0.0];
+    config
+}
+
+/// The seed's own ball (38 mm, 2.5 g) and rubber.
+fn seed_config() -> Config {
+    let mut config = seed_rubber();
     config.ball.mass = 0.0025;
     config.ball.radius = 0.019;
     config
@@ -144,7 +157,7 @@ fn e_peaks_where_the_reduced_mass_is_largest_along_the_long_axis() {
 
 #[test]
 fn contact_lasts_about_a_millisecond_at_rally_speeds_and_shortens_with_speed() {
-    let model = RacketModel::new(&Config::default());
+    let model = RacketModel::new(&seed_rubber());
     let mut last = f64::INFINITY;
     for speed in [3.0, 5.0, 10.0, 15.0, 20.0, 30.0] {
         let impact = model.normal_impact(speed, 0.0).expect("contact");
@@ -177,7 +190,7 @@ fn contact_lasts_about_a_millisecond_at_rally_speeds_and_shortens_with_speed() {
 
 #[test]
 fn the_transcribed_eq1_is_refused_with_a_clear_message() {
-    let mut config = Config::default();
+    let mut config = seed_rubber();
     let kgf = 9.80665;
     let kgf_per_mm: f64 = 9806.65;
     config.racket.restoring_force_vs_stiffness = [-0.0999, 0.1098, 0.1433, -0.066]
@@ -225,7 +238,7 @@ fn tilted_stroke() -> RacketState {
 /// tangential impulse is bounded by mu times the normal one; total energy does not grow.
 #[test]
 fn normal_momentum_is_conserved_and_energy_does_not_grow() {
-    let config = Config::default();
+    let config = seed_rubber();
     let model = RacketModel::new(&config);
     let m = config.ball.mass;
     for racket in [racket_at_rest(Vector3::x()), tilted_stroke()] {
@@ -254,7 +267,7 @@ fn normal_momentum_is_conserved_and_energy_does_not_grow() {
 /// With e_RB = 1, no friction and a rigid holder, the impact is perfectly elastic.
 #[test]
 fn an_elastic_frictionless_hit_keeps_the_energy() {
-    let mut config = Config::default();
+    let mut config = seed_rubber();
     config.racket.rubber_restitution = vec![1.0];
     config.racket.rubber_friction = 0.0;
     let model = RacketModel::new(&config);
@@ -278,7 +291,7 @@ fn an_elastic_frictionless_hit_keeps_the_energy() {
 /// impact leaves no slip at the contact point.
 #[test]
 fn a_racket_at_rest_rebounds_as_eq12_and_rolling_leaves_no_slip() {
-    let config = Config::default();
+    let config = seed_rubber();
     let model = RacketModel::new(&config);
     let ball = BallState::new(
         Vector3::new(-1.6, 0.0, 0.2),
@@ -311,7 +324,7 @@ fn a_racket_at_rest_rebounds_as_eq12_and_rolling_leaves_no_slip() {
 /// same physics: M_H A = |chi| F. A free racket loads nothing.
 #[test]
 fn wrist_force_and_grip_acceleration_agree() {
-    let config = Config::default();
+    let config = seed_rubber();
     for arm in [0.3, 1.0, 5.0] {
         let model = RacketModel::new(&config).with_arm_mass(arm);
         for offset in [-0.04, 0.0, 0.05, 0.1, 0.13] {
@@ -333,7 +346,7 @@ fn wrist_force_and_grip_acceleration_agree() {
 /// restitution as eq. (19) says, and a mode far above 1 / T_c takes almost nothing.
 #[test]
 fn vibration_loss_follows_eq19() {
-    let mut config = Config::default();
+    let mut config = seed_rubber();
     let plain = RacketModel::new(&config)
         .normal_impact(20.0, 0.1)
         .expect("contact");
@@ -362,7 +375,7 @@ fn vibration_loss_follows_eq19() {
 
 #[test]
 fn bad_racket_states_are_refused_with_reasons() {
-    let model = RacketModel::new(&Config::default());
+    let model = RacketModel::new(&seed_rubber());
     let ball = incoming();
     let cases = [
         (racket_at_rest(Vector3::new(2.0, 0.0, 0.0)), "unit vector"),
@@ -400,7 +413,7 @@ fn aim(target: (f64, f64), condition: ReturnCondition) -> Aim {
 /// The planner's command, fed to the forward model, lands within 1 mm of the target.
 #[test]
 fn the_planned_command_lands_on_the_target() {
-    let stroke = Stroke::new(&Config::default());
+    let stroke = Stroke::new(&seed_rubber());
     let balls = [
         incoming(),
         BallState::new(
@@ -444,7 +457,7 @@ fn the_planned_command_lands_on_the_target() {
 
 #[test]
 fn unreachable_targets_are_reported() {
-    let mut config = Config::default();
+    let mut config = seed_rubber();
     config.stroke.max_racket_speed = 2.0;
     let stroke = Stroke::new(&config);
     let err = stroke
@@ -498,7 +511,7 @@ mod properties {
             w in prop::array::uniform3(-700.0f64..700.0),
             racket in racket_state(),
         ) {
-            let config = Config::default();
+            let config = seed_rubber();
             let model = RacketModel::new(&config);
             let ball = BallState::new(Vector3::new(-1.6, 0.0, 0.3), Vector3::new(v.0, v.1, v.2), w.into());
             let n = racket.normal;
@@ -546,7 +559,7 @@ mod properties {
     /// nearly all are found.
     #[test]
     fn random_plans_land_on_their_targets() {
-        let stroke = Stroke::new(&Config::default());
+        let stroke = Stroke::new(&seed_rubber());
         let mut state = 0x2545_f491_4f6c_dd1du64;
         let mut uniform = |lo: f64, hi: f64| {
             state ^= state << 13;
@@ -600,7 +613,7 @@ mod properties {
 #[test]
 fn landing_covariance_matches_monte_carlo() {
     use ttball::physics::state::StateMatrix;
-    let stroke = Stroke::new(&Config::default());
+    let stroke = Stroke::new(&seed_rubber());
     let ball = incoming();
     let plan = stroke
         .plan(&ball, &aim((0.9, 0.2), ReturnCondition::NetClearance(0.2)))
@@ -741,7 +754,7 @@ fn tangential_restitution_reverses_the_contact_point_where_the_rubber_grips() {
     let contact_slip =
         |b: &BallState, r: f64| b.velocity - n * b.velocity.dot(&n) - r * b.spin.cross(&n);
     for e_t in [0.0, 0.3, 0.7, -0.5] {
-        let mut config = Config::default();
+        let mut config = seed_rubber();
         config.racket.rubber_tangential_restitution = e_t;
         let r = config.ball.radius;
         let model = RacketModel::new(&config);
@@ -764,7 +777,7 @@ fn tangential_restitution_reverses_the_contact_point_where_the_rubber_grips() {
         );
     }
     // Little friction: the ball slides, the cap is the Coulomb impulse whatever e_t.
-    let mut config = Config::default();
+    let mut config = seed_rubber();
     config.racket.rubber_friction = 0.01;
     config.racket.rubber_tangential_restitution = 0.7;
     let sliding = RacketModel::new(&config)
@@ -844,8 +857,8 @@ fn rebound_rms(model: &RacketModel, rebounds: &[RealRebound]) -> (f64, f64) {
 /// step of issue 26, whose targets need the normal restitution fitted too.
 #[test]
 fn tangential_restitution_returns_the_spin_real_inverted_rubbers_return() {
-    let rolling = Config::default();
-    let mut elastic = Config::default();
+    let rolling = seed_rubber();
+    let mut elastic = seed_rubber();
     elastic.racket.rubber_tangential_restitution = 0.7;
     let (rolling, elastic) = (RacketModel::new(&rolling), RacketModel::new(&elastic));
     for racket in ["01", "02", "03", "04", "09", "05"] {
@@ -892,7 +905,7 @@ fn return_scenario(seed: u64) -> ReturnScenario {
     let mut truth_config = config.clone();
     truth_config.racket.rubber_restitution[0] += 0.02;
     truth_config.racket.rubber_tangential_restitution += 0.03;
-    let truth = Estimator::new(&Config::default());
+    let truth = Estimator::new(&seed_rubber());
     let mut gaussian = gaussians(seed);
     // The incoming ball just after its bounce on the robot's half, to the hitting plane.
     let start = BallState::new(
