@@ -235,33 +235,7 @@ impl Default for RacketParams {
             rubber_friction: 0.604901,
             rubber_tangential_restitution: 0.678499,
             rubber_torsional_restitution: -0.173825,
-            rubber_covariance: vec![
-                3.367062e-5,
-                -4.269639e-6,
-                -1.822356e-6,
-                0.0,
-                0.0, //
-                -4.269639e-6,
-                5.647390e-7,
-                1.775451e-7,
-                0.0,
-                0.0, //
-                -1.822356e-6,
-                1.775451e-7,
-                2.456105e-6,
-                0.0,
-                0.0, //
-                0.0,
-                0.0,
-                0.0,
-                6.396476e-6,
-                0.0, //
-                0.0,
-                0.0,
-                0.0,
-                0.0,
-                3.052353e-4,
-            ],
+            rubber_covariance: DEFAULT_RUBBER_COVARIANCE.to_vec(),
             rebound_scatter: vec![0.235568, 12.480061],
             restoring_force_vs_stiffness: vec![0.0, 0.0, 0.0, HERTZ_RESTORING_CUBIC],
             vibration_mode_frequencies: Vec::new(),
@@ -269,6 +243,18 @@ impl Default for RacketParams {
         }
     }
 }
+
+/// Covariance of the default rubber's calibrated constants, row by row over (e_RB's two
+/// coefficients, friction, tangential and torsional restitution), as `ttball calibrate
+/// --rebound` wrote it (source in config/ttball.yaml).
+#[rustfmt::skip]
+const DEFAULT_RUBBER_COVARIANCE: [f64; 25] = [
+    3.367062e-5, -4.269639e-6, -1.822356e-6, 0.0, 0.0,
+    -4.269639e-6, 5.647390e-7, 1.775451e-7, 0.0, 0.0,
+    -1.822356e-6, 1.775451e-7, 2.456105e-6, 0.0, 0.0,
+    0.0, 0.0, 0.0, 6.396476e-6, 0.0,
+    0.0, 0.0, 0.0, 0.0, 3.052353e-4,
+];
 
 /// Default restoring characteristic F = c3 K^3 [N per (N/m)^3]: the Hertz contact law
 /// F = k X^{3/2} written as F = f(K) (K = dF/dX gives F = 8 K^3 / (27 k^2)), with k set to

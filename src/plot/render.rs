@@ -573,7 +573,6 @@ fn draw_scene<DB: DrawingBackend>(
         f64::from(fig.px(6.0)),
         PLANE.stroke_width(fig.px(2.0) as u32),
     )])?;
-
     Ok(())
 }
 
@@ -637,7 +636,6 @@ fn draw_measured<DB: DrawingBackend>(
             TRACK.stroke_width(fig.px(2.0) as u32),
         )])?;
     }
-
     Ok(())
 }
 

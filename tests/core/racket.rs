@@ -18,14 +18,9 @@ use ttball::physics::state::BallState;
 /// The defaults with the seeds' rubber (config/presets/rubber_sriver_seed.yaml): Kawazoe &
 /// Suzuki's e_RB(V), a grip that rolls the ball out, no torsional return, known exactly.
 fn seed_rubber() -> Config {
-    let mut config = Config::default();
-    config.racket.rubber_restitution = vec![0.77, -0.0123];
-    config.racket.rubber_friction = 1.0;
-    config.racket.rubber_tangential_restitution = 0.0;
-    config.racket.rubber_torsional_restitution = 1.0;
-    config.racket.rubber_covariance.clear();
-    config.racket.rebound_scatter = vec![0.0, 0.0];
-    config
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("config/presets/rubber_sriver_seed.yaml");
+    ttball::config::yaml::load(Some(&path), &[] as &[String]).unwrap()
 }
 
 /// The seed's own ball (38 mm, 2.5 g) and rubber.
