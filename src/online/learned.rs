@@ -9,8 +9,66 @@
 use crate::config::Config;
 #[cfg(feature = "interface")]
 use crate::config::ConfigError;
-use crate::online::estimator::{LearnedParams, LearnedSourceNoise};
-use crate::physics::PhysicsParams;
+use crate::online::ekf::ParamCovariance;
+use crate::online::estimator::{PRIOR_WEIGHT, SourceNoiseEstimate};
+use crate::physics::{PARAMS, ParamVector, PhysicsParams};
+
+/// What the estimator has learned of one source's noise ([`Estimator::learned_noise`](crate::online::estimator::Estimator::learned_noise)).
+#[derive(Debug, Clone, PartialEq)]
+pub struct LearnedSourceNoise {
+    /// The source's configuration key (`sources.*`).
+    pub source: String,
+    /// Its position sigma [m]: the configured one times the learned scale's square root.
+    pub position_sigma: f64,
+    /// The sigma of its stamps' timing [s].
+    pub stamp_sigma: f64,
+    /// The estimate behind them.
+    pub estimate: SourceNoiseEstimate,
+}
+
+impl LearnedSourceNoise {
+    /// Whether its detections have taught anything yet (beyond the configured prior's weight).
+    pub fn has_learned(&self) -> bool {
+        self.estimate.weight > PRIOR_WEIGHT
+    }
+
+    /// Whether its spins have taught anything yet.
+    pub fn has_learned_spin(&self) -> bool {
+        self.estimate.spin_weight > PRIOR_WEIGHT
+    }
+}
+
+/// The physical parameters the estimator has learned ([`Estimator::learned_params`](crate::online::estimator::Estimator::learned_params)).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct LearnedParams {
+    /// The estimate (of the live track, else as the last track left it).
+    pub params: PhysicsParams,
+    /// Standard deviation of each parameter, in the order of [`PhysicsParams::NAMES`] [-].
+    pub sigma: [f64; PARAMS],
+    /// Tracks that have contributed, the live one included.
+    pub tracks: u64,
+    /// How much each parameter scatters from flight to flight about these [-] (the configured
+    /// dispersion's standard deviation; zero for a single flight's own parameters).
+    pub flight_sigma: [f64; PARAMS],
+}
+
+impl LearnedParams {
+    /// Parameters `theta` of covariance `covariance`, learned over `tracks` tracks, with a
+    /// flight-to-flight dispersion of variances `dispersion`.
+    pub(crate) fn new(
+        theta: &ParamVector,
+        covariance: &ParamCovariance,
+        tracks: u64,
+        dispersion: &ParamVector,
+    ) -> Self {
+        Self {
+            params: PhysicsParams::from_vector(theta),
+            sigma: std::array::from_fn(|i| covariance[(i, i)].max(0.0).sqrt()),
+            tracks,
+            flight_sigma: std::array::from_fn(|i| dispersion[i].max(0.0).sqrt()),
+        }
+    }
+}
 
 /// Everything an estimator has learned, as it stands.
 #[derive(Debug, Clone, PartialEq)]

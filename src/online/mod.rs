@@ -9,6 +9,7 @@
 //!   its linearisation (the unscented transform), for the filter and the interception.
 //! - [`contact_side`]: the published covariance near a table contact, widened by the chance that
 //!   the ball is on the other side of it.
+//! - `initial_fit`: a track's first state, fitted to its first detections.
 //! - [`measurement`]: a detection as a measurement with its noise, shared by the filter and the
 //!   batch fit.
 //! - [`learned`]: what an estimator learned, in words and as a configuration file to start the
@@ -21,6 +22,7 @@ pub mod bounce_spread;
 pub mod contact_side;
 pub mod ekf;
 pub mod estimator;
+pub(crate) mod initial_fit;
 pub mod intercept;
 pub mod learned;
 pub mod measurement;

@@ -496,7 +496,8 @@ impl Propagator {
     }
 
     /// The same propagator with the table outline grown by `margin` [m] on every side (shrunk
-    /// when negative): the other hypothesis for a ball that lands on the table's edge.
+    /// when negative), e.g. a table without edges for a solver that must not see the ball
+    /// fall off it.
     pub fn with_edge_margin(&self, margin: f64) -> Self {
         Self {
             edge_margin: margin,

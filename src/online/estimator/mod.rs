@@ -20,7 +20,6 @@ mod adaptation;
 mod camera_noise;
 mod counters;
 mod fusion;
-mod init;
 mod lessons;
 mod smoother;
 mod tracker;
@@ -30,11 +29,12 @@ use crate::model::detection::{Detection, seconds_to_ns};
 use crate::online::contact_side::with_contact_side;
 use crate::online::ekf::{BounceNoise, ParamCovariance};
 use crate::online::intercept::{Intercept, InterceptQuery, InterceptTracker};
-pub use crate::online::learned::{LearnedSummary, describe_params, describe_source_noise};
+pub use crate::online::learned::{
+    LearnedParams, LearnedSourceNoise, LearnedSummary, describe_params, describe_source_noise,
+};
 pub use crate::online::measurement::{MAX_RANGE, Measurement};
 use crate::physics::{
-    BallState, PARAMS, ParamVector, PhysicsParams, PredictOptions, Propagator, StateMatrix,
-    Trajectory, predict,
+    BallState, ParamVector, PredictOptions, Propagator, StateMatrix, Trajectory, predict,
 };
 pub(crate) use adaptation::param_prior_variances;
 use adaptation::{Adaptation, Learned, drift_density};
@@ -110,31 +110,6 @@ pub struct Output {
     pub intercept: Option<InterceptEstimate>,
 }
 
-/// What the estimator has learned of one source's noise ([`Estimator::learned_noise`]).
-#[derive(Debug, Clone, PartialEq)]
-pub struct LearnedSourceNoise {
-    /// The source's configuration key (`sources.*`).
-    pub source: String,
-    /// Its position sigma [m]: the configured one times the learned scale's square root.
-    pub position_sigma: f64,
-    /// The sigma of its stamps' timing [s].
-    pub stamp_sigma: f64,
-    /// The estimate behind them.
-    pub estimate: SourceNoiseEstimate,
-}
-
-impl LearnedSourceNoise {
-    /// Whether its detections have taught anything yet (beyond the configured prior's weight).
-    pub fn has_learned(&self) -> bool {
-        self.estimate.weight > camera_noise::PRIOR_WEIGHT
-    }
-
-    /// Whether its spins have taught anything yet.
-    pub fn has_learned_spin(&self) -> bool {
-        self.estimate.spin_weight > camera_noise::PRIOR_WEIGHT
-    }
-}
-
 /// What an estimator has learned of the physical parameters, carried to another
 /// ([`Estimator::learned_physics`], [`Estimator::adopt_learned_physics`]).
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -152,38 +127,6 @@ impl LearnedPhysics {
             self.params.tracks(),
             &self.params.dispersion(),
         )
-    }
-}
-
-/// The physical parameters the estimator has learned ([`Estimator::learned_params`]).
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct LearnedParams {
-    /// The estimate (of the live track, else as the last track left it).
-    pub params: PhysicsParams,
-    /// Standard deviation of each parameter, in the order of [`PhysicsParams::NAMES`] [-].
-    pub sigma: [f64; PARAMS],
-    /// Tracks that have contributed, the live one included.
-    pub tracks: u64,
-    /// How much each parameter scatters from flight to flight about these [-] (the configured
-    /// dispersion's standard deviation; zero for a single flight's own parameters).
-    pub flight_sigma: [f64; PARAMS],
-}
-
-impl LearnedParams {
-    /// Parameters `theta` of covariance `covariance`, learned over `tracks` tracks, with a
-    /// flight-to-flight dispersion of variances `dispersion`.
-    fn new(
-        theta: &ParamVector,
-        covariance: &ParamCovariance,
-        tracks: u64,
-        dispersion: &ParamVector,
-    ) -> Self {
-        Self {
-            params: PhysicsParams::from_vector(theta),
-            sigma: std::array::from_fn(|i| covariance[(i, i)].max(0.0).sqrt()),
-            tracks,
-            flight_sigma: std::array::from_fn(|i| dispersion[i].max(0.0).sqrt()),
-        }
     }
 }
 
