@@ -140,14 +140,18 @@ fn report(
     let forces = flight.forces(&start.velocity, &start.spin);
     let mut out = format!(
         "Predicted flight over {:.3} s (RK4 step {:.1} ms, events root-found inside the step)\n\
-         start: |v| = {:.2} m/s, |w| = {:.0} rad/s, Sp = {:.3}, C_D = {:.3}, C_M = {:.3}\n\n",
+         start: |v| = {:.2} m/s, |w| = {:.0} rad/s, Re = {:.2e}, Sp = {:.3}, \
+         C_D = {:.3} (x k_D {:.2}), C_M = {:.3} (x k_M {:.2})\n\n",
         options.horizon,
         propagator.max_step() * 1e3,
         start.velocity.norm(),
         start.spin.norm(),
+        forces.reynolds_number,
         forces.spin_parameter,
         forces.drag_coefficient,
+        flight.scales().0,
         forces.magnus_coefficient,
+        flight.scales().1,
     );
     out.push_str(
         "   t [s]  event                                   x [m]   y [m]   z [m]  vx     vy     vz [m/s]   wx     wy     wz [rad/s]\n",

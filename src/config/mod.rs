@@ -48,7 +48,8 @@ impl Default for BallParams {
 pub struct AirParams {
     /// Air density [kg/m^3].
     pub density: f64,
-    /// Kinematic viscosity [m^2/s]; used to report the Reynolds number of a flight.
+    /// Kinematic viscosity [m^2/s]: the Reynolds number Re = 2 r |v| / nu of the aerodynamic
+    /// coefficients (`aero.reynolds_*`).
     pub kinematic_viscosity: f64,
 }
 
@@ -83,15 +84,26 @@ pub struct AeroParams {
     pub drag_scale: f64,
     /// Scale factor k_M on the Magnus force of `magnus_coefficients` [-], likewise.
     pub magnus_scale: f64,
+    /// [Re_0, Re_max]: the Reynolds numbers Re = 2 r |v| / nu between which the coefficients
+    /// follow `reynolds_exponents` [-]; well below Re_0 they are the polynomials', well above
+    /// Re_max they are held, joined smoothly ([`crate::physics::aero`]).
+    pub reynolds_range: Vec<f64>,
+    /// [a_D, a_M]: C_D(Re, Sp) = C_D(Sp) f(Re)^a_D and C_M(Re, Sp) = C_M(Sp) f(Re)^a_M, f(Re)
+    /// = Re / Re_0 inside `reynolds_range` [-].
+    pub reynolds_exponents: Vec<f64>,
 }
 
 impl Default for AeroParams {
-    /// The 40 mm plastic ball: C_D(Sp) = 0.42 + 0.15 Sp, C_M(Sp) = 0.42 - 0.30 Sp + 0.07 Sp^2
-    /// (see `config/ttball.yaml` for where the numbers come from).
+    /// The 40 mm plastic ball: C_D(Sp) = 0.42 + 0.15 Sp, C_M(Sp) = 0.42 - 0.30 Sp + 0.07 Sp^2 at
+    /// k_M = 0.70, the Magnus force falling as Re^-0.65 above Re = 1.6e4 (see
+    /// `config/ttball.yaml` for where the numbers come from).
     fn default() -> Self {
         Self {
             drag_coefficients: vec![0.42, 0.15],
             magnus_coefficients: vec![0.42, -0.30, 0.07],
+            magnus_scale: 0.70,
+            reynolds_range: vec![1.6e4, 9.0e4],
+            reynolds_exponents: vec![0.0, -0.65],
             ..Self::seed_2014()
         }
     }
@@ -108,6 +120,8 @@ impl AeroParams {
             spin_decay_rate: 0.0,
             drag_scale: 1.0,
             magnus_scale: 1.0,
+            reynolds_range: vec![1.6e4, 9.0e4],
+            reynolds_exponents: vec![0.0, 0.0],
         }
     }
 }

@@ -462,6 +462,35 @@ impl Config {
         c.polynomial("aero.drag_coefficients", &ae.drag_coefficients);
         c.polynomial("aero.magnus_coefficients", &ae.magnus_coefficients);
         c.positive("aero.spin_parameter_max", ae.spin_parameter_max);
+        c.rule(
+            "aero.reynolds_range",
+            "[Re_0, Re_max], 0 < Re_0 <= Re_max, finite",
+        );
+        if !matches!(ae.reynolds_range[..], [lo, hi] if lo > 0.0 && lo <= hi && hi.is_finite()) {
+            c.fail(
+                "aero.reynolds_range",
+                format!(
+                    "is {:?}: give [Re_0, Re_max] with 0 < Re_0 <= Re_max (e.g. [1.6e4, 9.0e4])",
+                    ae.reynolds_range
+                ),
+            );
+        }
+        c.rule("aero.reynolds_exponents", "[a_D, a_M], each in [-3, 3]");
+        if ae.reynolds_exponents.len() != 2
+            || !ae
+                .reynolds_exponents
+                .iter()
+                .all(|a| (-3.0..=3.0).contains(a))
+        {
+            c.fail(
+                "aero.reynolds_exponents",
+                format!(
+                    "is {:?}: give [drag exponent, Magnus exponent], each in [-3, 3] ([0, 0]: \
+                     coefficients of Sp alone)",
+                    ae.reynolds_exponents
+                ),
+            );
+        }
         c.non_negative("aero.spin_decay_rate", ae.spin_decay_rate);
         for (key, value) in [
             ("aero.drag_scale", ae.drag_scale),

@@ -106,6 +106,10 @@ pub enum Parameter {
     Friction,
     /// Air density [kg/m^3].
     AirDensity,
+    /// The exponent a_D of the Reynolds number's factor on C_D.
+    DragReynolds,
+    /// The exponent a_M of the Reynolds number's factor on C_M.
+    MagnusReynolds,
 }
 
 impl Parameter {
@@ -119,6 +123,8 @@ impl Parameter {
             Self::Restitution => "table.restitution".to_owned(),
             Self::Friction => "table.friction".to_owned(),
             Self::AirDensity => "air.density".to_owned(),
+            Self::DragReynolds => "aero.reynolds_exponents[0]".to_owned(),
+            Self::MagnusReynolds => "aero.reynolds_exponents[1]".to_owned(),
         }
     }
 
@@ -142,6 +148,18 @@ impl Parameter {
             Self::Restitution => config.table.restitution,
             Self::Friction => config.table.friction,
             Self::AirDensity => config.air.density,
+            Self::DragReynolds => config
+                .aero
+                .reynolds_exponents
+                .first()
+                .copied()
+                .unwrap_or(0.0),
+            Self::MagnusReynolds => config
+                .aero
+                .reynolds_exponents
+                .get(1)
+                .copied()
+                .unwrap_or(0.0),
         }
     }
 
@@ -160,12 +178,21 @@ impl Parameter {
             Self::Restitution => config.table.restitution = value,
             Self::Friction => config.table.friction = value,
             Self::AirDensity => config.air.density = value,
+            Self::DragReynolds => coefficient(&mut config.aero.reynolds_exponents, 0),
+            Self::MagnusReynolds => coefficient(&mut config.aero.reynolds_exponents, 1),
         }
     }
 
     /// The central-difference step at `value`.
     fn step(&self, value: f64) -> f64 {
         1e-5 * value.abs().max(0.1)
+    }
+
+    /// True when `value` is at the edge of the values the physics is defined at: a fit that
+    /// ends there was stopped by the bound, not determined by the data.
+    pub fn at_bound(&self, value: f64) -> bool {
+        let h = 10.0 * self.step(value);
+        !self.admits(value + h) || !self.admits(value - h)
     }
 
     /// True when the physics is defined at `value`.
@@ -177,6 +204,7 @@ impl Parameter {
                 Self::Restitution => value > 0.0 && value < 1.0,
                 Self::Friction => (0.0..2.0).contains(&value),
                 Self::AirDensity => value > 0.0,
+                Self::DragReynolds | Self::MagnusReynolds => (-3.0..=3.0).contains(&value),
             }
     }
 }
@@ -193,6 +221,8 @@ pub struct Options {
     pub bounce: bool,
     /// Air density (not with `aero`).
     pub density: bool,
+    /// The exponents of the Reynolds number's factors on C_D and C_M.
+    pub reynolds: bool,
     /// Order of C_D; `None` chooses it by AIC.
     pub drag_order: Option<usize>,
     /// Order of C_M; `None` chooses it by AIC.
@@ -481,7 +511,7 @@ pub fn calibrate(
 /// The options' consistency, and the polynomial orders `config` has (capped at the largest
 /// calibrated).
 fn check_options(config: &Config, options: &Options) -> Result<(usize, usize), CalibrationError> {
-    if !(options.aero || options.scales || options.bounce || options.density) {
+    if !(options.aero || options.scales || options.bounce || options.density || options.reynolds) {
         return Err(CalibrationError::NothingToFit);
     }
     if (options.aero || options.scales) && options.density {
@@ -779,6 +809,9 @@ fn parameters(options: &Options, orders: (usize, usize)) -> Vec<Parameter> {
     }
     if options.density {
         out.push(Parameter::AirDensity);
+    }
+    if options.reynolds {
+        out.extend([Parameter::DragReynolds, Parameter::MagnusReynolds]);
     }
     out
 }

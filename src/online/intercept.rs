@@ -1048,8 +1048,8 @@ mod tests {
                 .crossing
                 .expect("valid")
         };
-        let h = 1e-5;
-        let (plus, minus) = (at(1.0 + h), at(1.0 - h));
+        let (h, k_m) = (1e-5, propagator.params().magnus_scale);
+        let (plus, minus) = (at(k_m + h), at(k_m - h));
         let dc = (plus.state.to_vector() - minus.state.to_vector()) / (2.0 * h);
         let dt = (plus.time - minus.time) / (2.0 * h);
         let expected = dc * dc.transpose() * (sigma * sigma);

@@ -1,16 +1,21 @@
 //! Flight of a spinning ball: the spin-parameter aerodynamic model of Isomura, Hayakawa, Asai and
-//! Ariizumi (2014, eq. 1-3 and Table 3), with the corrections of docs/models.md "Flight":
+//! Ariizumi (2014, eq. 1-3 and Table 3), with the corrections of docs/models.md "Flight", and
+//! the coefficients' dependence on the Reynolds number (docs/models.md "Reynolds number"):
 //!
 //! ```text
 //! dp/dt = v
-//! dv/dt = -g e_z - (C_D(Sp) rho S_b / m) |v| v + (C_M(Sp) rho V_b / m) (w x v)
+//! dv/dt = -g e_z - k_D (C_D(Re, Sp) rho S_b / m) |v| v + k_M (C_M(Re, Sp) rho V_b / m) (w x v)
 //! dw/dt = -lambda w                      (lambda = configured spin decay, default 0)
-//! S_b = pi r^2 / 2,  V_b = 4/3 pi r^3,  Sp = r |w x v| / |v|^2
+//! S_b = pi r^2 / 2,  V_b = 4/3 pi r^3,  Sp = r |w x v| / |v|^2,  Re = 2 r |v| / nu
+//! C_D(Re, Sp) = P_D(Sp) f(Re)^a_D,  C_M(Re, Sp) = P_M(Sp) f(Re)^a_M
+//! f(Re) = [(1 + (Re / Re_0)^4) / (1 + (Re / Re_max)^4)]^(1/4)
 //! ```
 //!
-//! C_D and C_M are polynomials in Sp, evaluated at Sp clamped to [0, Sp_max] (the fit covers
-//! 0.1 < Sp < 2.0 and 0.5 < |v| < 10 m/s). [`FlightModel::jacobian`] is the exact derivative of
-//! this field, including the dependence of C_D and C_M on Sp (zero beyond the clamp).
+//! P_D and P_M are polynomials in Sp, evaluated at Sp clamped to [0, Sp_max]. f is 1 well below
+//! Re_0, Re / Re_0 between Re_0 and Re_max, and Re_max / Re_0 well above, joined smoothly (so
+//! that the field has continuous derivatives in the speed). [`FlightModel::jacobian`] is the
+//! exact derivative of this field, including the dependence of C_D and C_M on Sp (zero beyond
+//! its clamp) and on Re.
 
 use nalgebra::{Matrix3, SMatrix, Vector3};
 
@@ -72,11 +77,13 @@ impl Polynomial {
 pub struct AeroForces {
     /// Spin parameter Sp = r |w x v| / |v|^2 before clamping [-].
     pub spin_parameter: f64,
+    /// Reynolds number Re = 2 r |v| / nu before clamping [-].
+    pub reynolds_number: f64,
     /// True when Sp exceeded Sp_max and the coefficients were evaluated at Sp_max.
     pub clamped: bool,
-    /// Drag coefficient C_D at the (clamped) spin parameter [-].
+    /// Drag coefficient C_D at the (clamped) spin parameter and Reynolds number [-].
     pub drag_coefficient: f64,
-    /// Magnus coefficient C_M at the (clamped) spin parameter [-].
+    /// Magnus coefficient C_M at the (clamped) spin parameter and Reynolds number [-].
     pub magnus_coefficient: f64,
     /// Drag acceleration [m/s^2].
     pub drag: Vector3<f64>,
@@ -269,6 +276,15 @@ impl FlightMatrix {
     }
 }
 
+/// The two values of a configured pair, or `fallback` when it is not a pair (validation refuses
+/// that).
+fn pair(values: &[f64], fallback: (f64, f64)) -> (f64, f64) {
+    match values {
+        [a, b] => (*a, *b),
+        _ => fallback,
+    }
+}
+
 /// Below this |v|^2 [m^2/s^2] or |w x v| the spin parameter is taken as 0 (no direction defined).
 const TINY: f64 = 1e-18;
 
@@ -285,6 +301,11 @@ struct Field {
     /// The spin parameter, and clamped to [0, Sp_max] as the coefficients take it.
     sp: f64,
     sp_eval: f64,
+    /// The Reynolds number's factors f(Re)^a on C_D and C_M.
+    reynolds_drag: f64,
+    reynolds_magnus: f64,
+    /// d ln f / d ln Re.
+    reynolds_slope: f64,
 }
 
 /// The flight model: constants of the ball and the air folded into two factors, and the scale
@@ -302,6 +323,12 @@ pub struct FlightModel {
     drag: Polynomial,
     magnus: Polynomial,
     spin_parameter_max: f64,
+    /// 2 r / nu [s/m]: the Reynolds number per m/s of speed.
+    reynolds_per_speed: f64,
+    /// [Re_0, Re_max].
+    reynolds_range: (f64, f64),
+    /// (a_D, a_M).
+    reynolds_exponents: (f64, f64),
     spin_decay: f64,
     /// The variance [(rad/s)^2] of the spin across the flight that the coefficients are
     /// evaluated over ([`Self::with_spin_variance`]); 0 for a known spin.
@@ -339,6 +366,9 @@ impl FlightModel {
             drag: Polynomial::new(&config.aero.drag_coefficients),
             magnus: Polynomial::new(&config.aero.magnus_coefficients),
             spin_parameter_max: config.aero.spin_parameter_max,
+            reynolds_per_speed: 2.0 * r / config.air.kinematic_viscosity,
+            reynolds_range: pair(&config.aero.reynolds_range, (1.0, 1.0)),
+            reynolds_exponents: pair(&config.aero.reynolds_exponents, (0.0, 0.0)),
             spin_decay: config.aero.spin_decay_rate,
             spin_variance: 0.0,
         }
@@ -378,16 +408,44 @@ impl FlightModel {
         self.gravity
     }
 
-    /// C_D(Sp), with Sp clamped to [0, Sp_max].
+    /// C_D(Re_0, Sp) = P_D(Sp), with Sp clamped to [0, Sp_max]: the drag coefficient of a ball
+    /// at Re_0 or slower.
     pub fn drag_coefficient(&self, spin_parameter: f64) -> f64 {
         self.drag
             .value(spin_parameter.clamp(0.0, self.spin_parameter_max))
     }
 
-    /// C_M(Sp), with Sp clamped to [0, Sp_max].
+    /// C_M(Re_0, Sp) = P_M(Sp), with Sp clamped to [0, Sp_max], likewise.
     pub fn magnus_coefficient(&self, spin_parameter: f64) -> f64 {
         self.magnus
             .value(spin_parameter.clamp(0.0, self.spin_parameter_max))
+    }
+
+    /// The Reynolds number Re = 2 r |v| / nu of a ball at `speed` [m/s].
+    pub fn reynolds_number(&self, speed: f64) -> f64 {
+        self.reynolds_per_speed * speed
+    }
+
+    /// The factors f(Re)^a_D and f(Re)^a_M on C_D and C_M at `speed` [m/s] (see the module
+    /// doc), and d ln f / d ln Re.
+    #[inline]
+    pub fn reynolds_factors(&self, speed: f64) -> (f64, f64, f64) {
+        let (a_d, a_m) = self.reynolds_exponents;
+        if (a_d == 0.0 && a_m == 0.0) || speed.is_nan() || speed <= 0.0 {
+            return (1.0, 1.0, 0.0);
+        }
+        let re = self.reynolds_per_speed * speed;
+        let fourth = |ratio: f64| {
+            let squared = ratio * ratio;
+            squared * squared
+        };
+        let (low, high) = (
+            fourth(re / self.reynolds_range.0),
+            fourth(re / self.reynolds_range.1),
+        );
+        let log_f = 0.25 * ((1.0 + low) / (1.0 + high)).ln();
+        let slope = low / (1.0 + low) - high / (1.0 + high);
+        ((a_d * log_f).exp(), (a_m * log_f).exp(), slope)
     }
 
     /// Spin parameter Sp = r |w x v| / |v|^2 (0 for a ball at rest).
@@ -398,11 +456,12 @@ impl FlightModel {
     /// Drag and Magnus accelerations at one velocity and spin.
     pub fn forces(&self, velocity: &Vector3<f64>, spin: &Vector3<f64>) -> AeroForces {
         let field = self.field_of(*velocity, *spin);
-        let cd = self.drag.value(field.sp_eval);
-        let cm = self.magnus.value(field.sp_eval);
+        let cd = self.drag.value(field.sp_eval) * field.reynolds_drag;
+        let cm = self.magnus.value(field.sp_eval) * field.reynolds_magnus;
         let (drag, magnus) = self.accelerations(&field, cd, cm);
         AeroForces {
             spin_parameter: field.sp,
+            reynolds_number: self.reynolds_number(field.speed),
             clamped: field.sp > self.spin_parameter_max,
             drag_coefficient: cd,
             magnus_coefficient: cm,
@@ -415,8 +474,8 @@ impl FlightModel {
     #[inline]
     pub fn derivative(&self, x: &StateVector) -> StateVector {
         let field = self.field(x);
-        let cd = self.drag.value(field.sp_eval);
-        let cm = self.magnus.value(field.sp_eval);
+        let cd = self.drag.value(field.sp_eval) * field.reynolds_drag;
+        let cm = self.magnus.value(field.sp_eval) * field.reynolds_magnus;
         self.state_derivative(&field, cd, cm)
     }
 
@@ -444,15 +503,20 @@ impl FlightModel {
         } else {
             self.radius * c_norm / speed_sq
         };
+        let speed = speed_sq.sqrt();
+        let (reynolds_drag, reynolds_magnus, reynolds_slope) = self.reynolds_factors(speed);
         Field {
             v,
             w,
             speed_sq,
-            speed: speed_sq.sqrt(),
+            speed,
             c,
             c_norm,
             sp,
             sp_eval: sp.clamp(0.0, self.spin_parameter_max),
+            reynolds_drag,
+            reynolds_magnus,
+            reynolds_slope,
         }
     }
 
@@ -495,6 +559,9 @@ impl FlightModel {
             c_norm,
             sp,
             sp_eval,
+            reynolds_drag,
+            reynolds_magnus,
+            reynolds_slope,
         } = field;
 
         // The gradients of Sp; zero where Sp is clamped or undefined.
@@ -518,6 +585,8 @@ impl FlightModel {
         };
         let (cd, dcd) = self.drag.value_and_slope(sp_eval);
         let (cm, dcm) = self.magnus.value_and_slope(sp_eval);
+        let (cd, dcd) = (cd * reynolds_drag, dcd * reynolds_drag);
+        let (cm, dcm) = (cm * reynolds_magnus, dcm * reynolds_magnus);
         let dx = self.state_derivative(&field, cd, cm);
 
         // Drag: -k_D C_D |v| v, d(|v| v)/dv = |v| I + v v' / |v|.
@@ -534,6 +603,13 @@ impl FlightModel {
             dv_dv += v * (v * (drag_scale / speed)).transpose();
             for i in 0..3 {
                 dv_dv[(i, i)] += diagonal;
+            }
+            if reynolds_slope != 0.0 {
+                // d f^a / dv = a f^a (d ln f / d ln Re) v / |v|^2.
+                let (a_d, a_m) = self.reynolds_exponents;
+                let re_direction = v * (drag_scale * a_d * reynolds_slope / speed)
+                    + c * (magnus_scale * a_m * reynolds_slope / speed_sq);
+                dv_dv += re_direction * v.transpose();
             }
         }
         let dv_dw = sp_direction * dsp_dw.transpose() - v.cross_matrix() * magnus_scale;

@@ -326,12 +326,14 @@ fn the_track_coasts_through_a_short_run_of_rejections() {
 
 /// A ball that lands a millimetre inside the table's side edge while moving sideways at 2.4 m/s,
 /// seen by the 150 fps camera with two frames missing around its bounce and 3 mm further out
-/// than it is: the estimate may have it miss the table. The detections after the bounce refute
-/// that; the track is started again on them and keeps its id, with its bounce.
+/// than it is: the estimate has it land 2 mm outside, beyond the edge it crossed between two
+/// frames each more than the edge margin from it. The bounce on the edge is still found (the
+/// landing point is checked, not only the step's ends): no detection after it is gated and the
+/// track goes on through it.
 #[test]
-fn a_ball_bouncing_on_the_side_edge_keeps_its_track() {
-    // Lands at y = 0.7615 (the edge at 0.7625) 0.184 s after the start.
-    let start = shot([1.2, 0.0745, 0.30], [-4.5, 4.0, -0.5], [0.0, -100.0, 0.0]);
+fn a_bounce_on_the_side_edge_between_two_frames_is_found() {
+    // Lands at y = 0.7615 (the edge at 0.7625) 0.189 s after the start.
+    let start = shot([1.2, 0.0555, 0.30], [-4.5, 4.0, -0.5], [0.0, -100.0, 0.0]);
     let mut detections = camera(
         &start,
         150.0,
@@ -341,7 +343,7 @@ fn a_ball_bouncing_on_the_side_edge_keeps_its_track() {
         Source::WIDE_150FPS,
         &mut Rng::new(31),
     );
-    let flight = fly(&start, 0.3, 0.1);
+    let flight = fly(&start, 0.4, 0.1);
     let landing = flight.bounces().next().unwrap();
     assert!((0.7605..0.7625).contains(&landing.before[1]), "{landing:?}");
     let bounce = EPOCH + (landing.t * 1e9).round() as i64;
@@ -352,22 +354,36 @@ fn a_ball_bouncing_on_the_side_edge_keeps_its_track() {
     let mut estimator = Estimator::new(&wide_config());
     let mut last = None;
     for (d, _) in &detections {
-        last = estimator.handle(d).estimate.or(last);
+        let out = estimator.handle(d);
+        if d.stamp > bounce {
+            assert!(
+                !matches!(out.verdict, Verdict::Rejected(_)),
+                "{:.1} ms after the bounce: {:?}",
+                (d.stamp - bounce) as f64 * 1e-6,
+                out.verdict
+            );
+        }
+        last = out.estimate.or(last);
     }
     let counters = estimator.counters();
-    assert_eq!(counters.tracks, 1, "{counters:?}");
-    let last = last.unwrap();
-    assert_eq!((last.track_id, last.bounces), (1, 1), "{last:?}");
+    assert_eq!(
+        (counters.tracks, counters.reanchored),
+        (1, 0),
+        "{counters:?}"
+    );
+    assert_eq!(last.unwrap().bounces, 1);
+    assert!(counters.edge_retries >= 1, "{counters:?}");
 }
 
 /// A sidespin ball seen by both cameras that lands on the table's side edge line itself (0.2 mm
 /// inside) at 8 m/s: the first 900 fps detection after the bounce comes too soon to tell landing
-/// from passing beside the table. On eight noise draws the ball is one track, refuted and started
-/// again at most once, a few detections gated.
+/// from passing beside the table, and the hypothesis kept on it can be the wrong one. When it
+/// fails the next detections, the other is tried again from before the ball came down to the
+/// table, the detections since re-applied: on eight noise draws no detection is gated and no
+/// track re-anchored (without it, half of them gate five detections and re-anchor the track).
 #[test]
 fn a_bounce_on_the_edge_line_seen_at_900_fps_keeps_its_track() {
     let start = shot([0.3, -0.2056, 0.25], [-6.9, -3.9, -1.0], [0.0, 0.0, 110.0]);
-    let max_gated = u64::from(wide_config().gating.max_consecutive_rejections);
     for seed in 1..9 {
         let detections = both_cameras(&start, 0.25, &mut Rng::new(seed));
         let mut estimator = Estimator::new(&wide_config());
@@ -375,13 +391,60 @@ fn a_bounce_on_the_edge_line_seen_at_900_fps_keeps_its_track() {
             estimator.handle(d);
         }
         let c = estimator.counters();
-        assert_eq!(c.tracks, 1, "seed {seed}: {c:?}");
-        assert!(c.reanchored <= 1, "seed {seed}: {c:?}");
-        assert!(
-            c.rejected(Rejection::Gated) <= max_gated,
+        assert_eq!(
+            (c.tracks, c.reanchored, c.rejected(Rejection::Gated)),
+            (1, 0, 0),
             "seed {seed}: {c:?}"
         );
     }
+}
+
+/// A ball of simulated play (seed 7, shot 118 of `ttball evaluate`'s 200) that lands on the table's
+/// side edge line seen by both cameras, the 900 fps camera measuring its spin, which the bounce
+/// changes (friction on the table turns 111 rad/s of sidespin into (43, -76, 111)). Just after
+/// the bounce the hypothesis that the ball passed beside the table fits the detection's position
+/// about as well as the bounce, but not its spin, which it fuses only by dropping it at the
+/// table. Hypotheses are compared over the whole measurement, so the bounce is taken at once:
+/// every estimate from 1.5 ms after it has the ball's velocity within 0.5 m/s. (When a dropped
+/// spin's misfit did not count, the estimates 1 and 2 ms after it kept the ball falling, 5 m/s
+/// off, and the bounce came a frame later.)
+#[test]
+fn an_edge_ball_whose_spin_is_measured_is_judged_by_its_spin_too() {
+    let mut config = Config::default();
+    let options = SimOptions {
+        cameras: Cameras::WideAndHighSpeed,
+        shots: 200,
+        seed: 7,
+        ..SimOptions::default()
+    };
+    options.params.configure_estimator(&mut config);
+    let session = simulate(&config, &options).unwrap();
+    let shot = 118;
+    let bounce = session.shots[shot].bounce.stamp;
+    // The whole session through one estimator, as the node would see it (what the flights
+    // before taught it included).
+    let mut estimator = Estimator::new(&config);
+    let mut checked = 0;
+    for sim in &session.stream {
+        let out = estimator.handle(&sim.detection);
+        if sim.shot != shot || sim.outlier {
+            continue;
+        }
+        let since = sim.detection.stamp - bounce;
+        if let Some(e) = out.estimate
+            && (1_500_000..10_000_000).contains(&since)
+            && e.stamp == sim.detection.stamp
+        {
+            let off = (e.state.velocity - sim.truth.velocity).norm();
+            assert!(
+                off < 0.5,
+                "{:.2} ms after the bounce: {off:.2} m/s off",
+                since as f64 * 1e-6
+            );
+            checked += 1;
+        }
+    }
+    assert!(checked >= 5, "{checked}");
 }
 
 #[test]
@@ -955,13 +1018,13 @@ fn a_bounce_after_a_spin_read_from_curvature_keeps_its_track() {
     }
 }
 
-/// A detection 10-30 mm off the flight 20 ms after an ordinary bounce (as a real tracker gives
+/// A detection 15-30 mm off the flight 20 ms after an ordinary bounce (as a real tracker gives
 /// now and then) is gated, and the track goes on as it was.
 #[test]
 fn a_detection_off_the_flight_after_a_bounce_is_gated_alone() {
     let start = shot([0.9, 0.0, 0.25], [-3.0, 0.2, 2.0], [0.0, 150.0, 0.0]);
     let bounce = first_bounce(&start);
-    for (offset, axis) in [(0.010, 0), (0.015, 0), (0.020, 0), (0.030, 0), (0.025, 1)] {
+    for (offset, axis) in [(0.015, 0), (0.020, 0), (0.030, 0), (0.025, 1)] {
         let mut detections = slow_ball_at_150fps(&start, 7);
         let off = detections
             .iter()

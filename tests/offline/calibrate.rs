@@ -145,7 +145,7 @@ fn recovers_perturbed_aero_and_bounce_coefficients_from_simulated_flights() {
     assert!(with_calibrated < 1.2 * with_truth);
     // (Against the same filter given the true physics, after 10 flights: `ttball evaluate
     // --sets`, tests/core/evaluation.rs.)
-    assert!(adapting < 0.5 * with_default);
+    assert!(adapting < 0.8 * with_default && adapting < 1.25 * with_truth);
 }
 
 #[test]
@@ -300,7 +300,7 @@ fn the_estimators_route_recovers_the_physics_and_the_online_numbers() {
     eprintln!("truth {truth_params:?}\ncalibrated {calibrated:?}\nonline {online:?}\n{steps:#?}");
     assert!(c.converged && c.iterations <= 10, "{steps:#?}");
     assert_eq!(PhysicsParams::from_config(&c.config), calibrated);
-    let tolerances = [0.03, 0.05, 0.02, 0.06];
+    let tolerances = [0.03, 0.07, 0.02, 0.06];
     assert_within("truth", &calibrated, &truth_params, tolerances);
     assert_within("online", &calibrated, &online, tolerances);
     assert!(
@@ -310,8 +310,8 @@ fn the_estimators_route_recovers_the_physics_and_the_online_numbers() {
     );
 }
 
-/// On the real launcher flights the batch fit does not give the online numbers (drag 1.025,
-/// Magnus 0.867 against about 0.93, 0.62: docs/calibration.md); the estimator's route does,
+/// On the real launcher flights the batch fit does not give the online numbers (drag 1.021,
+/// Magnus 0.889 against about 0.91, 0.68: docs/calibration.md); the estimator's route does,
 /// and writes the noise it learned with them, a configuration a node can start from.
 #[test]
 fn on_real_flights_the_estimators_route_gives_the_online_numbers() {
@@ -390,4 +390,43 @@ fn the_estimators_route_holds_flights_out_when_asked() {
     let held = j["holdout"]["flights"].as_u64().unwrap();
     assert!(held >= 2, "{report}");
     assert_eq!(j["flights"].as_u64().unwrap() + held, 8, "{report}");
+}
+
+/// Simulated play (both cameras, spin measured on the robot's half, speeds of about 3 to 13 m/s)
+/// whose Magnus force falls with the Reynolds number less steeply than the default's
+/// (a_M = -0.3 against -0.65): `--fit reynolds` with the scales recovers the exponent within its
+/// standard error (-0.306 +- 0.006), none of the fitted values at a bound.
+#[test]
+fn recovers_the_reynolds_exponent_from_simulated_flights() {
+    let mut truth = Config::default();
+    truth.aero.reynolds_exponents = vec![0.0, -0.3];
+    let start = Config::default();
+    let flights = flights(&truth, &start, 16, 5);
+    let options = Options {
+        scales: true,
+        reynolds: true,
+        ..Options::default()
+    };
+    let c = calibrate(&start, &flights, &options, &mut |_| {}).expect("calibrated");
+    for p in &c.parameters {
+        eprintln!(
+            "{} = {:.4} +- {:.4} (truth {:.4}, start {:.4})",
+            p.name,
+            p.value,
+            p.std_error,
+            p.parameter.value(&truth),
+            p.initial
+        );
+        assert!(!p.parameter.at_bound(p.value), "{}", p.name);
+    }
+    let a_m = c.config.aero.reynolds_exponents[1];
+    let error = c
+        .parameters
+        .iter()
+        .find(|p| p.name == "aero.reynolds_exponents[1]")
+        .unwrap()
+        .std_error;
+    assert!((a_m + 0.3).abs() < 0.03, "{a_m} +- {error}");
+    assert!(error < 0.1, "{error}");
+    assert!((c.config.aero.magnus_scale - 0.7).abs() < 0.05, "{c:?}");
 }

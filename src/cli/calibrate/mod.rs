@@ -44,6 +44,10 @@ pub enum Group {
     Bounce,
     /// Air density (air.density); not with aero, which absorbs it.
     Density,
+    /// The exponents of the Reynolds number's factors on C_D and C_M (aero.reynolds_exponents):
+    /// how the coefficients change with speed; flights over a wide range of speeds determine
+    /// them.
+    Reynolds,
 }
 
 /// How the flights are fitted.
@@ -176,6 +180,7 @@ impl CalibrateArgs {
             scales: fit.contains(&Group::Scales),
             bounce: fit.contains(&Group::Bounce),
             density: fit.contains(&Group::Density),
+            reynolds: fit.contains(&Group::Reynolds),
             drag_order: self.drag_order,
             magnus_order: self.magnus_order,
         };
@@ -460,20 +465,31 @@ fn snippet(c: &Calibration, inputs: &[String]) -> String {
     if fitted(|p| matches!(p, Parameter::AirDensity)) {
         let _ = writeln!(out, "    air:\n      density: {:.6}", cfg.air.density);
     }
+    let mut aero = String::new();
     if fitted(|p| matches!(p, Parameter::Drag(_) | Parameter::Magnus(_))) {
         let _ = writeln!(
-            out,
-            "    aero:\n      drag_coefficients: [{}]\n      magnus_coefficients: [{}]",
+            aero,
+            "      drag_coefficients: [{}]\n      magnus_coefficients: [{}]",
             list(&cfg.aero.drag_coefficients),
             list(&cfg.aero.magnus_coefficients)
         );
     }
     if fitted(|p| matches!(p, Parameter::DragScale | Parameter::MagnusScale)) {
         let _ = writeln!(
-            out,
-            "    aero:\n      drag_scale: {:.6}\n      magnus_scale: {:.6}",
+            aero,
+            "      drag_scale: {:.6}\n      magnus_scale: {:.6}",
             cfg.aero.drag_scale, cfg.aero.magnus_scale
         );
+    }
+    if fitted(|p| matches!(p, Parameter::DragReynolds | Parameter::MagnusReynolds)) {
+        let _ = writeln!(
+            aero,
+            "      reynolds_exponents: [{}]",
+            list(&cfg.aero.reynolds_exponents)
+        );
+    }
+    if !aero.is_empty() {
+        let _ = write!(out, "    aero:\n{aero}");
     }
     if fitted(|p| matches!(p, Parameter::Restitution | Parameter::Friction)) {
         let _ = writeln!(
@@ -536,8 +552,16 @@ fn report(c: &Calibration, held_out: Option<&Holdout>, output: &std::path::Path)
     for p in &c.parameters {
         let _ = writeln!(
             out,
-            "  {:<30} {:>10.5}  {:>10.5}   {:>9.5}",
-            p.name, p.value, p.std_error, p.initial
+            "  {:<30} {:>10.5}  {:>10.5}   {:>9.5}{}",
+            p.name,
+            p.value,
+            p.std_error,
+            p.initial,
+            if p.parameter.at_bound(p.value) {
+                "   at the bound of its range: these flights do not determine it"
+            } else {
+                ""
+            }
         );
     }
     let _ = writeln!(

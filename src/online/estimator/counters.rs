@@ -96,6 +96,8 @@ pub struct Counters {
     pub lessons_dropped: [u64; super::Dropped::ALL.len()],
     /// Spin measurements that disagreed with the filter's spin and replaced it.
     pub spin_resets: u64,
+    /// Detections near the table's edge that the other bounce hypothesis explained better.
+    pub edge_retries: u64,
     /// Detections that claimed a spin of exactly zero (a detector's placeholder, not a
     /// measurement): their spin was ignored, the detection judged as a position alone.
     pub zero_spin_ignored: u64,

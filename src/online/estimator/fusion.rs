@@ -36,9 +36,9 @@ pub const CONTACT_BAND: f64 = 0.04;
 /// 5 ms of a ball falling at 3 m/s).
 const BOUNCE_SPIN_MARGIN: f64 = 0.015;
 
-/// How far beyond the table's edge [m] a ball low over it still counts as at the table (a
-/// ball clipping the edge).
-const EDGE_MARGIN: f64 = 0.02;
+/// How far from the table's edge [m] an estimate's bounce is a close call: the tracker tries
+/// the table grown and shrunk by as much.
+pub(super) const EDGE_MARGIN: f64 = 0.02;
 
 /// The share of a position's gain the filter applies to the spin along the flight before the
 /// track's first bounce (the partial update, Brink 2017). On the real launcher flights the whole
@@ -63,6 +63,8 @@ pub(crate) struct Snapshot {
     pub(crate) last_fused: i64,
     /// The NIS of the last fused update.
     pub(crate) nis: f64,
+    /// That detection's whole measurement's NIS ([`Fused::whole_nis`]).
+    pub(crate) whole_nis: f64,
     /// The state change of the last bounce the filter flew the estimate through.
     pub(crate) bounce_jump: Option<StateVector>,
     /// Whether the track's spin has been measured (a spin camera's detection fused, or fitted
@@ -80,16 +82,29 @@ impl Snapshot {
             robot_half_bounces: 0,
             last_fused: stamp,
             nis: 0.0,
+            whole_nis: 0.0,
             bounce_jump: None,
             spin_measured,
         }
     }
 
-    /// Records the detection at `stamp` just fused into it with NIS `nis`.
-    fn record(&mut self, stamp: i64, nis: f64) {
+    /// Records the detection at `stamp` just fused into it.
+    pub(crate) fn record(&mut self, stamp: i64, fused: &Fused) {
         self.last_fused = stamp;
-        self.nis = nis;
+        self.nis = fused.nis;
+        self.whole_nis = fused.whole_nis;
     }
+}
+
+/// A fused measurement.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct Fused {
+    /// y' S^-1 y of what was fused.
+    pub(crate) nis: f64,
+    /// The NIS of the whole measurement against the prediction, even where only part of it was
+    /// fused (a spin that did not fit): what tells two hypotheses of one detection apart,
+    /// compared over the same dimensions.
+    pub(crate) whole_nis: f64,
 }
 
 /// The prior innovation of one position (and spin) measurement: what the camera-noise learner
@@ -109,8 +124,8 @@ pub(crate) struct Innovation {
 /// What fusing one detection into a snapshot did.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub(crate) struct Outcome {
-    /// The NIS (y' S^-1 y) of what was fused, or why nothing was.
-    pub(crate) fused: Result<f64, UpdateError>,
+    /// The update, or why there was none.
+    pub(crate) fused: Result<Fused, UpdateError>,
     /// The prior innovation, unless the ball was at the table (whose detections teach nothing
     /// of their camera's noise).
     pub(crate) innovation: Option<Innovation>,
@@ -132,8 +147,8 @@ pub(crate) struct Fusion {
     /// The spin's prior variance [(rad/s)^2], to which a contradicted spin is reset.
     pub(crate) spin_prior_var: f64,
     /// The gates of a position and of a position + spin.
-    gate_position: f64,
-    gate_position_spin: f64,
+    pub(crate) gate_position: f64,
+    pub(crate) gate_position_spin: f64,
 }
 
 impl Fusion {
@@ -169,11 +184,11 @@ impl Fusion {
         }
     }
 
-    /// Moves a snapshot forward to `stamp`, counting bounces.
-    pub(crate) fn advance(&self, snapshot: &mut Snapshot, stamp: i64) {
+    /// Moves a snapshot forward to `stamp` through `propagator`'s table, counting bounces.
+    pub(crate) fn advance_on(&self, propagator: &Propagator, snapshot: &mut Snapshot, stamp: i64) {
         let dt = (stamp - snapshot.stamp) as f64 * 1e-9;
         if dt > 0.0 {
-            let prediction = snapshot.ekf.predict(&self.propagator, &self.noise, dt);
+            let prediction = snapshot.ekf.predict(propagator, &self.noise, dt);
             let report = prediction.report;
             snapshot.ekf = prediction.ekf;
             snapshot.bounces += report.bounces;
@@ -181,6 +196,11 @@ impl Fusion {
             snapshot.bounce_jump = report.last_jump.or(snapshot.bounce_jump);
         }
         snapshot.stamp = stamp.max(snapshot.stamp);
+    }
+
+    /// Moves a snapshot forward to `stamp`, counting bounces.
+    pub(crate) fn advance(&self, snapshot: &mut Snapshot, stamp: i64) {
+        self.advance_on(&self.propagator, snapshot, stamp);
     }
 
     /// The measurement as the estimate `snapshot` sees it: with the extra noise of a ball at the
@@ -208,9 +228,16 @@ impl Fusion {
             && self.propagator.distance_outside_table(x[0], x[1]) < EDGE_MARGIN
     }
 
-    /// Moves `snapshot` to `stamp` and fuses the measurement `m` taken there.
-    pub(crate) fn fuse(&self, snapshot: &mut Snapshot, stamp: i64, m: &Measurement) -> Outcome {
-        self.advance(snapshot, stamp);
+    /// Moves `snapshot` to `stamp` (through `propagator`'s table) and fuses the measurement `m`
+    /// taken there.
+    pub(crate) fn fuse(
+        &self,
+        propagator: &Propagator,
+        snapshot: &mut Snapshot,
+        stamp: i64,
+        m: &Measurement,
+    ) -> Outcome {
+        self.advance_on(propagator, snapshot, stamp);
         let x = &snapshot.ekf.x;
         let p = snapshot.ekf.state_covariance();
         let (m, at_contact) = self.measurement_at(snapshot, m);
@@ -233,7 +260,7 @@ impl Fusion {
                     .ekf
                     .update_partially(z, &position_H(), r, self.gate_position, gain)
                     .map(|u| (u.ekf, u.nis));
-                (self.take(snapshot, update), false)
+                (self.take(snapshot, update, None), false)
             }
             Measurement::PositionSpin { z, r, .. } => {
                 let (fused, reset) = self.fuse_position_spin(snapshot, z, r);
@@ -241,8 +268,8 @@ impl Fusion {
                 (fused, reset)
             }
         };
-        if let Ok(nis) = fused {
-            snapshot.record(stamp, nis);
+        if let Ok(fused) = &fused {
+            snapshot.record(stamp, fused);
         }
         Outcome {
             fused,
@@ -251,15 +278,20 @@ impl Fusion {
         }
     }
 
-    /// Puts an update's estimate into `snapshot`; returns its NIS.
+    /// Puts an update's estimate into `snapshot`; its whole measurement's NIS is `whole_nis`
+    /// when only part of it was fused.
     fn take(
         &self,
         snapshot: &mut Snapshot,
         update: Result<(Ekf, f64), UpdateError>,
-    ) -> Result<f64, UpdateError> {
+        whole_nis: Option<f64>,
+    ) -> Result<Fused, UpdateError> {
         let (ekf, nis) = update?;
         snapshot.ekf = ekf;
-        Ok(nis)
+        Ok(Fused {
+            nis,
+            whole_nis: whole_nis.unwrap_or(nis),
+        })
     }
 
     /// A position + spin measurement (see the module doc); the flag says whether the filter's
@@ -269,7 +301,7 @@ impl Fusion {
         snapshot: &mut Snapshot,
         z: &SVector<f64, 6>,
         r: &Matrix6<f64>,
-    ) -> (Result<f64, UpdateError>, bool) {
+    ) -> (Result<Fused, UpdateError>, bool) {
         let z_position = z.fixed_rows::<3>(0).into_owned();
         let r_position = r.fixed_view::<3, 3>(0, 0).into_owned();
         let gate = self.gate_position;
@@ -288,21 +320,23 @@ impl Fusion {
             // At the table the measured spin may be of the other side of the bounce (the
             // bounce's time is uncertain by a millisecond or two, and it changes the spin by
             // hundreds of rad/s): the position alone.
-            Err(UpdateError::Gated { .. }) if self.at_the_table(snapshot, BOUNCE_SPIN_MARGIN) => {
+            Err(UpdateError::Gated { nis, .. })
+                if self.at_the_table(snapshot, BOUNCE_SPIN_MARGIN) =>
+            {
                 let update = position_alone(&snapshot.ekf);
-                (self.take(snapshot, update), false)
+                (self.take(snapshot, update, Some(nis)), false)
             }
-            Err(UpdateError::Gated { .. }) => {
+            Err(UpdateError::Gated { nis, .. }) => {
                 let forgotten = snapshot.ekf.with_spin_forgotten(self.spin_prior_var);
                 let update = forgotten
                     .update(z, &h, r, self.gate_position_spin)
                     .map(|u| (u.ekf, u.nis))
                     .or_else(|_| position_alone(&forgotten));
-                (self.take(snapshot, update), true)
+                (self.take(snapshot, update, Some(nis)), true)
             }
             other => {
                 let update = other.map(|u| (u.ekf, u.nis));
-                (self.take(snapshot, update), false)
+                (self.take(snapshot, update, None), false)
             }
         }
     }

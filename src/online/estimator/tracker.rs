@@ -13,6 +13,9 @@
 //!   different latencies) is fused by rolling back to the estimate before its stamp and
 //!   re-applying the newer detections, from a bounded history (`tracking.rollback_window`); an
 //!   older one is dropped and counted.
+//! - An estimate low over the table's edge is also fused with the table grown and shrunk by
+//!   [`EDGE_MARGIN`], the hypothesis that explains the detection best kept; a detection gated
+//!   just after an edge bounce tries the other hypotheses again over the few detections since.
 //! - A detection whose stamp jumps beyond `tracking.timeout` is held until the next one confirms
 //!   the jump (a new ball, a restarted clock: a new track) or shows a glitch
 //!   ([`Rejection::StampJump`]).
@@ -27,7 +30,7 @@ use std::collections::VecDeque;
 use super::adaptation::Adaptation;
 use super::camera_noise::NoiseSample;
 use super::counters::{Counters, Rejection, Verdict};
-use super::fusion::{Fusion, Innovation, Snapshot};
+use super::fusion::{EDGE_MARGIN, Fused, Fusion, Innovation, Snapshot};
 use super::smoother::{self, Lesson, LessonJob, ParamEstimate, TrackRecord};
 use crate::config::Config;
 use crate::model::detection::{Detection, seconds_to_ns};
@@ -37,7 +40,7 @@ use crate::online::initial_fit as init;
 use crate::online::measurement::{Measurement, MeasurementModel, claims_placeholder_spin};
 use crate::physics::params::{DRAG_SCALE, MAGNUS_SCALE};
 use crate::physics::racket::{RacketModel, RacketState};
-use crate::physics::{BallState, FlightModel, StateVector};
+use crate::physics::{BallState, FlightModel, Propagator, StateVector};
 
 /// How far [m] a track's first estimate may be from where a refuted track's estimate had flown
 /// to for it to be the same ball re-anchored (a bounce mispredicted by 1 m/s is 5 cm off after
@@ -47,6 +50,10 @@ pub const REANCHOR_DISTANCE: f64 = 0.2;
 /// Detections fitted to start a track: position and velocity need 2, a third checks them, a
 /// fourth tolerates one poor detection.
 pub const INIT_DETECTIONS: usize = 4;
+
+/// Most detections re-applied when an edge ball's bounce hypothesis is tried again: 9 ms of the
+/// 900 fps camera.
+const EDGE_RETRY_LIMIT: usize = 8;
 
 /// The robot's own hit, announced to the estimator: when and with what racket state it meets
 /// the ball (the answer of `plan_return`, or the robot controller's command), so that the return
@@ -157,7 +164,7 @@ fn already_bounced(x: &StateVector) -> bool {
 
 /// A refuted estimate `before` had the ball falling where the ball, started again at `x`, rises:
 /// it bounced where the estimate had it miss the table (on its edge). Near the top of a flight
-/// (below [`TURNING`] either way) the two may differ in sign without a bounce.
+/// the two may differ in sign without a bounce.
 fn missed_a_bounce(before: &StateVector, x: &StateVector) -> bool {
     /// The vertical speed [m/s] beyond which falling and rising are told apart.
     const TURNING: f64 = 0.3;
@@ -179,6 +186,8 @@ pub(crate) struct Tracker {
     pub(crate) measurement: MeasurementModel,
     /// The flight model at the configured parameters (the initial fit's).
     flight: FlightModel,
+    /// The propagator with the table grown and shrunk by [`EDGE_MARGIN`].
+    edge_alternatives: [Propagator; 2],
     /// The racket-impact model, for the robot's announced hits.
     racket: RacketModel,
     pub(crate) track: Option<Track>,
@@ -202,10 +211,12 @@ impl Tracker {
     /// A tracker with `config`'s settings, its tracks fused by `fusion`.
     pub(crate) fn new(config: &Config, fusion: Fusion) -> Self {
         let settings = Settings::new(config);
+        let propagator = fusion.propagator;
         Self {
             fusion,
             measurement: MeasurementModel::new(config),
             flight: FlightModel::new(config),
+            edge_alternatives: [EDGE_MARGIN, -EDGE_MARGIN].map(|m| propagator.with_edge_margin(m)),
             racket: RacketModel::new(config),
             track: None,
             pending: Vec::with_capacity(settings.pending_limit()),
@@ -630,8 +641,10 @@ impl Tracker {
             }
         };
         let mut snapshot = seed;
-        let outcome = self.fusion.fuse(&mut snapshot, d.stamp, &m);
-        let nis = outcome.fused.ok()?;
+        let outcome = self
+            .fusion
+            .fuse(&self.fusion.propagator, &mut snapshot, d.stamp, &m);
+        let nis = outcome.fused.ok()?.nis;
         self.learn_noise(d, outcome.innovation, adaptation);
         self.end_track(d.stamp, adaptation);
         let id = self.new_track_id();
@@ -673,8 +686,9 @@ impl Tracker {
     /// Whether a track starting at `stamp` in state `x`, fitted to detections from
     /// `first_seen` on, is the ball of the refuted track `c`: seen again within
     /// `tracking.timeout` of its last fused detection, within [`REANCHOR_DISTANCE`] of where
-    /// its estimate had flown to, and moving the same way along the table (a racket hit turns
-    /// the ball around). Then its id and the estimate it had flown to.
+    /// its estimate had flown to (horizontally, where it missed a bounce), and moving the same
+    /// way along the table (a racket hit turns the ball around). Then its id and the estimate it
+    /// had flown to.
     fn continues(
         &self,
         c: &Continuation,
@@ -687,7 +701,14 @@ impl Tracker {
         }
         let mut flown = c.last;
         self.fusion.advance(&mut flown, stamp);
-        let apart = (flown.ekf.x.fixed_rows::<3>(0) - x.fixed_rows::<3>(0)).norm();
+        // A bounce the estimate missed turned the ball's vertical motion around, not its path
+        // over the table: then only the horizontal distance tells.
+        let dimensions = if missed_a_bounce(&flown.ekf.x, x) {
+            2
+        } else {
+            3
+        };
+        let apart = (flown.ekf.x.rows(0, dimensions) - x.rows(0, dimensions)).norm();
         (apart <= REANCHOR_DISTANCE && flown.ekf.x[3] * x[3] > 0.0).then_some((c.id, flown))
     }
 
@@ -727,7 +748,13 @@ impl Tracker {
             return Err(Rejection::Duplicate);
         }
         let mut snapshot = track.now;
-        let (result, innovation) = self.fuse(&mut snapshot, d, &m);
+        let (mut result, innovation) = self.fuse(&mut snapshot, d, &m);
+        if result == Err(Rejection::Gated)
+            && let Some((retried, nis)) = self.retry_edge_bounce(d, &m)
+        {
+            snapshot = retried;
+            result = Ok(nis);
+        }
         self.learn_noise(d, innovation, adaptation);
         let nis = result?;
         self.push_entry(Entry {
@@ -739,22 +766,172 @@ impl Tracker {
         Ok(nis)
     }
 
-    /// Fuses a detection into a snapshot at its stamp; returns its NIS and its prior
-    /// innovation.
+    /// Fuses a detection into a snapshot at its stamp, with the table's edge hypotheses where
+    /// the ball is low over the edge; returns its NIS and its prior innovation.
     fn fuse(
         &mut self,
         snapshot: &mut Snapshot,
         d: &Detection,
         m: &Measurement,
     ) -> (Result<f64, Rejection>, Option<Innovation>) {
-        let outcome = self.fusion.fuse(snapshot, d.stamp, m);
+        let prior = *snapshot;
+        let outcome = self
+            .fusion
+            .fuse(&self.fusion.propagator, snapshot, d.stamp, m);
         self.counters.spin_resets += u64::from(outcome.spin_reset);
-        let result = outcome.fused.map_err(|e| match e {
-            UpdateError::Gated { .. } => Rejection::Gated,
-            UpdateError::NotFinite => Rejection::NonFinite,
-            UpdateError::NotPositiveDefinite => Rejection::BadCovariance,
-        });
+        let mut result = outcome.fused;
+        if self.near_table_edge(snapshot) || self.lands_near_table_edge(&prior, d.stamp) {
+            // An edge ball: estimate and ball may land on either side of the table's edge. The
+            // hypothesis that explains the detection best wins.
+            for alternative in &self.edge_alternatives {
+                let mut other = prior;
+                let tried = self.fusion.fuse(alternative, &mut other, d.stamp, m);
+                self.counters.spin_resets += u64::from(tried.spin_reset);
+                let Ok(fused) = tried.fused else {
+                    continue;
+                };
+                let better = match &result {
+                    Ok(current) => {
+                        fused.whole_nis < current.whole_nis && other.bounces != snapshot.bounces
+                    }
+                    Err(_) => true,
+                };
+                if better {
+                    *snapshot = other;
+                    self.counters.edge_retries += 1;
+                    result = Ok(fused);
+                }
+            }
+        }
+        let result = match result {
+            Ok(fused) => Ok(fused.nis),
+            Err(UpdateError::Gated { .. }) => Err(Rejection::Gated),
+            Err(UpdateError::NotFinite) => Err(Rejection::NonFinite),
+            Err(UpdateError::NotPositiveDefinite) => Err(Rejection::BadCovariance),
+        };
         (result, outcome.innovation)
+    }
+
+    /// True when the estimate is low over the table's edge, where a bounce is a close call.
+    fn near_table_edge(&self, snapshot: &Snapshot) -> bool {
+        let x = &snapshot.ekf.x;
+        let outside = self.fusion.propagator.distance_outside_table(x[0], x[1]);
+        x[2] < 0.1 && outside.abs() < EDGE_MARGIN
+    }
+
+    /// True when the estimate, low and falling, comes down to the table's height within
+    /// [`EDGE_MARGIN`] of its edge before `stamp` (in a vacuum, to first order: where it would
+    /// bounce). A ball that crosses a side edge fast is outside the margin at both ends of a
+    /// step: 4.5 m/s sideways is 3 cm in one 150 fps frame interval.
+    fn lands_near_table_edge(&self, snapshot: &Snapshot, stamp: i64) -> bool {
+        let x = &snapshot.ekf.x;
+        let dt = (stamp - snapshot.stamp) as f64 * 1e-9;
+        let height = x[2] - self.flight.radius();
+        let (vz, g) = (x[5], self.flight.gravity());
+        if dt <= 0.0 || x[2] >= 0.1 || height < 0.0 || vz >= 0.0 || g <= 0.0 {
+            return false;
+        }
+        // height + vz t - g t^2 / 2 = 0, the later root.
+        let t = (vz + (vz * vz + 2.0 * g * height).sqrt()) / g;
+        t <= dt
+            && self
+                .fusion
+                .propagator
+                .distance_outside_table(x[0] + x[3] * t, x[1] + x[4] * t)
+                .abs()
+                < EDGE_MARGIN
+    }
+
+    /// An edge ball whose kept bounce hypothesis fails a detection: the other hypotheses are
+    /// tried again from before the ball came down to the table, every detection since re-applied
+    /// with the table grown and shrunk by [`EDGE_MARGIN`]. The first detection after a bounce may
+    /// come too soon after it to tell landing on the table from passing beside it (0.3 ms at
+    /// 900 fps). Taken when the newest detection fuses and the detections re-applied fit better
+    /// (lower NIS of their whole measurements in sum) than they did; the history is rewritten
+    /// with it. Returns the estimate at `d` and its NIS.
+    fn retry_edge_bounce(&mut self, d: &Detection, m: &Measurement) -> Option<(Snapshot, f64)> {
+        let track = self.track.as_ref()?;
+        if !self.near_table_edge(&track.now) {
+            return None;
+        }
+        // From the last entry before the latest bounce, or, with no bounce since the history
+        // starts, before the ball came down to the table's height.
+        let contact = self.flight.radius();
+        let history = &track.history;
+        let before = history
+            .iter()
+            .rev()
+            .map(|e| e.after.bounces)
+            .find(|&b| b < track.now.bounces)
+            .unwrap_or(track.now.bounces);
+        let from = history
+            .iter()
+            .rposition(|e| e.after.bounces == before && e.after.ekf.x[2] > contact)?;
+        let again = history.len() - from - 1;
+        if again == 0 || again > EDGE_RETRY_LIMIT {
+            return None;
+        }
+        let kept: f64 = history
+            .iter()
+            .skip(from + 1)
+            .map(|e| e.after.whole_nis)
+            .sum();
+        let mut best: Option<([Snapshot; EDGE_RETRY_LIMIT], Snapshot, f64, f64)> = None;
+        for alternative in &self.edge_alternatives {
+            let mut snapshot = history[from].after;
+            let mut afters = [snapshot; EDGE_RETRY_LIMIT];
+            let mut total = 0.0;
+            for (slot, entry) in afters.iter_mut().zip(history.iter().skip(from + 1)) {
+                total += match self.reapply(
+                    alternative,
+                    &mut snapshot,
+                    &entry.detection,
+                    &entry.measurement,
+                ) {
+                    Some(f) => f.whole_nis,
+                    // A detection the hypothesis cannot explain counts as at the gate.
+                    None => self.whole_gate(&entry.measurement),
+                };
+                *slot = snapshot;
+            }
+            let Some(fused) = self.reapply(alternative, &mut snapshot, d, m) else {
+                continue;
+            };
+            if total < kept && best.as_ref().is_none_or(|b| total < b.3) {
+                best = Some((afters, snapshot, fused.nis, total));
+            }
+        }
+        let (afters, snapshot, nis, _) = best?;
+        let track = self.track.as_mut()?;
+        for (entry, after) in track.history.iter_mut().skip(from + 1).zip(afters) {
+            entry.after = after;
+        }
+        self.counters.edge_retries += 1;
+        Some((snapshot, nis))
+    }
+
+    /// A detection re-applied to a hypothesis's snapshot (its table given by `propagator`):
+    /// the snapshot moved to its stamp and, where it fits, updated with it.
+    fn reapply(
+        &self,
+        propagator: &Propagator,
+        snapshot: &mut Snapshot,
+        d: &Detection,
+        m: &Measurement,
+    ) -> Option<Fused> {
+        self.fusion
+            .fuse(propagator, snapshot, d.stamp, m)
+            .fused
+            .ok()
+    }
+
+    /// The gate of a measurement's every dimension: what a detection a hypothesis cannot
+    /// explain counts as when hypotheses are compared.
+    fn whole_gate(&self, m: &Measurement) -> f64 {
+        match m {
+            Measurement::Position { .. } => self.fusion.gate_position,
+            Measurement::PositionSpin { .. } => self.fusion.gate_position_spin,
+        }
     }
 
     /// Fuses a detection older than the newest fused one: roll back, fuse, re-apply the newer.
