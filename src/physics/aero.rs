@@ -445,7 +445,8 @@ impl FlightModel {
         );
         let log_f = 0.25 * ((1.0 + low) / (1.0 + high)).ln();
         let slope = low / (1.0 + low) - high / (1.0 + high);
-        ((a_d * log_f).exp(), (a_m * log_f).exp(), slope)
+        let power = |a: f64| if a == 0.0 { 1.0 } else { (a * log_f).exp() };
+        (power(a_d), power(a_m), slope)
     }
 
     /// Spin parameter Sp = r |w x v| / |v|^2 (0 for a ball at rest).

@@ -73,6 +73,20 @@ fn interception_error(truth: &Config, estimator: &Config) -> f64 {
     report.leads[2].position_error.rms
 }
 
+/// Each fitted parameter, its standard error, the truth and the start, on stderr.
+fn print_fit(c: &ttball::offline::calibrate::Calibration, truth: &Config) {
+    for p in &c.parameters {
+        eprintln!(
+            "{} = {:.4} +- {:.4} (truth {:.4}, start {:.4})",
+            p.name,
+            p.value,
+            p.std_error,
+            p.parameter.value(truth),
+            p.initial
+        );
+    }
+}
+
 #[test]
 fn recovers_perturbed_aero_and_bounce_coefficients_from_simulated_flights() {
     let truth = perturbed();
@@ -86,16 +100,7 @@ fn recovers_perturbed_aero_and_bounce_coefficients_from_simulated_flights() {
         ..Options::default()
     };
     let c = calibrate(&start, &flights, &options, &mut |_| {}).expect("calibrated");
-    for p in &c.parameters {
-        eprintln!(
-            "{} = {:.4} +- {:.4} (truth {:.4}, start {:.4})",
-            p.name,
-            p.value,
-            p.std_error,
-            p.parameter.value(&truth),
-            p.initial
-        );
-    }
+    print_fit(&c, &truth);
     // The curves, where the flights have data (Sp 5 % to 95 %), within 1 % of the truth; the
     // starting ones are 10 % off.
     let [low, _, high] = c.spin_parameter;
@@ -408,15 +413,8 @@ fn recovers_the_reynolds_exponent_from_simulated_flights() {
         ..Options::default()
     };
     let c = calibrate(&start, &flights, &options, &mut |_| {}).expect("calibrated");
+    print_fit(&c, &truth);
     for p in &c.parameters {
-        eprintln!(
-            "{} = {:.4} +- {:.4} (truth {:.4}, start {:.4})",
-            p.name,
-            p.value,
-            p.std_error,
-            p.parameter.value(&truth),
-            p.initial
-        );
         assert!(!p.parameter.at_bound(p.value), "{}", p.name);
     }
     let a_m = c.config.aero.reynolds_exponents[1];
