@@ -130,36 +130,18 @@ impl Parameter {
 
     /// Its value in `config` (0 for a coefficient beyond the polynomial's length).
     pub fn value(&self, config: &Config) -> f64 {
+        let element = |list: &[f64], k: usize| list.get(k).copied().unwrap_or(0.0);
+        let aero = &config.aero;
         match self {
-            Self::Drag(k) => config
-                .aero
-                .drag_coefficients
-                .get(*k)
-                .copied()
-                .unwrap_or(0.0),
-            Self::Magnus(k) => config
-                .aero
-                .magnus_coefficients
-                .get(*k)
-                .copied()
-                .unwrap_or(0.0),
-            Self::DragScale => config.aero.drag_scale,
-            Self::MagnusScale => config.aero.magnus_scale,
+            Self::Drag(k) => element(&aero.drag_coefficients, *k),
+            Self::Magnus(k) => element(&aero.magnus_coefficients, *k),
+            Self::DragScale => aero.drag_scale,
+            Self::MagnusScale => aero.magnus_scale,
             Self::Restitution => config.table.restitution,
             Self::Friction => config.table.friction,
             Self::AirDensity => config.air.density,
-            Self::DragReynolds => config
-                .aero
-                .reynolds_exponents
-                .first()
-                .copied()
-                .unwrap_or(0.0),
-            Self::MagnusReynolds => config
-                .aero
-                .reynolds_exponents
-                .get(1)
-                .copied()
-                .unwrap_or(0.0),
+            Self::DragReynolds => element(&aero.reynolds_exponents, 0),
+            Self::MagnusReynolds => element(&aero.reynolds_exponents, 1),
         }
     }
 

@@ -568,9 +568,9 @@ impl Tracker {
             .take()
             .and_then(|c| self.continues(&c, &fit.x, fit.stamp, first_seen));
         let id = match continued {
-            Some((id, before)) => {
+            Some((id, before, missed)) => {
                 // The same ball: its id, and the bounces it has made.
-                let missed = u32::from(missed_a_bounce(&before.ekf.x, &fit.x));
+                let missed = u32::from(missed);
                 snapshot.bounces = before.bounces + missed;
                 snapshot.robot_half_bounces = (before.robot_half_bounces
                     + missed * u32::from(fit.x[0] < 0.0))
@@ -688,14 +688,14 @@ impl Tracker {
     /// `tracking.timeout` of its last fused detection, within [`REANCHOR_DISTANCE`] of where
     /// its estimate had flown to (horizontally, where it missed a bounce), and moving the same
     /// way along the table (a racket hit turns the ball around). Then its id and the estimate it
-    /// had flown to.
+    /// had flown to, and whether it missed a bounce.
     fn continues(
         &self,
         c: &Continuation,
         x: &StateVector,
         stamp: i64,
         first_seen: i64,
-    ) -> Option<(u32, Snapshot)> {
+    ) -> Option<(u32, Snapshot, bool)> {
         if first_seen - c.last.last_fused > self.settings.timeout || stamp < c.last.stamp {
             return None;
         }
@@ -703,13 +703,10 @@ impl Tracker {
         self.fusion.advance(&mut flown, stamp);
         // A bounce the estimate missed turned the ball's vertical motion around, not its path
         // over the table: then only the horizontal distance tells.
-        let dimensions = if missed_a_bounce(&flown.ekf.x, x) {
-            2
-        } else {
-            3
-        };
+        let missed = missed_a_bounce(&flown.ekf.x, x);
+        let dimensions = if missed { 2 } else { 3 };
         let apart = (flown.ekf.x.rows(0, dimensions) - x.rows(0, dimensions)).norm();
-        (apart <= REANCHOR_DISTANCE && flown.ekf.x[3] * x[3] > 0.0).then_some((c.id, flown))
+        (apart <= REANCHOR_DISTANCE && flown.ekf.x[3] * x[3] > 0.0).then_some((c.id, flown, missed))
     }
 
     /// Keeps the fused detection `d` (measured as `m`) in the live track's record for its
