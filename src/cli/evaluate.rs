@@ -6,8 +6,10 @@ use std::process::ExitCode;
 
 use anyhow::Context;
 use clap::{Args, ValueEnum};
+use nalgebra::Vector3;
 use ttball::eval::real::{
-    LauncherFlights, LeadOutcome, RealEvalOptions, RealReport, SpinKind, evaluate_flights,
+    FlightResult, LauncherFlights, LeadOutcome, RealEvalOptions, RealReport, SpinKind,
+    evaluate_flights,
 };
 use ttball::eval::sets::{
     LeadComparison, SETTLE_FLIGHTS, SetReport, TrialSet, run_set, set_efficiency, standard_sets,
@@ -16,7 +18,8 @@ use ttball::eval::sim::{Cameras, SimOptions, simulate};
 use ttball::eval::{
     BatchPhysics, Comparison, Efficiency, EvalReport, efficiency, evaluate_learning,
 };
-use ttball::physics::PhysicsParams;
+use ttball::model::stats::ErrorStats;
+use ttball::physics::{BallState, PhysicsParams};
 
 use super::report::accuracy_table;
 use super::{ConfigArgs, write_json, write_stdout};
@@ -338,17 +341,7 @@ impl EvaluateArgs {
                 format!(": {}", gated.join(", "))
             }
         ));
-        text.push_str("topspin component just before the bounce [rad/s]:\n");
-        for kind in SpinKind::ALL {
-            let spins: Vec<String> = report
-                .flights
-                .iter()
-                .filter(|f| f.spin_kind == kind)
-                .filter_map(|f| f.topspin_before_bounce())
-                .map(|w| format!("{w:.0}"))
-                .collect();
-            text.push_str(&format!("  {:<9} {}\n", kind.name(), spins.join(" ")));
-        }
+        text.push_str(&spin_before_bounce_text(&report));
         if let Some(learned) = &report.learned {
             text.push_str(&format!(
                 "at the end: {}\n",
@@ -531,12 +524,68 @@ fn efficiency_table(efficiencies: &[Efficiency]) -> String {
         }
         line("velocity after 100 ms [m/s]", &e.velocity_at_age, 1.0);
         line(
-            "spin across v before 900 fps [rad/s]",
-            &e.spin_before_high_speed,
+            "spin across v before the bounce [rad/s]",
+            &e.spin_before_bounce,
             1.0,
         );
     }
     out
+}
+
+/// The spin just before the bounce on real flights: the filter's topspin component by kind, the
+/// batch fit's of the same detections, and how the two compare across the velocity.
+fn spin_before_bounce_text(report: &RealReport) -> String {
+    let mut text = String::from(
+        "topspin component just before the bounce [rad/s], filter / batch fit of the same \
+         detections with the same physics:\n",
+    );
+    let topspin = |s: &BallState| {
+        let h = Vector3::new(s.velocity.x, s.velocity.y, 0.0).normalize();
+        s.spin.dot(&Vector3::z().cross(&h))
+    };
+    for kind in SpinKind::ALL {
+        let of_kind = || report.flights.iter().filter(|f| f.spin_kind == kind);
+        let list = |pick: &dyn Fn(&FlightResult) -> Option<BallState>| {
+            let values: Vec<f64> = of_kind()
+                .filter_map(|f| pick(f).map(|s| topspin(&s)))
+                .collect();
+            let text: Vec<String> = values.iter().map(|w| format!("{w:.0}")).collect();
+            (text.join(" "), ErrorStats::of(&deviations(&values)).rms)
+        };
+        let (online, online_scatter) = list(&|f| f.before_bounce);
+        let (batch, batch_scatter) = list(&|f| f.batch_before_bounce);
+        text.push_str(&format!(
+            "  {:<9} filter {online} (scatter {online_scatter:.0})\n  {:<9} batch  {batch} \
+             (scatter {batch_scatter:.0})\n",
+            kind.name(),
+            ""
+        ));
+    }
+    let pairs: Vec<(Vector3<f64>, Vector3<f64>)> = report
+        .flights
+        .iter()
+        .filter_map(FlightResult::spin_across_before_bounce)
+        .collect();
+    let ratios: Vec<f64> = pairs.iter().map(|(o, b)| o.norm() / b.norm()).collect();
+    let within = ratios
+        .iter()
+        .filter(|r| (1.0 / 1.2..=1.2).contains(*r))
+        .count();
+    let differences: Vec<f64> = pairs.iter().map(|(o, b)| (o - b).norm()).collect();
+    text.push_str(&format!(
+        "spin across v before the bounce, filter against batch fit over {} flights: |filter| / \
+         |batch| median {:.2}, within 1/1.2-1.2 on {within}; difference RMS {:.0} rad/s\n",
+        pairs.len(),
+        ErrorStats::of(&ratios).median,
+        ErrorStats::of(&differences).rms,
+    ));
+    text
+}
+
+/// Each value less the values' mean.
+fn deviations(values: &[f64]) -> Vec<f64> {
+    let mean = values.iter().sum::<f64>() / values.len().max(1) as f64;
+    values.iter().map(|v| v - mean).collect()
 }
 
 /// `ttball evaluate --real --json`: the measured noise, the summaries of the table, every
@@ -619,6 +668,12 @@ fn real_report_json(
                 "not_scored_because": f.crossing.err().map(|why| why.describe()),
                 "leads": leads,
                 "topspin_before_bounce": f.topspin_before_bounce(),
+                "spin_across_before_bounce": f.spin_across_before_bounce().map(|(filter, batch)| {
+                    serde_json::json!({
+                        "filter": [filter.x, filter.y, filter.z],
+                        "batch_fit": [batch.x, batch.y, batch.z],
+                    })
+                }),
                 "tracks": f.counters.tracks,
                 "reanchored": f.counters.reanchored,
                 "gated_after_bounce": f.gated_after_bounce,

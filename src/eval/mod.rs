@@ -144,9 +144,9 @@ struct ShotRecord {
     /// The estimate scored after [`TRACK_AGE`] of track, with the number of detections scored
     /// when it came out.
     at_age: Option<(usize, Estimate)>,
-    /// The last estimate at a detection's stamp before the 900 fps camera's first detection of
-    /// the shot, likewise.
-    before_high_speed: Option<(usize, Estimate)>,
+    /// The last estimate at a detection's stamp before the shot's bounce (and
+    /// [`BOUNCE_WINDOW`] from it), likewise.
+    before_bounce: Option<(usize, Estimate)>,
 }
 
 /// Scores the estimator's outputs one detection at a time against the truth.
@@ -263,8 +263,8 @@ impl Scorer {
             }
         }
         let spin_error: Vector3<f64> = estimate.state.spin - truth.spin;
-        if record.high_speed_start.is_none() && detection.source != Source::HIGHSPEED_900FPS {
-            record.before_high_speed = Some((self.detections, estimate));
+        if detection.stamp < truth_shot.bounce_stamp {
+            record.before_bounce = Some((self.detections, estimate));
         }
         if !record.scored_at_age && estimate.stamp - start >= seconds_to_ns(TRACK_AGE) {
             record.scored_at_age = true;
@@ -512,9 +512,9 @@ pub struct Efficiency {
     pub leads: Vec<LeadEfficiency>,
     /// The velocity after [`TRACK_AGE`] of track [m/s].
     pub velocity_at_age: Comparison,
-    /// The spin perpendicular to the velocity just before the 900 fps camera first sees the
-    /// ball [rad/s] (with the 150 fps camera alone, at its last detection of the shot).
-    pub spin_before_high_speed: Comparison,
+    /// The spin perpendicular to the velocity just before the bounce on the robot's half
+    /// [rad/s].
+    pub spin_before_bounce: Comparison,
 }
 
 /// The filter's efficiency ([`Efficiency`]), against the batch fit ([`crate::offline::batch`]) of the
@@ -681,7 +681,7 @@ fn efficiency_of(
         physics,
         leads,
         velocity_at_age: state_errors(&|r| r.at_age, &velocity),
-        spin_before_high_speed: state_errors(&|r| r.before_high_speed, &spin_across),
+        spin_before_bounce: state_errors(&|r| r.before_bounce, &spin_across),
     }
 }
 

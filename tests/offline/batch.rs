@@ -109,10 +109,7 @@ fn the_filter_is_measured_against_the_batch_fit_of_the_same_detections() {
         assert!(l.position.batch.median < 0.01, "{l:?}");
         assert!(l.spin.batch.median < 20.0, "{l:?}");
     }
-    for c in [
-        &configured.velocity_at_age,
-        &configured.spin_before_high_speed,
-    ] {
+    for c in [&configured.velocity_at_age, &configured.spin_before_bounce] {
         eprintln!("{c:?}");
         assert_eq!(c.shots, 16, "{c:?}");
         assert!(c.ratio.is_finite() && c.batch.rms > 0.0, "{c:?}");

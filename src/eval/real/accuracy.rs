@@ -33,14 +33,16 @@ use nalgebra::Vector3;
 
 use super::mpi::{Flight, SpinKind, flight_detections};
 use crate::config::Config;
-use crate::model::detection::{Source, seconds_to_ns};
+use crate::model::detection::{Detection, Source, seconds_to_ns};
 use crate::model::stats::ErrorStats;
 use crate::offline::ballistic::{MeasuredBounce, detect_bounce, fit_ballistic};
+use crate::offline::batch::fit_whole_flight;
 use crate::online::estimator::{
     Counters, Estimator, InterceptEstimate, LearnedParams, LearnedPhysics, Rejection, Verdict,
 };
 use crate::online::intercept::NoIntercept;
 use crate::physics::BallState;
+use crate::physics::propagate::Propagator;
 
 /// Samples within this time of the crossing [s] are fitted to measure it.
 pub const CROSSING_WINDOW: f64 = 0.015;
@@ -264,6 +266,9 @@ pub struct FlightResult {
     /// The estimated state just before the measured bounce (the last estimate of a track before
     /// it), or at the end of a recording that ends before the bounce.
     pub before_bounce: Option<BallState>,
+    /// The batch fit's state at the same stamp ([`crate::offline::batch`]): the flight's
+    /// detections up to that stamp fitted as a whole, flying the track's own physics then.
+    pub batch_before_bounce: Option<BallState>,
     /// Detections gated within [`AFTER_BOUNCE_WINDOW`] after the measured bounce [-].
     pub gated_after_bounce: usize,
 }
@@ -280,6 +285,19 @@ impl FlightResult {
         let horizontal = Vector3::new(s.velocity.x, s.velocity.y, 0.0);
         let norm = horizontal.norm();
         (norm > 0.0).then(|| s.spin.dot(&Vector3::z().cross(&(horizontal / norm))))
+    }
+
+    /// The spin perpendicular to the velocity just before the bounce, of the filter's estimate
+    /// and of the batch fit at the same stamp [rad/s].
+    pub fn spin_across_before_bounce(&self) -> Option<(Vector3<f64>, Vector3<f64>)> {
+        let across = |s: &BallState| {
+            let along = s.velocity.normalize();
+            s.spin - along * s.spin.dot(&along)
+        };
+        Some((
+            across(self.before_bounce.as_ref()?),
+            across(self.batch_before_bounce.as_ref()?),
+        ))
     }
 }
 
@@ -491,6 +509,7 @@ fn evaluate_flight(
         lead_states: Vec::new(),
         counters: Counters::default(),
         before_bounce: None,
+        batch_before_bounce: None,
         gated_after_bounce: 0,
     };
     let bounce_time = detect_bounce(&flight.samples, config.gravity).map(|b| b.time);
@@ -505,34 +524,37 @@ fn evaluate_flight(
     let epoch = options.epoch_ns;
     let detections = flight_detections(flight, epoch, options.source);
     let before_bounce_ns = bounce_time.map(|t| epoch + seconds_to_ns(t));
-    let mut before_bounce = None;
+    let mut before_bounce: Option<(i64, BallState, Option<LearnedParams>)> = None;
     let mut gated_after_bounce = 0;
     let window = seconds_to_ns(AFTER_BOUNCE_WINDOW);
+    // Counts a gated detection after the measured bounce; the estimate before the measured
+    // bounce and before the estimator's own (a millisecond early, its estimate would be of the
+    // ball after it), if this is one.
     let mut note = |out: &crate::online::estimator::Output, stamp: i64| {
         if out.verdict == Verdict::Rejected(Rejection::Gated)
             && before_bounce_ns.is_some_and(|b| (b..=b + window).contains(&stamp))
         {
             gated_after_bounce += 1;
         }
-        // Before the measured bounce and before the estimator's own (a millisecond early, its
-        // estimate would be of the ball after it).
-        if before_bounce_ns.is_none_or(|b| stamp < b)
-            && let Some(e) = out.estimate.filter(|e| {
-                e.status != crate::online::estimator::TrackStatus::Initializing && e.bounces == 0
+        out.estimate
+            .filter(|e| {
+                before_bounce_ns.is_none_or(|b| stamp < b)
+                    && e.status != crate::online::estimator::TrackStatus::Initializing
+                    && e.bounces == 0
             })
-        {
-            before_bounce = Some(e.state);
-        }
+            .map(|e| (e.stamp, e.state))
     };
     let Ok(measured) = crossing else {
         for d in &detections {
             let out = estimator.handle(d);
-            note(&out, d.stamp);
+            if let Some((stamp, state)) = note(&out, d.stamp) {
+                before_bounce = Some((stamp, state, estimator.track_params()));
+            }
         }
         estimator.end_of_input();
         result.counters = estimator.counters();
-        result.before_bounce = before_bounce;
         result.gated_after_bounce = gated_after_bounce;
+        result.set_before_bounce(&flight_config, &detections, before_bounce);
         return (result, estimator.learned_physics());
     };
     let deadlines: Vec<i64> = options
@@ -545,7 +567,9 @@ fn evaluate_flight(
         vec![None; deadlines.len()];
     for detection in &detections {
         let out = estimator.handle(detection);
-        note(&out, detection.stamp);
+        if let Some((stamp, state)) = note(&out, detection.stamp) {
+            before_bounce = Some((stamp, state, estimator.track_params()));
+        }
         if detection.stamp > last_deadline {
             // After the last lead: only learning.
             continue;
@@ -563,8 +587,8 @@ fn evaluate_flight(
     // The flight has ended: its track's lesson is learned (and counted) before it is carried.
     estimator.end_of_input();
     result.counters = estimator.counters();
-    result.before_bounce = before_bounce;
     result.gated_after_bounce = gated_after_bounce;
+    result.set_before_bounce(&flight_config, &detections, before_bounce);
     let learned_after = estimator.learned_physics();
     result.leads = latest
         .iter()
@@ -575,6 +599,36 @@ fn evaluate_flight(
         .collect();
     result.lead_states = latest.iter().map(|p| p.and_then(|(_, s)| s)).collect();
     (result, learned_after)
+}
+
+impl FlightResult {
+    /// Records the filter's estimate before the bounce (`estimate`: its stamp, state and the
+    /// track's own physics then) and fits `detections` up to that stamp as a whole, flying that
+    /// physics on `config`, for the batch fit's state there.
+    fn set_before_bounce(
+        &mut self,
+        config: &Config,
+        detections: &[Detection],
+        estimate: Option<(i64, BallState, Option<LearnedParams>)>,
+    ) {
+        let Some((stamp, state, params)) = estimate else {
+            return;
+        };
+        self.before_bounce = Some(state);
+        let mut physics = config.clone();
+        if let Some(p) = params {
+            p.params.apply_to(&mut physics);
+        }
+        let seen: Vec<Detection> = detections
+            .iter()
+            .filter(|d| d.stamp <= stamp)
+            .copied()
+            .collect();
+        self.batch_before_bounce = fit_whole_flight(&physics, &seen).ok().and_then(|fit| {
+            fit.state_at(&Propagator::new(&physics), stamp)
+                .map(|(s, _)| s)
+        });
+    }
 }
 
 fn outcome(p: &InterceptEstimate, measured: &MeasuredCrossing, epoch: i64) -> LeadOutcome {
