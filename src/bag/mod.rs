@@ -1099,6 +1099,9 @@ impl<W: Write + Seek> BagWriter<W> {
             // zstd's fastest level: a replay's output compresses in 0.6 of the time of the
             // default level (3), 0.7 % larger (docs/performance.md).
             .compression_level(1)
+            // In the writing thread itself: zstd's own worker threads would take cores from the
+            // detections.
+            .compression_threads(0)
             .create(out)
             .map_err(|e| BagError::Write {
                 path: path.to_path_buf(),

@@ -114,14 +114,18 @@ pub struct ReplaySummary {
     pub learned: crate::online::estimator::LearnedSummary,
     /// Messages written to the output bag.
     pub written: u64,
-    /// Processing time per detection [ns], mean and 99th percentile.
+    /// Processing time per detection [ns], mean (each detection's own work: its waits for the
+    /// lessons worker left out).
     pub processing_mean_ns: f64,
     /// 99th percentile of the processing time per detection [ns].
     pub processing_p99_ns: f64,
     /// Log time spanned by the detections [s].
     pub recorded_seconds: f64,
-    /// Time spent processing them [s].
+    /// Time spent processing them [s], their own work (waits for the lessons worker left out).
     pub processing_seconds: f64,
+    /// Time the detections waited for the lessons worker [s] (a replay keeps the live node's
+    /// lessons at the same points by waiting where one is due and not yet done).
+    pub lesson_wait_seconds: f64,
     /// Why the input was read only in part (truncated or corrupt); empty when it was whole.
     pub damage: Vec<Damage>,
     /// True when the replay was interrupted (the output holds what was done, finished).
@@ -730,10 +734,14 @@ impl Session {
             self.undecodable += 1;
             return None;
         };
-        let started = Instant::now();
+        let (started, waited) = (Instant::now(), self.pipeline.lesson_wait());
         let step = self.pipeline.on_detection(&msg);
+        // The detection's own work: what it waited for the worker's lessons is the worker's.
+        let own = started
+            .elapsed()
+            .saturating_sub(self.pipeline.lesson_wait() - waited);
         self.times
-            .record(u64::try_from(started.elapsed().as_nanos()).unwrap_or(u64::MAX));
+            .record(u64::try_from(own.as_nanos()).unwrap_or(u64::MAX));
         self.first_last = Some(
             self.first_last
                 .map_or((m.log_time, m.log_time), |(a, _)| (a, m.log_time)),
@@ -773,6 +781,7 @@ impl Session {
             processing_p99_ns: timing.p99,
             recorded_seconds: self.first_last.map_or(0.0, |(a, b)| (b - a) as f64 * 1e-9),
             processing_seconds: timing.total * 1e-9,
+            lesson_wait_seconds: estimator.lesson_wait().as_secs_f64(),
             damage,
             interrupted,
             accuracy: self.truth.map(|t| t.scorer.report(counters)),

@@ -342,9 +342,10 @@ pub fn summary_text(s: &ReplaySummary, whole_seconds: Option<f64>) -> String {
     }
     let _ = writeln!(
         out,
-        "  processing per detection: mean {:.1} us, p99 {:.1} us; {:.1} s recorded in {:.2} s ({:.0}x real time); {} messages written",
+        "  processing per detection: mean {:.1} us, p99 {:.1} us (waits for the lessons worker, {:.1} ms in all, left out); {:.1} s recorded in {:.2} s ({:.0}x real time); {} messages written",
         s.processing_mean_ns * 1e-3,
         s.processing_p99_ns * 1e-3,
+        s.lesson_wait_seconds * 1e3,
         s.recorded_seconds,
         s.processing_seconds,
         s.real_time_factor(),
@@ -448,6 +449,7 @@ fn summary_json(s: &ReplaySummary, whole_seconds: f64) -> serde_json::Value {
         "processing_p99_ns": s.processing_p99_ns,
         "recorded_seconds": s.recorded_seconds,
         "processing_seconds": s.processing_seconds,
+        "lesson_wait_seconds": s.lesson_wait_seconds,
         "real_time_factor": s.real_time_factor(),
         "whole_seconds": whole_seconds,
         "whole_real_time_factor": s.recorded_seconds / whole_seconds.max(1e-9),

@@ -126,6 +126,11 @@ impl Pipeline {
         self.estimator.run_lessons_on_a_worker(waiting)
     }
 
+    /// [`Estimator::lesson_wait`].
+    pub fn lesson_wait(&self) -> std::time::Duration {
+        self.estimator.lesson_wait()
+    }
+
     /// The input has ended: the live track teaches what it learned (see
     /// [`Estimator::end_of_input`]).
     pub fn end_of_input(&mut self) {

@@ -21,6 +21,7 @@
 //! lessons: nothing is allocated per detection.
 
 use std::collections::VecDeque;
+use std::time::{Duration, Instant};
 
 use crossbeam::channel::{Receiver, Sender, TryRecvError, bounded};
 
@@ -130,6 +131,8 @@ pub(crate) struct Lessons {
     /// Detections' buffers back from lessons, for the next tracks.
     spare: Vec<TrackRecord>,
     counts: LessonCounts,
+    /// How long callers have waited for the worker's lessons ([`Waiting::Wait`]).
+    waited: Duration,
 }
 
 impl Clone for Lessons {
@@ -144,6 +147,7 @@ impl Clone for Lessons {
             smoother: Smoother::new(),
             spare: Vec::with_capacity(MAX_PENDING + 1),
             counts: self.counts,
+            waited: Duration::ZERO,
         }
     }
 }
@@ -158,6 +162,7 @@ impl Lessons {
             smoother: Smoother::new(),
             spare: Self::first_records(),
             counts: LessonCounts::default(),
+            waited: Duration::ZERO,
         }
     }
 
@@ -303,6 +308,20 @@ impl Lessons {
     /// Waits for the worker's lesson of job `id` (the ones before it filed as they come);
     /// `None` when the worker is gone.
     fn wait_for(&mut self, id: u64) -> Option<Option<Lesson>> {
+        let started = Instant::now();
+        let lesson = self.receive(id);
+        self.waited += started.elapsed();
+        lesson
+    }
+
+    /// How long callers have waited for the worker's lessons in all: time on the detection
+    /// path that is the worker's, not the detection's (a replay's, [`Waiting::Wait`]).
+    pub(crate) fn waited(&self) -> Duration {
+        self.waited
+    }
+
+    /// [`Self::wait_for`]'s receiving.
+    fn receive(&mut self, id: u64) -> Option<Option<Lesson>> {
         loop {
             let received = self.worker.as_ref()?.done.recv();
             let Ok((done_id, lesson, buffer)) = received else {

@@ -192,6 +192,13 @@ impl Estimator {
         self.adaptation.lessons.spawn_worker(waiting)
     }
 
+    /// How long the detections have waited for the worker's lessons in all (with
+    /// [`Waiting::Wait`]; zero inline or with [`Waiting::Never`]): time in [`Self::handle`] that
+    /// is the worker's, for timings of the detections' own work.
+    pub fn lesson_wait(&self) -> std::time::Duration {
+        self.adaptation.lessons.waited()
+    }
+
     /// Takes `config`'s estimator, gating, source-noise, tracking and interception values from
     /// the next detection on, keeping the live track, what was learned of the physics and the
     /// counters (the node's `set_parameters`). `previous` is the configuration it ran with: what
