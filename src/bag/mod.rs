@@ -34,6 +34,9 @@ use crate::ros::msgs::definitions;
 pub mod live_view;
 pub mod record;
 pub mod replay;
+mod sqlite;
+
+use sqlite::{Db3Stream, SQLITE_MAGIC};
 
 /// The encapsulation header of a little-endian CDR payload (CDR_LE, options 0).
 const CDR_LE: [u8; 4] = [0x00, 0x01, 0x00, 0x00];
@@ -55,6 +58,14 @@ pub enum BagError {
         /// The file.
         path: PathBuf,
         /// What the MCAP reader said.
+        reason: String,
+    },
+    /// A rosbag2 sqlite3 file (`.db3`) cannot be read.
+    #[error("{path}: {reason}")]
+    Sqlite {
+        /// The file.
+        path: PathBuf,
+        /// What is wrong, and what to do.
         reason: String,
     },
     /// Writing MCAP records failed.
@@ -350,7 +361,7 @@ pub const REORDER_WINDOW: usize = 4096;
 /// its complete records (those of a cut chunk included); [`Self::damage`] says what and where.
 pub struct BagReader {
     files: std::vec::IntoIter<PathBuf>,
-    file: Option<FileStream>,
+    file: Option<Stream>,
     channels: Vec<ChannelInfo>,
     damage: Vec<Damage>,
     window: ReorderWindow,
@@ -445,6 +456,48 @@ struct FileStream {
     finished: bool,
 }
 
+/// One file of a bag being read: MCAP, or rosbag2's sqlite3 storage.
+enum Stream {
+    Mcap(FileStream),
+    Db3(Db3Stream),
+}
+
+impl Stream {
+    fn path(&self) -> &Path {
+        match self {
+            Self::Mcap(f) => &f.path,
+            Self::Db3(f) => &f.path,
+        }
+    }
+
+    /// The next message of the file, `None` at its end, or why it cannot be read further.
+    fn next(
+        &mut self,
+        channels: &mut Vec<ChannelInfo>,
+        read: &mut u64,
+    ) -> Result<Option<BagMessage>, StopReason> {
+        match self {
+            Self::Mcap(f) => f.next(channels, read),
+            Self::Db3(f) => f.next(read),
+        }
+    }
+
+    /// The damage found since last asked (an MCAP file's skipped chunks).
+    fn take_skipped(&mut self) -> Vec<Damage> {
+        match self {
+            Self::Mcap(f) => std::mem::take(&mut f.skipped),
+            Self::Db3(_) => Vec::new(),
+        }
+    }
+}
+
+/// What a file is, by its first bytes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum FileKind {
+    Mcap,
+    Sqlite,
+}
+
 /// Largest MCAP record accepted [bytes]: a corrupt length cannot make the reader buffer more.
 const RECORD_LENGTH_LIMIT: u64 = 1 << 28;
 
@@ -457,9 +510,9 @@ struct Records {
     ids: BTreeMap<u16, usize>,
 }
 
-/// The MCAP files of a rosbag2 directory in recording order: `metadata.yaml`'s
-/// `relative_file_paths` when it has one (as `ros2 bag play` reads them), else the `.mcap` files
-/// by their split number (`name_2` before `name_10`), then by name.
+/// The files of a rosbag2 directory in recording order: `metadata.yaml`'s `relative_file_paths`
+/// when it has one (as `ros2 bag play` reads them), else the `.mcap` and `.db3` files by their
+/// split number (`name_2` before `name_10`), then by name.
 pub fn rosbag2_files(dir: &Path) -> Result<Vec<PathBuf>, BagError> {
     let not_a_bag = |reason: String| BagError::NotMcap {
         path: dir.to_path_buf(),
@@ -479,9 +532,9 @@ pub fn rosbag2_files(dir: &Path) -> Result<Vec<PathBuf>, BagError> {
                 .filter(|f| f.is_file())
                 .or_else(|| dir.parent().map(|p| p.join(&name)))
                 .unwrap_or_else(|| dir.join(&name));
-            if !name.ends_with(".mcap") {
+            if !name.ends_with(".mcap") && !name.ends_with(".db3") {
                 return Err(not_a_bag(format!(
-                    "metadata.yaml lists `{name}`, which is not an MCAP file (a bag compressed per file: `ros2 bag decompress` it first)"
+                    "metadata.yaml lists `{name}`, neither an MCAP nor an sqlite3 file (a bag compressed per file: `ros2 bag decompress` it first)"
                 )));
             }
             if !file.is_file() {
@@ -501,7 +554,7 @@ pub fn rosbag2_files(dir: &Path) -> Result<Vec<PathBuf>, BagError> {
     })?;
     let mut files: Vec<PathBuf> = entries
         .filter_map(|entry| entry.ok().map(|e| e.path()))
-        .filter(|p| p.extension().is_some_and(|e| e == "mcap"))
+        .filter(|p| p.extension().is_some_and(|e| e == "mcap" || e == "db3"))
         .collect();
     files.sort_by_cached_key(|p| {
         let stem = p.file_stem().map(|s| s.to_string_lossy().into_owned());
@@ -512,7 +565,9 @@ pub fn rosbag2_files(dir: &Path) -> Result<Vec<PathBuf>, BagError> {
         (split, p.clone())
     });
     if files.is_empty() {
-        return Err(not_a_bag("a directory without .mcap files".to_string()));
+        return Err(not_a_bag(
+            "a directory without .mcap or .db3 files".to_string(),
+        ));
     }
     Ok(files)
 }
@@ -539,7 +594,8 @@ fn rosbag2_listed_files(text: &str) -> Result<Vec<String>, String> {
 }
 
 impl BagReader {
-    /// Opens a bag file or rosbag2 directory; the channels of its summary sections are read.
+    /// Opens a bag file or rosbag2 directory (MCAP or sqlite3 storage); the channels of its
+    /// MCAP summary sections and sqlite3 topic tables are read.
     pub fn open(path: &Path) -> Result<Self, BagError> {
         let files = if path.is_dir() {
             rosbag2_files(path)?
@@ -554,11 +610,20 @@ impl BagReader {
                 error,
             })?;
             size += f.metadata().map(|m| m.len()).unwrap_or(0);
-            let mut start = Vec::with_capacity(8);
-            let _ = Read::by_ref(&mut f).take(8).read_to_end(&mut start);
-            check_magic(&start, file)?;
-            if let Some(summary) = read_summary(&mut f) {
-                reader.register_summary(&summary);
+            let mut start = Vec::with_capacity(SQLITE_MAGIC.len());
+            let _ = Read::by_ref(&mut f)
+                .take(SQLITE_MAGIC.len() as u64)
+                .read_to_end(&mut start);
+            match file_kind(&start, file)? {
+                FileKind::Mcap => {
+                    if let Some(summary) = read_summary(&mut f) {
+                        reader.register_summary(&summary);
+                    }
+                }
+                FileKind::Sqlite => {
+                    Db3Stream::open(file, &mut reader.channels)?;
+                    reader.summarised = true;
+                }
             }
         }
         reader.size = size;
@@ -570,13 +635,18 @@ impl BagReader {
 
     /// A reader of MCAP bytes already in memory; `path` names them in messages.
     pub fn from_bytes(bytes: Vec<u8>, path: &Path) -> Result<Self, BagError> {
-        check_magic(&bytes, path)?;
+        if file_kind(&bytes, path)? != FileKind::Mcap {
+            return Err(BagError::NotMcap {
+                path: path.to_path_buf(),
+                reason: "an sqlite3 bag is read from its file, not from memory".to_string(),
+            });
+        }
         let mut reader = Self::empty();
         reader.size = bytes.len() as u64;
-        reader.file = Some(FileStream::new(
+        reader.file = Some(Stream::Mcap(FileStream::new(
             path.to_path_buf(),
             Box::new(std::io::Cursor::new(bytes)),
-        ));
+        )));
         Ok(reader)
     }
 
@@ -641,14 +711,27 @@ impl BagReader {
             self.file = None;
             return Ok(false);
         };
-        let f = File::open(&path).map_err(|error| BagError::Io {
+        let mut f = File::open(&path).map_err(|error| BagError::Io {
             path: path.clone(),
             error,
         })?;
-        self.file = Some(FileStream::new(
-            path,
-            Box::new(BufReader::with_capacity(1 << 16, f)),
-        ));
+        let mut start = Vec::with_capacity(SQLITE_MAGIC.len());
+        let _ = Read::by_ref(&mut f)
+            .take(SQLITE_MAGIC.len() as u64)
+            .read_to_end(&mut start);
+        self.file = Some(match file_kind(&start, &path)? {
+            FileKind::Sqlite => Stream::Db3(Db3Stream::open(&path, &mut self.channels)?),
+            FileKind::Mcap => {
+                f.seek(SeekFrom::Start(0)).map_err(|error| BagError::Io {
+                    path: path.clone(),
+                    error,
+                })?;
+                Stream::Mcap(FileStream::new(
+                    path,
+                    Box::new(BufReader::with_capacity(1 << 16, f)),
+                ))
+            }
+        });
         Ok(true)
     }
 
@@ -657,7 +740,7 @@ impl BagReader {
         loop {
             let stream = self.file.as_mut()?;
             let result = stream.next(&mut self.channels, &mut self.read);
-            let path = self.several_files.then(|| stream.path.clone());
+            let path = self.several_files.then(|| stream.path().to_path_buf());
             let in_file = |damage: Damage| match &path {
                 Some(path) => Damage::InFile {
                     path: path.clone(),
@@ -665,7 +748,7 @@ impl BagReader {
                 },
                 None => damage,
             };
-            let skipped: Vec<Damage> = stream.skipped.drain(..).collect();
+            let skipped = stream.take_skipped();
             self.damage.extend(skipped.into_iter().map(&in_file));
             match result {
                 Ok(Some(message)) => {
@@ -970,21 +1053,27 @@ impl Records {
     }
 }
 
-/// Checks that the first bytes of a file are the MCAP magic.
-fn check_magic(start: &[u8], path: &Path) -> Result<(), BagError> {
+/// What a file is by its first bytes (at least 16 of them when the file has them): MCAP or
+/// SQLite, else an error that says what it is not.
+fn file_kind(start: &[u8], path: &Path) -> Result<FileKind, BagError> {
     if start.is_empty() {
         return Err(BagError::NotMcap {
             path: path.to_path_buf(),
             reason: "the file is empty (0 bytes)".to_string(),
         });
     }
-    if !start.starts_with(mcap::MAGIC) {
-        return Err(BagError::NotMcap {
-            path: path.to_path_buf(),
-            reason: "it does not start with the MCAP magic bytes".to_string(),
-        });
+    if start.starts_with(mcap::MAGIC) {
+        return Ok(FileKind::Mcap);
     }
-    Ok(())
+    if start.starts_with(SQLITE_MAGIC) {
+        return Ok(FileKind::Sqlite);
+    }
+    Err(BagError::NotMcap {
+        path: path.to_path_buf(),
+        reason: "it starts with neither the MCAP magic bytes nor SQLite's (rosbag2's sqlite3 \
+                 storage)"
+            .to_string(),
+    })
 }
 
 /// The records of a chunk, decompressed; of a chunk cut short (`complete` false), as much as

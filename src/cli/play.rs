@@ -15,7 +15,7 @@ use super::{BadUsage, ConfigArgs, cancel_on_interrupt, progress_bar, write_stdou
 /// Arguments of `ttball play`.
 #[derive(Debug, Args)]
 pub struct PlayArgs {
-    /// The bag: an MCAP file, or a rosbag2 directory (MCAP storage).
+    /// The bag: an MCAP file, or a rosbag2 directory (MCAP or sqlite3 storage).
     #[arg(value_name = "BAG.mcap")]
     pub bag: PathBuf,
 

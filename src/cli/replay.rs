@@ -21,7 +21,8 @@ use super::{ConfigArgs, cancel_on_interrupt, progress_bar, write_json, write_std
 /// Arguments of `ttball replay`.
 #[derive(Debug, Args)]
 pub struct ReplayArgs {
-    /// Input bags: MCAP files, or rosbag2 directories from `ros2 bag record` (MCAP storage).
+    /// Input bags: MCAP files, or rosbag2 directories from `ros2 bag record` (MCAP or sqlite3
+    /// storage).
     #[arg(required = true, value_name = "INPUT.mcap")]
     pub inputs: Vec<PathBuf>,
 

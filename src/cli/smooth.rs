@@ -14,7 +14,7 @@ use super::{BadUsage, ConfigArgs, cancel_on_interrupt, progress_bar, write_stdou
 /// Arguments of `ttball smooth`.
 #[derive(Debug, Args)]
 pub struct SmoothArgs {
-    /// The input bag: an MCAP file, or a rosbag2 directory (MCAP storage).
+    /// The input bag: an MCAP file, or a rosbag2 directory (MCAP or sqlite3 storage).
     #[arg(value_name = "INPUT.mcap")]
     pub input: PathBuf,
 

@@ -11,3 +11,4 @@ mod msgs_contract;
 mod plot;
 mod properties;
 mod replay;
+mod sqlite_bags;

@@ -397,10 +397,11 @@ fn rosbag2_bag(name: &str) -> PathBuf {
         .join(name)
 }
 
-/// Every bag rosbag2 wrote (one file, five splits with metadata.yaml, three without, service
-/// events) is read whole and undamaged, each topic with as many messages as its metadata.yaml
-/// counts (`multiple_files` has none: 3177, as Python's `mcap` reads it), in log-time order;
-/// and the replay refuses each (no detection topic) naming the topics it has.
+/// Every bag rosbag2 wrote, in MCAP and in sqlite3 storage (one file, five splits with
+/// metadata.yaml, three without, service events; sqlite3 schemas from before Humble to Jazzy's) is
+/// read whole and undamaged, each topic with as many messages as its metadata.yaml counts
+/// (`multiple_files` has none: 3177, as Python's `mcap` reads it), in log-time order; and the
+/// replay refuses each (no detection topic) naming the topics it has.
 #[test]
 fn bags_written_by_rosbag2_are_read_whole_and_in_order() {
     for (name, total) in [
@@ -409,6 +410,10 @@ fn bags_written_by_rosbag2_are_read_whole_and_in_order() {
         ("multiple_files", 3177),
         ("cdr_test", 7),
         ("bag_with_topics_and_service_events", 10),
+        ("sqlite3/talker", 20),
+        ("sqlite3/wbag", 6074),
+        ("sqlite3/cdr_test", 7),
+        ("sqlite3/bag_with_topics_and_service_events", 10),
     ] {
         let path = rosbag2_bag(name);
         let bag = read_bag_file(&path).unwrap();
@@ -431,9 +436,8 @@ fn bags_written_by_rosbag2_are_read_whole_and_in_order() {
                 );
             }
         }
-        let refused = run(&path, &dir("rosbag2-refused").join(format!("{name}.mcap")))
-            .unwrap_err()
-            .to_string();
+        let output = dir("rosbag2-refused").join(format!("{}.mcap", name.replace('/', "_")));
+        let refused = run(&path, &output).unwrap_err().to_string();
         assert!(
             refused.contains("no topic `/ball/detections` (topics in the bag: ")
                 && refused.contains("-p topics.detections:="),

@@ -244,12 +244,11 @@ impl Lessons {
         None
     }
 
-    /// The lessons waiting, as far as they are known now: the smoothed flight where the worker
-    /// has returned it, else the filter's lesson of the same track.
+    /// The lessons waiting, each as the filter's lesson of its track: a smoothed flight enters
+    /// only when due, so that what is published depends on the data alone, never on when the
+    /// worker finished.
     pub(crate) fn waiting(&self) -> impl Iterator<Item = Lesson> + '_ {
-        self.pending
-            .iter()
-            .map(|p| p.done.flatten().unwrap_or(p.filter))
+        self.pending.iter().map(|p| p.filter)
     }
 
     /// A job that cannot wait, counted: its track teaches the filter's lesson.
@@ -475,6 +474,34 @@ mod tests {
         assert_eq!(lessons.next_due(2 * LESSON_DELAY, false), None);
         assert_eq!(lessons.counts().dropped(Dropped::Failed), 1);
         assert!(lessons.worker.is_none());
+    }
+
+    /// Until it is due, a lesson waiting counts as its filter's lesson whether or not the worker
+    /// has returned the smoothed one: what is published before then cannot depend on the
+    /// worker's speed.
+    #[test]
+    fn a_lesson_the_worker_returned_early_is_not_seen_before_it_is_due() {
+        let mut lessons = Lessons::new();
+        let (jobs, inbox) = bounded::<(u64, LessonJob)>(MAX_PENDING);
+        let (outbox, done) = bounded::<Done>(MAX_PENDING);
+        lessons.worker = Some(Worker {
+            jobs,
+            done,
+            waiting: Waiting::Wait,
+        });
+        assert_eq!(lessons.queue(job(0.9), 0), None);
+        let before: Vec<f64> = lessons.waiting().map(|l| l.posterior.0[0]).collect();
+        let (id, taken) = inbox.try_recv().expect("the job was sent");
+        let mut smoothed = taken.filter;
+        smoothed.posterior.0[0] = 0.7;
+        outbox
+            .send((id, Some(smoothed), taken.record))
+            .expect("sent");
+        lessons.collect();
+        let after: Vec<f64> = lessons.waiting().map(|l| l.posterior.0[0]).collect();
+        assert_eq!((before, after), (vec![0.9], vec![0.9]));
+        let due = lessons.next_due(LESSON_DELAY, false).expect("due");
+        assert_eq!(due.posterior.0[0], 0.7);
     }
 
     /// The worker thread's lessons are the inline ones, waited for where they are due.
