@@ -1042,14 +1042,15 @@ const SIM_START: f64 = 1000.0;
 /// Runs `ttball node` with `node_args` (diagnostics every 0.25 s) beside a Cyclone DDS peer
 /// that publishes `/clock` from [`SIM_START`] for `seconds` while recording `/diagnostics`;
 /// with `switch`, the peer sets `use_sim_time` true on the running node 2 s in (as `ros2 param
-/// set` does). Returns the diagnostics' stamps [s] and what to print when a check fails.
+/// set` does). Returns the diagnostics' stamps [s], the node's `/rosout` records (level,
+/// message) and what to print when a check fails.
 fn diagnostics_beside_a_clock(
     run: &DdsRun,
     domain: u32,
     node_args: &str,
     seconds: f64,
     switch: bool,
-) -> (Vec<f64>, String) {
+) -> (Vec<f64>, Vec<(u64, String)>, String) {
     let DdsRun {
         python,
         dir,
@@ -1088,18 +1089,29 @@ echo $? > node.rc
     common::run_on_loopback_only(&script);
     let read = |name: &str| std::fs::read_to_string(dir.join(name)).unwrap_or_default();
     assert_eq!(read("node.rc").trim(), "0", "node: {}", read("node.err"));
-    let stamps: Vec<f64> = records(&read_json(&dir.join("record.json")), "diagnostics")
+    let recorded = read_json(&dir.join("record.json"));
+    let stamps: Vec<f64> = records(&recorded, "diagnostics")
         .iter()
         .map(|d| d["stamp_ns"].as_f64().unwrap_or(f64::NAN) * 1e-9)
         .collect();
+    let logged: Vec<(u64, String)> = records(&recorded, "rosout")
+        .iter()
+        .filter(|r| r["name"] == "ttball")
+        .map(|r| {
+            (
+                r["level"].as_u64().unwrap_or(0),
+                r["msg"].as_str().unwrap_or_default().to_owned(),
+            )
+        })
+        .collect();
     let context = format!(
-        "{stamps:?}\nset: {} {}\npeer: {}\nnode: {}",
+        "{stamps:?}\nrosout: {logged:?}\nset: {} {}\npeer: {}\nnode: {}",
         read("set.json"),
         read("set.err"),
         read("record.err"),
         read("node.err")
     );
-    (stamps, context)
+    (stamps, logged, context)
 }
 
 /// Stamps on `/clock`'s time: zeros until the node's reader has its first `/clock` (as in
@@ -1128,27 +1140,48 @@ fn assert_on_the_clock(stamps: &[f64], seconds: f64, context: &str) {
 
 /// With `use_sim_time` the node's clock is a peer's `/clock` (as `ros2 bag play --clock`
 /// publishes it): its `/diagnostics` are stamped in the simulated time, 0 until the first
-/// `/clock` arrives (as in rclcpp), never in the wall clock's.
+/// `/clock` arrives (as in rclcpp), never in the wall clock's. Started as a launch file with
+/// an enclave and `--disable-rosout-logs` may start it: it runs, and logs nothing on `/rosout`.
 #[test]
 fn with_use_sim_time_the_node_stamps_its_diagnostics_from_clock() {
     let Some(run) = DdsRun::start("dds-sim-time") else {
         return;
     };
-    let (stamps, context) =
-        diagnostics_beside_a_clock(&run, 47, "-p use_sim_time:=true", 5.0, false);
+    let (stamps, logged, context) = diagnostics_beside_a_clock(
+        &run,
+        47,
+        "-p use_sim_time:=true --ros-args --enclave /ttball --disable-rosout-logs",
+        5.0,
+        false,
+    );
     assert_on_the_clock(&stamps, 5.0, &context);
+    assert!(logged.is_empty(), "{context}");
 }
 
 /// `use_sim_time` set on the running node (as `ros2 param set /ttball use_sim_time true`): its
-/// `/diagnostics` go from the wall clock's stamps to `/clock`'s, and it says so in its log.
+/// `/diagnostics` go from the wall clock's stamps to `/clock`'s, and it says so in its log, on
+/// `/rosout` too (at INFO, its start as well: the log is transient local, as rcl's).
 #[test]
 fn use_sim_time_set_on_the_running_node_takes_clock_from_then_on() {
     let Some(run) = DdsRun::start("dds-sim-time-live") else {
         return;
     };
-    let (stamps, context) =
+    let (stamps, logged, context) =
         diagnostics_beside_a_clock(&run, 48, "-p node.service_mapping:=cyclone", 8.0, true);
     assert!(context.contains(r#""successful": true"#), "{context}");
+    // /rosout at the logger's level (INFO by default), as rcl forwards it.
+    const INFO: u64 = 20;
+    for said in [
+        "node /ttball on DDS domain 48",
+        "parameters set: use_sim_time",
+    ] {
+        assert!(
+            logged
+                .iter()
+                .any(|(level, msg)| *level == INFO && msg.contains(said)),
+            "{said}: {context}"
+        );
+    }
     let before = stamps.iter().position(|&s| s < 1e9).unwrap_or(stamps.len());
     assert!(
         before >= 2,

@@ -341,10 +341,12 @@ pub fn exit_code_for(err: &anyhow::Error) -> ExitCode {
     })
 }
 
-/// Sends logs (ttball's, ros2-client's and RustDDS's) to stderr, filtered by `RUST_LOG`, else
-/// by `level` (ROS 2's `--log-level`) or `info`, with the DDS libraries at `error` (their
-/// warnings are about datagram sizes and ROS_DISTRO; `RUST_LOG=rustdds=warn` shows them).
-pub fn init_logging(level: Option<&str>) {
+/// Sends logs (ttball's, ros2-client's and RustDDS's) to stderr (unless `console` is false:
+/// ROS 2's `--disable-stdout-logs`), filtered by `RUST_LOG`, else by `level` (ROS 2's
+/// `--log-level`) or `info`, with the DDS libraries at `error` (their warnings are about datagram
+/// sizes and ROS_DISTRO; `RUST_LOG=rustdds=warn` shows them); ttball's records that pass the
+/// filter go to `/rosout` too while a node runs.
+pub fn init_logging(level: Option<&str>, console: bool) {
     use tracing_subscriber::EnvFilter;
     use tracing_subscriber::layer::SubscriberExt;
     use tracing_subscriber::util::SubscriberInitExt;
@@ -354,17 +356,17 @@ pub fn init_logging(level: Option<&str>) {
     });
     let _ = tracing_subscriber::registry()
         .with(filter)
-        .with(
+        .with(console.then(|| {
             tracing_subscriber::fmt::layer()
                 .with_writer(std::io::stderr)
-                .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr())),
-        )
+                .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
+        }))
         .with(RosoutLayer)
         .try_init();
 }
 
-/// Hands ttball's WARN and ERROR events to `/rosout` while a node runs
-/// (`ttball::node::rosout`).
+/// Hands ttball's events at or above the logger's level to `/rosout` while a node runs
+/// (`ttball::node::rosout`), as rcl does.
 struct RosoutLayer;
 
 impl<S: tracing::Subscriber> tracing_subscriber::Layer<S> for RosoutLayer {
@@ -373,7 +375,8 @@ impl<S: tracing::Subscriber> tracing_subscriber::Layer<S> for RosoutLayer {
         let level = match *meta.level() {
             tracing::Level::ERROR => ttball::node::rosout::ERROR,
             tracing::Level::WARN => ttball::node::rosout::WARN,
-            _ => return,
+            tracing::Level::INFO => ttball::node::rosout::INFO,
+            tracing::Level::DEBUG | tracing::Level::TRACE => ttball::node::rosout::DEBUG,
         };
         if !meta.target().starts_with("ttball") {
             return;

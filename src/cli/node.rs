@@ -27,7 +27,9 @@ pub struct NodeArgs {
     pub learned: Option<std::path::PathBuf>,
 
     /// ROS 2 arguments, as `ros2 run` and launch_ros pass them: `--ros-args [-p NAME:=VALUE]
-    /// [-r FROM:=TO] [--params-file FILE]... [--log-level LEVEL] [--]`. Parameters files and
+    /// [-r FROM:=TO] [--params-file FILE]... [--log-level LEVEL] [--enclave NAME]
+    /// [--disable-rosout-logs] [--disable-stdout-logs] [--]`. The log goes to standard error and
+    /// to /rosout at the level given (INFO by default). Parameters files and
     /// `-p` apply in the order given, after --config; a file's sections apply when they name
     /// this node (`ttball`, `/robot1/ttball`, `/**`, `/**/ttball`). Remaps rename a topic
     /// (`-r ball/detections:=/vision/ball`), the node (`-r __node:=ttball_left`) or its
@@ -48,7 +50,7 @@ pub struct NodeArgs {
 }
 
 /// The parts of `--ros-args` ttball understands.
-#[derive(Debug, Clone, Default, PartialEq)]
+#[derive(Debug, Clone, PartialEq)]
 pub struct RosArgs {
     /// `-p NAME:=VALUE` / `--param` and `--params-file FILE`, in the order given (later ones
     /// override earlier ones, as in rcl).
@@ -57,6 +59,26 @@ pub struct RosArgs {
     pub remaps: Vec<(String, String)>,
     /// `--log-level LEVEL` (or `--log-level NAME:=LEVEL`, whose name is ignored).
     pub log_level: Option<String>,
+    /// Log records go to `/rosout` (rcl's default; `--disable-rosout-logs` turns it off).
+    pub rosout_logs: bool,
+    /// Log records go to the console, standard error (`--disable-stdout-logs` turns it off).
+    pub stdout_logs: bool,
+    /// `--enclave NAME` (`-e`): the security enclave, used only with `ROS_SECURITY_ENABLE=true`,
+    /// which ttball refuses (ros2-client has no DDS security).
+    pub enclave: Option<String>,
+}
+
+impl Default for RosArgs {
+    fn default() -> Self {
+        Self {
+            layers: Vec::new(),
+            remaps: Vec::new(),
+            log_level: None,
+            rosout_logs: true,
+            stdout_logs: true,
+            enclave: None,
+        }
+    }
 }
 
 /// Parses the words after `--ros-args` (up to a `--`, and further `--ros-args` blocks).
@@ -87,16 +109,38 @@ pub fn parse_ros_args(words: &[String]) -> Result<RosArgs, BadUsage> {
             "--log-level" => {
                 let level = value("a level")?;
                 let level = level.rsplit_once(":=").map_or(level.as_str(), |(_, l)| l);
-                out.log_level = Some(level.to_ascii_lowercase());
+                out.log_level = Some(rcl_level(level)?);
             }
+            "-e" | "--enclave" => out.enclave = Some(value("an enclave")?),
+            "--enable-rosout-logs" => out.rosout_logs = true,
+            "--disable-rosout-logs" => out.rosout_logs = false,
+            "--enable-stdout-logs" => out.stdout_logs = true,
+            "--disable-stdout-logs" => out.stdout_logs = false,
+            // rcl's external library (spdlog) writes log files; ttball writes none.
+            "--enable-external-lib-logs" | "--disable-external-lib-logs" => {}
             other => {
                 return Err(BadUsage(format!(
-                    "`{other}` in --ros-args is not supported by ttball; it takes -p NAME:=VALUE, -r FROM:=TO, --params-file FILE and --log-level LEVEL"
+                    "`{other}` in --ros-args is not supported by ttball; it takes -p NAME:=VALUE, -r FROM:=TO, --params-file FILE, --log-level LEVEL, --enclave NAME and --enable/--disable-rosout-logs, -stdout-logs, -external-lib-logs"
                 )));
             }
         }
     }
     Ok(out)
+}
+
+/// An rcl log level (`debug`, `info`, `warn`, `error`, `fatal`, any case) as the console
+/// filter's (`fatal` is `error`: nothing is logged above it).
+fn rcl_level(level: &str) -> Result<String, BadUsage> {
+    match level.to_ascii_lowercase().as_str() {
+        "debug" | "info" | "warn" | "error" => Ok(level.to_ascii_lowercase()),
+        "fatal" => Ok("error".to_owned()),
+        // Not rcl's, but what RUST_LOG users type.
+        "trace" => Ok("trace".to_owned()),
+        "warning" => Ok("warn".to_owned()),
+        _ => Err(BadUsage(format!(
+            "--log-level `{level}` is not a level: debug, info, warn, error or fatal"
+        ))),
+    }
 }
 
 /// The node's fully qualified name as the remaps make it (`__node`, `__ns`), if they rename it:
@@ -167,7 +211,18 @@ impl NodeArgs {
     /// Runs the node until SIGINT or SIGTERM.
     pub fn run(self) -> anyhow::Result<ExitCode> {
         let ros = parse_ros_args(self.ros_args.as_deref().unwrap_or_default())?;
-        super::init_logging(ros.log_level.as_deref());
+        super::init_logging(ros.log_level.as_deref(), ros.stdout_logs);
+        if ros.enclave.is_some()
+            && std::env::var("ROS_SECURITY_ENABLE").is_ok_and(|v| v.eq_ignore_ascii_case("true"))
+        {
+            return Err(BadUsage(
+                "ROS_SECURITY_ENABLE=true: ttball's DDS (RustDDS through ros2-client) has no DDS \
+                 security, so it cannot join a secured graph; unset ROS_SECURITY_ENABLE to run \
+                 it in the open"
+                    .to_owned(),
+            )
+            .into());
+        }
         // ttball's own --config and -p first, then --ros-args' files and -p in their order.
         let layers: Vec<Layer> = (self.config.layers().into_iter())
             .chain(ros.layers.iter().cloned())
@@ -183,6 +238,7 @@ impl NodeArgs {
         }
         let mut placement = Placement::from_env(&config).map_err(node_error)?;
         placement.live_view.clone_from(&self.foxglove);
+        placement.rosout = ros.rosout_logs;
         // An empty path (a launch file's default) keeps nothing.
         placement.learned_file = self
             .learned
@@ -301,7 +357,26 @@ mod tests {
             ]
         );
         assert_eq!(ros.log_level.as_deref(), Some("debug"));
-        for bad in ["-p", "-r nocolon", "--enclave /x", "--params-file"] {
+        // What a launch file may pass besides: rcl's logging switches and the enclave.
+        let rcl = parse_ros_args(&words(
+            "--ros-args --enclave /ttball --disable-rosout-logs --disable-stdout-logs \
+             --disable-external-lib-logs --log-level FATAL",
+        ))
+        .unwrap();
+        assert_eq!(
+            (rcl.enclave.as_deref(), rcl.rosout_logs, rcl.stdout_logs),
+            (Some("/ttball"), false, false)
+        );
+        assert_eq!(rcl.log_level.as_deref(), Some("error"));
+        let defaults = parse_ros_args(&words("--ros-args")).unwrap();
+        assert!(defaults.rosout_logs && defaults.stdout_logs);
+        for bad in [
+            "-p",
+            "-r nocolon",
+            "--enclave",
+            "--params-file",
+            "--log-level loud",
+        ] {
             assert!(parse_ros_args(&words(bad)).is_err(), "{bad}");
         }
     }

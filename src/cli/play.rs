@@ -54,7 +54,7 @@ impl PlayArgs {
                 BadUsage(format!("--wait must be in [0, 3600] s, got {}", self.wait)).into(),
             );
         }
-        super::init_logging(None);
+        super::init_logging(None, true);
         let config = self.config.load()?;
         let placement = Placement::from_env(&config).map_err(node_error)?;
         let (cancel, installed) = cancel_on_interrupt();

@@ -198,6 +198,17 @@ pub fn tf_static() -> QosProfile {
         .history(History::KeepLast { depth: 100 })
 }
 
+/// rcl's `/rosout` QoS (`rcl_qos_profile_rosout_default`): reliable, transient local, keep last
+/// 1000, records living 10 s, so that a late subscriber (`ros2 topic echo`, a recorder) gets the
+/// node's recent log, its start included.
+pub fn rosout() -> QosProfile {
+    QosProfile::publisher_default()
+        .reliability_reliable(WhenFull::DEFAULT)
+        .durability(Durability::TransientLocal)
+        .history(History::KeepLast { depth: 1000 })
+        .lifespan(Some(std::time::Duration::from_secs(10)))
+}
+
 /// rclcpp's `ClockQoS` for `/clock`: best effort, keep last 1, volatile.
 pub fn clock() -> QosProfile {
     sensor_data(1)

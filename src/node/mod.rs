@@ -144,6 +144,8 @@ pub struct Placement {
     /// among its layers (`config::yaml::without_learned_files`), so that what an earlier run
     /// learned and this one did not move stays in it; `None`: the node's configuration.
     pub learned_base: Option<Config>,
+    /// Publish the node's log records on `/rosout` (`--disable-rosout-logs`: false).
+    pub rosout: bool,
 }
 
 impl Placement {
@@ -161,6 +163,7 @@ impl Placement {
             live_view: None,
             learned_file: None,
             learned_base: None,
+            rosout: true,
         })
     }
 
@@ -487,11 +490,13 @@ fn start_here(config: &Config, placement: &Placement) -> Result<NodeHandle, Node
     let table_pose = table_transform(config, wall_clock_ns());
     let tf_publisher = publish_table_pose(&mut node, &tf_topic, table_pose.as_ref())?;
     let servers = Servers::new(&mut node, &node_name, config.node.service_mapping)?;
-    rosout::install(
-        node.create_publisher(&context.get_rosout_topic(), None)
-            .map_err(dds::error)?,
-        &fq_name,
-    );
+    if placement.rosout {
+        rosout::install(
+            node.create_publisher(&context.get_rosout_topic(), Some(dds::rosout()))
+                .map_err(dds::error)?,
+            &fq_name,
+        );
+    }
     let spinner = dds::spawn_spinner(&mut node)?;
 
     let shared = Arc::new(Shared::default());

@@ -1,6 +1,7 @@
-//! The node's own warnings and errors on `/rosout` (`rcl_interfaces/msg/Log`), as well as on
-//! standard error: the command line's log layer hands each WARN or ERROR event of ttball to
-//! [`forward`], which publishes it while a node runs (the node installs its writer when it
+//! The node's own log records on `/rosout` (`rcl_interfaces/msg/Log`), as well as on standard
+//! error: the command line's log layer hands each event of ttball at or above the logger's
+//! level (`--log-level`, INFO by default; rcl forwards the same) to [`forward`], which publishes
+//! it while a node runs (the node installs its writer when it
 //! starts and takes it away when it stops). Other crates' events (RustDDS's) stay on standard
 //! error only.
 
@@ -10,6 +11,10 @@ use std::sync::Mutex;
 use ros2_client::Publisher;
 use ros2_client::log::Log;
 
+/// rcl_interfaces/msg/Log levels.
+pub const DEBUG: u8 = 10;
+/// rcl_interfaces/msg/Log levels.
+pub const INFO: u8 = 20;
 /// rcl_interfaces/msg/Log levels.
 pub const WARN: u8 = 30;
 /// rcl_interfaces/msg/Log levels.
@@ -33,7 +38,7 @@ pub fn logger_name(fqn: &str) -> String {
     fqn.trim_start_matches('/').replace('/', ".")
 }
 
-/// Publishes the node's WARN and above on `publisher` from now on.
+/// Publishes the node's log records on `publisher` from now on.
 pub(super) fn install(publisher: Publisher<Log>, node_fqn: &str) {
     if let Ok(mut sink) = SINK.lock() {
         *sink = Some(Sink {

@@ -291,8 +291,14 @@ fn node_refuses_a_bad_domain_id() {
 fn node_refuses_bad_ros_args() {
     refused(
         &[],
+        &["node", "--ros-args", "--security-everywhere"],
+        &["--security-everywhere", "-r FROM:=TO"],
+    );
+    // An enclave is taken as rcl takes it; with DDS security asked for, the node cannot join.
+    refused(
+        &[("ROS_SECURITY_ENABLE", "true")],
         &["node", "--ros-args", "--enclave", "/x"],
-        &["--enclave", "-r FROM:=TO"],
+        &["ROS_SECURITY_ENABLE", "no DDS security"],
     );
     refused(&[], &["node", "--ros-args", "-r", "nocolon"], &["FROM:=TO"]);
     refused(

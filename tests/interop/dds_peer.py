@@ -493,10 +493,12 @@ def participant():
     return DomainParticipant(int(os.environ.get("ROS_DOMAIN_ID", "0")))
 
 
-def qos(reliable, depth):
-    """KeepLast(depth), Volatile, Reliable or BestEffort (as ROS 2 maps its QoS profiles)."""
+def qos(reliable, depth, transient_local=False):
+    """KeepLast(depth), Volatile (or TransientLocal), Reliable or BestEffort (as ROS 2 maps its
+    QoS profiles)."""
     reliability = Policy.Reliability.Reliable(duration(seconds=1)) if reliable else Policy.Reliability.BestEffort
-    return Qos(reliability, Policy.History.KeepLast(depth), Policy.Durability.Volatile)
+    durability = Policy.Durability.TransientLocal if transient_local else Policy.Durability.Volatile
+    return Qos(reliability, Policy.History.KeepLast(depth), durability)
 
 
 def ros_topic(prefix, name, suffix=""):
@@ -522,13 +524,14 @@ class Recorder:
     """A DataReader whose samples are taken from Cyclone's receive thread (a listener, so none is
     lost and recv_ns is the arrival time), kept as {"stamp_ns"?, "recv_ns", "cdr"} plus the sample."""
 
-    def __init__(self, dp, name, data_type, reliable, depth, keep=True):
+    def __init__(self, dp, name, data_type, reliable, depth, keep=True, transient_local=False):
         self.records, self.samples, self.keep, self.count = [], [], keep, 0
         self.lock = threading.Lock()
         self.arrived = threading.Condition(self.lock)
         listener = warn_incompatible("reader")
         listener.merge(Listener(on_data_available=self._take))
-        self.reader = DataReader(dp, Topic(dp, name, data_type), qos(reliable, depth), listener=listener)
+        self.reader = DataReader(dp, Topic(dp, name, data_type), qos(reliable, depth, transient_local),
+                                 listener=listener)
 
     def _take(self, reader):
         while True:
@@ -930,7 +933,8 @@ def cmd_record(args):
     on /clock meanwhile, as `ros2 bag play --clock` does."""
     dp = participant()
     diagnostics = Recorder(dp, "rt/diagnostics", DiagnosticArray_, True, 1000)
-    rosout = Recorder(dp, "rt/rosout", Log_, True, 1000)
+    # Transient local, as rcl offers /rosout: a node's log from before the match arrives too.
+    rosout = Recorder(dp, "rt/rosout", Log_, True, 1000, transient_local=True)
     clock = writer(dp, "rt/clock", Clock_, False, 1) if args.clock is not None else None
     started = time.monotonic()
     deadline = started + args.seconds
