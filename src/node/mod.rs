@@ -21,6 +21,22 @@
 //! [`NodeHandle::stop`] stops the DDS thread first; the estimator then takes what DDS holds,
 //! processes and publishes what was queued, and ends; then DDS shuts down.
 
+#[cfg(all(feature = "humble", feature = "jazzy"))]
+compile_error!(
+    "the features `humble` and `jazzy` exclude each other (jazzy is a default feature): build \
+     Humble's node with `--no-default-features --features cli,humble`"
+);
+#[cfg(not(any(feature = "humble", feature = "jazzy")))]
+compile_error!("the node speaks one ROS 2 distribution: enable the feature `jazzy` or `humble`");
+
+/// The ROS 2 distribution this build speaks (the feature `jazzy` or `humble`): its
+/// `ros_discovery_info` layout (GIDs of 16 bytes from Iron on, 24 before).
+pub const ROS_DISTRIBUTION: &str = if cfg!(feature = "humble") {
+    "humble"
+} else {
+    "jazzy"
+};
+
 mod affinity;
 mod dds;
 mod diagnostics;
@@ -444,7 +460,7 @@ fn log_start(config: &Config, placement: &Placement, fq_name: &str) {
         .collect::<Vec<_>>()
         .join(", ");
     info!(
-        "node {fq_name} on DDS domain {}, {}{}: detections from {} (best effort, depth {}), outputs on {}, {}, {}, {}, {} (reliable, depth {}), services {service_names} ({:?} mapping){}",
+        "node {fq_name} on DDS domain {} (ROS 2 {ROS_DISTRIBUTION}), {}{}: detections from {} (best effort, depth {}), outputs on {}, {}, {}, {}, {} (reliable, depth {}), services {service_names} ({:?} mapping){}",
         placement.domain,
         placement.describe_interfaces(),
         if config.node.cpus.is_empty() {

@@ -11,6 +11,7 @@ did not write: it proves the node interoperates over DDS, and lets you try the n
     python dds_peer.py params --node /ttball         # rcl_interfaces' parameter services, ~/reset
     python dds_peer.py record --clock 1000 --seconds 5   # /diagnostics while publishing /clock
     python dds_peer.py set-params --node /ttball use_sim_time:=true   # as `ros2 param set`
+    python dds_peer.py discovery --distro humble     # ros_discovery_info, checked against DDS
 
 `publish` plays a bag's detections to /ball/detections at their recorded times and records the
 node's /ball/state and /ball/intercept (with latency); `listen` records detections published by
@@ -958,6 +959,72 @@ def cmd_record(args):
     return 0
 
 
+def discovery_type(gid_length):
+    """rmw_dds_common/msg/ParticipantEntitiesInfo with GIDs of `gid_length` bytes: 24 up to
+    Humble (`char[24] data`), 16 from Iron on (`uint8[16] data`)."""
+
+    @dataclass
+    class Gid_(IdlStruct, typename="rmw_dds_common::msg::dds_::Gid_"):
+        data: t.array[t.uint8, gid_length]
+
+    @dataclass
+    class NodeEntitiesInfo_(IdlStruct, typename="rmw_dds_common::msg::dds_::NodeEntitiesInfo_"):
+        node_namespace: str
+        node_name: str
+        reader_gid_seq: t.sequence[Gid_]
+        writer_gid_seq: t.sequence[Gid_]
+
+    @dataclass
+    class ParticipantEntitiesInfo_(IdlStruct, typename="rmw_dds_common::msg::dds_::ParticipantEntitiesInfo_"):
+        gid: Gid_
+        node_entities_info_seq: t.sequence[NodeEntitiesInfo_]
+
+    return ParticipantEntitiesInfo_
+
+
+def cmd_discovery(args):
+    """Reads ros_discovery_info in --distro's layout and the DDS endpoints it names."""
+    from cyclonedds.builtin import (BuiltinDataReader, BuiltinTopicDcpsPublication,
+                                    BuiltinTopicDcpsSubscription)
+    gid_length = 24 if args.distro == "humble" else 16
+    dp = participant()
+    raw = DataReader(dp, Topic(dp, "ros_discovery_info", discovery_type(gid_length)),
+                     qos(True, 100, transient_local=True))
+    publications = BuiltinDataReader(dp, BuiltinTopicDcpsPublication)
+    subscriptions = BuiltinDataReader(dp, BuiltinTopicDcpsSubscription)
+    endpoints, nodes, decoded, undecodable = {}, {}, 0, 0
+    deadline = time.monotonic() + args.timeout
+    while time.monotonic() < deadline:
+        for reader in (publications, subscriptions):
+            for e in reader.take(N=256):
+                if getattr(e, "topic_name", None):
+                    endpoints[e.key.bytes.hex()] = e.topic_name
+        try:
+            samples = raw.take(N=64)
+        except Exception as error:  # a layout that is not the writer's does not deserialise
+            undecodable += 1
+            print(f"dds_peer: ros_discovery_info does not decode as {args.distro}'s: {error}", file=sys.stderr)
+            samples = []
+        for sample in samples:
+            decoded += 1
+            for n in sample.node_entities_info_seq:
+                nodes[(n.node_namespace, n.node_name)] = {
+                    "namespace": n.node_namespace, "name": n.node_name,
+                    "writers": [bytes(g.data).hex() for g in n.writer_gid_seq],
+                    "readers": [bytes(g.data).hex() for g in n.reader_gid_seq],
+                }
+        wanted = nodes.get(("/", args.node))
+        if wanted and all(w[:32] in endpoints for w in wanted["writers"] + wanted["readers"]):
+            break
+        time.sleep(0.1)
+    out = {"distro": args.distro, "gid_length": gid_length, "decoded": decoded,
+           "undecodable": undecodable, "nodes": list(nodes.values()), "endpoints": endpoints}
+    write_json(args.out, out)
+    print(f"dds_peer: {decoded} ros_discovery_info samples decoded as {args.distro}'s, {undecodable} not; "
+          f"{len(endpoints)} endpoints", file=sys.stderr)
+    return 0
+
+
 STATE = ("X", "Y", "Z", "VX", "VY", "VZ", "WX", "WY", "WZ")
 # A ball at the robot's hitting plane after its bounce, flying toward the robot.
 INCOMING = [-1.6, 0.1, 0.25, -5.0, 0.4, -1.0, 20.0, -150.0, 30.0]
@@ -1105,6 +1172,19 @@ def main(argv=None):
     p.add_argument("--node", default="/ttball", help="the node's fully qualified name (default %(default)s)")
     p.add_argument("assignments", nargs="+", metavar="NAME:=VALUE")
     call_options(p, cmd_set_params)
+
+    p = sub.add_parser("discovery", help="read ros_discovery_info as --distro lays it out",
+                       description="Read rmw_dds_common/ParticipantEntitiesInfo on ros_discovery_info (reliable, "
+                                   "transient local) with --distro's GID length (humble 24 bytes, jazzy 16) and "
+                                   "the DDS publications and subscriptions (built-in topics), until --node's "
+                                   "endpoints are all seen or --timeout. Writes JSON {distro, gid_length, decoded, "
+                                   "undecodable, nodes: [{namespace, name, writers, readers}], endpoints: "
+                                   "{guid: topic}}.")
+    p.add_argument("--distro", choices=["humble", "jazzy"], required=True)
+    p.add_argument("--node", default="ttball", help="the node's name, in namespace / (default %(default)s)")
+    p.add_argument("--timeout", type=float, default=15.0, help="seconds (default %(default)s)")
+    p.add_argument("--out", metavar="FILE.json", help="write the result here")
+    p.set_defaults(run=cmd_discovery)
 
     args = parser.parse_args(argv)
     return args.run(args)
