@@ -20,7 +20,7 @@ use ttball::online::estimator::Rejection;
 use ttball::ros::msgs::convert::detection_to_msg;
 use ttball::ros::msgs::ttball_msgs::msg::{BallDetection, BallState, InterceptPrediction};
 
-fn dir(name: &str) -> PathBuf {
+pub(crate) fn dir(name: &str) -> PathBuf {
     let d = Path::new(env!("CARGO_TARGET_TMPDIR"))
         .join(format!("replay-{}-{name}", std::process::id()));
     std::fs::create_dir_all(&d).unwrap();
@@ -43,7 +43,10 @@ fn simulated_bag(path: &Path, shots: usize) -> ttball::eval::sim::Session {
     session
 }
 
-fn run(input: &Path, output: &Path) -> Result<ttball::bag::replay::ReplaySummary, ReplayError> {
+pub(crate) fn run(
+    input: &Path,
+    output: &Path,
+) -> Result<ttball::bag::replay::ReplaySummary, ReplayError> {
     replay(
         input,
         output,

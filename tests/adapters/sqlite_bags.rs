@@ -11,30 +11,11 @@
 )]
 
 use std::path::{Path, PathBuf};
-use std::sync::atomic::AtomicBool;
 
 use rusqlite::Connection;
-use ttball::bag::replay::{ReplayError, ReplaySummary, replay};
 use ttball::bag::{BagContents, read_bag_file};
-use ttball::config::Config;
 
-fn dir(name: &str) -> PathBuf {
-    let d = Path::new(env!("CARGO_TARGET_TMPDIR"))
-        .join(format!("sqlite-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
-}
-
-fn run(input: &Path, output: &Path) -> Result<ReplaySummary, ReplayError> {
-    replay(
-        input,
-        output,
-        &Config::default(),
-        &mut |_, _| {},
-        &AtomicBool::new(false),
-    )
-}
+use crate::replay::{dir, run};
 
 /// The schemas rosbag2 has written: Humble's (version 3: QoS profiles, the distribution) and
 /// Jazzy's (version 4: each type's definition and hash too).

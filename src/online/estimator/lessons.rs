@@ -414,6 +414,22 @@ mod tests {
         }
     }
 
+    /// Gives `lessons` a worker that takes jobs and returns nothing until told: its channels,
+    /// no thread (the test is the worker: it takes jobs from the inbox, answers on the outbox).
+    fn hand_worked(
+        lessons: &mut Lessons,
+        waiting: Waiting,
+    ) -> (Receiver<(u64, LessonJob)>, Sender<Done>) {
+        let (jobs, inbox) = bounded::<(u64, LessonJob)>(MAX_PENDING);
+        let (outbox, done) = bounded::<Done>(MAX_PENDING);
+        lessons.worker = Some(Worker {
+            jobs,
+            done,
+            waiting,
+        });
+        (inbox, outbox)
+    }
+
     /// A lesson enters at the first stamp [`LESSON_DELAY`] after the detection that ended its
     /// track, not one nanosecond before, in the order the tracks ended.
     #[test]
@@ -450,14 +466,7 @@ mod tests {
     #[test]
     fn a_lesson_not_done_in_time_is_dropped_for_a_caller_that_never_waits() {
         let mut lessons = Lessons::new();
-        // A worker that takes jobs and returns nothing until told: its channels, no thread.
-        let (jobs, inbox) = bounded::<(u64, LessonJob)>(MAX_PENDING);
-        let (outbox, done) = bounded::<Done>(MAX_PENDING);
-        lessons.worker = Some(Worker {
-            jobs,
-            done,
-            waiting: Waiting::Never,
-        });
+        let (inbox, outbox) = hand_worked(&mut lessons, Waiting::Never);
         assert_eq!(lessons.queue(job(0.9), 0), None);
         assert_eq!(lessons.next_due(LESSON_DELAY, false), None);
         assert_eq!(lessons.counts().dropped(Dropped::Late), 1);
@@ -482,13 +491,7 @@ mod tests {
     #[test]
     fn a_lesson_the_worker_returned_early_is_not_seen_before_it_is_due() {
         let mut lessons = Lessons::new();
-        let (jobs, inbox) = bounded::<(u64, LessonJob)>(MAX_PENDING);
-        let (outbox, done) = bounded::<Done>(MAX_PENDING);
-        lessons.worker = Some(Worker {
-            jobs,
-            done,
-            waiting: Waiting::Wait,
-        });
+        let (inbox, outbox) = hand_worked(&mut lessons, Waiting::Wait);
         assert_eq!(lessons.queue(job(0.9), 0), None);
         let before: Vec<f64> = lessons.waiting().map(|l| l.posterior.0[0]).collect();
         let (id, taken) = inbox.try_recv().expect("the job was sent");
