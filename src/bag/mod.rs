@@ -610,11 +610,7 @@ impl BagReader {
                 error,
             })?;
             size += f.metadata().map(|m| m.len()).unwrap_or(0);
-            let mut start = Vec::with_capacity(SQLITE_MAGIC.len());
-            let _ = Read::by_ref(&mut f)
-                .take(SQLITE_MAGIC.len() as u64)
-                .read_to_end(&mut start);
-            match file_kind(&start, file)? {
+            match kind_of_file(&mut f, file)? {
                 FileKind::Mcap => {
                     if let Some(summary) = read_summary(&mut f) {
                         reader.register_summary(&summary);
@@ -715,11 +711,7 @@ impl BagReader {
             path: path.clone(),
             error,
         })?;
-        let mut start = Vec::with_capacity(SQLITE_MAGIC.len());
-        let _ = Read::by_ref(&mut f)
-            .take(SQLITE_MAGIC.len() as u64)
-            .read_to_end(&mut start);
-        self.file = Some(match file_kind(&start, &path)? {
+        self.file = Some(match kind_of_file(&mut f, &path)? {
             FileKind::Sqlite => Stream::Db3(Db3Stream::open(&path, &mut self.channels)?),
             FileKind::Mcap => {
                 f.seek(SeekFrom::Start(0)).map_err(|error| BagError::Io {
@@ -1051,6 +1043,15 @@ impl Records {
             _ => {}
         }
     }
+}
+
+/// What the open file at `path` is ([`file_kind`] of its first bytes, read from where it stands).
+fn kind_of_file(f: &mut File, path: &Path) -> Result<FileKind, BagError> {
+    let mut start = Vec::with_capacity(SQLITE_MAGIC.len());
+    let _ = Read::by_ref(f)
+        .take(SQLITE_MAGIC.len() as u64)
+        .read_to_end(&mut start);
+    file_kind(&start, path)
 }
 
 /// What a file is by its first bytes (at least 16 of them when the file has them): MCAP or

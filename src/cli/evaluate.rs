@@ -9,7 +9,7 @@ use clap::{Args, ValueEnum};
 use nalgebra::Vector3;
 use ttball::eval::real::{
     FlightResult, LauncherFlights, LeadOutcome, RealEvalOptions, RealReport, SpinKind,
-    evaluate_flights,
+    evaluate_flights, topspin,
 };
 use ttball::eval::sets::{
     LeadComparison, SETTLE_FLIGHTS, SetReport, TrialSet, run_set, set_efficiency, standard_sets,
@@ -539,15 +539,11 @@ fn spin_before_bounce_text(report: &RealReport) -> String {
         "topspin component just before the bounce [rad/s], filter / batch fit of the same \
          detections with the same physics:\n",
     );
-    let topspin = |s: &BallState| {
-        let h = Vector3::new(s.velocity.x, s.velocity.y, 0.0).normalize();
-        s.spin.dot(&Vector3::z().cross(&h))
-    };
     for kind in SpinKind::ALL {
         let of_kind = || report.flights.iter().filter(|f| f.spin_kind == kind);
         let list = |pick: &dyn Fn(&FlightResult) -> Option<BallState>| {
             let values: Vec<f64> = of_kind()
-                .filter_map(|f| pick(f).map(|s| topspin(&s)))
+                .filter_map(|f| pick(f).as_ref().and_then(topspin))
                 .collect();
             let text: Vec<String> = values.iter().map(|w| format!("{w:.0}")).collect();
             (text.join(" "), ErrorStats::of(&deviations(&values)).rms)

@@ -281,10 +281,7 @@ impl FlightResult {
     /// The topspin component of the spin just before the bounce [rad/s]: the spin about the
     /// horizontal axis across the flight, z x v^ (positive topspin, negative backspin).
     pub fn topspin_before_bounce(&self) -> Option<f64> {
-        let s = self.before_bounce?;
-        let horizontal = Vector3::new(s.velocity.x, s.velocity.y, 0.0);
-        let norm = horizontal.norm();
-        (norm > 0.0).then(|| s.spin.dot(&Vector3::z().cross(&(horizontal / norm))))
+        topspin(&self.before_bounce?)
     }
 
     /// The spin perpendicular to the velocity just before the bounce, of the filter's estimate
@@ -299,6 +296,14 @@ impl FlightResult {
             across(self.batch_before_bounce.as_ref()?),
         ))
     }
+}
+
+/// The topspin component of a state's spin [rad/s]: about the horizontal axis across its flight,
+/// z x v^ (positive topspin, negative backspin); `None` for a ball without horizontal velocity.
+pub fn topspin(s: &BallState) -> Option<f64> {
+    let horizontal = Vector3::new(s.velocity.x, s.velocity.y, 0.0);
+    let norm = horizontal.norm();
+    (norm > 0.0).then(|| s.spin.dot(&Vector3::z().cross(&(horizontal / norm))))
 }
 
 /// Accuracy at one lead over a group of flights.

@@ -28,7 +28,7 @@ pub mod noise;
 
 pub use accuracy::{
     FlightResult, GroupSummary, LeadOutcome, LeadSummary, MeasuredCrossing, Plane, RealEvalOptions,
-    RealReport, Unscored, drag_only, evaluate_flights, measured_crossing,
+    RealReport, Unscored, drag_only, evaluate_flights, measured_crossing, topspin,
 };
 pub use mpi::{
     Flight, FrameTransform, LauncherFlights, MpiError, RawFlight, SpinKind, TransformEstimate,
