@@ -61,6 +61,18 @@ fn benches(c: &mut Criterion) {
     });
     group.finish();
 
+    // The trajectory the node publishes: the default horizon at the default spacing, through the
+    // bounce, the plane and on to the floor.
+    let options = ttball::physics::PredictOptions {
+        horizon: config.prediction.horizon,
+        sample_interval: config.prediction.trajectory_dt,
+        plane_x: Some(config.intercept.plane_x),
+        stop_at_plane: false,
+    };
+    c.bench_function("predicted_trajectory", |b| {
+        b.iter(|| ttball::physics::predict(&propagator, black_box(&incoming()), &options))
+    });
+
     let mut group = c.benchmark_group("intercept_with_covariance");
     for horizon in [0.1, 0.3, 0.6] {
         // Start the ball `horizon` seconds before it reaches the hitting plane.

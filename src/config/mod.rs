@@ -330,8 +330,9 @@ pub struct PredictionParams {
     pub step: f64,
     /// How far ahead predictions look [s].
     pub horizon: f64,
-    /// Largest publishing rate of the predicted trajectory on `topics.trajectory` [Hz]; the
-    /// trajectory is recomputed at most this often, not for every detection.
+    /// Publishing rate of the predicted trajectory on `topics.trajectory` [Hz]; the trajectory is
+    /// recomputed this often, not for every detection, off the detections that predict the
+    /// interception in full where it can (see [`crate::ros::pipeline`]).
     pub trajectory_rate: f64,
     /// Time between two samples of the published trajectory [s]; horizon / trajectory_dt samples.
     pub trajectory_dt: f64,

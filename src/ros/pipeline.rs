@@ -3,6 +3,11 @@
 //! `~/plan_return`). The ROS 2 node and the MCAP replay both drive this, so a replay runs exactly
 //! the code path of the live node. Time comes from the messages only (the trajectory's rate limit
 //! too), so a replay is deterministic.
+//!
+//! The trajectory, which no other output needs, is kept off the detections that predict their
+//! interception in full: when it comes due on one, it waits for the next detection whose
+//! interception is moved, at most one more period ([`Pipeline::trajectory_due`]). The two
+//! longest computations of a detection then never add up.
 
 use nalgebra::Vector2;
 
@@ -10,7 +15,7 @@ use crate::config::Config;
 use crate::model::detection::Detection;
 use crate::model::frames::{FrameError, Frames};
 use crate::online::estimator::{
-    Counters, Estimator, InterceptEstimate, Output, Rejection, Verdict, Waiting,
+    Counters, Estimate, Estimator, InterceptEstimate, Output, Rejection, Verdict, Waiting,
 };
 use crate::online::stroke::{Aim, PlanError, Stroke};
 use crate::physics::{self, StateMatrix};
@@ -68,7 +73,9 @@ pub struct Pipeline {
     trajectory_period: i64,
     trajectory_dt: f64,
     horizon: f64,
-    last_trajectory: Option<(u32, i64)>,
+    /// The track whose trajectory is being published and the stamp from which its next one is
+    /// due [ns].
+    next_trajectory: Option<(u32, i64)>,
     /// The interception last published on `/ball/intercept`.
     last_intercept: Option<InterceptEstimate>,
     /// The static transforms from `/tf_static` that bring detections in other frames into
@@ -89,7 +96,7 @@ impl Pipeline {
             trajectory_period: (1e9 / config.prediction.trajectory_rate).round() as i64,
             trajectory_dt: config.prediction.trajectory_dt,
             horizon: config.prediction.horizon,
-            last_trajectory: None,
+            next_trajectory: None,
             last_intercept: None,
             frames: Frames::new(&config.frames.table_frame),
             odometry: !config.topics.odometry.is_empty(),
@@ -141,7 +148,7 @@ impl Pipeline {
     pub fn reset(&mut self, config: &Config) {
         self.estimator.reset(config);
         self.stroke = Stroke::new(config);
-        self.last_trajectory = None;
+        self.next_trajectory = None;
         self.last_intercept = None;
     }
 
@@ -174,7 +181,14 @@ impl Pipeline {
                 };
             }
         };
+        let full_before = self.estimator.intercept_counts().full;
         let out = self.estimator.handle(&detection);
+        let predicted_in_full = self.estimator.intercept_counts().full > full_before;
+        let trajectory_due = out.intercept.is_some()
+            && out
+                .estimate
+                .as_ref()
+                .is_some_and(|e| self.trajectory_due(e, predicted_in_full));
         let frame = self.frames.fixed();
         if out.intercept.is_some() {
             self.last_intercept = out.intercept;
@@ -189,26 +203,21 @@ impl Pipeline {
                 .map(|e| odometry_msg(e, frame)),
             ..Published::default()
         };
-        if let (Some(estimate), Some(intercept)) = (&out.estimate, &out.intercept) {
-            let due = self.last_trajectory.is_none_or(|(track, stamp)| {
-                track != estimate.track_id || estimate.stamp - stamp >= self.trajectory_period
-            });
-            if due
-                && let Some((stamp, trajectory)) = self
-                    .estimator
-                    .predicted_trajectory(self.trajectory_dt, self.horizon)
-            {
-                self.last_trajectory = Some((estimate.track_id, stamp));
-                published.trajectory =
-                    Some(trajectory_msg(stamp, estimate.track_id, &trajectory, frame));
-                published.markers = Some(markers(
-                    estimate,
-                    Some(intercept),
-                    &trajectory,
-                    &self.table,
-                    frame,
-                ));
-            }
+        if trajectory_due
+            && let (Some(estimate), Some(intercept)) = (&out.estimate, &out.intercept)
+            && let Some((stamp, trajectory)) = self
+                .estimator
+                .predicted_trajectory(self.trajectory_dt, self.horizon)
+        {
+            published.trajectory =
+                Some(trajectory_msg(stamp, estimate.track_id, &trajectory, frame));
+            published.markers = Some(markers(
+                estimate,
+                Some(intercept),
+                &trajectory,
+                &self.table,
+                frame,
+            ));
         }
         Step {
             verdict: Ok(out.verdict),
@@ -216,6 +225,28 @@ impl Pipeline {
             output: Some(out),
             published,
         }
+    }
+
+    /// True when the trajectory is to be published after the detection that gave `estimate`, the
+    /// next one then scheduled. Trajectories come due on a grid of `prediction.trajectory_rate`'s
+    /// period from a track's first estimate; one due is published on the first detection whose
+    /// interception was moved rather than `predicted_in_full`, or on any a period late, and the
+    /// next comes due at the first grid point after it.
+    fn trajectory_due(&mut self, estimate: &Estimate, predicted_in_full: bool) -> bool {
+        let period = self.trajectory_period.max(1);
+        let due = match self.next_trajectory {
+            Some((track, due)) if track == estimate.track_id => due,
+            _ => estimate.stamp,
+        };
+        let late = estimate.stamp - due;
+        let publish = late >= 0 && (!predicted_in_full || late >= 2 * period);
+        let next = if publish {
+            due + (late / period + 1) * period
+        } else {
+            due
+        };
+        self.next_trajectory = Some((estimate.track_id, next));
+        publish
     }
 
     /// Answers `~/predict_trajectory`: the predicted flight of the live track (`track_id` its id)
@@ -571,6 +602,65 @@ mod tests {
                 alternative: "an initial state"
             })
         );
+    }
+
+    /// Trajectories come on the rate's grid from each track's first estimate, one per slot, kept
+    /// off the detections that predicted their interception in full unless two periods late.
+    #[test]
+    fn trajectories_keep_their_rate_and_keep_off_full_predictions() {
+        let config = Config::default();
+        let period = seconds_to_ns(1.0 / config.prediction.trajectory_rate);
+        let mut pipeline = Pipeline::new(&config);
+        let options = SimOptions {
+            shots: 4,
+            ..SimOptions::default()
+        };
+        let session = simulate(&config, &options).expect("simulated");
+        let (mut published, mut deferred, mut full_and_published) = (0, 0, 0);
+        // Per track: its first estimate's stamp and the grid slots published in.
+        let mut tracks: std::collections::BTreeMap<u32, (i64, Vec<i64>)> = Default::default();
+        for d in &session.stream {
+            let full_before = pipeline.estimator().intercept_counts().full;
+            let step = pipeline.on_detection(&detection_to_msg(&d.detection));
+            let full = pipeline.estimator().intercept_counts().full > full_before;
+            let Some(estimate) = step.output.and_then(|o| o.intercept.and(o.estimate)) else {
+                continue;
+            };
+            let (first, slots) = tracks
+                .entry(estimate.track_id)
+                .or_insert((estimate.stamp, Vec::new()));
+            let slot = (estimate.stamp - *first) / period;
+            if step.published.trajectory.is_some() {
+                published += 1;
+                if full {
+                    full_and_published += 1;
+                    assert!(
+                        slots.last().is_none_or(|&last| slot >= last + 2),
+                        "published with a full prediction less than two periods late"
+                    );
+                }
+                assert!(
+                    slots.last().is_none_or(|&last| slot > last),
+                    "two in a slot"
+                );
+                slots.push(slot);
+            } else if full && slots.last().is_none_or(|&last| slot > last) {
+                deferred += 1;
+            }
+        }
+        assert!(deferred > 0 && published > 20, "{deferred} {published}");
+        assert!(
+            full_and_published * 10 < published,
+            "{full_and_published} {published}"
+        );
+        // Each due at most two periods late: the first within slot 2, the next within two slots
+        // after the one after, and few slots go without.
+        for (first, slots) in tracks.values() {
+            assert!(slots.first().is_some_and(|&s| s <= 2), "track from {first}");
+            assert!(slots.windows(2).all(|w| w[1] - w[0] <= 3), "{slots:?}");
+            let span = slots.last().map_or(0, |&last| last + 1);
+            assert!(slots.len() as i64 * 10 >= span * 8, "{slots:?}");
+        }
     }
 
     #[test]
