@@ -288,25 +288,13 @@ fn parse_srv(package: &str, name: &str, text: &str) -> Result<(MsgSpec, MsgSpec)
 // The interface definitions: msgs/ plus the standard types they use
 // ---------------------------------------------------------------------------------------------
 
-/// The standard ROS 2 definitions of the types `msgs/` uses (comments dropped), as
-/// (package, type, definition).
-const STANDARD: &[(&str, &str, &str)] = &[
-    ("builtin_interfaces", "Time", "int32 sec\nuint32 nanosec\n"),
-    (
-        "std_msgs",
-        "Header",
-        "builtin_interfaces/Time stamp\nstring frame_id\n",
-    ),
-    (
-        "geometry_msgs",
-        "Point",
-        "float64 x\nfloat64 y\nfloat64 z\n",
-    ),
-    (
-        "geometry_msgs",
-        "Vector3",
-        "float64 x\nfloat64 y\nfloat64 z\n",
-    ),
+/// The standard ROS 2 types `msgs/` uses, as (package, type): their definitions are read from
+/// `tests/interop/rosidl/standard/`, the files the Fast DDS peer's IDL is made from too.
+const STANDARD: &[(&str, &str)] = &[
+    ("builtin_interfaces", "Time"),
+    ("std_msgs", "Header"),
+    ("geometry_msgs", "Point"),
+    ("geometry_msgs", "Vector3"),
 ];
 
 const PACKAGE: &str = "ttball_msgs";
@@ -348,10 +336,12 @@ fn package_specs() -> Vec<MsgSpec> {
 
 /// All definitions by full name (`pkg/Type`): `specs` plus the standard ones.
 fn definitions(specs: &[MsgSpec]) -> BTreeMap<String, MsgSpec> {
+    let standard = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/interop/rosidl/standard");
     let mut defs: BTreeMap<String, MsgSpec> = STANDARD
         .iter()
-        .map(|(pkg, name, text)| {
-            let spec = parse_msg(pkg, name, text).unwrap();
+        .map(|(pkg, name)| {
+            let path = standard.join(pkg).join("msg").join(format!("{name}.msg"));
+            let spec = parse_msg(pkg, name, &fs::read_to_string(path).unwrap()).unwrap();
             (spec.full_name(), spec)
         })
         .collect();
@@ -856,6 +846,88 @@ fn cmakelists_lists_every_interface_file() {
     }
     let present: BTreeSet<&str> = present.iter().map(String::as_str).collect();
     assert_eq!(listed, present);
+}
+
+/// A structure as `tests/interop/rosidl/dds_idl.py --json` writes it: fields and constants in
+/// `.msg` notation.
+#[derive(Debug, PartialEq, Deserialize)]
+struct Described {
+    fields: Vec<String>,
+    constants: Vec<String>,
+}
+
+impl Described {
+    fn of(spec: &MsgSpec) -> Self {
+        let base = |b: &BaseType| match b {
+            BaseType::Primitive { name, bound: None } => name.clone(),
+            BaseType::Primitive {
+                name,
+                bound: Some(n),
+            } => format!("{name}<={n}"),
+            BaseType::Message { package, name } => format!("{package}/{name}"),
+        };
+        let array = |a: &Array| match a {
+            Array::Single => String::new(),
+            Array::Fixed(n) => format!("[{n}]"),
+            Array::Unbounded => "[]".to_owned(),
+            Array::Bounded(n) => format!("[<={n}]"),
+        };
+        Self {
+            fields: spec
+                .fields
+                .iter()
+                .map(|f| format!("{}{} {}", base(&f.ty.base), array(&f.ty.array), f.name))
+                .collect(),
+            constants: spec
+                .constants
+                .iter()
+                .map(|c| format!("{} {}={}", c.ty, c.name, c.value))
+                .collect(),
+        }
+    }
+}
+
+/// ROS 2's own interface tools read `msgs/` as this test's parser does, field for field and
+/// constant for constant: `.ci/run` has rosidl_adapter translate every interface and
+/// rosidl_parser parse it (`tests/interop/rosidl/dds_idl.py`, Debian's python3-rosidl) and names
+/// what it read in `TTBALL_ROSIDL_JSON`; the Rust mirrors checked against this parser then agree
+/// with rosidl too.
+#[test]
+fn the_parser_reads_msgs_as_rosidl_does() {
+    let Some(path) = std::env::var_os("TTBALL_ROSIDL_JSON") else {
+        assert!(
+            std::env::var("CI").as_deref() != Ok("true"),
+            "CI must compare msgs/ with rosidl's reading: set TTBALL_ROSIDL_JSON (see .ci/run)"
+        );
+        eprintln!(
+            "skipped: set TTBALL_ROSIDL_JSON to what tests/interop/rosidl/dds_idl.py --json writes"
+        );
+        return;
+    };
+    let rosidl: BTreeMap<String, Described> =
+        serde_json::from_str(&fs::read_to_string(path).unwrap()).unwrap();
+    // rosidl names a service's halves PlanReturn_Request, this parser PlanReturnRequest.
+    let rosidl: BTreeMap<String, Described> = rosidl
+        .into_iter()
+        .map(|(name, d)| {
+            (
+                name.replace("_Request", "Request")
+                    .replace("_Response", "Response"),
+                d,
+            )
+        })
+        .collect();
+    let ours: BTreeMap<String, Described> = package_specs()
+        .iter()
+        .map(|spec| (spec.full_name(), Described::of(spec)))
+        .collect();
+    assert_eq!(
+        ours.keys().collect::<Vec<_>>(),
+        rosidl.keys().collect::<Vec<_>>()
+    );
+    for (name, described) in &ours {
+        assert_eq!(described, &rosidl[name], "{name}");
+    }
 }
 
 #[test]
