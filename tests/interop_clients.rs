@@ -378,18 +378,25 @@ fn assert_live_view(report: &serde_json::Value, topics: &[&str]) {
     }
 }
 
-/// Whether two JSON values are equal, numbers compared as doubles (1 == 1.0).
-fn same_json(a: &serde_json::Value, b: &serde_json::Value) -> bool {
+/// Whether two JSON values are equal, numbers within `relative` of each other (0: equal as
+/// doubles, 1 == 1.0).
+fn close_json(a: &serde_json::Value, b: &serde_json::Value, relative: f64) -> bool {
     use serde_json::Value;
     match (a, b) {
-        (Value::Number(x), Value::Number(y)) => x.as_f64() == y.as_f64(),
+        (Value::Number(x), Value::Number(y)) => {
+            let (x, y) = (
+                x.as_f64().unwrap_or(f64::NAN),
+                y.as_f64().unwrap_or(f64::NAN),
+            );
+            (x - y).abs() <= relative * x.abs().max(y.abs()).max(1e-300)
+        }
         (Value::Array(x), Value::Array(y)) => {
-            x.len() == y.len() && x.iter().zip(y).all(|(p, q)| same_json(p, q))
+            x.len() == y.len() && x.iter().zip(y).all(|(p, q)| close_json(p, q, relative))
         }
         (Value::Object(x), Value::Object(y)) => {
             x.len() == y.len()
                 && x.iter()
-                    .all(|(k, v)| y.get(k).is_some_and(|w| same_json(v, w)))
+                    .all(|(k, v)| y.get(k).is_some_and(|w| close_json(v, w, relative)))
         }
         _ => a == b,
     }
@@ -474,7 +481,7 @@ fn a_replay_is_watched_live_by_foxglove_s_websocket_client() {
             .lines()
             .filter(|l| l.starts_with(&needle) && l.contains(&format!("\"topic\":\"{topic}\"")))
             .map(|l| serde_json::from_str::<serde_json::Value>(l).unwrap())
-            .any(|m| same_json(&m["message"], &seen["first"]));
+            .any(|m| close_json(&m["message"], &seen["first"], 0.0));
         assert!(
             recorded,
             "{topic}: the first message seen live is not the bag's"
@@ -539,6 +546,172 @@ echo $? > node.rc
             "/ball/markers",
         ],
     );
+}
+
+/// The Foxglove app acts on `ttball node --foxglove` through Foxglove's own WebSocket client
+/// (`act_client.mjs`, `@foxglove/ws-protocol`): it reads every parameter of the node, sets one
+/// (taken, and told to the app's parameter subscribers), and is refused with ROS's ranges and
+/// reasons (out of range, read-only, a wrong type: the value unchanged, the reason in a status);
+/// it calls `~/predict_trajectory`, `~/predict_rebound` and `~/plan_return` with requests
+/// encoded from their advertised `ros2msg` schemas, and each response equals the pipeline's
+/// own answer to the same request.
+#[test]
+fn the_foxglove_app_sets_the_node_s_parameters_and_calls_its_services() {
+    use ttball::ros::msgs::ttball_msgs::srv::{
+        PlanReturnRequest, PredictReboundRequest, PredictTrajectoryRequest,
+    };
+    let Some(parsers) = foxglove_parsers() else {
+        return;
+    };
+    if !common::can_isolate_network() {
+        assert!(
+            std::env::var("CI").as_deref() != Ok("true"),
+            "CI must be able to make a loopback-only network namespace"
+        );
+        eprintln!("skipped: `unshare -n` failed");
+        return;
+    }
+    let d = common::scratch("live-act");
+    let config = ttball::config::Config::default();
+    // The node's configuration after the app's one accepted set.
+    let set = ttball::config::yaml::load(None, &["intercept.plane_x:=-1.45"]).unwrap();
+    let pipeline = ttball::ros::pipeline::Pipeline::new(&set);
+    // A ball from the opponent's side, as a state message; the racket's hit of it at the plane.
+    let mut ball = ttball::ros::msgs::ttball_msgs::msg::BallState::default();
+    ball.header.stamp = ttball::ros::msgs::builtin_interfaces::Time::from_nanos(2_000_000_000);
+    ball.header.frame_id = "table".into();
+    (ball.position.x, ball.position.y, ball.position.z) = (1.2, 0.1, 0.25);
+    (ball.velocity.x, ball.velocity.y, ball.velocity.z) = (-6.0, -0.2, 1.2);
+    ball.spin.y = 80.0;
+    let trajectory = PredictTrajectoryRequest {
+        track_id: 0,
+        initial: ball.clone(),
+        horizon: 0.5,
+        dt: 0.01,
+    };
+    let mut rebound = PredictReboundRequest::default();
+    (rebound.ball_position.x, rebound.ball_position.z) = (-1.6, 0.2);
+    (rebound.ball_velocity.x, rebound.ball_velocity.z) = (-5.0, -1.0);
+    rebound.ball_spin.y = 50.0;
+    (rebound.racket_velocity.x, rebound.racket_velocity.z) = (4.0, 1.0);
+    rebound.racket_normal.x = 1.0;
+    let mut plan = PlanReturnRequest {
+        track_id: 0,
+        ball: ball.clone(),
+        ..PlanReturnRequest::default()
+    };
+    (plan.ball.position.x, plan.ball.position.z) = (-1.6, 0.2);
+    (plan.ball.velocity.x, plan.ball.velocity.z) = (-5.0, -1.0);
+    (plan.target.x, plan.target.y) = (1.0, 0.3);
+    fn json<T: serde::Serialize>(value: &T) -> serde_json::Value {
+        serde_json::to_value(value).unwrap()
+    }
+    let requests = serde_json::json!({
+        "sets": [
+            [{"name": "intercept.plane_x", "value": -1.45}],
+            [{"name": "intercept.plane_x", "value": 5.0}],
+            [{"name": "aero.magnus_scale", "value": 0.5}],
+            [{"name": "tracking.timeout", "value": "soon"}],
+        ],
+        "calls": {
+            "/ttball/predict_trajectory": json(&trajectory),
+            "/ttball/predict_rebound": json(&rebound),
+            "/ttball/plan_return": json(&plan),
+        },
+    });
+    std::fs::write(d.join("requests.json"), requests.to_string()).unwrap();
+    let script = format!(
+        r#"
+export ROS_DOMAIN_ID=47 ROS_LOCALHOST_ONLY=1
+cd "{dir}"
+"{ttball}" node --foxglove 127.0.0.1:18766 > node.out 2> node.err &
+node=$!
+cd "{parsers}"
+node act_client.mjs ws://127.0.0.1:18766 "{dir}/requests.json" "{dir}/act.json" > "{dir}/client.out" 2> "{dir}/client.err"
+kill -TERM $node
+wait $node
+echo $? > "{dir}/node.rc"
+"#,
+        dir = d.display(),
+        parsers = parsers.display(),
+        ttball = env!("CARGO_BIN_EXE_ttball"),
+    );
+    common::run_on_loopback_only(&script);
+    let read = |name: &str| std::fs::read_to_string(d.join(name)).unwrap_or_default();
+    assert_eq!(read("node.rc").trim(), "0", "node: {}", read("node.err"));
+    let report: serde_json::Value = serde_json::from_str(&read("act.json")).unwrap_or_else(|e| {
+        panic!(
+            "{e}: client: {}\nnode: {}",
+            read("client.err"),
+            read("node.err")
+        )
+    });
+    assert!(
+        report["problems"].as_array().unwrap().is_empty(),
+        "{report:#}"
+    );
+    let capabilities = report["capabilities"].to_string();
+    assert!(
+        capabilities.contains("parameters") && capabilities.contains("services"),
+        "{capabilities}"
+    );
+    // Every parameter, with its value and ROS type.
+    let all = report["all"].as_object().unwrap();
+    for name in ttball::config::yaml::parameter_names(&config) {
+        assert!(all.contains_key(&name), "{name} not offered");
+    }
+    assert_eq!(all["intercept.plane_x"], -1.6);
+    assert_eq!(all["tracking.timeout"], config.tracking.timeout);
+    // Taken; refused out of range, read-only and of the wrong type, each value unchanged.
+    assert_eq!(report["sets"][0]["intercept.plane_x"], -1.45);
+    assert_eq!(report["sets"][1]["intercept.plane_x"], -1.45);
+    assert_eq!(
+        report["sets"][2]["aero.magnus_scale"],
+        config.aero.magnus_scale
+    );
+    assert_eq!(
+        report["sets"][3]["tracking.timeout"],
+        config.tracking.timeout
+    );
+    let statuses = report["statuses"].to_string();
+    for why in ["out of range", "read-only", "expected"] {
+        assert!(statuses.contains(why), "no status says {why:?}: {statuses}");
+    }
+    let updates = report["updates"].as_array().unwrap();
+    assert!(
+        updates
+            .iter()
+            .any(|p| p["name"] == "intercept.plane_x" && p["value"] == -1.45),
+        "{updates:?}"
+    );
+    // Each service: advertised with its schemas, answered as the pipeline answers.
+    let services = report["services"].to_string();
+    for ty in ["PredictTrajectory", "PredictRebound", "PlanReturn"] {
+        assert!(
+            services.contains(&format!("ttball_msgs/srv/{ty}_Request")),
+            "{services}"
+        );
+    }
+    for (name, expected) in [
+        (
+            "/ttball/predict_trajectory",
+            json(&pipeline.predict_trajectory(&trajectory)),
+        ),
+        (
+            "/ttball/predict_rebound",
+            json(&pipeline.predict_rebound(&rebound)),
+        ),
+        ("/ttball/plan_return", json(&pipeline.plan_return(&plan))),
+    ] {
+        let got = &report["calls"][name]["response"];
+        assert_eq!(got["success"], true, "{name}: {:#}", report["calls"][name]);
+        // The node's configuration comes through its parameters, the test's from the
+        // defaults: the same values, which may round their last bit differently.
+        assert!(
+            close_json(got, &expected, 1e-12),
+            "{name}: {got:#} against {expected:#}"
+        );
+    }
 }
 
 /// The shipped viewer configurations (`config/foxglove_layout.json`, `config/ttball.rviz`) show

@@ -3,12 +3,16 @@
 //! crate's WebSocket server). Each topic is a channel with its message type's `ros2msg` schema
 //! (every dependent definition embedded, as in ttball's bags) and `cdr` payloads, the same bytes
 //! the DDS samples and bag messages carry; each message keeps its log time.
+//!
+//! The node's view also acts ([`Interaction`]): the app gets and sets its parameters and calls
+//! its services through the SDK's parameter and service capabilities.
 
 use std::collections::HashMap;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use foxglove::websocket::Capability;
+use foxglove::websocket::service::Service;
+use foxglove::websocket::{Capability, Parameter, ParameterHandler, Status};
 use foxglove::{ChannelBuilder, Context, PartialMetadata, RawChannel, Schema, WebSocketServer};
 
 use crate::bag::{ChannelInfo, encode};
@@ -42,25 +46,49 @@ pub struct LiveView {
     pace: Option<(f64, Option<(Instant, u64)>)>,
 }
 
+/// What the app may do beyond watching: get and set parameters through `parameters`, call
+/// `services` (each with its request's and response's `ros2msg` schema, `cdr` encoded).
+pub struct Interaction {
+    /// Answers the app's parameter requests.
+    pub parameters: Arc<dyn ParameterHandler>,
+    /// The services the app may call.
+    pub services: Vec<Service>,
+}
+
 impl LiveView {
-    /// Serves on `address` (`HOST:PORT`; port 0 picks a free one, see [`Self::port`]).
+    /// Serves on `address` (`HOST:PORT`; port 0 picks a free one, see [`Self::port`]), for
+    /// watching only.
     pub fn start(address: &str) -> Result<Self, LiveViewError> {
+        Self::start_with(address, None)
+    }
+
+    /// Serves on `address`, with the parameters and services of `interaction` when given.
+    pub fn start_with(
+        address: &str,
+        interaction: Option<Interaction>,
+    ) -> Result<Self, LiveViewError> {
         let (host, port) = address
             .rsplit_once(':')
             .and_then(|(h, p)| Some((h, p.parse::<u16>().ok()?)))
             .filter(|(h, _)| !h.is_empty())
             .ok_or_else(|| LiveViewError::Address(address.to_owned()))?;
         let context = Context::new();
-        let server = WebSocketServer::new()
+        let mut server = WebSocketServer::new()
             .name("ttball")
             .bind(host, port)
-            .context(&context)
-            .capabilities([Capability::Time])
-            .start_blocking()
-            .map_err(|e| LiveViewError::Start {
-                address: address.to_owned(),
-                reason: e.to_string(),
-            })?;
+            .context(&context);
+        server = match interaction {
+            Some(interaction) => server
+                .capabilities([Capability::Time, Capability::Parameters])
+                .parameter_handler(interaction.parameters)
+                .services(interaction.services)
+                .supported_encodings(["cdr"]),
+            None => server.capabilities([Capability::Time]),
+        };
+        let server = server.start_blocking().map_err(|e| LiveViewError::Start {
+            address: address.to_owned(),
+            reason: e.to_string(),
+        })?;
         Ok(Self {
             context,
             server: Some(server),
@@ -87,6 +115,20 @@ impl LiveView {
         self.server
             .as_ref()
             .map_or(0, foxglove::WebSocketServerHandle::client_count)
+    }
+
+    /// Tells the app's parameter subscribers the new values of `parameters`.
+    pub fn publish_parameters(&self, parameters: Vec<Parameter>) {
+        if let Some(server) = &self.server {
+            server.publish_parameter_values(parameters);
+        }
+    }
+
+    /// Shows `status` in the app (e.g. why a parameter set was refused).
+    pub fn publish_status(&self, status: Status) {
+        if let Some(server) = &self.server {
+            server.publish_status(status);
+        }
     }
 
     /// Waits until a client connects, at most `timeout`; whether one did.

@@ -40,6 +40,7 @@ pub const ROS_DISTRIBUTION: &str = if cfg!(feature = "humble") {
 mod affinity;
 mod dds;
 mod diagnostics;
+mod foxglove;
 mod intake;
 mod keeper;
 pub mod parameters;
@@ -417,11 +418,12 @@ fn node_pipeline(config: &Config, table_pose: Option<&TFMessage>) -> Pipeline {
 fn start_live_view(
     placement: &Placement,
     topics: &crate::config::TopicsParams,
+    interaction: crate::bag::live_view::Interaction,
 ) -> Result<Option<(LiveView, crate::config::TopicsParams)>, NodeError> {
     let Some(address) = &placement.live_view else {
         return Ok(None);
     };
-    let view = LiveView::start(address)?;
+    let view = LiveView::start_with(address, Some(interaction))?;
     info!(
         "Foxglove live view on ws://{}:{} (in Foxglove: Open connection)",
         address.rsplit_once(':').map_or("", |(host, _)| host),
@@ -524,7 +526,14 @@ fn start_here(config: &Config, placement: &Placement) -> Result<NodeHandle, Node
 
     let parameters = Parameters::new(config);
     let pipeline = node_pipeline(config, table_pose.as_ref());
-    let live_view = start_live_view(placement, topics)?;
+    // The live view's app requests; none without a live view.
+    let (app_tx, app_rx) = channel::bounded::<foxglove::AppRequest>(REQUEST_QUEUE);
+    let live_view = start_live_view(placement, topics, foxglove::interaction(&app_tx, &fq_name))?;
+    let app_rx = if live_view.is_some() {
+        app_rx
+    } else {
+        channel::never()
+    };
     let keeper = start_keeper(placement, config, &fq_name)?;
     let estimator = EstimatorThread {
         keeper,
@@ -552,7 +561,7 @@ fn start_here(config: &Config, placement: &Placement) -> Result<NodeHandle, Node
     };
     let estimator = std::thread::Builder::new()
         .name("ttball-estimator".to_owned())
-        .spawn(move || estimator.run(subscription, &request_rx, &reply_tx))
+        .spawn(move || estimator.run(subscription, (&request_rx, &app_rx), &reply_tx))
         .map_err(|e| NodeError::Thread(e.to_string()))?;
 
     log_start(config, placement, &fq_name);
@@ -705,10 +714,12 @@ fn send_reply(servers: &Servers, id: RmwRequestId, reply: Reply, shared: &Shared
 
 /// The refusal of a request when [`REQUEST_QUEUE`] requests already wait for the estimator.
 fn busy_reply(service: Service) -> Reply {
-    Reply::refusal(
-        service,
-        format!("busy: {REQUEST_QUEUE} requests are waiting; try again"),
-    )
+    Reply::refusal(service, busy_message())
+}
+
+/// Why a request is refused when [`REQUEST_QUEUE`] requests already wait for the estimator.
+fn busy_message() -> String {
+    format!("busy: {REQUEST_QUEUE} requests are waiting; try again")
 }
 
 /// What the estimator thread owns.
@@ -862,7 +873,7 @@ impl EstimatorThread {
     fn run(
         mut self,
         subscription: Subscription<BallDetection>,
-        requests: &Receiver<PendingRequest>,
+        (requests, app_requests): (&Receiver<PendingRequest>, &Receiver<foxglove::AppRequest>),
         replies: &mpsc::UnboundedSender<PendingReply>,
     ) -> EstimatorResult {
         let (bell, rung) = channel::bounded::<()>(1);
@@ -889,6 +900,7 @@ impl EstimatorThread {
         let mut wake_on = Select::new();
         let on_bell = wake_on.recv(&rung);
         let on_request = wake_on.recv(requests);
+        let on_app_request = wake_on.recv(app_requests);
         wake_on.recv(&ticker);
         loop {
             self.take_static_transforms();
@@ -916,6 +928,11 @@ impl EstimatorThread {
                     // The DDS thread stopped: the node stops.
                     Err(_) => break,
                 },
+                i if i == on_app_request => {
+                    if let Ok(request) = operation.recv(app_requests) {
+                        self.answer_app(request);
+                    }
+                }
                 _ => {
                     let _ = operation.recv(&ticker);
                     let now = Instant::now();
@@ -964,15 +981,44 @@ impl EstimatorThread {
         let (success, message) = reply.outcome();
         debug!("{}: success {success} {message}", request.service().name());
         let _ = replies.unbounded_send((id, reply));
-        if let Effect::Changed(change) = effect {
-            let names: Vec<&str> = change.changed.iter().map(|p| p.name.as_str()).collect();
-            info!("parameters set: {}", names.join(", "));
-            self.clock
-                .set_simulated(self.parameters.config().use_sim_time);
-            let now = self.now();
-            let event = parameters::change_event(&change, now, &self.node_name);
-            self.publish_parameter_event(event);
+        self.apply(effect);
+    }
+
+    /// Answers one request of the live view's app; a refused parameter shows in the app.
+    fn answer_app(&mut self, request: foxglove::AppRequest) {
+        let answered = foxglove::answer(request, &mut self.pipeline, &mut self.parameters);
+        if !answered.refused.is_empty() {
+            let why = format!("parameters refused: {}", answered.refused.join("; "));
+            warn!("{why}");
+            if let Some((view, _)) = &self.live_view {
+                view.publish_status(::foxglove::websocket::Status::warning(why));
+            }
         }
+        self.apply(answered.effect);
+    }
+
+    /// Takes an accepted change of parameters: the clock's source, `/parameter_events`, and the
+    /// live view's parameter subscribers.
+    fn apply(&mut self, effect: Effect) {
+        let Effect::Changed(change) = effect else {
+            return;
+        };
+        let names: Vec<&str> = change.changed.iter().map(|p| p.name.as_str()).collect();
+        info!("parameters set: {}", names.join(", "));
+        self.clock
+            .set_simulated(self.parameters.config().use_sim_time);
+        if let Some((view, _)) = &self.live_view {
+            view.publish_parameters(
+                change
+                    .changed
+                    .iter()
+                    .map(|p| foxglove::to_app(&p.name, &p.value))
+                    .collect(),
+            );
+        }
+        let now = self.now();
+        let event = parameters::change_event(&change, now, &self.node_name);
+        self.publish_parameter_event(event);
     }
 
     /// The stream has ended: the live track's lesson and every lesson waiting are learned, the

@@ -6,8 +6,8 @@
 //!
 //! The trajectory, which no other output needs, is kept off the detections that predict their
 //! interception in full: when it comes due on one, it waits for the next detection whose
-//! interception is moved, at most one more period ([`Pipeline::trajectory_due`]). The two
-//! longest computations of a detection then never add up.
+//! interception is moved, at most two periods. The two longest computations of a detection then
+//! never add up.
 
 use nalgebra::Vector2;
 
@@ -230,7 +230,7 @@ impl Pipeline {
     /// True when the trajectory is to be published after the detection that gave `estimate`, the
     /// next one then scheduled. Trajectories come due on a grid of `prediction.trajectory_rate`'s
     /// period from a track's first estimate; one due is published on the first detection whose
-    /// interception was moved rather than `predicted_in_full`, or on any a period late, and the
+    /// interception was moved rather than `predicted_in_full`, or on any two periods late, and the
     /// next comes due at the first grid point after it.
     fn trajectory_due(&mut self, estimate: &Estimate, predicted_in_full: bool) -> bool {
         let period = self.trajectory_period.max(1);

@@ -196,9 +196,45 @@ fn field_types(package: &str, text: &str) -> Vec<String> {
 /// each once) after a separator line and `MSG: pkg/Type`. `None` for an unknown type.
 pub fn schema(name: &str) -> Option<String> {
     let root = short_name(name);
-    let mut text = definition(&root)?.to_string();
-    let mut seen = vec![root.clone()];
-    let mut stack: Vec<String> = field_types(package_of(&root), definition(&root)?);
+    schema_of(&root, definition(&root)?)
+}
+
+/// The services whose requests and responses are offered as `ros2msg` schemas (the Foxglove
+/// live view's services), as (`pkg/Service`, `.srv` text).
+const SERVICES: &[(&str, &str)] = &[
+    (
+        "ttball_msgs/PredictTrajectory",
+        include_str!("../../../msgs/srv/PredictTrajectory.srv"),
+    ),
+    (
+        "ttball_msgs/PredictRebound",
+        include_str!("../../../msgs/srv/PredictRebound.srv"),
+    ),
+    (
+        "ttball_msgs/PlanReturn",
+        include_str!("../../../msgs/srv/PlanReturn.srv"),
+    ),
+];
+
+/// The `ros2msg` schemas of a service's request and response (`pkg/srv/Service`): each half of
+/// its `.srv` text, then the types it uses, as [`schema`] writes a message's. `None` for a
+/// service other than ttball's three.
+pub fn service_schemas(name: &str) -> Option<(String, String)> {
+    let (package, service) = name.split_once("/srv/")?;
+    let key = format!("{package}/{service}");
+    let text = SERVICES.iter().find(|(n, _)| *n == key)?.1;
+    let (request, response) = text.split_once("\n---\n")?;
+    Some((
+        schema_of(&format!("{key}_Request"), request)?,
+        schema_of(&format!("{key}_Response"), response)?,
+    ))
+}
+
+/// The schema of the type `root` defined by `own` (see [`schema`]).
+fn schema_of(root: &str, own: &str) -> Option<String> {
+    let mut text = own.to_string();
+    let mut seen = vec![root.to_owned()];
+    let mut stack: Vec<String> = field_types(package_of(root), own);
     stack.reverse();
     while let Some(dep) = stack.pop() {
         if seen.contains(&dep) {
