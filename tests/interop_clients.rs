@@ -345,6 +345,19 @@ fn the_mcap_conformance_corpus_reads_as_its_json_lists() {
     assert!(messages > 800, "{messages}");
 }
 
+/// Whether a loopback-only network namespace can be made for a test of the node (CI must).
+fn loopback_only_namespace() -> bool {
+    if common::can_isolate_network() {
+        return true;
+    }
+    assert!(
+        std::env::var("CI").as_deref() != Ok("true"),
+        "CI must be able to make a loopback-only network namespace"
+    );
+    eprintln!("skipped: `unshare -n` failed");
+    false
+}
+
 /// Foxglove's own WebSocket client (`live_client.mjs`, `@foxglove/ws-protocol`) watching
 /// `url` for `seconds` after the first message; its report.
 fn watch_live_view(parsers: &Path, url: &str, seconds: u32, report: &Path) -> Command {
@@ -493,17 +506,9 @@ fn a_replay_is_watched_live_by_foxglove_s_websocket_client() {
 /// own WebSocket client, beside DDS (fed by `ttball play`, in the loopback-only namespace).
 #[test]
 fn the_node_is_watched_live_by_foxglove_s_websocket_client() {
-    let Some(parsers) = foxglove_parsers() else {
+    let Some(parsers) = foxglove_parsers().filter(|_| loopback_only_namespace()) else {
         return;
     };
-    if !common::can_isolate_network() {
-        assert!(
-            std::env::var("CI").as_deref() != Ok("true"),
-            "CI must be able to make a loopback-only network namespace"
-        );
-        eprintln!("skipped: `unshare -n` failed");
-        return;
-    }
     let d = common::scratch("live-node");
     let report_path = d.join("view.json");
     let client = watch_live_view(&parsers, "ws://127.0.0.1:18765", 3, &report_path);
@@ -560,17 +565,9 @@ fn the_foxglove_app_sets_the_node_s_parameters_and_calls_its_services() {
     use ttball::ros::msgs::ttball_msgs::srv::{
         PlanReturnRequest, PredictReboundRequest, PredictTrajectoryRequest,
     };
-    let Some(parsers) = foxglove_parsers() else {
+    let Some(parsers) = foxglove_parsers().filter(|_| loopback_only_namespace()) else {
         return;
     };
-    if !common::can_isolate_network() {
-        assert!(
-            std::env::var("CI").as_deref() != Ok("true"),
-            "CI must be able to make a loopback-only network namespace"
-        );
-        eprintln!("skipped: `unshare -n` failed");
-        return;
-    }
     let d = common::scratch("live-act");
     let config = ttball::config::Config::default();
     // The node's configuration after the app's one accepted set.

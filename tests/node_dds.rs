@@ -1556,6 +1556,38 @@ echo $? > node.rc
         assert_eq!(trimmed, &expected[..], "{kind}: the reply differs");
         assert!(reply.len() - expected.len() < 4, "{kind}");
     }
+
+    // The node's ros_discovery_info, read in the layout of the build's distribution: each of its
+    // writers' and readers' GIDs is a DDS endpoint Fast DDS discovered, on the node's topics.
+    assert!(summary.contains("discovery yes"), "{context}");
+    let discovery = read("discovery.txt");
+    let endpoints: std::collections::HashMap<&str, &str> = discovery
+        .lines()
+        .filter_map(|line| line.strip_prefix("endpoint ")?.split_once(' '))
+        .collect();
+    let length = if ttball::node::ROS_DISTRIBUTION == "humble" {
+        24
+    } else {
+        16
+    };
+    let topics = |kind: &str| -> Vec<&str> {
+        discovery
+            .lines()
+            .filter_map(|line| line.strip_prefix(kind))
+            .map(|gid| {
+                assert_eq!(gid.len(), 2 * length, "{gid}");
+                assert!(gid[32..].chars().all(|c| c == '0'), "{gid}");
+                *endpoints
+                    .get(&gid[..32])
+                    .unwrap_or_else(|| panic!("{gid} is no DDS endpoint: {discovery}"))
+            })
+            .collect()
+    };
+    let (writers, readers) = (topics("writer "), topics("reader "));
+    for topic in ["rt/ball/state", "rt/ball/intercept", "rt/diagnostics"] {
+        assert!(writers.contains(&topic), "{topic}: {writers:?}");
+    }
+    assert!(readers.contains(&"rt/ball/detections"), "{readers:?}");
 }
 
 /// A value's ROS 2 CDR payload (encapsulation header included).

@@ -353,18 +353,7 @@ fn to_ros(p: &AppParameter, declared: u8) -> Result<Parameter, String> {
         (ParameterType::NOT_SET, _) => ParameterType::DOUBLE_ARRAY,
         (declared, _) => declared,
     };
-    let mut out = ParameterValue {
-        ptype,
-        boolean_value: false,
-        int_value: 0,
-        double_value: 0.0,
-        string_value: String::new(),
-        byte_array: Vec::new(),
-        bool_array: Vec::new(),
-        int_array: Vec::new(),
-        double_array: Vec::new(),
-        string_array: Vec::new(),
-    };
+    let mut out = super::parameters::empty_value(ptype);
     let wrong = || format!("a value of type {} is expected", type_name(ptype));
     match (ptype, value) {
         (ParameterType::BOOL, AppValue::Bool(b)) => out.boolean_value = *b,

@@ -14,15 +14,21 @@
 // DIR/intercepts.hex. CALLS.txt: one call per line, `SERVICE TYPE REQUEST_HEX` (TYPE one of
 // PredictTrajectory, PredictRebound, PlanReturn, ListParameters, GetParameters, SetParameters,
 // Trigger), made in order; each reply is
-// written to DIR/replies.txt as `SERVICE REPLY_HEX`. DIR/summary.txt says what happened.
-// Participants use UDPv4 on 127.0.0.1 only.
+// written to DIR/replies.txt as `SERVICE REPLY_HEX`. Last, the node's entry in
+// `ros_discovery_info` (rmw_dds_common's ParticipantEntitiesInfo in the layout of the
+// distribution the peer was built for) is written to DIR/discovery.txt, `writer GID_HEX` and
+// `reader GID_HEX` per line, beside `endpoint GUID_HEX TOPIC` for every DDS endpoint this
+// participant discovered. DIR/summary.txt says what happened. Participants use UDPv4 on
+// 127.0.0.1 only.
 
+#include <algorithm>
 #include <atomic>
 #include <chrono>
 #include <fstream>
 #include <iostream>
 #include <map>
 #include <memory>
+#include <mutex>
 #include <sstream>
 #include <string>
 #include <thread>
@@ -30,6 +36,7 @@
 
 #include <fastdds/dds/domain/DomainParticipant.hpp>
 #include <fastdds/dds/domain/DomainParticipantFactory.hpp>
+#include <fastdds/dds/domain/DomainParticipantListener.hpp>
 #include <fastdds/dds/publisher/DataWriter.hpp>
 #include <fastdds/dds/publisher/Publisher.hpp>
 #include <fastdds/dds/subscriber/DataReader.hpp>
@@ -85,7 +92,40 @@ std::string encode(TypeSupport& type, void* sample) {
     return to_hex(payload);
 }
 
+std::string bytes_hex(const uint8_t* data, size_t n) {
+    static const char* digits = "0123456789abcdef";
+    std::string out;
+    for (size_t i = 0; i < n; ++i) {
+        out.push_back(digits[data[i] >> 4]);
+        out.push_back(digits[data[i] & 15]);
+    }
+    return out;
+}
+
+// Every DDS endpoint discovered: its GUID (prefix and entity id, 16 bytes) in hex, and topic.
+struct Discovered : public DomainParticipantListener {
+    std::mutex lock;
+    std::map<std::string, std::string> endpoints;
+
+    void add(const eprosima::fastrtps::rtps::GUID_t& guid, const std::string& topic) {
+        std::string hex = bytes_hex(guid.guidPrefix.value, 12) + bytes_hex(guid.entityId.value, 4);
+        std::lock_guard<std::mutex> guard(lock);
+        endpoints[hex] = topic;
+    }
+
+    void on_publisher_discovery(DomainParticipant*,
+                                eprosima::fastrtps::rtps::WriterDiscoveryInfo&& info) override {
+        add(info.info.guid(), info.info.topicName().to_string());
+    }
+
+    void on_subscriber_discovery(DomainParticipant*,
+                                 eprosima::fastrtps::rtps::ReaderDiscoveryInfo&& info) override {
+        add(info.info.guid(), info.info.topicName().to_string());
+    }
+};
+
 struct Peer {
+    Discovered discovered;
     DomainParticipant* participant = nullptr;
     Publisher* publisher = nullptr;
     Subscriber* subscriber = nullptr;
@@ -97,7 +137,8 @@ struct Peer {
         auto udp = std::make_shared<eprosima::fastdds::rtps::UDPv4TransportDescriptor>();
         udp->interfaceWhiteList.push_back("127.0.0.1");
         qos.transport().user_transports.push_back(udp);
-        participant = DomainParticipantFactory::get_instance()->create_participant(domain, qos);
+        participant =
+            DomainParticipantFactory::get_instance()->create_participant(domain, qos, &discovered);
         publisher = participant->create_publisher(PUBLISHER_QOS_DEFAULT);
         subscriber = participant->create_subscriber(SUBSCRIBER_QOS_DEFAULT);
     }
@@ -219,6 +260,57 @@ std::string call(Peer& peer, const std::string& service, const std::string& requ
         why = "no reply matched the request's sample identity";
     }
     return reply_hex;
+}
+
+// The node `ttball`'s entry in ros_discovery_info (transient local: the last sample of each
+// participant), its writer and reader GIDs written to `path` with every endpoint discovered;
+// whether the entry came within 10 s.
+bool read_discovery(Peer& peer, const std::string& path) {
+    namespace rmw = rmw_dds_common::msg::dds_;
+    TypeSupport type(new rmw::ParticipantEntitiesInfo_PubSubType());
+    DataReaderQos qos = DATAREADER_QOS_DEFAULT;
+    qos.reliability().kind = RELIABLE_RELIABILITY_QOS;
+    qos.durability().kind = TRANSIENT_LOCAL_DURABILITY_QOS;
+    qos.history().kind = KEEP_LAST_HISTORY_QOS;
+    qos.history().depth = 100;
+    DataReader* reader = peer.subscriber->create_datareader(peer.topic("ros_discovery_info", type), qos);
+    if (!reader) {
+        return false;
+    }
+    std::vector<std::string> lines;
+    bool found = wait_until(
+        [&] {
+            rmw::ParticipantEntitiesInfo_ sample;
+            SampleInfo info;
+            while (reader->take_next_sample(&sample, &info) == ReturnCode_t::RETCODE_OK) {
+                if (!info.valid_data) {
+                    continue;
+                }
+                for (const auto& node : sample.node_entities_info_seq()) {
+                    if (std::string(node.node_name().c_str()) != "ttball") {
+                        continue;
+                    }
+                    lines.clear();
+                    for (const auto& gid : node.writer_gid_seq()) {
+                        lines.push_back("writer " + bytes_hex(gid.data().data(), gid.data().size()));
+                    }
+                    for (const auto& gid : node.reader_gid_seq()) {
+                        lines.push_back("reader " + bytes_hex(gid.data().data(), gid.data().size()));
+                    }
+                }
+            }
+            return !lines.empty();
+        },
+        10.0);
+    std::ofstream out(path);
+    for (const auto& line : lines) {
+        out << line << "\n";
+    }
+    std::lock_guard<std::mutex> guard(peer.discovered.lock);
+    for (const auto& endpoint : peer.discovered.endpoints) {
+        out << "endpoint " << endpoint.first << " " << endpoint.second << "\n";
+    }
+    return found;
 }
 
 }  // namespace
@@ -346,6 +438,7 @@ int main(int argc, char** argv) {
         }
     }
     summary << "states " << got_states << "\nintercepts " << got_intercepts << "\n";
+    summary << "discovery " << (read_discovery(peer, out + "/discovery.txt") ? "yes" : "no") << "\n";
     summary.close();
     DomainParticipantFactory::get_instance()->delete_participant(peer.participant);
     return 0;

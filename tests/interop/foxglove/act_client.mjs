@@ -13,13 +13,9 @@
 
 import { readFile, writeFile } from "node:fs/promises";
 import { plain } from "./plain.mjs";
-import wsProtocol from "@foxglove/ws-protocol";
+import { connect } from "./connect.mjs";
 import { parse } from "@foxglove/rosmsg";
 import { MessageReader, MessageWriter } from "@foxglove/rosmsg2-serialization";
-import WebSocket from "ws";
-
-const { FoxgloveClient } = wsProtocol;
-const SUBPROTOCOLS = ["foxglove.sdk.v1", FoxgloveClient.SUPPORTED_SUBPROTOCOL];
 
 const [url, requestsPath, reportPath] = process.argv.slice(2);
 const requests = JSON.parse(await readFile(requestsPath, "utf8"));
@@ -33,22 +29,6 @@ const report = {
   calls: {},
   problems: [],
 };
-
-// The server may not be up yet: a client per attempt, every handler in place before it opens.
-async function connect(setup) {
-  for (let attempt = 0; attempt < 300; attempt++) {
-    const client = new FoxgloveClient({ ws: new WebSocket(url, SUBPROTOCOLS) });
-    setup(client);
-    const opened = await new Promise((resolve) => {
-      client.on("open", () => resolve(true));
-      client.on("error", () => resolve(false));
-    });
-    if (opened) return client;
-    client.close();
-    await new Promise((r) => setTimeout(r, 100));
-  }
-  throw new Error(`cannot connect to ${url}`);
-}
 
 const waiting = new Map(); // request id or call id -> resolve
 const answered = (key, value) => {
@@ -68,7 +48,7 @@ const ask = (key, send) =>
 let servicesAdvertised;
 const advertised = new Promise((resolve) => (servicesAdvertised = resolve));
 const services = [];
-const client = await connect((client) => {
+const client = await connect(url, (client) => {
   client.on("serverInfo", (info) => (report.capabilities = info.capabilities));
   client.on("status", (status) => report.statuses.push(status.message));
   client.on("advertiseServices", (list) => {

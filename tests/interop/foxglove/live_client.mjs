@@ -13,36 +13,13 @@
 
 import { writeFile } from "node:fs/promises";
 import { plain } from "./plain.mjs";
-import wsProtocol from "@foxglove/ws-protocol";
+import { connect } from "./connect.mjs";
 import { parse } from "@foxglove/rosmsg";
 import { MessageReader } from "@foxglove/rosmsg2-serialization";
-import WebSocket from "ws";
-
-const { FoxgloveClient } = wsProtocol;
-// The protocol's v1 under the names Foxglove's SDK servers accept (`foxglove.sdk.v1`: schemas
-// inline in the advertisement, as ws-protocol's client reads them) and its original name.
-const SUBPROTOCOLS = ["foxglove.sdk.v1", FoxgloveClient.SUPPORTED_SUBPROTOCOL];
 
 const [url, seconds, reportPath] = process.argv.slice(2);
 const report = { server: null, channels: [], topics: {}, problems: [] };
 const channels = new Map();
-
-// The server may not be up yet: a client per attempt, every handler in place before its socket
-// opens (the server's first messages come with the handshake).
-async function connect(setup) {
-  for (let attempt = 0; attempt < 300; attempt++) {
-    const client = new FoxgloveClient({ ws: new WebSocket(url, SUBPROTOCOLS) });
-    setup(client);
-    const opened = await new Promise((resolve) => {
-      client.on("open", () => resolve(true));
-      client.on("error", () => resolve(false));
-    });
-    if (opened) return client;
-    client.close();
-    await new Promise((r) => setTimeout(r, 100));
-  }
-  throw new Error(`cannot connect to ${url}`);
-}
 
 let deadline = null;
 let finish;
@@ -53,7 +30,7 @@ const done = new Promise((resolve) => {
   }, 50);
 });
 let active = null;
-const client = await connect((client) => {
+const client = await connect(url, (client) => {
   // The server closing the connection ends the watch (a failed attempt's close does not).
   client.on("close", () => client === active && finish());
   client.on("serverInfo", (info) => {

@@ -15,7 +15,11 @@ With `--json FILE`, also writes each ttball_msgs structure as rosidl read it (it
 constants in .msg notation), for the contract test of the Rust types
 (tests/adapters/msgs_contract.rs, `TTBALL_ROSIDL_JSON`).
 
-Usage: dds_idl.py MSGS_DIR WORK_DIR [--json FILE] > ttball.idl
+With `--distro NAME` (jazzy or humble), also `rmw_dds_common`'s discovery types in that
+distribution's layout (distro/NAME/: 16-byte GIDs from Iron on, 24 up to Humble), for the peer's
+reading of `ros_discovery_info`.
+
+Usage: dds_idl.py MSGS_DIR WORK_DIR [--json FILE] [--distro NAME] > ttball.idl
 """
 
 import json
@@ -57,11 +61,14 @@ BASIC = {
 }
 
 
-def packages(msgs):
-    """(package name, its directory) of ttball_msgs and of each standard package."""
+def packages(msgs, distro):
+    """(package name, its directory) of ttball_msgs, of each standard package, and of the
+    distribution's own ones."""
     yield "ttball_msgs", msgs
-    for path in sorted((HERE / "standard").iterdir()):
-        yield path.name, path
+    folders = [HERE / "standard"] + ([HERE / "distro" / distro] if distro else [])
+    for folder in folders:
+        for path in sorted(p for p in folder.iterdir() if p.is_dir()):
+            yield path.name, path
 
 
 def parsed(name, directory, work):
@@ -166,14 +173,21 @@ def used_types(structure):
 
 def main():
     args = sys.argv[1:]
-    json_file = None
-    if "--json" in args:
-        i = args.index("--json")
-        json_file = pathlib.Path(args[i + 1])
+
+    def option(name):
+        if name not in args:
+            return None
+        i = args.index(name)
+        value = args[i + 1]
         del args[i : i + 2]
+        return value
+
+    json_file = option("--json")
+    json_file = json_file and pathlib.Path(json_file)
+    distro = option("--distro")
     msgs, work = pathlib.Path(args[0]).resolve(), pathlib.Path(args[1]).resolve()
     structures, described = {}, {}
-    for name, directory in packages(msgs):
+    for name, directory in packages(msgs, distro):
         for structure, constants in parsed(name, directory, work):
             structures[tuple(structure.namespaced_type.namespaced_name())] = structure
             if name == "ttball_msgs":
