@@ -214,9 +214,6 @@ fn event_name(kind: &EventKind) -> &'static str {
     }
 }
 
-/// predict(state, horizon=None, dt=None, config=None, plane_x=None)
-/// --
-///
 /// The predicted flight of a ball state: table bounces, the net, the floor and the hitting
 /// plane, with the configured physics (`aero`, `ball`, `table`).
 ///
@@ -319,9 +316,6 @@ fn rebound_dict<'py>(py: Python<'py>, rebound: &Rebound) -> PyResult<Bound<'py, 
     Ok(out)
 }
 
-/// rebound(ball, racket_velocity, racket_normal, impact_offset=0.0, config=None)
-/// --
-///
 /// The racket's hit of a ball and the return flight to its first bounce, through the impact
 /// model (`racket`, `arm`, `rubber`: reduced mass at the impact point, velocity-dependent
 /// restitution, contact time and force).
@@ -357,10 +351,6 @@ fn rebound<'py>(
     rebound_dict(py, &rebound)
 }
 
-/// plan_return(ball, target, flight_time=None, net_clearance=None, impact_offset=0.0,
-///     brush_speed=0.0, config=None)
-/// --
-///
 /// The racket command that returns a ball to a target on the opponent's half: the racket's
 /// velocity and face normal at impact, solved through the impact model and the return flight.
 ///
@@ -501,10 +491,6 @@ impl Estimator {
         }
     }
 
-    /// handle(stamp, position, source=1, spin=None, position_covariance=None,
-    ///     spin_covariance=None, confidence=1.0)
-    /// --
-    ///
     /// Takes one detection and returns what the node would publish after it: a dict with
     /// `verdict` ("fused", "initializing", "held" or the rejection's reason, e.g. "gated"),
     /// `estimate` (`stamp`, `track_id`, `status`, `state` (9,), `covariance` (9, 9), `bounces`)
@@ -545,9 +531,6 @@ impl Estimator {
         output_dict(py, &output)
     }
 
-    /// handle_many(stamps, positions, sources=None, spins=None)
-    /// --
-    ///
     /// Takes N detections in arrival order, as N calls of `handle` would, and returns arrays:
     /// `verdict` (list of N names), `track_id` (N,) (0 without an estimate), `state` (N, 9),
     /// `covariance` (N, 9, 9), `intercept_valid` (N,), `intercept_time` (N,) [s],
@@ -669,9 +652,6 @@ impl Estimator {
             .transpose()
     }
 
-    /// predict(horizon=None, dt=None)
-    /// --
-    ///
     /// The predicted flight of the tracked ball from its estimate, with the physics the estimator
     /// has learned (a dict as `ttball.predict` returns it), or `None` without a track.
     #[pyo3(signature = (horizon=None, dt=None))]

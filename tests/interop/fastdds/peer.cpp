@@ -127,6 +127,8 @@ struct Discovered : public DomainParticipantListener {
 struct Peer {
     Discovered discovered;
     DomainParticipant* participant = nullptr;
+    // Each service's request writer and reply reader, by service name.
+    std::map<std::string, std::pair<DataWriter*, DataReader*>> clients;
     Publisher* publisher = nullptr;
     Subscriber* subscriber = nullptr;
 
@@ -202,8 +204,14 @@ std::string call(Peer& peer, const std::string& service, const std::string& requ
                  std::string& why) {
     TypeSupport request_type(new RequestType());
     TypeSupport reply_type(new ReplyType());
-    DataWriter* writer = peer.writer("rq" + service + "Request", request_type, true);
-    DataReader* reader = peer.reader("rr" + service + "Reply", reply_type);
+    // One client per service, kept for its next calls, as an rmw client is.
+    auto& client = peer.clients[service];
+    if (!client.first) {
+        client.first = peer.writer("rq" + service + "Request", request_type, true);
+        client.second = peer.reader("rr" + service + "Reply", reply_type);
+    }
+    DataWriter* writer = client.first;
+    DataReader* reader = client.second;
     if (!writer || !reader) {
         why = "cannot create the service's writer or reader";
         return "";
@@ -262,18 +270,23 @@ std::string call(Peer& peer, const std::string& service, const std::string& requ
     return reply_hex;
 }
 
-// The node `ttball`'s entry in ros_discovery_info (transient local: the last sample of each
-// participant), its writer and reader GIDs written to `path` with every endpoint discovered;
-// whether the entry came within 10 s.
-bool read_discovery(Peer& peer, const std::string& path) {
-    namespace rmw = rmw_dds_common::msg::dds_;
+namespace rmw = rmw_dds_common::msg::dds_;
+
+// A reader of ros_discovery_info (transient local: the last sample of each participant), made
+// at the start so that it has the node's entry by the end.
+DataReader* discovery_reader(Peer& peer) {
     TypeSupport type(new rmw::ParticipantEntitiesInfo_PubSubType());
     DataReaderQos qos = DATAREADER_QOS_DEFAULT;
     qos.reliability().kind = RELIABLE_RELIABILITY_QOS;
     qos.durability().kind = TRANSIENT_LOCAL_DURABILITY_QOS;
     qos.history().kind = KEEP_LAST_HISTORY_QOS;
     qos.history().depth = 100;
-    DataReader* reader = peer.subscriber->create_datareader(peer.topic("ros_discovery_info", type), qos);
+    return peer.subscriber->create_datareader(peer.topic("ros_discovery_info", type), qos);
+}
+
+// The node `ttball`'s entry in what `reader` holds of ros_discovery_info, its writer and reader
+// GIDs written to `path` with every endpoint discovered; whether the entry came within 10 s.
+bool read_discovery(Peer& peer, DataReader* reader, const std::string& path) {
     if (!reader) {
         return false;
     }
@@ -331,6 +344,7 @@ int main(int argc, char** argv) {
         return 1;
     }
 
+    DataReader* discovery = discovery_reader(peer);
     TypeSupport detection_type(new ttball_msgs::msg::dds_::BallDetection_PubSubType());
     TypeSupport state_type(new ttball_msgs::msg::dds_::BallState_PubSubType());
     TypeSupport intercept_type(new ttball_msgs::msg::dds_::InterceptPrediction_PubSubType());
@@ -438,7 +452,8 @@ int main(int argc, char** argv) {
         }
     }
     summary << "states " << got_states << "\nintercepts " << got_intercepts << "\n";
-    summary << "discovery " << (read_discovery(peer, out + "/discovery.txt") ? "yes" : "no") << "\n";
+    summary << "discovery " << (read_discovery(peer, discovery, out + "/discovery.txt") ? "yes" : "no")
+            << "\n";
     summary.close();
     DomainParticipantFactory::get_instance()->delete_participant(peer.participant);
     return 0;
