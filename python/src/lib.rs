@@ -736,6 +736,7 @@ fn output_dict<'py>(py: Python<'py>, output: &Output) -> PyResult<Bound<'py, PyD
 /// on its surface).
 #[pymodule(name = "ttball")]
 fn ttball_module(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     m.add_class::<Config>()?;
     m.add_class::<Estimator>()?;
     m.add_function(wrap_pyfunction!(predict, m)?)?;

@@ -139,6 +139,11 @@ def test_every_configuration_key_is_reachable_and_checked():
     assert issubclass(ttball.ConfigError, ValueError)
 
 
+def test_the_package_is_the_crate_s_version():
+    cargo = (REPO / "python/Cargo.toml").read_text()
+    assert f'version = "{ttball.__version__}"' in cargo
+
+
 def test_bad_input_is_a_python_exception():
     with pytest.raises(ValueError, match="state must have 9 values"):
         ttball.predict([1.0, 2.0, 3.0])
