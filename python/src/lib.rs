@@ -20,7 +20,7 @@ use ::ttball::config::yaml;
 use ::ttball::config::{Config as CoreConfig, PredictionParams};
 use ::ttball::model::detection::{Detection, Source};
 use ::ttball::online::estimator::{
-    Estimate, Estimator as CoreEstimator, Output, Rejection, Verdict,
+    Estimate, Estimator as CoreEstimator, Output, Rejection, RobotHit, Verdict,
 };
 use ::ttball::online::intercept::Intercept;
 use ::ttball::online::stroke::{Aim, Rebound, ReturnFlight, Stroke};
@@ -692,12 +692,39 @@ impl Estimator {
         out.set_item("initializing", c.initializing)?;
         out.set_item("tracks", c.tracks)?;
         out.set_item("rollbacks", c.rollbacks)?;
+        out.set_item("seeded_by_hit", c.seeded_by_hit)?;
+        out.set_item("hits_not_seeded", c.hits_not_seeded)?;
         let rejected = PyDict::new(py);
         for reason in Rejection::ALL {
             rejected.set_item(reason.name(), c.rejected(reason))?;
         }
         out.set_item("rejected", rejected)?;
         Ok(out)
+    }
+
+    /// Announces the robot's next hit, as the node's `robot/hits` topic does: the first detection
+    /// after `stamp` [ns] that the predicted rebound explains starts the return's track at once
+    /// (the live ball carried to the impact and hit by the racket whose impact point moves at
+    /// `racket_velocity` (3,) [m/s] with face normal `racket_normal` (3,), `impact_offset` [m]).
+    /// A later announcement replaces an earlier one; one that seeds nothing is counted
+    /// (`counters()["hits_not_seeded"]`).
+    #[pyo3(signature = (stamp, racket_velocity, racket_normal, impact_offset=0.0))]
+    fn expect_hit(
+        &mut self,
+        stamp: i64,
+        racket_velocity: PyArrayLike1<'_, f64, AllowTypeChange>,
+        racket_normal: PyArrayLike1<'_, f64, AllowTypeChange>,
+        impact_offset: f64,
+    ) -> PyResult<()> {
+        self.inner.expect_hit(RobotHit {
+            stamp,
+            racket: RacketState {
+                velocity: vector::<3>("racket_velocity", &racket_velocity)?,
+                normal: vector::<3>("racket_normal", &racket_normal)?,
+                impact_offset,
+            },
+        });
+        Ok(())
     }
 
     /// Ends the input: the live track's lesson is learned, as at the end of a replay.

@@ -171,3 +171,18 @@ def test_the_readme_example_runs(monkeypatch):
     # Its handle_many takes a column slice of the flight (not contiguous in memory).
     assert scope["arrays"]["state"].shape == (len(scope["flight"]["t"]) - 1, 9)
     assert scope["plan"]["landing_error"] < 0.01
+
+
+def test_an_announced_hit_starts_the_return_s_track_at_its_first_detection():
+    stamps, positions, truth = detections(seed=7)
+    estimator = ttball.Estimator()
+    incoming = estimator.handle_many(stamps, positions)
+    crossing = [e for e in truth["events"] if e["kind"] == "plane"][0]
+    plan = ttball.plan_return(crossing["before"], target=[1.0, 0.3], net_clearance=0.15)
+    impact = int(1_700_000_000 * 1e9 + crossing["t"] * 1e9)
+    estimator.expect_hit(impact, plan["racket_velocity"], plan["racket_normal"], plan["impact_offset"])
+    back = ttball.predict(plan["rebound"]["ball"], horizon=0.2, dt=1.0 / 150)
+    first = estimator.handle(impact + int(back["t"][2] * 1e9), back["states"][2, :3])
+    assert first["verdict"] == "fused", first["verdict"]
+    assert first["estimate"]["track_id"] != incoming["track_id"][-1]
+    assert estimator.counters()["seeded_by_hit"] == 1
