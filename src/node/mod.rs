@@ -418,12 +418,12 @@ fn node_pipeline(config: &Config, table_pose: Option<&TFMessage>) -> Pipeline {
 fn start_live_view(
     placement: &Placement,
     topics: &crate::config::TopicsParams,
-    interaction: crate::bag::live_view::Interaction,
+    (app_requests, fq_name): (&Sender<foxglove::AppRequest>, &str),
 ) -> Result<Option<(LiveView, crate::config::TopicsParams)>, NodeError> {
     let Some(address) = &placement.live_view else {
         return Ok(None);
     };
-    let view = LiveView::start_with(address, Some(interaction))?;
+    let view = LiveView::start_with(address, Some(foxglove::interaction(app_requests, fq_name)))?;
     info!(
         "Foxglove live view on ws://{}:{} (in Foxglove: Open connection)",
         address.rsplit_once(':').map_or("", |(host, _)| host),
@@ -528,7 +528,7 @@ fn start_here(config: &Config, placement: &Placement) -> Result<NodeHandle, Node
     let pipeline = node_pipeline(config, table_pose.as_ref());
     // The live view's app requests; none without a live view.
     let (app_tx, app_rx) = channel::bounded::<foxglove::AppRequest>(REQUEST_QUEUE);
-    let live_view = start_live_view(placement, topics, foxglove::interaction(&app_tx, &fq_name))?;
+    let live_view = start_live_view(placement, topics, (&app_tx, &fq_name))?;
     let app_rx = if live_view.is_some() {
         app_rx
     } else {
