@@ -109,8 +109,7 @@ pub struct ReplaySummary {
     pub counters: Counters,
     /// How many interceptions were predicted in full and how many moved from the last full one.
     pub intercepts: crate::online::intercept::TrackerCounts,
-    /// What the estimator learned (the physics, each source's noise, the model noise), as it
-    /// ended.
+    /// What the estimator learned (the physics, each source's noise), as it ended.
     pub learned: crate::online::estimator::LearnedSummary,
     /// Messages written to the output bag.
     pub written: u64,

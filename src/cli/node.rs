@@ -19,10 +19,10 @@ pub struct NodeArgs {
     pub config: ConfigArgs,
 
     /// Keep what the estimator learns in this file, a configuration to start the next run from
-    /// (pass it to --config): the ball's and table's physics, the model noise, each camera's
-    /// noise, and whether the refits won their contest. Rewritten whole as the node learns (at
-    /// most once a diagnostics period) and when it stops, so a crash loses at most a period's
-    /// learning (give it before --ros-args; an empty path keeps nothing).
+    /// (pass it to --config): the ball's and table's physics and each camera's noise. Rewritten
+    /// whole as the node learns (at most once a diagnostics period) and when it stops, so a crash
+    /// loses at most a period's learning (give it before --ros-args; an empty path keeps
+    /// nothing).
     #[arg(long, value_name = "FILE.yaml")]
     pub learned: Option<std::path::PathBuf>,
 

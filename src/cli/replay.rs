@@ -40,9 +40,8 @@ pub struct ReplayArgs {
 
     /// Also write what the estimator learned, as it ended, as a configuration file to start the
     /// node or the next replay from (pass it to --config after your own files): the ball's and
-    /// table's physics in place of the configured values, the model noise and each camera's
-    /// noise it learned in place of the configured ones, and whether the refits won their
-    /// contest (one input).
+    /// table's physics in place of the configured values, and each camera's noise it learned in
+    /// place of the configured one (one input).
     #[arg(long, value_name = "FILE.yaml")]
     pub learned: Option<PathBuf>,
 
