@@ -671,13 +671,20 @@ impl Estimator {
     }
 
     /// What the estimator has learned of the physics: each parameter's value and standard
-    /// deviation (`drag_scale`, `magnus_scale`, `restitution`, `friction`), and `tracks`.
+    /// deviation (`drag_scale`, `magnus_scale`, `restitution`, `friction`,
+    /// `reynolds_exponent_a_D`, `reynolds_exponent_a_M`), and `tracks`.
     fn learned<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
         let learned = self.inner.learned_params();
         let out = PyDict::new(py);
         let values = learned.params.to_vector();
         for (k, name) in PhysicsParams::NAMES.iter().enumerate() {
             out.set_item(*name, (values[k], learned.sigma[k]))?;
+        }
+        for (k, name) in ["a_D", "a_M"].iter().enumerate() {
+            out.set_item(
+                format!("reynolds_exponent_{name}"),
+                (learned.reynolds_exponents[k], learned.reynolds_sigma[k]),
+            )?;
         }
         out.set_item("tracks", learned.tracks)?;
         Ok(out)

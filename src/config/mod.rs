@@ -611,6 +611,10 @@ pub struct AdaptationParams {
     /// deviation [-], in [0, 100]: a random walk of variance (drift sigma)^2 t / 3600 s, capped
     /// at the prior variance (after a long pause the estimator is back at its prior).
     pub drift_per_hour: f64,
+    /// The prior standard deviation of the Reynolds exponents (a_D, a_M) about their
+    /// configured values (`aero.reynolds_exponents`) [-], two values in [0, 2]; 0 keeps one
+    /// fixed. The flights' scales at different speeds teach them (docs/estimator.md).
+    pub reynolds_sigma: Vec<f64>,
 }
 
 impl Default for AdaptationParams {
@@ -620,6 +624,7 @@ impl Default for AdaptationParams {
             sigma: vec![0.15, 0.4, 0.03, 0.1],
             flight_sigma: vec![0.03, 0.1, 0.02, 0.0],
             drift_per_hour: 0.5,
+            reynolds_sigma: vec![0.0, 0.3],
         }
     }
 }

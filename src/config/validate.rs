@@ -837,6 +837,21 @@ impl Config {
                 );
             }
         }
+        c.rule(
+            "adaptation.reynolds_sigma",
+            "two values in [0, 2]: a_D, a_M",
+        );
+        if ad.reynolds_sigma.len() != 2
+            || !ad.reynolds_sigma.iter().all(|v| (0.0..=2.0).contains(v))
+        {
+            c.fail(
+                "adaptation.reynolds_sigma",
+                format!(
+                    "is {:?}: give two values in [0, 2] (a_D, a_M)",
+                    ad.reynolds_sigma
+                ),
+            );
+        }
         c.real(
             "adaptation.drift_per_hour",
             ad.drift_per_hour,

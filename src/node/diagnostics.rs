@@ -149,6 +149,21 @@ fn learned_values(s: &Snapshot<'_>) -> Vec<KeyValue> {
             format!("{:.4}", s.learned.flight_sigma[i]),
         ));
     }
+    for (i, name) in ["a_D", "a_M"].iter().enumerate() {
+        let l = s.learned;
+        values.push(kv(
+            &format!("learned Reynolds exponent {name}"),
+            format!("{:.4}", l.reynolds_exponents[i]),
+        ));
+        values.push(kv(
+            &format!("learned Reynolds exponent {name} sigma"),
+            format!("{:.4}", l.reynolds_sigma[i]),
+        ));
+        values.push(kv(
+            &format!("learned Reynolds exponent {name} determined"),
+            l.reynolds_determined()[i].to_string(),
+        ));
+    }
     values.push(kv("learned physics: tracks", s.learned.tracks.to_string()));
     for n in s.learned_noise.iter().filter(|n| n.has_learned()) {
         let source = &n.source;
@@ -566,6 +581,15 @@ mod tests {
         assert_eq!(msg.header.stamp, Time::from_nanos(1_500_000_000));
         assert_eq!(value(&msg, "learned magnus_scale"), "0.6000");
         assert_eq!(value(&msg, "learned friction sigma"), "0.0100");
+        assert_eq!(value(&msg, "learned Reynolds exponent a_M"), "-0.8000");
+        assert_eq!(
+            value(&msg, "learned Reynolds exponent a_M determined"),
+            "true"
+        );
+        assert_eq!(
+            value(&msg, "learned Reynolds exponent a_D determined"),
+            "false"
+        );
         assert_eq!(
             value(&msg, "learned noise wide_150fps: position sigma [mm]"),
             "3.10"
@@ -616,6 +640,9 @@ mod tests {
             sigma: [0.02, 0.05, 0.003, 0.01],
             tracks: 12,
             flight_sigma: [0.03, 0.1, 0.02, 0.0],
+            reynolds_exponents: [0.0, -0.8],
+            reynolds_sigma: [0.1, 0.05],
+            reynolds_prior_sigma: [0.1, 0.3],
         }
     }
 

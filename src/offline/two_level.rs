@@ -103,6 +103,9 @@ pub fn calibrate_two_level(
     sequential.end_of_input();
     let online = sequential.learned_summary();
     let mut base = online.configuration(config);
+    // The exponents are not fitted here: the configured ones, learned nowhere.
+    base.aero.reynolds_exponents = config.aero.reynolds_exponents.clone();
+    base.adaptation.reynolds_sigma = vec![0.0; 2];
     base.adaptation.drift_per_hour = 0.0;
     let mut theta_g = PhysicsParams::from_config(&base).to_vector();
     let mut sigma_g = online.params.sigma;
@@ -170,12 +173,19 @@ pub fn calibrate_two_level(
     }
     PhysicsParams::from_vector(&theta_g).apply_to(&mut base);
     base.adaptation.drift_per_hour = config.adaptation.drift_per_hour;
+    base.adaptation.reynolds_sigma = config.adaptation.reynolds_sigma.clone();
     Ok(TwoLevelCalibration {
         params: LearnedParams {
             params: PhysicsParams::from_vector(&theta_g),
             sigma,
             tracks: flights.iter().filter(|f| !f.is_empty()).count() as u64,
             flight_sigma: online.params.flight_sigma,
+            // Held at the configured values: each flight alone does not span the speeds.
+            reynolds_exponents: std::array::from_fn(|i| {
+                base.aero.reynolds_exponents.get(i).copied().unwrap_or(0.0)
+            }),
+            reynolds_sigma: [0.0; 2],
+            reynolds_prior_sigma: [0.0; 2],
         },
         config: base,
         online,

@@ -50,7 +50,17 @@ pub struct LearnedParams {
     /// How much each parameter scatters from flight to flight about these [-] (the configured
     /// dispersion's standard deviation; zero for a single flight's own parameters).
     pub flight_sigma: [f64; PARAMS],
+    /// The Reynolds exponents (a_D, a_M) [-] (`aero.reynolds_exponents`).
+    pub reynolds_exponents: [f64; 2],
+    /// Their standard deviations [-].
+    pub reynolds_sigma: [f64; 2],
+    /// Their prior standard deviations [-] (`adaptation.reynolds_sigma`; 0: not learned).
+    pub reynolds_prior_sigma: [f64; 2],
 }
+
+/// An exponent is determined by the flights once its sigma is below this share of its prior's
+/// (the flights' speeds have told it apart from the scale).
+pub const DETERMINED_SHARE: f64 = 0.8;
 
 impl LearnedParams {
     /// Parameters `theta` of covariance `covariance`, learned over `tracks` tracks, with a
@@ -66,7 +76,34 @@ impl LearnedParams {
             sigma: std::array::from_fn(|i| covariance[(i, i)].max(0.0).sqrt()),
             tracks,
             flight_sigma: std::array::from_fn(|i| dispersion[i].max(0.0).sqrt()),
+            reynolds_exponents: [0.0; 2],
+            reynolds_sigma: [0.0; 2],
+            reynolds_prior_sigma: [0.0; 2],
         }
+    }
+
+    /// The same with the Reynolds exponents `exponents`, of standard deviations `sigma` and
+    /// prior standard deviations `prior_sigma`.
+    pub(crate) fn with_reynolds(
+        self,
+        exponents: (f64, f64),
+        (sigma, prior_sigma): ([f64; 2], [f64; 2]),
+    ) -> Self {
+        Self {
+            reynolds_exponents: [exponents.0, exponents.1],
+            reynolds_sigma: sigma,
+            reynolds_prior_sigma: prior_sigma,
+            ..self
+        }
+    }
+
+    /// Whether the flights have determined each Reynolds exponent (its sigma below
+    /// [`DETERMINED_SHARE`] of its prior's); one not learned is not.
+    pub fn reynolds_determined(&self) -> [bool; 2] {
+        std::array::from_fn(|i| {
+            self.reynolds_prior_sigma[i] > 0.0
+                && self.reynolds_sigma[i] < DETERMINED_SHARE * self.reynolds_prior_sigma[i]
+        })
     }
 }
 
@@ -85,6 +122,7 @@ impl LearnedSummary {
     pub fn configuration(&self, base: &Config) -> Config {
         let mut config = base.clone();
         self.params.params.apply_to(&mut config);
+        config.aero.reynolds_exponents = self.params.reynolds_exponents.to_vec();
         for learned in self.source_noise.iter().filter(|n| n.has_learned()) {
             let Some(source) = config.sources.by_name_mut(&learned.source) else {
                 continue;
@@ -153,10 +191,29 @@ pub fn describe_params(l: &LearnedParams) -> String {
             format!("{name} {:.3} +- {:.3}{flights}", values[i], l.sigma[i])
         })
         .collect();
+    let exponents: Vec<String> = ["a_D", "a_M"]
+        .iter()
+        .enumerate()
+        .map(|(i, name)| {
+            let value = l.reynolds_exponents[i];
+            if l.reynolds_prior_sigma[i] <= 0.0 {
+                format!("{name} {value:.3} (fixed)")
+            } else if l.reynolds_determined()[i] {
+                format!("{name} {value:.3} +- {:.3}", l.reynolds_sigma[i])
+            } else {
+                format!(
+                    "{name} {value:.3} +- {:.3} (near its prior's sigma {:.3}: these flights' \
+                     speeds do not determine it)",
+                    l.reynolds_sigma[i], l.reynolds_prior_sigma[i]
+                )
+            }
+        })
+        .collect();
     format!(
-        "learned physics over {} tracks: {}",
+        "learned physics over {} tracks: {}; Reynolds exponents {}",
         l.tracks,
-        parts.join(", ")
+        parts.join(", "),
+        exponents.join(", ")
     )
 }
 
@@ -212,6 +269,9 @@ mod tests {
                 sigma: [0.01; 4],
                 tracks: 40,
                 flight_sigma: [0.0; 4],
+                reynolds_exponents: [0.0, -0.65],
+                reynolds_sigma: [0.1, 0.3],
+                reynolds_prior_sigma: [0.1, 0.3],
             },
             source_noise: vec![
                 source("wide_150fps", 2000.0, PRIOR_WEIGHT),

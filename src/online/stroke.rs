@@ -270,6 +270,15 @@ impl Stroke {
         }
     }
 
+    /// The same model with other Reynolds exponents (a_D, a_M) [-].
+    pub fn with_reynolds_exponents(&self, exponents: (f64, f64)) -> Self {
+        Self {
+            propagator: self.propagator.with_reynolds_exponents(exponents),
+            solver_propagator: self.solver_propagator.with_reynolds_exponents(exponents),
+            ..self.clone()
+        }
+    }
+
     /// The racket-impact model.
     pub fn racket(&self) -> &RacketModel {
         &self.racket

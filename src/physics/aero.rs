@@ -426,13 +426,25 @@ impl FlightModel {
         self.reynolds_per_speed * speed
     }
 
-    /// The factors f(Re)^a_D and f(Re)^a_M on C_D and C_M at `speed` [m/s] (see the module
-    /// doc), and d ln f / d ln Re.
+    /// The same model with other Reynolds exponents (a_D, a_M) [-].
+    pub fn with_reynolds_exponents(&self, exponents: (f64, f64)) -> Self {
+        Self {
+            reynolds_exponents: exponents,
+            ..*self
+        }
+    }
+
+    /// The Reynolds exponents (a_D, a_M) [-].
+    pub fn reynolds_exponents(&self) -> (f64, f64) {
+        self.reynolds_exponents
+    }
+
+    /// ln f(Re) at `speed` [m/s] (see the module doc) and d ln f / d ln Re; (0, 0) for a speed
+    /// that is not positive.
     #[inline]
-    pub fn reynolds_factors(&self, speed: f64) -> (f64, f64, f64) {
-        let (a_d, a_m) = self.reynolds_exponents;
-        if (a_d == 0.0 && a_m == 0.0) || speed.is_nan() || speed <= 0.0 {
-            return (1.0, 1.0, 0.0);
+    pub fn reynolds_log_factor(&self, speed: f64) -> (f64, f64) {
+        if speed.is_nan() || speed <= 0.0 {
+            return (0.0, 0.0);
         }
         let re = self.reynolds_per_speed * speed;
         let fourth = |ratio: f64| {
@@ -444,7 +456,18 @@ impl FlightModel {
             fourth(re / self.reynolds_range.1),
         );
         let log_f = 0.25 * ((1.0 + low) / (1.0 + high)).ln();
-        let slope = low / (1.0 + low) - high / (1.0 + high);
+        (log_f, low / (1.0 + low) - high / (1.0 + high))
+    }
+
+    /// The factors f(Re)^a_D and f(Re)^a_M on C_D and C_M at `speed` [m/s] (see the module
+    /// doc), and d ln f / d ln Re.
+    #[inline]
+    pub fn reynolds_factors(&self, speed: f64) -> (f64, f64, f64) {
+        let (a_d, a_m) = self.reynolds_exponents;
+        if a_d == 0.0 && a_m == 0.0 {
+            return (1.0, 1.0, 0.0);
+        }
+        let (log_f, slope) = self.reynolds_log_factor(speed);
         let power = |a: f64| if a == 0.0 { 1.0 } else { (a * log_f).exp() };
         (power(a_d), power(a_m), slope)
     }

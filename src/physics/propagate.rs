@@ -526,6 +526,15 @@ impl Propagator {
         }
     }
 
+    /// The same propagator with other Reynolds exponents (a_D, a_M)
+    /// ([`FlightModel::with_reynolds_exponents`]).
+    pub fn with_reynolds_exponents(&self, exponents: (f64, f64)) -> Self {
+        Self {
+            flight: self.flight.with_reynolds_exponents(exponents),
+            ..*self
+        }
+    }
+
     /// The physical parameters it propagates with.
     pub fn params(&self) -> PhysicsParams {
         let (drag_scale, magnus_scale) = self.flight.scales();

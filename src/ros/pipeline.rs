@@ -323,8 +323,11 @@ impl Pipeline {
     /// The stroke model flying the physics the estimator learned so far (the configured physics
     /// before any flight).
     fn learned_stroke(&self) -> Stroke {
+        let learned = self.estimator.learned_params();
+        let [a_d, a_m] = learned.reynolds_exponents;
         self.stroke
-            .with_params(&self.estimator.learned_params().params)
+            .with_params(&learned.params)
+            .with_reynolds_exponents((a_d, a_m))
     }
 
     /// `track_id` when it is the live track's id; otherwise why not, pointing at track 0 and
@@ -845,7 +848,8 @@ mod tests {
         for d in &simulate(&config, &options).expect("simulated").stream {
             pipeline.on_detection(&detection_to_msg(&d.detection));
         }
-        let learned = pipeline.estimator().learned_params().params;
+        let learned_all = pipeline.estimator().learned_params();
+        let learned = learned_all.params;
         assert_ne!(
             learned,
             PhysicsParams::from_config(&config),
@@ -857,6 +861,7 @@ mod tests {
         taught.aero.magnus_scale = learned.magnus_scale;
         taught.table.restitution = learned.restitution;
         taught.table.friction = learned.friction;
+        taught.aero.reynolds_exponents = learned_all.reynolds_exponents.to_vec();
         let configured = Pipeline::new(&taught);
         let request = plan_request(0.9, 0.3);
         let plan = pipeline.plan_return(&request);

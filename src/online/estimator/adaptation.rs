@@ -17,56 +17,79 @@
 //!   (I + J D)^-1 b. So P_g'^-1 = P_g^-1 + J_g and theta_g' = P_g' (P_g^-1 theta_g +
 //!   (I + J D)^-1 b). With D = 0 this is the track's posterior itself.
 //!
+//! theta_g also holds the Reynolds exponents (a_D, a_M), which no single flight's filter
+//! learns: a track flies with the learned ones, and its scales are the ball's at its speeds,
+//! theta_f = h(theta_g) with k_f = k_g exp((a_g - a_flown) L), L its mean ln f(Re)
+//! ([`Learned::flight_params`]). The update above takes h linearised at theta_g: the
+//! information H' J_g H and the mean H' (I + J D)^-1 (b - J c), c = h - H theta_g.
+//!
 //! Parameters with a zero prior sigma are not adapted: they keep their configured value and a
 //! zero variance throughout.
 
-use nalgebra::SymmetricEigen;
+use nalgebra::{SMatrix, SVector, SymmetricEigen};
 
 use super::camera_noise::NoiseLearner;
 use super::lessons::Lessons;
-use super::smoother::{Lesson, LessonJob};
+use super::smoother::{Flown, Lesson, LessonJob};
 use crate::config::{AdaptationParams, Config};
 use crate::online::ekf::ParamCovariance;
+use crate::physics::params::{DRAG_SCALE, MAGNUS_SCALE};
 use crate::physics::{PARAMS, ParamVector, PhysicsParams};
+
+/// The parameters learned across tracks: the ball's and table's ([`PARAMS`], each flight's
+/// filter learns them too) and the Reynolds exponents (a_D, a_M), which the flights' scales at
+/// their different speeds teach.
+const SHAPE: usize = PARAMS + 2;
+/// Index of a_D, then a_M, in the learned parameters.
+const DRAG_EXPONENT: usize = PARAMS;
+const MAGNUS_EXPONENT: usize = PARAMS + 1;
+type ShapeVector = SVector<f64, SHAPE>;
+type ShapeCovariance = SMatrix<f64, SHAPE, SHAPE>;
+/// d(a flight's parameters)/d(the learned ones).
+type FlightMap = SMatrix<f64, PARAMS, SHAPE>;
 
 /// What the estimator knows of the physical parameters between tracks.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub(crate) struct Learned {
     /// theta_g.
-    theta: ParamVector,
+    theta: ShapeVector,
     /// P_g.
-    covariance: ParamCovariance,
+    covariance: ShapeCovariance,
     /// When they were last learned [ns]; `None` before any track.
     stamp: Option<i64>,
     /// Tracks that contributed.
     tracks: u64,
     /// The prior variances (zero: not adapted).
-    prior_var: ParamVector,
+    prior_var: ShapeVector,
     /// The random walk's density [unit^2/s].
-    drift_density: ParamVector,
+    drift_density: ShapeVector,
     /// D, the flight-to-flight dispersion (diagonal).
     dispersion: ParamVector,
 }
 
 impl Learned {
-    /// Nothing learned yet: the configured `prior` with its variances.
-    pub(crate) fn new(
-        prior: ParamVector,
-        prior_var: ParamVector,
-        drift_density: ParamVector,
+    /// Nothing learned yet: the configured `prior` (the ball's and table's parameters, then the
+    /// Reynolds exponents) with its variances.
+    fn new(
+        prior: ShapeVector,
+        prior_var: ShapeVector,
+        drift_density: ShapeVector,
         dispersion: ParamVector,
     ) -> Self {
-        let active = |v: &ParamVector| {
-            ParamVector::from_fn(|i, _| if prior_var[i] > 0.0 { v[i] } else { 0.0 })
-        };
         Self {
             theta: prior,
-            covariance: ParamCovariance::from_diagonal(&prior_var),
+            covariance: ShapeCovariance::from_diagonal(&prior_var),
             stamp: None,
             tracks: 0,
             prior_var,
-            drift_density: active(&drift_density),
-            dispersion: active(&dispersion),
+            drift_density: drift_density.zip_map(&prior_var, |d, v| if v > 0.0 { d } else { 0.0 }),
+            dispersion: ParamVector::from_fn(|i, _| {
+                if prior_var[i] > 0.0 {
+                    dispersion[i]
+                } else {
+                    0.0
+                }
+            }),
         }
     }
 
@@ -75,9 +98,29 @@ impl Learned {
         self.dispersion
     }
 
-    /// theta_g and P_g.
+    /// theta_g and P_g of the ball's and table's parameters.
     pub(crate) fn global(&self) -> (ParamVector, ParamCovariance) {
-        (self.theta, self.covariance)
+        (
+            self.theta.fixed_rows::<PARAMS>(0).into_owned(),
+            self.covariance
+                .fixed_view::<PARAMS, PARAMS>(0, 0)
+                .into_owned(),
+        )
+    }
+
+    /// The Reynolds exponents (a_D, a_M) the tracks fly with.
+    pub(crate) fn exponents(&self) -> (f64, f64) {
+        (self.theta[DRAG_EXPONENT], self.theta[MAGNUS_EXPONENT])
+    }
+
+    /// The exponents' standard deviations now and before any track.
+    pub(crate) fn exponent_sigmas(&self) -> ([f64; 2], [f64; 2]) {
+        let sigma = |v: f64| v.max(0.0).sqrt();
+        let at = [DRAG_EXPONENT, MAGNUS_EXPONENT];
+        (
+            at.map(|i| sigma(self.covariance[(i, i)])),
+            at.map(|i| sigma(self.prior_var[i])),
+        )
     }
 
     /// Tracks that contributed.
@@ -86,19 +129,19 @@ impl Learned {
     }
 
     /// P_g at `stamp`: grown by the drift since it was learned, at most back to the prior.
-    fn drifted(&self, stamp: i64) -> ParamCovariance {
+    fn drifted(&self, stamp: i64) -> ShapeCovariance {
         let mut covariance = self.covariance;
         let Some(then) = self.stamp else {
             return covariance;
         };
         let dt = ((stamp - then) as f64 * 1e-9).max(0.0);
-        for i in (0..PARAMS).filter(|&i| self.prior_var[i] > 0.0) {
+        for i in (0..SHAPE).filter(|&i| self.prior_var[i] > 0.0) {
             let grown = covariance[(i, i)] + self.drift_density[i] * dt;
             let prior = self.prior_var[i];
             if grown > prior && covariance[(i, i)] > 0.0 {
                 // Back to the prior's variance, the correlations kept.
                 let factor = (prior / covariance[(i, i)]).sqrt();
-                for j in 0..PARAMS {
+                for j in 0..SHAPE {
                     covariance[(i, j)] *= factor;
                     covariance[(j, i)] *= factor;
                 }
@@ -111,74 +154,109 @@ impl Learned {
 
     /// The prior of a track starting at `stamp`: theta_g, P_g (drifted) + D.
     pub(crate) fn track_prior(&self, stamp: i64) -> (ParamVector, ParamCovariance) {
+        let drifted = self.drifted(stamp);
         (
-            self.theta,
-            self.drifted(stamp) + ParamCovariance::from_diagonal(&self.dispersion),
+            self.theta.fixed_rows::<PARAMS>(0).into_owned(),
+            drifted.fixed_view::<PARAMS, PARAMS>(0, 0).into_owned()
+                + ParamCovariance::from_diagonal(&self.dispersion),
         )
     }
 
-    /// theta_g and P_g updated with what a track that started from `prior` (its
-    /// [`Self::track_prior`]) at `started` and ended at `posterior` at `stamp` learned (see the
-    /// module doc). The prior is compared at the end, grown by the drift the track's filter
-    /// added on the way: what the track learned is the difference.
-    pub(crate) fn absorbed(
-        &self,
-        prior: &(ParamVector, ParamCovariance),
-        posterior: &(ParamVector, ParamCovariance),
-        started: i64,
-        stamp: i64,
-    ) -> Self {
-        let elapsed = ((stamp - started) as f64 * 1e-9).max(0.0);
+    /// theta_g and P_g updated with what a track `lesson` learned (see the module doc). Its
+    /// prior is compared at the end, grown by the drift the track's filter added on the way:
+    /// what the track learned is the difference.
+    pub(crate) fn absorbed(&self, lesson: &Lesson) -> Self {
+        let elapsed = ((lesson.ended - lesson.started) as f64 * 1e-9).max(0.0);
+        let drift = self.drift_density.fixed_rows::<PARAMS>(0) * elapsed;
         let prior = (
-            prior.0,
-            prior.1 + ParamCovariance::from_diagonal(&(self.drift_density * elapsed)),
+            lesson.prior.0,
+            lesson.prior.1 + ParamCovariance::from_diagonal(&drift),
         );
-        // The equations failed (a singular matrix): the track's posterior.
-        let updated = self.fuse(&prior, posterior, stamp).unwrap_or(*posterior);
-        let active = |i: usize| self.prior_var[i] > 0.0;
-        let mut theta = updated.0;
-        let mut covariance = updated.1;
-        for i in 0..PARAMS {
-            if !active(i) {
-                theta[i] = self.theta[i];
-                for j in 0..PARAMS {
-                    covariance[(i, j)] = 0.0;
-                    covariance[(j, i)] = 0.0;
-                }
+        let (mut theta, mut covariance) = self
+            .fuse(&prior, &lesson.posterior, &lesson.flown, lesson.ended)
+            .unwrap_or_else(|| self.replaced_by(&lesson.posterior));
+        for i in (0..SHAPE).filter(|&i| self.prior_var[i] <= 0.0) {
+            theta[i] = self.theta[i];
+            for j in 0..SHAPE {
+                covariance[(i, j)] = 0.0;
+                covariance[(j, i)] = 0.0;
             }
         }
         Self {
             theta,
             covariance: (covariance + covariance.transpose()) * 0.5,
-            stamp: Some(stamp),
+            stamp: Some(lesson.ended),
             tracks: self.tracks + 1,
             ..*self
         }
     }
 
-    /// The two-level update in information form; `None` when a matrix is singular.
+    /// The track's posterior in place of the ball's and table's parameters, the exponents kept
+    /// (when the equations fail on a singular matrix).
+    fn replaced_by(
+        &self,
+        (theta, covariance): &(ParamVector, ParamCovariance),
+    ) -> (ShapeVector, ShapeCovariance) {
+        let mut replaced = (self.theta, self.covariance);
+        replaced.0.fixed_rows_mut::<PARAMS>(0).copy_from(theta);
+        replaced.1.fixed_view_mut::<PARAMS, SHAPE>(0, 0).fill(0.0);
+        replaced.1.fixed_view_mut::<SHAPE, PARAMS>(0, 0).fill(0.0);
+        replaced
+            .1
+            .fixed_view_mut::<PARAMS, PARAMS>(0, 0)
+            .copy_from(covariance);
+        replaced
+    }
+
+    /// A flight's parameters as a function of the learned ones, linearised at theta_g: the
+    /// flight that flew with exponents a_f at speeds of mean ln f(Re) = L has the scales
+    /// k_f = k_g exp((a_g - a_f) L); its table is the table's. The value at theta_g and the
+    /// derivative (zero for an exponent that is not adapted).
+    fn flight_params(&self, flown: &Flown) -> (ParamVector, FlightMap) {
+        let mut value = self.theta.fixed_rows::<PARAMS>(0).into_owned();
+        let mut map = FlightMap::identity();
+        let flown_exponents = [flown.exponents.0, flown.exponents.1];
+        for ((scale, exponent), a_f) in
+            [(DRAG_SCALE, DRAG_EXPONENT), (MAGNUS_SCALE, MAGNUS_EXPONENT)]
+                .into_iter()
+                .zip(flown_exponents)
+        {
+            let factor = ((self.theta[exponent] - a_f) * flown.log_f).exp();
+            value[scale] = self.theta[scale] * factor;
+            map[(scale, scale)] = factor;
+            if self.prior_var[exponent] > 0.0 {
+                map[(scale, exponent)] = value[scale] * flown.log_f;
+            }
+        }
+        (value, map)
+    }
+
+    /// The two-level update in information form, the track's parameters linearised in the
+    /// learned ones ([`Self::flight_params`]); `None` when a matrix is singular.
     fn fuse(
         &self,
         (theta_prior, p_prior): &(ParamVector, ParamCovariance),
         (theta_track, p_track): &(ParamVector, ParamCovariance),
+        flown: &Flown,
         stamp: i64,
-    ) -> Option<(ParamVector, ParamCovariance)> {
+    ) -> Option<(ShapeVector, ShapeCovariance)> {
         // The parameters not adapted stand in as unit variances that learn nothing.
         let active = |i: usize| self.prior_var[i] > 0.0;
-        let fill = |m: &ParamCovariance| {
-            ParamCovariance::from_fn(|i, j| {
-                if active(i) && active(j) {
-                    m[(i, j)]
-                } else if i == j {
-                    1.0
-                } else {
-                    0.0
-                }
-            })
+        let fill = |i: usize, j: usize, value: f64| {
+            if active(i) && active(j) {
+                value
+            } else if i == j {
+                1.0
+            } else {
+                0.0
+            }
         };
-        let p_global = fill(&self.drifted(stamp));
-        let info_prior = fill(p_prior).try_inverse()?;
-        let info_track = fill(p_track).try_inverse()?;
+        let drifted = self.drifted(stamp);
+        let p_global = ShapeCovariance::from_fn(|i, j| fill(i, j, drifted[(i, j)]));
+        let fill_flight =
+            |m: &ParamCovariance| ParamCovariance::from_fn(|i, j| fill(i, j, m[(i, j)]));
+        let info_prior = fill_flight(p_prior).try_inverse()?;
+        let info_track = fill_flight(p_track).try_inverse()?;
         let info_global = p_global.try_inverse()?;
         // J, made positive semidefinite (the drift inside a track can leave it slightly
         // negative where the track learned nothing).
@@ -186,9 +264,14 @@ impl Learned {
         let b = info_track * theta_track - info_prior * theta_prior;
         let d = ParamCovariance::from_diagonal(&self.dispersion);
         let shrink = (ParamCovariance::identity() + j * d).try_inverse()?;
-        let j_global = shrink * j;
-        let covariance = (info_global + (j_global + j_global.transpose()) * 0.5).try_inverse()?;
-        let theta = covariance * (info_global * self.theta + shrink * b);
+        let j_flight = shrink * j;
+        let (value, map) = self.flight_params(flown);
+        let offset = value - map * self.theta;
+        let information =
+            info_global + map.transpose() * ((j_flight + j_flight.transpose()) * 0.5) * map;
+        let covariance = information.try_inverse()?;
+        let theta =
+            covariance * (info_global * self.theta + map.transpose() * (shrink * (b - j * offset)));
         theta
             .iter()
             .chain(covariance.iter())
@@ -213,11 +296,28 @@ pub(crate) fn param_prior_variances(config: &Config) -> ParamVector {
     sigmas.component_mul(&sigmas)
 }
 
+/// The prior variances of the learned parameters: [`param_prior_variances`], then the
+/// Reynolds exponents' (`adaptation.reynolds_sigma` squared).
+fn shape_prior_variances(config: &Config) -> ShapeVector {
+    let params = param_prior_variances(config);
+    let on = if config.adaptation.enabled { 1.0 } else { 0.0 };
+    ShapeVector::from_fn(|i, _| match i.checked_sub(PARAMS) {
+        None => params[i],
+        Some(k) => (AdaptationParams::of(&config.adaptation.reynolds_sigma, k) * on).powi(2),
+    })
+}
+
 /// The random walk's density of each parameter [unit^2/s]: its prior variance drifting over
 /// `adaptation.drift_per_hour` of it an hour.
 pub(crate) fn drift_density(config: &Config) -> ParamVector {
+    shape_drift_density(config)
+        .fixed_rows::<PARAMS>(0)
+        .into_owned()
+}
+
+fn shape_drift_density(config: &Config) -> ShapeVector {
     let drift = config.adaptation.drift_per_hour;
-    param_prior_variances(config) * (drift * drift / 3600.0)
+    shape_prior_variances(config) * (drift * drift / 3600.0)
 }
 
 /// What the estimator learns across tracks (see the module doc): the physical parameters, each
@@ -237,11 +337,17 @@ impl Adaptation {
     pub(crate) fn new(config: &Config) -> Self {
         let flight = &config.adaptation.flight_sigma;
         let dispersion = ParamVector::from_fn(|i, _| AdaptationParams::of(flight, i));
+        let params = PhysicsParams::from_config(config).to_vector();
+        let exponents = &config.aero.reynolds_exponents;
+        let prior = ShapeVector::from_fn(|i, _| match i.checked_sub(PARAMS) {
+            None => params[i],
+            Some(k) => exponents.get(k).copied().unwrap_or(0.0),
+        });
         Self {
             physics: Learned::new(
-                PhysicsParams::from_config(config).to_vector(),
-                param_prior_variances(config),
-                drift_density(config),
+                prior,
+                shape_prior_variances(config),
+                shape_drift_density(config),
                 dispersion.component_mul(&dispersion),
             ),
             cameras: NoiseLearner::new(config),
@@ -252,19 +358,14 @@ impl Adaptation {
     /// The physics with the lessons still waiting learned as far as they are known
     /// ([`Lessons::waiting`]): what a learned file holds between two lessons' due points.
     pub(crate) fn physics_with_waiting_lessons(&self) -> Learned {
-        self.lessons.waiting().fold(self.physics, |learned, l| {
-            learned.absorbed(&l.prior, &l.posterior, l.started, l.ended)
-        })
+        self.lessons
+            .waiting()
+            .fold(self.physics, |learned, l| learned.absorbed(&l))
     }
 
     /// A track's lesson learned now.
     fn absorb(&mut self, lesson: &Lesson) {
-        self.physics = self.physics.absorbed(
-            &lesson.prior,
-            &lesson.posterior,
-            lesson.started,
-            lesson.ended,
-        );
+        self.physics = self.physics.absorbed(lesson);
     }
 
     /// A track has ended, at the detection stamped `now`: its flight to smooth, off the
@@ -309,11 +410,32 @@ mod tests {
 
     fn learned(dispersion: f64) -> Learned {
         Learned::new(
-            ParamVector::new(1.0, 1.0, 0.9, 0.25),
-            ParamVector::new(0.01, 0.04, 0.0, 0.01),
-            ParamVector::zeros(),
+            ShapeVector::from_row_slice(&[1.0, 1.0, 0.9, 0.25, 0.0, -0.65]),
+            ShapeVector::from_row_slice(&[0.01, 0.04, 0.0, 0.01, 0.0, 0.0]),
+            ShapeVector::zeros(),
             ParamVector::new(dispersion, dispersion, 0.0, 0.0),
         )
+    }
+
+    /// The lesson of a track that started from `prior` and ended at `posterior`, between
+    /// `started` and `ended`, flown with the learned exponents at speeds of ln f(Re) = 0.
+    fn lesson(
+        prior: (ParamVector, ParamCovariance),
+        posterior: (ParamVector, ParamCovariance),
+        started: i64,
+        ended: i64,
+    ) -> Lesson {
+        Lesson {
+            prior,
+            posterior,
+            started,
+            ended,
+            smoothed: false,
+            flown: Flown {
+                exponents: (0.0, -0.65),
+                log_f: 0.0,
+            },
+        }
     }
 
     /// Without dispersion the global estimate becomes the track's posterior; the parameter that
@@ -322,14 +444,18 @@ mod tests {
     fn without_dispersion_the_track_posterior_is_taken() {
         let l = learned(0.0);
         let prior = l.track_prior(0);
-        assert_eq!(prior.1, ParamCovariance::from_diagonal(&l.prior_var));
+        assert_eq!(
+            prior.1,
+            ParamCovariance::from_diagonal(&l.prior_var.fixed_rows::<PARAMS>(0))
+        );
         let mut p_track = prior.1 * 0.25;
         p_track[(0, 1)] = 0.0005;
         p_track[(1, 0)] = 0.0005;
         let posterior = (ParamVector::new(1.1, 0.7, 0.9, 0.3), p_track);
-        let next = l.absorbed(&prior, &posterior, 0, 1_000_000_000);
-        assert!((next.theta - posterior.0).norm() < 1e-9, "{}", next.theta);
-        assert!((next.covariance - posterior.1).norm() < 1e-9);
+        let next = l.absorbed(&lesson(prior, posterior, 0, 1_000_000_000));
+        let (theta, covariance) = next.global();
+        assert!((theta - posterior.0).norm() < 1e-9, "{theta}");
+        assert!((covariance - posterior.1).norm() < 1e-9);
         assert_eq!(next.theta[2], 0.9);
         assert_eq!(next.covariance[(2, 2)], 0.0);
         assert_eq!(next.tracks(), 1);
@@ -347,7 +473,7 @@ mod tests {
         let mut posterior = prior;
         posterior.0[1] = 1.0 + gain_track * (0.6 - 1.0);
         posterior.1[(1, 1)] = (1.0 - gain_track) * p_pr;
-        let next = l.absorbed(&prior, &posterior, 0, 0);
+        let next = l.absorbed(&lesson(prior, posterior, 0, 0));
         let (p_g, d) = (0.04, 0.02);
         let gain = p_g / (p_g + d + r);
         assert!((next.theta[1] - (1.0 + gain * (0.6 - 1.0))).abs() < 1e-9);
@@ -362,14 +488,17 @@ mod tests {
     #[test]
     fn a_track_that_learned_nothing_moves_nothing() {
         let mut l = learned(0.01);
-        l.drift_density = ParamVector::new(1e-6, 1e-6, 0.0, 1e-6);
+        l.drift_density = ShapeVector::from_row_slice(&[1e-6, 1e-6, 0.0, 1e-6, 0.0, 0.0]);
         let prior = l.track_prior(0);
         let seconds = 2.0;
         let posterior = (
             prior.0,
-            prior.1 + ParamCovariance::from_diagonal(&(l.drift_density * seconds)),
+            prior.1
+                + ParamCovariance::from_diagonal(
+                    &(l.drift_density.fixed_rows::<PARAMS>(0) * seconds),
+                ),
         );
-        let next = l.absorbed(&prior, &posterior, 0, 2_000_000_000);
+        let next = l.absorbed(&lesson(prior, posterior, 0, 2_000_000_000));
         assert!(
             (next.theta - l.theta).norm() < 1e-12,
             "{}",
@@ -377,11 +506,83 @@ mod tests {
         );
     }
 
+    /// What a track flown with `l`'s exponents at speeds of ln f(Re) = `log_f` learns of a ball
+    /// of Magnus scale 0.6 and exponent -1.0: k_f = 0.6 exp((-1.0 - a_flown) log_f), measured
+    /// to a variance of 1e-4.
+    fn track_of_a_ball(l: &Learned, log_f: f64, ended: i64) -> Lesson {
+        let (k_true, a_true) = (0.6, -1.0);
+        let flown = l.exponents();
+        let measured = k_true * ((a_true - flown.1) * log_f).exp();
+        let prior = l.track_prior(ended);
+        let p = prior.1;
+        let innovation_var = p[(1, 1)] + 1e-4;
+        let gain = p.column(1) / innovation_var;
+        let posterior = (
+            prior.0 + gain * (measured - prior.0[1]),
+            p - gain * p.row(1),
+        );
+        Lesson {
+            flown: Flown {
+                exponents: flown,
+                log_f,
+            },
+            ..lesson(prior, posterior, ended, ended)
+        }
+    }
+
+    /// An adaptation that learns the Magnus exponent a_M (prior -0.65 +- 0.3) and not a_D.
+    fn learning_the_magnus_exponent() -> Learned {
+        Learned::new(
+            ShapeVector::from_row_slice(&[1.0, 0.7, 0.9, 0.25, 0.0, -0.65]),
+            ShapeVector::from_row_slice(&[0.01, 0.16, 0.0, 0.01, 0.0, 0.09]),
+            ShapeVector::zeros(),
+            ParamVector::new(0.0, 0.0001, 0.0, 0.0),
+        )
+    }
+
+    /// Flights at 5 m/s (ln f = 0) and at 15 m/s (ln f = 1) teach one model: the Magnus scale
+    /// at Re_0 and the exponent, each within 2 % of the ball's.
+    #[test]
+    fn slow_and_fast_flights_teach_the_magnus_exponent() {
+        let mut l = learning_the_magnus_exponent();
+        for track in 0..40 {
+            let log_f = if track % 2 == 0 { 0.0 } else { 1.0 };
+            l = l.absorbed(&track_of_a_ball(&l, log_f, track * 1_000_000_000));
+        }
+        let (theta, _) = l.global();
+        assert!((theta[1] - 0.6).abs() < 0.012, "{theta}");
+        assert!((l.exponents().1 + 1.0).abs() < 0.02, "{:?}", l.exponents());
+        let (sigma, prior) = l.exponent_sigmas();
+        assert!(sigma[1] < 0.2 * prior[1], "{sigma:?}");
+        // a_D, not adapted, stays as configured.
+        assert_eq!((l.exponents().0, sigma[0]), (0.0, 0.0));
+    }
+
+    /// Flights all below Re_0 (ln f = 0) say nothing of the exponent: it stays at its prior,
+    /// with its prior's sigma, and the scale learns alone.
+    #[test]
+    fn slow_flights_alone_leave_the_exponent_at_its_prior() {
+        let mut l = learning_the_magnus_exponent();
+        for track in 0..20 {
+            l = l.absorbed(&track_of_a_ball(&l, 0.0, track * 1_000_000_000));
+        }
+        assert!((l.global().0[1] - 0.6).abs() < 0.01);
+        assert!(
+            (l.exponents().1 + 0.65).abs() < 1e-12,
+            "{:?}",
+            l.exponents()
+        );
+        let (sigma, prior) = l.exponent_sigmas();
+        assert!((sigma[1] - prior[1]).abs() < 1e-9, "{sigma:?}");
+    }
+
     #[test]
     fn the_drift_grows_the_variance_up_to_the_prior() {
         let mut l = learned(0.0);
-        l.drift_density = ParamVector::new(1e-6, 1e-6, 1e-6, 1e-6);
-        l.covariance = ParamCovariance::from_diagonal(&ParamVector::new(0.001, 0.001, 0.0, 0.001));
+        l.drift_density = ShapeVector::from_row_slice(&[1e-6, 1e-6, 1e-6, 1e-6, 0.0, 0.0]);
+        l.covariance = ShapeCovariance::from_diagonal(&ShapeVector::from_row_slice(&[
+            0.001, 0.001, 0.0, 0.001, 0.0, 0.0,
+        ]));
         l.stamp = Some(0);
         let an_hour = 3_600_000_000_000;
         let grown = l.drifted(an_hour);

@@ -88,6 +88,11 @@ impl Snapshot {
         }
     }
 
+    /// The ball's speed [m/s].
+    pub(crate) fn speed(&self) -> f64 {
+        self.ekf.x.fixed_rows::<3>(3).norm()
+    }
+
     /// Records the detection at `stamp` just fused into it.
     pub(crate) fn record(&mut self, stamp: i64, fused: &Fused) {
         self.last_fused = stamp;

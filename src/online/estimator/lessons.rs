@@ -382,6 +382,7 @@ mod tests {
     use crate::config::Config;
     use crate::online::ekf::Ekf;
     use crate::online::estimator::fusion::{Fusion, Snapshot};
+    use crate::online::estimator::smoother::Flown;
     use crate::physics::{ParamCovariance, ParamVector, StateMatrix, StateVector};
 
     /// A job whose filter's lesson is told by its posterior's drag scale `tag`, of a track
@@ -410,6 +411,7 @@ mod tests {
                 started: 0,
                 ended: 0,
                 smoothed: false,
+                flown: Flown::default(),
             },
         }
     }

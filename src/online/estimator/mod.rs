@@ -34,7 +34,8 @@ pub use crate::online::learned::{
 };
 pub use crate::online::measurement::{MAX_RANGE, Measurement};
 use crate::physics::{
-    BallState, ParamVector, PredictOptions, Propagator, StateMatrix, Trajectory, predict,
+    BallState, ParamVector, PhysicsParams, PredictOptions, Propagator, StateMatrix, Trajectory,
+    predict,
 };
 pub(crate) use adaptation::param_prior_variances;
 use adaptation::{Adaptation, Learned, drift_density};
@@ -127,6 +128,7 @@ impl LearnedPhysics {
             self.params.tracks(),
             &self.params.dispersion(),
         )
+        .with_reynolds(self.params.exponents(), self.params.exponent_sigmas())
     }
 }
 
@@ -219,6 +221,9 @@ impl Estimator {
             )
         };
         let mut fusion = fusion_of(config);
+        // The Reynolds exponents are the learned ones.
+        let flown = self.tracker.fusion.propagator.flight().reynolds_exponents();
+        fusion.propagator = fusion.propagator.with_reynolds_exponents(flown);
         if physics(previous) != physics(config) {
             // Not applied live: the physics the tracks were learning from stays.
             let kept = self.tracker.fusion;
@@ -298,13 +303,7 @@ impl Estimator {
     fn learned_with_live_track(&self) -> Learned {
         let learned = self.adaptation.physics_with_waiting_lessons();
         self.tracker.track.as_ref().map_or(learned, |track| {
-            let lesson = track.filter_lesson();
-            learned.absorbed(
-                &lesson.prior,
-                &lesson.posterior,
-                lesson.started,
-                lesson.ended,
-            )
+            learned.absorbed(&track.filter_lesson(&self.tracker.flight))
         })
     }
 
@@ -312,12 +311,16 @@ impl Estimator {
     /// the ball's and table's), if a track is live.
     pub fn track_params(&self) -> Option<LearnedParams> {
         let ekf = &self.tracker.track.as_ref()?.now.ekf;
-        Some(LearnedParams::new(
-            &ekf.theta,
-            &ekf.param_covariance(),
-            self.adaptation.physics.tracks() + 1,
-            &ParamVector::zeros(),
-        ))
+        let flown = self.propagator().flight().reynolds_exponents();
+        Some(
+            LearnedParams::new(
+                &ekf.theta,
+                &ekf.param_covariance(),
+                self.adaptation.physics.tracks() + 1,
+                &ParamVector::zeros(),
+            )
+            .with_reynolds(flown, ([0.0; 2], [0.0; 2])),
+        )
     }
 
     /// The physical parameters learned so far, over all tracks (the live one included as far as
@@ -403,7 +406,11 @@ impl Estimator {
             plane_x: Some(self.publishing.plane_x),
             stop_at_plane: false,
         };
-        let propagator = self.propagator().with_params(&self.learned_params().params);
+        let learned = self.learned_with_live_track();
+        let propagator = self
+            .propagator()
+            .with_params(&PhysicsParams::from_vector(&learned.global().0))
+            .with_reynolds_exponents(learned.exponents());
         predict(&propagator, start, &options)
     }
 

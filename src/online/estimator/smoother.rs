@@ -51,6 +51,18 @@ pub(crate) struct Lesson {
     pub(crate) ended: i64,
     /// Whether the posterior is the flight smoothed (else the filter's own estimate).
     pub(crate) smoothed: bool,
+    /// How the track flew, for what its scales teach of the Reynolds exponents.
+    pub(crate) flown: Flown,
+}
+
+/// The Reynolds exponents a track flew with and how fast it flew: its scales k_D and k_M are
+/// the ball's at f(Re) of its speeds, k_f = k_g f^(a_g - a_flown) (`adaptation.rs`).
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub(crate) struct Flown {
+    /// (a_D, a_M) of its propagator.
+    pub(crate) exponents: (f64, f64),
+    /// The mean of ln f(Re) over its fused detections.
+    pub(crate) log_f: f64,
 }
 
 /// An ended track to smooth: its detections, where its filter started and what it learned.

@@ -31,7 +31,7 @@ use super::adaptation::Adaptation;
 use super::camera_noise::NoiseSample;
 use super::counters::{Counters, Rejection, Verdict};
 use super::fusion::{EDGE_MARGIN, Fused, Fusion, Innovation, Snapshot};
-use super::smoother::{self, Lesson, LessonJob, ParamEstimate, TrackRecord};
+use super::smoother::{self, Flown, Lesson, LessonJob, ParamEstimate, TrackRecord};
 use crate::config::Config;
 use crate::model::detection::{Detection, seconds_to_ns};
 use crate::model::stats::chi_square_quantile;
@@ -93,18 +93,39 @@ pub(crate) struct Track {
     record: TrackRecord,
     /// Whether its flight can be smoothed: positions alone, the record not outgrown.
     smoothable: bool,
+    /// The Reynolds exponents it flies with, and the sum of ln f(Re) over its fused estimates
+    /// and their number.
+    exponents: (f64, f64),
+    log_f_sum: f64,
+    fused: u32,
 }
 
 impl Track {
-    /// What the track's filter has learned of the physics so far: its lesson if it ended now.
-    pub(crate) fn filter_lesson(&self) -> Lesson {
+    /// What the track's filter has learned of the physics so far: its lesson if it ended now
+    /// (`flight` tells the Reynolds numbers of its speeds).
+    pub(crate) fn filter_lesson(&self, flight: &FlightModel) -> Lesson {
+        let log_f = if self.fused == 0 {
+            flight.reynolds_log_factor(self.now.speed()).0
+        } else {
+            self.log_f_sum / f64::from(self.fused)
+        };
         Lesson {
             prior: self.param_prior,
             posterior: (self.now.ekf.theta, self.now.ekf.param_covariance()),
             started: self.first.stamp,
             ended: self.now.stamp,
             smoothed: false,
+            flown: Flown {
+                exponents: self.exponents,
+                log_f,
+            },
         }
+    }
+
+    /// Counts the speed of a fused estimate in the track's mean ln f(Re).
+    fn note_speed(&mut self, after: &Snapshot, flight: &FlightModel) {
+        self.log_f_sum += flight.reynolds_log_factor(after.speed()).0;
+        self.fused += 1;
     }
 }
 
@@ -184,8 +205,9 @@ pub(crate) struct Tracker {
     pub(crate) fusion: Fusion,
     /// How a detection becomes a measurement.
     pub(crate) measurement: MeasurementModel,
-    /// The flight model at the configured parameters (the initial fit's).
-    flight: FlightModel,
+    /// The flight model at the configured parameters and the learned Reynolds exponents (the
+    /// initial fit's).
+    pub(crate) flight: FlightModel,
     /// The propagator with the table grown and shrunk by [`EDGE_MARGIN`].
     edge_alternatives: [Propagator; 2],
     /// The racket-impact model, for the robot's announced hits.
@@ -450,7 +472,7 @@ impl Tracker {
         let Some(mut track) = self.track.take() else {
             return;
         };
-        let filter = track.filter_lesson();
+        let filter = track.filter_lesson(&self.flight);
         let mut record = std::mem::take(&mut track.record);
         let ended = if track.smoothable && record.observations.len() >= smoother::MIN_DETECTIONS {
             record.recent_bounces.extend(
@@ -538,7 +560,8 @@ impl Tracker {
             &weights,
             &self
                 .flight
-                .with_scales(theta[DRAG_SCALE], theta[MAGNUS_SCALE]),
+                .with_scales(theta[DRAG_SCALE], theta[MAGNUS_SCALE])
+                .with_reynolds_exponents(adaptation.physics.exponents()),
             self.flight.gravity(),
             self.fusion.spin_prior_var,
         )
@@ -585,6 +608,18 @@ impl Tracker {
         true
     }
 
+    /// Flies the tracks from now on with the Reynolds exponents `exponents` (the learned ones).
+    fn fly_with(&mut self, exponents: (f64, f64)) {
+        if self.fusion.propagator.flight().reynolds_exponents() == exponents {
+            return;
+        }
+        self.fusion.propagator = self.fusion.propagator.with_reynolds_exponents(exponents);
+        self.edge_alternatives = self
+            .edge_alternatives
+            .map(|p| p.with_reynolds_exponents(exponents));
+        self.flight = self.flight.with_reynolds_exponents(exponents);
+    }
+
     /// A new track's id.
     fn new_track_id(&mut self) -> u32 {
         let id = self.next_track_id;
@@ -608,6 +643,7 @@ impl Tracker {
         } else {
             TrackRecord::default()
         };
+        self.fly_with(adaptation.physics.exponents());
         self.track = Some(Track {
             id,
             now,
@@ -618,6 +654,9 @@ impl Tracker {
             first,
             record,
             smoothable,
+            exponents: self.fusion.propagator.flight().reynolds_exponents(),
+            log_f_sum: 0.0,
+            fused: 0,
         });
     }
 
@@ -990,6 +1029,7 @@ impl Tracker {
             },
         );
         track.now = snapshot;
+        track.note_speed(&snapshot, &self.flight);
         self.track = Some(track);
         self.counters.rollbacks += 1;
         self.keep_for_lesson(d, &m);
@@ -1004,6 +1044,7 @@ impl Tracker {
         let Some(track) = self.track.as_mut() else {
             return;
         };
+        track.note_speed(&entry.after, &self.flight);
         track.now = entry.after;
         while track.history.len() >= capacity
             || track
