@@ -38,6 +38,8 @@ pub struct Mismatch {
     pub restitution: f64,
     /// The table's friction [-].
     pub friction: f64,
+    /// Added to the configured Reynolds exponent a_M of the Magnus force [-].
+    pub magnus_exponent: f64,
 }
 
 impl Mismatch {
@@ -98,6 +100,7 @@ pub const MISMATCH_A: Mismatch = Mismatch {
     magnus: 0.6,
     restitution: 0.85,
     friction: 0.15,
+    magnus_exponent: 0.0,
 };
 
 /// Drag -15 %, Magnus +20 %, a lively table (0.95) with much grip (0.35).
@@ -106,6 +109,7 @@ pub const MISMATCH_B: Mismatch = Mismatch {
     magnus: 1.2,
     restitution: 0.95,
     friction: 0.35,
+    magnus_exponent: 0.0,
 };
 
 /// Today's sets (the configured physics and noise) and the harder ones.
@@ -253,8 +257,12 @@ pub fn configurations(config: &Config, set: &TrialSet) -> (Config, Config, Confi
         .mismatch
         .map_or(PhysicsParams::from_config(config), |m| m.truth(config));
     true_params.apply_to(&mut truth);
+    if let (Some(m), Some(a_m)) = (set.mismatch, truth.aero.reynolds_exponents.get_mut(1)) {
+        *a_m += m.magnus_exponent;
+    }
     let mut reference = filter.clone();
     true_params.apply_to(&mut reference);
+    reference.aero.reynolds_exponents = truth.aero.reynolds_exponents.clone();
     (truth, filter, reference)
 }
 
