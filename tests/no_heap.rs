@@ -75,6 +75,16 @@ fn smoothed_lessons_allocate_nothing() {
         for sim in &session.stream[..first_of_second] {
             estimator.handle(&sim.detection);
         }
+        // A thread's first blocking receive on a channel allocates its waiting context, once
+        // (crossbeam keeps it per thread): on a loaded machine the first wait for a lesson can
+        // fall in the measured detections, so this thread blocks once before them.
+        let (send, receive) = crossbeam::channel::bounded::<()>(0);
+        let sender = std::thread::spawn(move || {
+            std::thread::sleep(std::time::Duration::from_millis(5));
+            send.send(()).unwrap();
+        });
+        receive.recv().unwrap();
+        sender.join().unwrap();
         let rest = &session.stream[first_of_second..];
         let info = allocation_counter::measure(|| {
             for sim in rest {
