@@ -581,15 +581,14 @@ mod tests {
         assert_eq!(msg.header.stamp, Time::from_nanos(1_500_000_000));
         assert_eq!(value(&msg, "learned magnus_scale"), "0.6000");
         assert_eq!(value(&msg, "learned friction sigma"), "0.0100");
-        assert_eq!(value(&msg, "learned Reynolds exponent a_M"), "-0.8000");
-        assert_eq!(
-            value(&msg, "learned Reynolds exponent a_M determined"),
-            "true"
-        );
-        assert_eq!(
-            value(&msg, "learned Reynolds exponent a_D determined"),
-            "false"
-        );
+        for (key, expected) in [
+            ("a_M", "-0.8000"),
+            ("a_M determined", "true"),
+            ("a_D determined", "false"),
+        ] {
+            let key = format!("learned Reynolds exponent {key}");
+            assert_eq!(value(&msg, &key), expected, "{key}");
+        }
         assert_eq!(
             value(&msg, "learned noise wide_150fps: position sigma [mm]"),
             "3.10"
