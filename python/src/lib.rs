@@ -680,7 +680,10 @@ impl Estimator {
         for (k, name) in PhysicsParams::NAMES.iter().enumerate() {
             out.set_item(*name, (values[k], learned.sigma[k]))?;
         }
-        for (k, name) in ["a_D", "a_M"].iter().enumerate() {
+        for (k, name) in ::ttball::online::learned::REYNOLDS_EXPONENT_NAMES
+            .iter()
+            .enumerate()
+        {
             out.set_item(
                 format!("reynolds_exponent_{name}"),
                 (learned.reynolds_exponents[k], learned.reynolds_sigma[k]),

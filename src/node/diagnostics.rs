@@ -8,6 +8,7 @@
 use crate::model::stats::DurationSummary;
 use crate::online::estimator::{Counters, Rejection};
 use crate::online::estimator::{Dropped, LearnedParams, LearnedSourceNoise};
+use crate::online::learned::REYNOLDS_EXPONENT_NAMES;
 use crate::physics::PhysicsParams;
 use crate::ros::msgs::builtin_interfaces::Time;
 use crate::ros::msgs::diagnostic_msgs::{DiagnosticArray, DiagnosticStatus, KeyValue};
@@ -149,7 +150,7 @@ fn learned_values(s: &Snapshot<'_>) -> Vec<KeyValue> {
             format!("{:.4}", s.learned.flight_sigma[i]),
         ));
     }
-    for (i, name) in ["a_D", "a_M"].iter().enumerate() {
+    for (i, name) in REYNOLDS_EXPONENT_NAMES.iter().enumerate() {
         let l = s.learned;
         values.push(kv(
             &format!("learned Reynolds exponent {name}"),

@@ -58,6 +58,10 @@ pub struct LearnedParams {
     pub reynolds_prior_sigma: [f64; 2],
 }
 
+/// The Reynolds exponents' names as reported, in the order of
+/// [`LearnedParams::reynolds_exponents`].
+pub const REYNOLDS_EXPONENT_NAMES: [&str; 2] = ["a_D", "a_M"];
+
 /// An exponent is determined by the flights once its sigma is below this share of its prior's
 /// (the flights' speeds have told it apart from the scale).
 pub const DETERMINED_SHARE: f64 = 0.8;
@@ -191,7 +195,7 @@ pub fn describe_params(l: &LearnedParams) -> String {
             format!("{name} {:.3} +- {:.3}{flights}", values[i], l.sigma[i])
         })
         .collect();
-    let exponents: Vec<String> = ["a_D", "a_M"]
+    let exponents: Vec<String> = REYNOLDS_EXPONENT_NAMES
         .iter()
         .enumerate()
         .map(|(i, name)| {

@@ -34,7 +34,7 @@ use super::smoother::{Flown, Lesson, LessonJob};
 use crate::config::{AdaptationParams, Config};
 use crate::online::ekf::ParamCovariance;
 use crate::physics::params::{DRAG_SCALE, MAGNUS_SCALE};
-use crate::physics::{PARAMS, ParamVector, PhysicsParams};
+use crate::physics::{FlightModel, PARAMS, ParamVector, PhysicsParams};
 
 /// The parameters learned across tracks: the ball's and table's ([`PARAMS`], each flight's
 /// filter learns them too) and the Reynolds exponents (a_D, a_M), which the flights' scales at
@@ -296,15 +296,21 @@ pub(crate) fn param_prior_variances(config: &Config) -> ParamVector {
     sigmas.component_mul(&sigmas)
 }
 
+/// The learned parameters of the ball's and table's `params` and the Reynolds `exponents`.
+fn shape_vector(params: &ParamVector, (a_d, a_m): (f64, f64)) -> ShapeVector {
+    let mut v = ShapeVector::zeros();
+    v.fixed_rows_mut::<PARAMS>(0).copy_from(params);
+    v[DRAG_EXPONENT] = a_d;
+    v[MAGNUS_EXPONENT] = a_m;
+    v
+}
+
 /// The prior variances of the learned parameters: [`param_prior_variances`], then the
 /// Reynolds exponents' (`adaptation.reynolds_sigma` squared).
 fn shape_prior_variances(config: &Config) -> ShapeVector {
-    let params = param_prior_variances(config);
     let on = if config.adaptation.enabled { 1.0 } else { 0.0 };
-    ShapeVector::from_fn(|i, _| match i.checked_sub(PARAMS) {
-        None => params[i],
-        Some(k) => (AdaptationParams::of(&config.adaptation.reynolds_sigma, k) * on).powi(2),
-    })
+    let variance = |k| (AdaptationParams::of(&config.adaptation.reynolds_sigma, k) * on).powi(2);
+    shape_vector(&param_prior_variances(config), (variance(0), variance(1)))
 }
 
 /// The random walk's density of each parameter [unit^2/s]: its prior variance drifting over
@@ -337,15 +343,12 @@ impl Adaptation {
     pub(crate) fn new(config: &Config) -> Self {
         let flight = &config.adaptation.flight_sigma;
         let dispersion = ParamVector::from_fn(|i, _| AdaptationParams::of(flight, i));
-        let params = PhysicsParams::from_config(config).to_vector();
-        let exponents = &config.aero.reynolds_exponents;
-        let prior = ShapeVector::from_fn(|i, _| match i.checked_sub(PARAMS) {
-            None => params[i],
-            Some(k) => exponents.get(k).copied().unwrap_or(0.0),
-        });
         Self {
             physics: Learned::new(
-                prior,
+                shape_vector(
+                    &PhysicsParams::from_config(config).to_vector(),
+                    FlightModel::new(config).reynolds_exponents(),
+                ),
                 shape_prior_variances(config),
                 shape_drift_density(config),
                 dispersion.component_mul(&dispersion),

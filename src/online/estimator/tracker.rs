@@ -93,16 +93,14 @@ pub(crate) struct Track {
     record: TrackRecord,
     /// Whether its flight can be smoothed: positions alone, the record not outgrown.
     smoothable: bool,
-    /// The Reynolds exponents it flies with, and the sum of ln f(Re) over its fused estimates
-    /// and their number.
-    exponents: (f64, f64),
+    /// The sum of ln f(Re) over its fused estimates, and their number.
     log_f_sum: f64,
     fused: u32,
 }
 
 impl Track {
     /// What the track's filter has learned of the physics so far: its lesson if it ended now
-    /// (`flight` tells the Reynolds numbers of its speeds).
+    /// (`flight`, the tracker's, is the model it flies: its Reynolds exponents and numbers).
     pub(crate) fn filter_lesson(&self, flight: &FlightModel) -> Lesson {
         let log_f = if self.fused == 0 {
             flight.reynolds_log_factor(self.now.speed()).0
@@ -116,7 +114,7 @@ impl Track {
             ended: self.now.stamp,
             smoothed: false,
             flown: Flown {
-                exponents: self.exponents,
+                exponents: flight.reynolds_exponents(),
                 log_f,
             },
         }
@@ -608,7 +606,8 @@ impl Tracker {
         true
     }
 
-    /// Flies the tracks from now on with the Reynolds exponents `exponents` (the learned ones).
+    /// Flies the tracks from now on with the Reynolds exponents `exponents` (the learned ones);
+    /// called only as a track starts, so the live track's exponents are the tracker's.
     fn fly_with(&mut self, exponents: (f64, f64)) {
         if self.fusion.propagator.flight().reynolds_exponents() == exponents {
             return;
@@ -654,7 +653,6 @@ impl Tracker {
             first,
             record,
             smoothable,
-            exponents: self.fusion.propagator.flight().reynolds_exponents(),
             log_f_sum: 0.0,
             fused: 0,
         });
