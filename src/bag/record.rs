@@ -45,14 +45,7 @@ pub fn write_session(
     if let Some((_, events)) = truth_channels {
         for (k, shot) in session.shots.iter().enumerate() {
             let id = u32::try_from(k + 1).unwrap_or(u32::MAX);
-            let msg = truth_intercept_msg(
-                shot.launch_stamp,
-                id,
-                shot.intercept.stamp,
-                &shot.intercept.before,
-                shot.bounce.stamp,
-                &shot.bounce.before.position,
-            );
+            let msg = truth_intercept_msg(id, shot);
             records.push((
                 mcap_time(shot.launch_stamp),
                 records.len(),

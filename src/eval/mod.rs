@@ -115,6 +115,8 @@ pub struct ShotTruth {
     pub intercept_position: Vector3<f64>,
     /// Its spin there [rad/s].
     pub intercept_spin: Vector3<f64>,
+    /// It flies toward the robot (else from the robot's end, its interception not scored).
+    pub toward_robot: bool,
 }
 
 impl From<&crate::eval::sim::ShotTruth> for ShotTruth {
@@ -124,6 +126,7 @@ impl From<&crate::eval::sim::ShotTruth> for ShotTruth {
             intercept_stamp: shot.intercept.stamp,
             intercept_position: shot.intercept.before.position,
             intercept_spin: shot.intercept.before.spin,
+            toward_robot: !shot.from_robot,
         }
     }
 }
@@ -225,7 +228,7 @@ impl Scorer {
         };
         // The interception scored at a lead is the latest of a track that took this shot's
         // detections (not the previous ball's, still flying when this one is launched).
-        let own_track = record.tracks.contains(&estimate.track_id);
+        let own_track = truth_shot.toward_robot && record.tracks.contains(&estimate.track_id);
         for (slot, lead) in LEADS.iter().enumerate() {
             let deadline = truth_shot.intercept_stamp - seconds_to_ns(*lead);
             if own_track && estimate.stamp <= deadline {
@@ -370,7 +373,7 @@ impl Scorer {
             time.push(predicted - shot.intercept_stamp as f64 * 1e-9);
             nees.extend(crossing.point_nees(&truth));
         }
-        let shots = self.shots.len();
+        let shots = self.shots.iter().filter(|s| s.toward_robot).count();
         LeadReport {
             lead,
             shots,
@@ -737,6 +740,7 @@ mod tests {
             intercept_stamp: 1_000_000_000,
             intercept_position: Vector3::new(-1.6, 0.0, 0.2),
             intercept_spin: Vector3::zeros(),
+            toward_robot: true,
         };
         let detection = |stamp: i64| Detection {
             stamp,

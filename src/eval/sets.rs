@@ -7,7 +7,8 @@
 //! seed setup's 150 fps and 900 fps cameras, or a lab's single tracker at about 143 Hz with
 //! millisecond stamps and frame intervals of 6, 7 or 8 ms over a table without a net. Play is
 //! either today's rally mix or elite play ([`Play`]: speed median 9 m/s, p90 18, up to 28;
-//! spin median 290 rad/s, p90 690, up to 960, the figures of real elite play).
+//! spin median 290 rad/s, p90 690, up to 960, the figures of real elite play; shots from both
+//! ends).
 //!
 //! The filter runs with the configuration as shipped (its noise and physics unchanged; only the
 //! net is removed where the table has none) and learns what it can; the same filter given the
@@ -73,7 +74,8 @@ pub enum Play {
     /// mixed spin at 3-14 m/s and 30-600 rad/s.
     Rally,
     /// Elite speed and spin: log-normal speed (median 9 m/s, p90 18, 3-28) and spin (median
-    /// 290 rad/s, p90 690, up to 960), random spin kinds.
+    /// 290 rad/s, p90 690, up to 960), random spin kinds; half the shots from each end (the
+    /// robot's returns seen by the 900 fps camera from their start).
     Elite,
 }
 
@@ -287,8 +289,9 @@ pub fn sim_options(filter: &Config, set: &TrialSet, shots: usize, seed: u64) -> 
         params.wide.stamp_resolution = 0.001;
     }
     if set.play == Play::Elite {
-        let random = &mut params.shots.random;
         params.shots.real_fraction = 0.0;
+        params.shots.from_robot_fraction = 0.5;
+        let random = &mut params.shots.random;
         random.speed = crate::eval::sim::Interval::new(3.0, 28.0);
         random.speed_spread = Some(Spread {
             median: 9.0,

@@ -408,6 +408,83 @@ fn truth_at_each_detection_is_the_flight_from_the_launch() {
     assert!((at_plane.position - shot.intercept.before.position).amax() < 1e-8);
 }
 
+/// A shot from the robot's end is a drawn shot turned half around the vertical through the
+/// net's centre: launched behind the robot's end toward +x, over the net, bounced on the
+/// opponent's half, crossing the opponent's plane; its truth the flight of its own launch; the
+/// 900 fps camera sees it from its start to the net.
+#[test]
+fn shots_from_the_robots_end_fly_the_turned_flight() {
+    let config = Config::default();
+    let mut options = SimOptions {
+        shots: 12,
+        seed: 3,
+        ..SimOptions::default()
+    };
+    options.params.shots.from_robot_fraction = 0.5;
+    let session = simulate(&config, &options).unwrap();
+    let fine = Propagator::with_step(&config, 0.0001);
+    let from_robot: Vec<usize> = (0..session.shots.len())
+        .filter(|&i| session.shots[i].from_robot)
+        .collect();
+    assert!((3..=9).contains(&from_robot.len()), "{from_robot:?}");
+    let half_length = config.table.length / 2.0;
+    for (i, shot) in session.shots.iter().enumerate() {
+        let sign = if shot.from_robot { -1.0 } else { 1.0 };
+        assert!(sign * shot.launch.position.x > 0.0 && sign * shot.launch.velocity.x < 0.0);
+        let b = &shot.bounce.before.position;
+        assert!(
+            (-half_length..0.0).contains(&(sign * b.x)),
+            "shot {i}: {b:?}"
+        );
+        let p = &shot.intercept.before.position;
+        assert!(
+            (p.x - sign * config.intercept.plane_x).abs() < 1e-9,
+            "shot {i}"
+        );
+        assert!(shot.net.stamp < shot.bounce.stamp && shot.bounce.stamp < shot.intercept.stamp);
+        // The truth at a detection is the flight of the shot's own launch.
+        let d = session
+            .stream
+            .iter()
+            .find(|d| d.shot == i && d.detection.stamp > shot.bounce.stamp)
+            .unwrap();
+        let mut cursor = Cursor::new(0.0, &shot.launch);
+        let t = (d.detection.stamp - shot.launch_stamp) as f64 * 1e-9;
+        fine.advance(&mut cursor, t, Watch::FLIGHT, &mut ());
+        assert!(
+            (cursor.ball().position - d.truth.position).amax() < 1e-9,
+            "shot {i}"
+        );
+        let fast: Vec<i64> = session
+            .stream
+            .iter()
+            .filter(|d| d.shot == i && d.detection.source == Source::HIGHSPEED_900FPS)
+            .map(|d| d.detection.stamp)
+            .collect();
+        assert!(!fast.is_empty());
+        if shot.from_robot {
+            assert!(fast.iter().all(|&t| t < shot.bounce.stamp), "shot {i}");
+        } else {
+            assert!(fast.iter().any(|&t| t > shot.bounce.stamp), "shot {i}");
+        }
+    }
+    // Without shots from the robot's end, the launches are those of the default (the choice is
+    // not drawn).
+    options.params.shots.from_robot_fraction = 0.0;
+    let incoming = simulate(&config, &options).unwrap();
+    assert!(incoming.shots.iter().all(|s| !s.from_robot));
+    let plain = simulate(
+        &config,
+        &SimOptions {
+            shots: 12,
+            seed: 3,
+            ..SimOptions::default()
+        },
+    )
+    .unwrap();
+    assert_eq!(incoming, plain);
+}
+
 #[test]
 fn bad_parameters_are_errors_not_panics() {
     let mut options = SimOptions {

@@ -315,6 +315,10 @@ impl Default for RandomLaunchParams {
 pub struct ShotParams {
     /// Fraction of shots launched from a real (GDM) state; the rest are random [-]. Default 0.5.
     pub real_fraction: f64,
+    /// Fraction of shots played from the robot's end toward the opponent's (each a drawn shot
+    /// turned half around the vertical through the net's centre: its bounce on the opponent's
+    /// half, its plane crossing the opponent's); the rest come toward the robot [-]. Default 0.
+    pub from_robot_fraction: f64,
     /// Time from the end of one shot to the launch of the next, uniform [s]. Default 0.4-1.0 s.
     pub gap: Interval,
     /// How long the ball is flown past the hitting plane, when the robot hits it [s]. Default
@@ -335,6 +339,7 @@ impl Default for ShotParams {
     fn default() -> Self {
         Self {
             real_fraction: 0.5,
+            from_robot_fraction: 0.0,
             gap: Interval::new(0.4, 1.0),
             follow_after_plane: 0.030,
             min_plane_height: 0.0,
@@ -411,6 +416,11 @@ impl SimParams {
             (0.0..=1.0).contains(&shots.real_fraction),
             "shots.real_fraction",
             shots.real_fraction,
+        )?;
+        check(
+            (0.0..=1.0).contains(&shots.from_robot_fraction),
+            "shots.from_robot_fraction",
+            shots.from_robot_fraction,
         )?;
         check(
             shots.gap.is_valid() && shots.gap.min >= 0.0,

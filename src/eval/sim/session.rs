@@ -1,13 +1,17 @@
 //! A simulated session: shots in sequence (launched 0.4-1.0 s after the previous one ends, half
 //! of them real rally balls by default), each flown with the physics core from its launch until
 //! 30 ms after it crosses the hitting plane, observed by the cameras; every detection with the
-//! true state at its stamp, all sorted by arrival time as the estimator would receive them.
+//! true state at its stamp, all sorted by arrival time as the estimator would receive them. A
+//! shot from the robot's end (`shots.from_robot_fraction`) is a drawn shot turned half around
+//! the vertical through the net's centre: the table, the net and the physics are symmetric so.
 //!
 //! The truth of a shot is defined by one propagation from its launch ([`ShotTruth::state_at`])
 //! with the truth step (0.25 ms by default), fine enough that cutting the flight into other
 //! steps (frame to frame, as the cameras do) changes the state by far less than 1e-9.
 
 use std::sync::Arc;
+
+use nalgebra::Vector3;
 
 use super::camera::{Camera, CameraCounts, NS_PER_S};
 use super::launch::{
@@ -18,6 +22,7 @@ use super::params::{Cameras, ParamError, SimParams};
 use crate::config::{Config, ConfigError};
 use crate::model::detection::{Detection, Source, seconds_to_ns};
 use crate::model::rng::{Rng, Stream};
+
 use crate::physics::{BallState, Cursor, Event, Outcome, Propagator, Watch};
 
 /// The default start of a session: 1,700,000,000 s after the Unix epoch [ns] (November 2023),
@@ -89,14 +94,26 @@ pub struct TruthEvent {
 }
 
 impl TruthEvent {
-    fn new(launch_stamp: i64, event: &Event) -> Self {
+    /// The event of a shot launched at `launch_stamp`, turned half around when `turned`.
+    fn new(launch_stamp: i64, event: &Event, turned: bool) -> Self {
+        let state = |x| {
+            let s = BallState::from_vector(x);
+            if turned { half_turn(&s) } else { s }
+        };
         Self {
             stamp: launch_stamp + seconds_to_ns(event.t),
             since_launch: event.t,
-            before: BallState::from_vector(&event.before),
-            after: BallState::from_vector(&event.after),
+            before: state(&event.before),
+            after: state(&event.after),
         }
     }
+}
+
+/// `s` turned half around the vertical through the net's centre (x, y to -x, -y; the spin, an
+/// axial vector, turns with them): the same flight played from the other end.
+fn half_turn(s: &BallState) -> BallState {
+    let turn = |v: Vector3<f64>| Vector3::new(-v.x, -v.y, v.z);
+    BallState::new(turn(s.position), turn(s.velocity), turn(s.spin))
 }
 
 /// The truth of one shot.
@@ -112,10 +129,13 @@ pub struct ShotTruth {
     pub launch: BallState,
     /// The net crossing (`before` = `after`).
     pub net: TruthEvent,
-    /// The bounce on the robot's half.
+    /// The bounce on the half it flies to (the robot's, unless `from_robot`).
     pub bounce: TruthEvent,
-    /// The true crossing of the hitting plane x = `intercept.plane_x` (`before` = `after`).
+    /// The true crossing of the hitting plane x = `intercept.plane_x` (`before` = `after`); of
+    /// the opponent's plane x = -`intercept.plane_x` for a shot from the robot.
     pub intercept: TruthEvent,
+    /// Played from the robot's end toward the opponent's: no interception for the robot.
+    pub from_robot: bool,
     /// End of the shot [ns]: the plane crossing plus the follow time, when the robot hits it.
     pub end_stamp: i64,
     propagator: Arc<Propagator>,
@@ -302,6 +322,14 @@ pub fn simulate(config: &Config, options: &SimOptions) -> Result<Session, SimErr
         let gap = schedule_rng.uniform_in(params.shots.gap.min, params.shots.gap.max);
         let launch_stamp = previous_end + seconds_to_ns(gap);
         let (kind, record, launch, good) = launcher.draw(&mut launch_rng)?;
+        let fraction = params.shots.from_robot_fraction;
+        // Drawn only when asked for, so that sets without such shots keep their launches.
+        let from_robot = fraction > 0.0 && launch_rng.bernoulli(fraction);
+        let launch = if from_robot {
+            half_turn(&launch)
+        } else {
+            launch
+        };
         let end_stamp =
             launch_stamp + seconds_to_ns(good.plane.t + params.shots.follow_after_plane);
         for camera in &mut cameras {
@@ -320,9 +348,10 @@ pub fn simulate(config: &Config, options: &SimOptions) -> Result<Session, SimErr
             record,
             launch_stamp,
             launch,
-            net: TruthEvent::new(launch_stamp, &good.net),
-            bounce: TruthEvent::new(launch_stamp, &good.bounce),
-            intercept: TruthEvent::new(launch_stamp, &good.plane),
+            net: TruthEvent::new(launch_stamp, &good.net, from_robot),
+            bounce: TruthEvent::new(launch_stamp, &good.bounce, from_robot),
+            intercept: TruthEvent::new(launch_stamp, &good.plane, from_robot),
+            from_robot,
             end_stamp,
             propagator: Arc::clone(&truth),
         });

@@ -301,26 +301,21 @@ pub fn state_from_msg(msg: &BallState) -> (i64, u32, physics::BallState) {
 }
 
 /// A simulated shot's true crossing of the hitting plane and bounce as an `InterceptPrediction`
-/// message (`/ball/truth/intercept`): header stamp = launch, `track_id` = the shot's number.
-pub fn truth_intercept_msg(
-    launch_stamp: i64,
-    shot: u32,
-    crossing_stamp: i64,
-    crossing: &physics::BallState,
-    bounce_stamp: i64,
-    bounce_position: &Vector3<f64>,
-) -> InterceptPrediction {
+/// message (`/ball/truth/intercept`): header stamp = launch, `track_id` = the shot's number;
+/// `valid` false for a shot from the robot's end (the crossing is the opponent's plane's).
+pub fn truth_intercept_msg(number: u32, shot: &crate::eval::sim::ShotTruth) -> InterceptPrediction {
+    let crossing = &shot.intercept.before;
     InterceptPrediction {
-        header: header(launch_stamp, TABLE_FRAME),
-        track_id: shot,
-        valid: true,
-        intercept_stamp: Time::from_nanos(crossing_stamp),
+        header: header(shot.launch_stamp, TABLE_FRAME),
+        track_id: number,
+        valid: !shot.from_robot,
+        intercept_stamp: Time::from_nanos(shot.intercept.stamp),
         position: point(&crossing.position),
         velocity: vector(&crossing.velocity),
         spin: vector(&crossing.spin),
         bounce_valid: true,
-        bounce_stamp: Time::from_nanos(bounce_stamp),
-        bounce_position: point(bounce_position),
+        bounce_stamp: Time::from_nanos(shot.bounce.stamp),
+        bounce_position: point(&shot.bounce.before.position),
         ..InterceptPrediction::default()
     }
 }
@@ -335,6 +330,7 @@ pub fn truth_intercept_from_msg(msg: &InterceptPrediction) -> (u32, crate::eval:
             intercept_stamp: msg.intercept_stamp.to_nanos(),
             intercept_position: from_point(&msg.position),
             intercept_spin: from_vector(&msg.spin),
+            toward_robot: msg.valid,
         },
     )
 }
