@@ -63,9 +63,9 @@ pub struct EvaluateArgs {
 
     /// Evaluate the harder sets instead: simulated play whose physics (drag, Magnus,
     /// restitution, friction), noise (1.5x the configured) and timing (a 143 Hz tracker with
-    /// millisecond stamps, no net) differ from the configuration, and elite play; `all`, or
-    /// names separated by commas (exact-2cams, exact-wide, a-2cams, b-2cams, a-lab, b-lab,
-    /// a-elite, b-elite). `--shots` is per set.
+    /// millisecond stamps, no net) differ from the configuration, and elite play (to 28 m/s and
+    /// 960 rad/s, from both ends); `all`, or names separated by commas (exact-2cams,
+    /// exact-wide, a-2cams, b-2cams, a-lab, b-lab, a-elite, b-elite). `--shots` is per set.
     #[arg(long, value_name = "SETS")]
     pub sets: Option<String>,
 
