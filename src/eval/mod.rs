@@ -22,7 +22,7 @@ use crate::model::stats::ErrorStats;
 use crate::offline::batch::{FittedState, fit_whole_flight};
 use crate::online::ekf::BounceNoise;
 use crate::online::estimator::{
-    Counters, Estimate, Estimator, Output, Rejection, TrackStatus, Verdict,
+    Counters, Estimate, Estimator, LearnedParams, Output, Rejection, TrackStatus, Verdict,
 };
 use crate::online::intercept::{InterceptQuery, predict_intercept};
 use crate::physics::{BallState, PhysicsParams, Propagator};
@@ -402,7 +402,7 @@ pub fn evaluate(config: &Config, session: &Session) -> EvalReport {
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Learning {
     /// The physical parameters and their flight-to-flight dispersion.
-    pub params: crate::online::estimator::LearnedParams,
+    pub params: LearnedParams,
 }
 
 /// [`evaluate`], with what the estimator had learned at the end.
@@ -421,9 +421,9 @@ pub(crate) struct Run {
     pub(crate) scorer: Scorer,
     pub(crate) counters: Counters,
     /// The physical parameters it had learned at the end.
-    pub(crate) learned: crate::online::estimator::LearnedParams,
+    pub(crate) learned: LearnedParams,
     /// The physical parameters it had learned when each shot's first detection came.
-    pub(crate) physics_at_start: Vec<Option<crate::physics::PhysicsParams>>,
+    pub(crate) physics_at_start: Vec<Option<LearnedParams>>,
 }
 
 impl Run {
@@ -438,7 +438,7 @@ pub(crate) fn run(config: &Config, session: &Session) -> Run {
     let mut physics_at_start = vec![None; session.shots.len()];
     for sim in &session.stream {
         if let Some(slot @ None) = physics_at_start.get_mut(sim.shot) {
-            *slot = Some(estimator.learned_params().params);
+            *slot = Some(estimator.learned_params());
         }
         let out = estimator.handle(&sim.detection);
         scorer.score(sim.shot, &sim.detection, &sim.truth, sim.outlier, &out);
@@ -532,18 +532,18 @@ pub struct Efficiency {
 pub fn efficiency(config: &Config, session: &Session) -> [Efficiency; 2] {
     let run = run(config, session);
     // The session flies the configured physics.
-    let truth = PhysicsParams::from_config(config);
     [BatchPhysics::Configured, BatchPhysics::Learned]
-        .map(|physics| efficiency_of(&run, config, session, physics, &truth))
+        .map(|physics| efficiency_of(&run, config, session, physics, config))
 }
 
-/// The filter's efficiency on a session simulated with other physics than `config`'s
-/// (`truth`, a harder set's): against the batch fit with the physics the estimator had learned
-/// when each shot began and with the true physics, the filter running on `config`.
+/// The filter's efficiency on a session simulated with other physics than `config`'s (that of
+/// `truth`, a harder set's configuration): against the batch fit with the physics the estimator
+/// had learned when each shot began (its Reynolds exponents included) and with the true
+/// physics, the filter running on `config`.
 pub fn efficiency_with_truth(
     config: &Config,
     session: &Session,
-    truth: &PhysicsParams,
+    truth: &Config,
 ) -> [Efficiency; 2] {
     let run = run(config, session);
     [BatchPhysics::Learned, BatchPhysics::True]
@@ -609,24 +609,28 @@ fn lead_efficiency(
 }
 
 /// One line of [`efficiency`]: the filter's `run` of `session` against the batch fit flying
-/// `physics` (`truth`, the session's own, for [`BatchPhysics::True`]).
+/// `physics` (the physics of `truth`, the session's own configuration, for
+/// [`BatchPhysics::True`]).
 fn efficiency_of(
     run: &Run,
     config: &Config,
     session: &Session,
     physics: BatchPhysics,
-    truth: &PhysicsParams,
+    truth: &Config,
 ) -> Efficiency {
     let physics_of = |index: usize| -> Config {
         let mut c = config.clone();
         match physics {
             BatchPhysics::Configured => {}
             BatchPhysics::Learned => {
-                if let Some(Some(p)) = run.physics_at_start.get(index) {
-                    p.apply_to(&mut c);
+                if let Some(Some(learned)) = run.physics_at_start.get(index) {
+                    learned.apply_to(&mut c);
                 }
             }
-            BatchPhysics::True => truth.apply_to(&mut c),
+            BatchPhysics::True => {
+                PhysicsParams::from_config(truth).apply_to(&mut c);
+                c.aero.reynolds_exponents = truth.aero.reynolds_exponents.clone();
+            }
         }
         c
     };

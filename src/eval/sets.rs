@@ -358,9 +358,5 @@ pub fn set_efficiency(
 ) -> Result<[Efficiency; 2], SimError> {
     let (truth, filter, _) = configurations(config, set);
     let session = simulate(&truth, &sim_options(&filter, set, shots, seed))?;
-    Ok(efficiency_with_truth(
-        &filter,
-        &session,
-        &PhysicsParams::from_config(&truth),
-    ))
+    Ok(efficiency_with_truth(&filter, &session, &truth))
 }

@@ -101,6 +101,12 @@ impl LearnedParams {
         }
     }
 
+    /// Sets `config`'s ball and table parameters and Reynolds exponents to these.
+    pub fn apply_to(&self, config: &mut Config) {
+        self.params.apply_to(config);
+        config.aero.reynolds_exponents = self.reynolds_exponents.to_vec();
+    }
+
     /// Whether the flights have determined each Reynolds exponent (its sigma below
     /// [`DETERMINED_SHARE`] of its prior's); one not learned is not.
     pub fn reynolds_determined(&self) -> [bool; 2] {
@@ -125,8 +131,7 @@ impl LearnedSummary {
     /// source that has learned nothing beyond its prior keeps its configured noise.
     pub fn configuration(&self, base: &Config) -> Config {
         let mut config = base.clone();
-        self.params.params.apply_to(&mut config);
-        config.aero.reynolds_exponents = self.params.reynolds_exponents.to_vec();
+        self.params.apply_to(&mut config);
         for learned in self.source_noise.iter().filter(|n| n.has_learned()) {
             let Some(source) = config.sources.by_name_mut(&learned.source) else {
                 continue;
@@ -206,8 +211,8 @@ pub fn describe_params(l: &LearnedParams) -> String {
                 format!("{name} {value:.3} +- {:.3}", l.reynolds_sigma[i])
             } else {
                 format!(
-                    "{name} {value:.3} +- {:.3} (near its prior's sigma {:.3}: these flights' \
-                     speeds do not determine it)",
+                    "{name} {value:.3}, kept at its prior (+- {:.3}, near the prior's {:.3}: \
+                     these flights' speeds do not determine it)",
                     l.reynolds_sigma[i], l.reynolds_prior_sigma[i]
                 )
             }

@@ -23,6 +23,11 @@
 //! ([`Learned::flight_params`]). The update above takes h linearised at theta_g: the
 //! information H' J_g H and the mean H' (I + J D)^-1 (b - J c), c = h - H theta_g.
 //!
+//! An exponent the flights have not determined (its sigma not below [`DETERMINED_SHARE`] of its
+//! prior's: flights of too narrow a band of speeds) stays at its prior wherever it is used, the
+//! other parameters conditioned on it ([`Learned::settled`]): what the flights taught of the
+//! scale and the exponent together is kept, and theta_g itself learns on.
+//!
 //! Parameters with a zero prior sigma are not adapted: they keep their configured value and a
 //! zero variance throughout.
 
@@ -33,6 +38,7 @@ use super::lessons::Lessons;
 use super::smoother::{Flown, Lesson, LessonJob};
 use crate::config::{AdaptationParams, Config};
 use crate::online::ekf::ParamCovariance;
+use crate::online::learned::DETERMINED_SHARE;
 use crate::physics::params::{DRAG_SCALE, MAGNUS_SCALE};
 use crate::physics::{FlightModel, PARAMS, ParamVector, PhysicsParams};
 
@@ -47,6 +53,8 @@ type ShapeVector = SVector<f64, SHAPE>;
 type ShapeCovariance = SMatrix<f64, SHAPE, SHAPE>;
 /// d(a flight's parameters)/d(the learned ones).
 type FlightMap = SMatrix<f64, PARAMS, SHAPE>;
+/// Linearisations of a track's update: the first at theta_g, each next at the last's result.
+const LINEARISATIONS: usize = 3;
 
 /// What the estimator knows of the physical parameters between tracks.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -59,6 +67,8 @@ pub(crate) struct Learned {
     stamp: Option<i64>,
     /// Tracks that contributed.
     tracks: u64,
+    /// The prior.
+    prior: ShapeVector,
     /// The prior variances (zero: not adapted).
     prior_var: ShapeVector,
     /// The random walk's density [unit^2/s].
@@ -81,6 +91,7 @@ impl Learned {
             covariance: ShapeCovariance::from_diagonal(&prior_var),
             stamp: None,
             tracks: 0,
+            prior,
             prior_var,
             drift_density: drift_density.zip_map(&prior_var, |d, v| if v > 0.0 { d } else { 0.0 }),
             dispersion: ParamVector::from_fn(|i, _| {
@@ -98,19 +109,44 @@ impl Learned {
         self.dispersion
     }
 
-    /// theta_g and P_g of the ball's and table's parameters.
+    /// theta_g and P_g of the ball's and table's parameters, as the tracks use them
+    /// ([`Self::settled`]).
     pub(crate) fn global(&self) -> (ParamVector, ParamCovariance) {
+        let (theta, covariance) = self.settled(&self.covariance);
         (
-            self.theta.fixed_rows::<PARAMS>(0).into_owned(),
-            self.covariance
-                .fixed_view::<PARAMS, PARAMS>(0, 0)
-                .into_owned(),
+            theta.fixed_rows::<PARAMS>(0).into_owned(),
+            covariance.fixed_view::<PARAMS, PARAMS>(0, 0).into_owned(),
         )
     }
 
-    /// The Reynolds exponents (a_D, a_M) the tracks fly with.
+    /// The Reynolds exponents (a_D, a_M) the tracks fly with ([`Self::settled`]).
     pub(crate) fn exponents(&self) -> (f64, f64) {
-        (self.theta[DRAG_EXPONENT], self.theta[MAGNUS_EXPONENT])
+        let theta = self.settled(&self.covariance).0;
+        (theta[DRAG_EXPONENT], theta[MAGNUS_EXPONENT])
+    }
+
+    /// Whether the flights have determined the exponent at `index`: adapted, and its sigma
+    /// below [`DETERMINED_SHARE`] of its prior's.
+    fn determined(&self, index: usize) -> bool {
+        let prior = self.prior_var[index];
+        prior > 0.0 && self.covariance[(index, index)] < DETERMINED_SHARE.powi(2) * prior
+    }
+
+    /// theta_g with `covariance` (P_g, or P_g drifted) as the tracks use them: each adapted
+    /// exponent the flights have not determined set to its prior a_0 and the rest conditioned
+    /// on it, theta + P_.a (a_0 - a) / P_aa and P - P_.a P_a. / P_aa.
+    fn settled(&self, covariance: &ShapeCovariance) -> (ShapeVector, ShapeCovariance) {
+        let (mut theta, mut covariance) = (self.theta, *covariance);
+        for i in [DRAG_EXPONENT, MAGNUS_EXPONENT] {
+            let variance = covariance[(i, i)];
+            if self.prior_var[i] <= 0.0 || self.determined(i) || variance <= 0.0 {
+                continue;
+            }
+            let gain = covariance.column(i) / variance;
+            theta += gain * (self.prior[i] - theta[i]);
+            covariance -= gain * covariance.row(i);
+        }
+        (theta, covariance)
     }
 
     /// The exponents' standard deviations now and before any track.
@@ -152,11 +188,12 @@ impl Learned {
         covariance
     }
 
-    /// The prior of a track starting at `stamp`: theta_g, P_g (drifted) + D.
+    /// The prior of a track starting at `stamp`: theta_g, P_g (drifted) + D, as the tracks use
+    /// them ([`Self::settled`]).
     pub(crate) fn track_prior(&self, stamp: i64) -> (ParamVector, ParamCovariance) {
-        let drifted = self.drifted(stamp);
+        let (theta, drifted) = self.settled(&self.drifted(stamp));
         (
-            self.theta.fixed_rows::<PARAMS>(0).into_owned(),
+            theta.fixed_rows::<PARAMS>(0).into_owned(),
             drifted.fixed_view::<PARAMS, PARAMS>(0, 0).into_owned()
                 + ParamCovariance::from_diagonal(&self.dispersion),
         )
@@ -208,12 +245,12 @@ impl Learned {
         replaced
     }
 
-    /// A flight's parameters as a function of the learned ones, linearised at theta_g: the
+    /// A flight's parameters as a function of the learned ones, linearised at `at`: the
     /// flight that flew with exponents a_f at speeds of mean ln f(Re) = L has the scales
-    /// k_f = k_g exp((a_g - a_f) L); its table is the table's. The value at theta_g and the
+    /// k_f = k_g exp((a_g - a_f) L); its table is the table's. The value at `at` and the
     /// derivative (zero for an exponent that is not adapted).
-    fn flight_params(&self, flown: &Flown) -> (ParamVector, FlightMap) {
-        let mut value = self.theta.fixed_rows::<PARAMS>(0).into_owned();
+    fn flight_params(&self, at: &ShapeVector, flown: &Flown) -> (ParamVector, FlightMap) {
+        let mut value = at.fixed_rows::<PARAMS>(0).into_owned();
         let mut map = FlightMap::identity();
         let flown_exponents = [flown.exponents.0, flown.exponents.1];
         for ((scale, exponent), a_f) in
@@ -221,8 +258,8 @@ impl Learned {
                 .into_iter()
                 .zip(flown_exponents)
         {
-            let factor = ((self.theta[exponent] - a_f) * flown.log_f).exp();
-            value[scale] = self.theta[scale] * factor;
+            let factor = ((at[exponent] - a_f) * flown.log_f).exp();
+            value[scale] = at[scale] * factor;
             map[(scale, scale)] = factor;
             if self.prior_var[exponent] > 0.0 {
                 map[(scale, exponent)] = value[scale] * flown.log_f;
@@ -232,7 +269,10 @@ impl Learned {
     }
 
     /// The two-level update in information form, the track's parameters linearised in the
-    /// learned ones ([`Self::flight_params`]); `None` when a matrix is singular.
+    /// learned ones ([`Self::flight_params`]) at the updated estimate (iterated from theta_g,
+    /// Gauss-Newton: scales and exponents trade along a curve, and tangents taken at points
+    /// apart on it would cross, a determination the flights never gave); `None` when a matrix
+    /// is singular.
     fn fuse(
         &self,
         (theta_prior, p_prior): &(ParamVector, ParamCovariance),
@@ -265,18 +305,23 @@ impl Learned {
         let d = ParamCovariance::from_diagonal(&self.dispersion);
         let shrink = (ParamCovariance::identity() + j * d).try_inverse()?;
         let j_flight = shrink * j;
-        let (value, map) = self.flight_params(flown);
-        let offset = value - map * self.theta;
-        let information =
-            info_global + map.transpose() * ((j_flight + j_flight.transpose()) * 0.5) * map;
-        let covariance = information.try_inverse()?;
-        let theta =
-            covariance * (info_global * self.theta + map.transpose() * (shrink * (b - j * offset)));
-        theta
+        let j_flight = (j_flight + j_flight.transpose()) * 0.5;
+        let mut updated = (self.theta, p_global);
+        for _ in 0..LINEARISATIONS {
+            let (value, map) = self.flight_params(&updated.0, flown);
+            let offset = value - map * updated.0;
+            let information = info_global + map.transpose() * j_flight * map;
+            let covariance = information.try_inverse()?;
+            let theta = covariance
+                * (info_global * self.theta + map.transpose() * (shrink * (b - j * offset)));
+            updated = (theta, covariance);
+        }
+        updated
+            .0
             .iter()
-            .chain(covariance.iter())
+            .chain(updated.1.iter())
             .all(|v| v.is_finite())
-            .then_some((theta, covariance))
+            .then_some(updated)
     }
 }
 
@@ -577,6 +622,25 @@ mod tests {
         );
         let (sigma, prior) = l.exponent_sigmas();
         assert!((sigma[1] - prior[1]).abs() < 1e-9, "{sigma:?}");
+    }
+
+    /// Flights of one speed above Re_0 (ln f = 0.3) determine the Magnus force at that speed,
+    /// not the exponent: its sigma stays near its prior's (the update's linearisations do not
+    /// cross), it stays at its prior where used, and the scale conditioned on it reproduces the
+    /// flights' force.
+    #[test]
+    fn flights_of_one_speed_leave_the_exponent_at_its_prior_and_keep_their_force() {
+        let mut l = learning_the_magnus_exponent();
+        for track in 0..20 {
+            l = l.absorbed(&track_of_a_ball(&l, 0.3, track * 1_000_000_000));
+        }
+        let (sigma, prior) = l.exponent_sigmas();
+        assert!(sigma[1] > 0.95 * prior[1], "{sigma:?}");
+        assert!((l.exponents().1 + 0.65).abs() < 1e-12);
+        let at_their_speed = 0.6 * ((-1.0f64 + 0.65) * 0.3).exp();
+        let (theta, covariance) = l.global();
+        assert!((theta[1] - at_their_speed).abs() < 0.005, "{theta}");
+        assert!(covariance[(1, 1)] < l.covariance[(1, 1)]);
     }
 
     #[test]
