@@ -181,10 +181,7 @@ pub fn calibrate_two_level(
             tracks: flights.iter().filter(|f| !f.is_empty()).count() as u64,
             flight_sigma: online.params.flight_sigma,
             // Held at the configured values: each flight alone does not span the speeds.
-            reynolds_exponents: {
-                let (a_d, a_m) = crate::physics::FlightModel::new(&base).reynolds_exponents();
-                [a_d, a_m]
-            },
+            reynolds_exponents: crate::physics::FlightModel::new(&base).reynolds_exponents(),
             reynolds_sigma: [0.0; 2],
             reynolds_prior_sigma: [0.0; 2],
         },

@@ -90,11 +90,11 @@ impl LearnedParams {
     /// prior standard deviations `prior_sigma`.
     pub(crate) fn with_reynolds(
         self,
-        exponents: (f64, f64),
+        exponents: [f64; 2],
         (sigma, prior_sigma): ([f64; 2], [f64; 2]),
     ) -> Self {
         Self {
-            reynolds_exponents: [exponents.0, exponents.1],
+            reynolds_exponents: exponents,
             reynolds_sigma: sigma,
             reynolds_prior_sigma: prior_sigma,
             ..self

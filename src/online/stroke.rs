@@ -271,7 +271,7 @@ impl Stroke {
     }
 
     /// The same model with other Reynolds exponents (a_D, a_M) [-].
-    pub fn with_reynolds_exponents(&self, exponents: (f64, f64)) -> Self {
+    pub fn with_reynolds_exponents(&self, exponents: [f64; 2]) -> Self {
         Self {
             propagator: self.propagator.with_reynolds_exponents(exponents),
             solver_propagator: self.solver_propagator.with_reynolds_exponents(exponents),

@@ -328,7 +328,7 @@ pub struct FlightModel {
     /// [Re_0, Re_max].
     reynolds_range: (f64, f64),
     /// (a_D, a_M).
-    reynolds_exponents: (f64, f64),
+    reynolds_exponents: [f64; 2],
     spin_decay: f64,
     /// The variance [(rad/s)^2] of the spin across the flight that the coefficients are
     /// evaluated over ([`Self::with_spin_variance`]); 0 for a known spin.
@@ -368,7 +368,7 @@ impl FlightModel {
             spin_parameter_max: config.aero.spin_parameter_max,
             reynolds_per_speed: 2.0 * r / config.air.kinematic_viscosity,
             reynolds_range: pair(&config.aero.reynolds_range, (1.0, 1.0)),
-            reynolds_exponents: pair(&config.aero.reynolds_exponents, (0.0, 0.0)),
+            reynolds_exponents: pair(&config.aero.reynolds_exponents, (0.0, 0.0)).into(),
             spin_decay: config.aero.spin_decay_rate,
             spin_variance: 0.0,
         }
@@ -427,7 +427,7 @@ impl FlightModel {
     }
 
     /// The same model with other Reynolds exponents (a_D, a_M) [-].
-    pub fn with_reynolds_exponents(&self, exponents: (f64, f64)) -> Self {
+    pub fn with_reynolds_exponents(&self, exponents: [f64; 2]) -> Self {
         Self {
             reynolds_exponents: exponents,
             ..*self
@@ -435,7 +435,7 @@ impl FlightModel {
     }
 
     /// The Reynolds exponents (a_D, a_M) [-].
-    pub fn reynolds_exponents(&self) -> (f64, f64) {
+    pub fn reynolds_exponents(&self) -> [f64; 2] {
         self.reynolds_exponents
     }
 
@@ -463,7 +463,7 @@ impl FlightModel {
     /// doc), and d ln f / d ln Re.
     #[inline]
     pub fn reynolds_factors(&self, speed: f64) -> (f64, f64, f64) {
-        let (a_d, a_m) = self.reynolds_exponents;
+        let [a_d, a_m] = self.reynolds_exponents;
         if a_d == 0.0 && a_m == 0.0 {
             return (1.0, 1.0, 0.0);
         }
@@ -630,7 +630,7 @@ impl FlightModel {
             }
             if reynolds_slope != 0.0 {
                 // d f^a / dv = a f^a (d ln f / d ln Re) v / |v|^2.
-                let (a_d, a_m) = self.reynolds_exponents;
+                let [a_d, a_m] = self.reynolds_exponents;
                 let re_direction = v * (drag_scale * a_d * reynolds_slope / speed)
                     + c * (magnus_scale * a_m * reynolds_slope / speed_sq);
                 dv_dv += re_direction * v.transpose();

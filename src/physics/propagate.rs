@@ -528,7 +528,7 @@ impl Propagator {
 
     /// The same propagator with other Reynolds exponents (a_D, a_M)
     /// ([`FlightModel::with_reynolds_exponents`]).
-    pub fn with_reynolds_exponents(&self, exponents: (f64, f64)) -> Self {
+    pub fn with_reynolds_exponents(&self, exponents: [f64; 2]) -> Self {
         Self {
             flight: self.flight.with_reynolds_exponents(exponents),
             ..*self

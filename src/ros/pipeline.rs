@@ -324,10 +324,9 @@ impl Pipeline {
     /// before any flight).
     fn learned_stroke(&self) -> Stroke {
         let learned = self.estimator.learned_params();
-        let [a_d, a_m] = learned.reynolds_exponents;
         self.stroke
             .with_params(&learned.params)
-            .with_reynolds_exponents((a_d, a_m))
+            .with_reynolds_exponents(learned.reynolds_exponents)
     }
 
     /// `track_id` when it is the live track's id; otherwise why not, pointing at track 0 and

@@ -120,9 +120,9 @@ impl Learned {
     }
 
     /// The Reynolds exponents (a_D, a_M) the tracks fly with ([`Self::settled`]).
-    pub(crate) fn exponents(&self) -> (f64, f64) {
+    pub(crate) fn exponents(&self) -> [f64; 2] {
         let theta = self.settled(&self.covariance).0;
-        (theta[DRAG_EXPONENT], theta[MAGNUS_EXPONENT])
+        [theta[DRAG_EXPONENT], theta[MAGNUS_EXPONENT]]
     }
 
     /// Whether the flights have determined the exponent at `index`: adapted, and its sigma
@@ -252,11 +252,10 @@ impl Learned {
     fn flight_params(&self, at: &ShapeVector, flown: &Flown) -> (ParamVector, FlightMap) {
         let mut value = at.fixed_rows::<PARAMS>(0).into_owned();
         let mut map = FlightMap::identity();
-        let flown_exponents = [flown.exponents.0, flown.exponents.1];
         for ((scale, exponent), a_f) in
             [(DRAG_SCALE, DRAG_EXPONENT), (MAGNUS_SCALE, MAGNUS_EXPONENT)]
                 .into_iter()
-                .zip(flown_exponents)
+                .zip(flown.exponents)
         {
             let factor = ((at[exponent] - a_f) * flown.log_f).exp();
             value[scale] = at[scale] * factor;
@@ -342,7 +341,7 @@ pub(crate) fn param_prior_variances(config: &Config) -> ParamVector {
 }
 
 /// The learned parameters of the ball's and table's `params` and the Reynolds `exponents`.
-fn shape_vector(params: &ParamVector, (a_d, a_m): (f64, f64)) -> ShapeVector {
+fn shape_vector(params: &ParamVector, [a_d, a_m]: [f64; 2]) -> ShapeVector {
     let mut v = ShapeVector::zeros();
     v.fixed_rows_mut::<PARAMS>(0).copy_from(params);
     v[DRAG_EXPONENT] = a_d;
@@ -355,7 +354,7 @@ fn shape_vector(params: &ParamVector, (a_d, a_m): (f64, f64)) -> ShapeVector {
 fn shape_prior_variances(config: &Config) -> ShapeVector {
     let on = if config.adaptation.enabled { 1.0 } else { 0.0 };
     let variance = |k| (AdaptationParams::of(&config.adaptation.reynolds_sigma, k) * on).powi(2);
-    shape_vector(&param_prior_variances(config), (variance(0), variance(1)))
+    shape_vector(&param_prior_variances(config), [variance(0), variance(1)])
 }
 
 /// The random walk's density of each parameter [unit^2/s]: its prior variance drifting over
@@ -480,7 +479,7 @@ mod tests {
             ended,
             smoothed: false,
             flown: Flown {
-                exponents: (0.0, -0.65),
+                exponents: [0.0, -0.65],
                 log_f: 0.0,
             },
         }
@@ -560,7 +559,7 @@ mod tests {
     fn track_of_a_ball(l: &Learned, log_f: f64, ended: i64) -> Lesson {
         let (k_true, a_true) = (0.6, -1.0);
         let flown = l.exponents();
-        let measured = k_true * ((a_true - flown.1) * log_f).exp();
+        let measured = k_true * ((a_true - flown[1]) * log_f).exp();
         let prior = l.track_prior(ended);
         let p = prior.1;
         let innovation_var = p[(1, 1)] + 1e-4;
@@ -599,11 +598,11 @@ mod tests {
         }
         let (theta, _) = l.global();
         assert!((theta[1] - 0.6).abs() < 0.012, "{theta}");
-        assert!((l.exponents().1 + 1.0).abs() < 0.02, "{:?}", l.exponents());
+        assert!((l.exponents()[1] + 1.0).abs() < 0.02, "{:?}", l.exponents());
         let (sigma, prior) = l.exponent_sigmas();
         assert!(sigma[1] < 0.2 * prior[1], "{sigma:?}");
         // a_D, not adapted, stays as configured.
-        assert_eq!((l.exponents().0, sigma[0]), (0.0, 0.0));
+        assert_eq!((l.exponents()[0], sigma[0]), (0.0, 0.0));
     }
 
     /// Flights all below Re_0 (ln f = 0) say nothing of the exponent: it stays at its prior,
@@ -616,7 +615,7 @@ mod tests {
         }
         assert!((l.global().0[1] - 0.6).abs() < 0.01);
         assert!(
-            (l.exponents().1 + 0.65).abs() < 1e-12,
+            (l.exponents()[1] + 0.65).abs() < 1e-12,
             "{:?}",
             l.exponents()
         );
@@ -636,7 +635,7 @@ mod tests {
         }
         let (sigma, prior) = l.exponent_sigmas();
         assert!(sigma[1] > 0.95 * prior[1], "{sigma:?}");
-        assert!((l.exponents().1 + 0.65).abs() < 1e-12);
+        assert!((l.exponents()[1] + 0.65).abs() < 1e-12);
         let at_their_speed = 0.6 * ((-1.0f64 + 0.65) * 0.3).exp();
         let (theta, covariance) = l.global();
         assert!((theta[1] - at_their_speed).abs() < 0.005, "{theta}");

@@ -60,7 +60,7 @@ pub(crate) struct Lesson {
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
 pub(crate) struct Flown {
     /// (a_D, a_M) of its propagator.
-    pub(crate) exponents: (f64, f64),
+    pub(crate) exponents: [f64; 2],
     /// The mean of ln f(Re) over its fused detections.
     pub(crate) log_f: f64,
 }

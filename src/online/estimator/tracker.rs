@@ -608,7 +608,7 @@ impl Tracker {
 
     /// Flies the tracks from now on with the Reynolds exponents `exponents` (the learned ones);
     /// called only as a track starts, so the live track's exponents are the tracker's.
-    fn fly_with(&mut self, exponents: (f64, f64)) {
+    fn fly_with(&mut self, exponents: [f64; 2]) {
         if self.fusion.propagator.flight().reynolds_exponents() == exponents {
             return;
         }
