@@ -1,8 +1,9 @@
-//! The ball's and table's parameters calibrated with the estimator's own model of many flights
-//! (`ttball calibrate --method estimator`): the two-level model of
+//! The ball's and table's parameters and the Reynolds exponents calibrated with the estimator's
+//! own model of many flights (`ttball calibrate --method estimator`): the two-level model of
 //! [`crate::online::estimator`] (each flight its own drag and Magnus scales and restitution
-//! about the shared ones, theta_f = theta_g + d, d ~ N(0, D)), each flight smoothed with the
-//! filter's process noise, solved for the shared theta_g at once instead of flight after flight.
+//! about the shared ones, theta_f = h(theta_g) + d, d ~ N(0, D), its scales the ball's at its
+//! speeds), each flight smoothed with the filter's process noise, solved for the shared theta_g
+//! at once instead of flight after flight.
 //!
 //! 1. The noise: one estimator runs through every flight in order, as a replay would, and what
 //!    it learned of the cameras' noise and of how far the flights stray from the model is folded
@@ -25,7 +26,9 @@
 //! wider than the configured prior), as a flight late in a session starts where the earlier
 //! ones left it, so that its filter linearises near there.
 //!
-//! Parameters with a zero prior sigma (or not asked for) keep their configured values. Unlike
+//! An exponent the flights do not determine stays at its prior, the other parameters
+//! conditioned on it, as online. Parameters with a zero prior sigma (or not asked for) keep
+//! their configured values. Unlike
 //! [`super::calibrate`] (one deterministic trajectory per flight and nothing else), the flights
 //! here stray from the model as the estimator allows them to: on real flights the two differ, and
 //! this one gives the estimator's numbers.
@@ -34,7 +37,10 @@ use nalgebra::{Cholesky, DMatrix, DVector};
 
 use crate::config::Config;
 use crate::model::detection::Detection;
-use crate::online::estimator::{Estimator, LearnedParams, LearnedSummary, param_prior_variances};
+use crate::online::estimator::{
+    Estimator, Learned, LearnedParams, LearnedPhysics, LearnedSummary, SHAPE, ShapeCovariance,
+    ShapeVector, configured_shape, shape_prior_variances,
+};
 use crate::physics::params::{PARAMS, ParamVector, PhysicsParams};
 
 /// Converged when theta_g moves by less than this fraction of each parameter's prior sigma.
@@ -57,7 +63,7 @@ pub struct TwoLevelCalibration {
     pub iterations: usize,
     /// Whether theta_g settled within [`CONVERGED`].
     pub converged: bool,
-    /// theta_g after each iteration.
+    /// theta_g's ball and table parameters after each iteration.
     pub history: Vec<PhysicsParams>,
 }
 
@@ -88,12 +94,12 @@ pub fn calibrate_two_level(
     if flights.iter().all(Vec::is_empty) {
         return Err(TwoLevelError::NoFlights);
     }
-    let prior_var = param_prior_variances(config);
-    let active: Vec<usize> = (0..PARAMS).filter(|&i| prior_var[i] > 0.0).collect();
+    let prior_var = shape_prior_variances(config);
+    let active: Vec<usize> = (0..SHAPE).filter(|&i| prior_var[i] > 0.0).collect();
     if active.is_empty() {
         return Err(TwoLevelError::NothingToFit);
     }
-    let theta_0 = PhysicsParams::from_config(config).to_vector();
+    let theta_0 = configured_shape(config);
 
     // 1. Flight after flight, as the node would: the noise, and the first theta_g.
     let mut sequential = Estimator::new(config);
@@ -103,12 +109,9 @@ pub fn calibrate_two_level(
     sequential.end_of_input();
     let online = sequential.learned_summary();
     let mut base = online.configuration(config);
-    // The exponents are not fitted here: the configured ones, learned nowhere.
-    base.aero.reynolds_exponents = config.aero.reynolds_exponents.clone();
-    base.adaptation.reynolds_sigma = vec![0.0; 2];
     base.adaptation.drift_per_hour = 0.0;
-    let mut theta_g = PhysicsParams::from_config(&base).to_vector();
-    let mut sigma_g = online.params.sigma;
+    let (mut theta_g, online_covariance) = sequential.learned_shape();
+    let mut sigma_g = online_covariance.diagonal().map(|v| v.max(0.0).sqrt());
     progress(&format!(
         "flight after flight (the online estimator): {}",
         describe(&theta_g)
@@ -116,16 +119,15 @@ pub fn calibrate_two_level(
 
     // 2. The joint optimum.
     let n = active.len();
-    let sub = |v: &ParamVector| DVector::from_iterator(n, active.iter().map(|&i| v[i]));
+    let sub = |v: &ShapeVector| DVector::from_iterator(n, active.iter().map(|&i| v[i]));
     let prior_information = DMatrix::from_diagonal(&sub(&prior_var).map(|v| 1.0 / v));
+    let mut joint_covariance = DMatrix::zeros(n, n);
     let mut history = Vec::new();
     let mut converged = false;
     let mut iterations = 0;
     let (mut damping, mut last_step) = (1.0, f64::INFINITY);
     while iterations < MAX_ITERATIONS && !converged {
         iterations += 1;
-        let mut at = base.clone();
-        PhysicsParams::from_vector(&theta_g).apply_to(&mut at);
         // Each flight starts where the flights' joint estimate is, as a flight late in a
         // session starts where the earlier ones left it: its filter linearises near there.
         let sigma = |i: usize| {
@@ -135,7 +137,9 @@ pub fn calibrate_two_level(
                 0.0
             }
         };
+        let mut at = with_shape(&base, &theta_g);
         at.adaptation.sigma = (0..PARAMS).map(sigma).collect();
+        at.adaptation.reynolds_sigma = (PARAMS..SHAPE).map(sigma).collect();
         let (flights_information, flights_weighted) =
             flights_information(&at, flights, &active, &theta_g, iterations)?;
         let information = &prior_information + flights_information;
@@ -145,9 +149,9 @@ pub fn calibrate_two_level(
         };
         let solved = joint.solve(&weighted);
         // The joint covariance: the next flights' prior sigmas, and the standard errors.
-        let covariance = joint.inverse();
+        joint_covariance = joint.inverse();
         for (k, &i) in active.iter().enumerate() {
-            sigma_g[i] = covariance[(k, k)].max(0.0).sqrt();
+            sigma_g[i] = joint_covariance[(k, k)].max(0.0).sqrt();
         }
         // The step in prior sigmas; a step that does not shrink halves the next ones (a
         // flight's smoothed lesson taken or not flips with theta_g: a two-cycle, damped).
@@ -164,27 +168,28 @@ pub fn calibrate_two_level(
             theta_g[i] += damping * (solved[k] - theta_g[i]);
         }
         converged = damping * step < CONVERGED;
-        history.push(PhysicsParams::from_vector(&theta_g));
+        history.push(PhysicsParams::from_vector(&params_of(&theta_g)));
         progress(&format!("  iteration {iterations}: {}", describe(&theta_g)));
     }
-    let mut sigma = [0.0; PARAMS];
-    for &i in &active {
-        sigma[i] = sigma_g[i];
+    // As online: an exponent the flights do not determine stays at its prior.
+    let mut covariance = ShapeCovariance::zeros();
+    for (r, &i) in active.iter().enumerate() {
+        for (c, &j) in active.iter().enumerate() {
+            covariance[(i, j)] = joint_covariance[(r, c)];
+        }
     }
-    PhysicsParams::from_vector(&theta_g).apply_to(&mut base);
+    let learned = LearnedPhysics {
+        params: Learned::prior_of(config).with_estimate(theta_g, covariance),
+    };
+    let params = LearnedParams {
+        tracks: flights.iter().filter(|f| !f.is_empty()).count() as u64,
+        flight_sigma: online.params.flight_sigma,
+        ..learned.params()
+    };
+    params.apply_to(&mut base);
     base.adaptation.drift_per_hour = config.adaptation.drift_per_hour;
-    base.adaptation.reynolds_sigma = config.adaptation.reynolds_sigma.clone();
     Ok(TwoLevelCalibration {
-        params: LearnedParams {
-            params: PhysicsParams::from_vector(&theta_g),
-            sigma,
-            tracks: flights.iter().filter(|f| !f.is_empty()).count() as u64,
-            flight_sigma: online.params.flight_sigma,
-            // Held at the configured values: each flight alone does not span the speeds.
-            reynolds_exponents: crate::physics::FlightModel::new(&base).reynolds_exponents(),
-            reynolds_sigma: [0.0; 2],
-            reynolds_prior_sigma: [0.0; 2],
-        },
+        params,
         config: base,
         online,
         iterations,
@@ -193,18 +198,31 @@ pub fn calibrate_two_level(
     })
 }
 
+/// The ball's and table's parameters of the learned ones.
+fn params_of(theta: &ShapeVector) -> ParamVector {
+    theta.fixed_rows::<PARAMS>(0).into_owned()
+}
+
+/// `config` with the learned parameters `theta` (the ball's and table's, the exponents).
+fn with_shape(config: &Config, theta: &ShapeVector) -> Config {
+    let mut c = config.clone();
+    PhysicsParams::from_vector(&params_of(theta)).apply_to(&mut c);
+    c.aero.reynolds_exponents = vec![theta[PARAMS], theta[PARAMS + 1]];
+    c
+}
+
 /// The flights' information on theta_g in sum, each flight alone through an estimator of `at`
 /// (the parameters `active`): J = P'^-1 - P_pr^-1 and b = P'^-1 theta' - P_pr^-1 theta_g.
 fn flights_information(
     at: &Config,
     flights: &[Vec<Detection>],
     active: &[usize],
-    theta_g: &ParamVector,
+    theta_g: &ShapeVector,
     iteration: usize,
 ) -> Result<(DMatrix<f64>, DVector<f64>), TwoLevelError> {
     let n = active.len();
-    let sub = |v: &ParamVector| DVector::from_iterator(n, active.iter().map(|&i| v[i]));
-    let flight_prior = sub(&param_prior_variances(at));
+    let sub = |v: &ShapeVector| DVector::from_iterator(n, active.iter().map(|&i| v[i]));
+    let flight_prior = sub(&shape_prior_variances(at));
     let flight_prior_information = DMatrix::from_diagonal(&flight_prior.map(|v| 1.0 / v));
     let mut information = DMatrix::zeros(n, n);
     let mut weighted = DVector::zeros(n);
@@ -214,7 +232,7 @@ fn flights_information(
             estimator.handle(d);
         }
         estimator.end_of_input();
-        let (theta, covariance) = estimator.learned_global();
+        let (theta, covariance) = estimator.learned_shape();
         let covariance = DMatrix::from_fn(n, n, |r, c| covariance[(active[r], active[c])]);
         let Some(posterior) = Cholesky::new(covariance) else {
             return Err(TwoLevelError::Singular(iteration));
@@ -226,11 +244,16 @@ fn flights_information(
     Ok((information, weighted))
 }
 
-/// The four parameters in a line.
-fn describe(theta: &ParamVector) -> String {
-    let p = PhysicsParams::from_vector(theta);
+/// The learned parameters in a line.
+fn describe(theta: &ShapeVector) -> String {
+    let p = PhysicsParams::from_vector(&params_of(theta));
     format!(
-        "drag_scale {:.4}, magnus_scale {:.4}, restitution {:.4}, friction {:.4}",
-        p.drag_scale, p.magnus_scale, p.restitution, p.friction
+        "drag_scale {:.4}, magnus_scale {:.4}, restitution {:.4}, friction {:.4}, a_D {:.3}, a_M {:.3}",
+        p.drag_scale,
+        p.magnus_scale,
+        p.restitution,
+        p.friction,
+        theta[PARAMS],
+        theta[PARAMS + 1]
     )
 }

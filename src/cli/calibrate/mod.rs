@@ -17,6 +17,7 @@ use ttball::offline::calibrate::{
 use ttball::offline::smooth::split_flights;
 use ttball::offline::two_level::calibrate_two_level;
 use ttball::online::estimator::describe_params;
+use ttball::online::learned::REYNOLDS_EXPONENT_NAMES;
 use ttball::physics::params::PhysicsParams;
 use ttball::plot::ChartOptions;
 
@@ -263,16 +264,16 @@ impl CalibrateArgs {
         }
         let fit = match (self.fit.is_empty(), self.method) {
             (true, Method::Batch) => vec![Group::Aero, Group::Bounce],
-            (true, Method::Estimator) => vec![Group::Scales, Group::Bounce],
+            (true, Method::Estimator) => vec![Group::Scales, Group::Bounce, Group::Reynolds],
             (false, _) => self.fit.clone(),
         };
         if self.method == Method::Estimator {
             if let Some(g) = fit
                 .iter()
-                .find(|g| !matches!(g, Group::Scales | Group::Bounce))
+                .find(|g| !matches!(g, Group::Scales | Group::Bounce | Group::Reynolds))
             {
                 bail!(BadUsage(format!(
-                    "--fit {}: --method estimator fits what the estimator learns, scales and bounce; use --method batch for the rest",
+                    "--fit {}: --method estimator fits what the estimator learns, scales, bounce and reynolds; use --method batch for the rest",
                     g.to_possible_value()
                         .map_or_else(String::new, |v| v.get_name().to_owned())
                 )));
@@ -326,6 +327,9 @@ impl CalibrateArgs {
             sigma[2] = 0.0;
             sigma[3] = 0.0;
         }
+        if !fit.contains(&Group::Reynolds) {
+            start.adaptation.reynolds_sigma = vec![0.0; 2];
+        }
         let detections: Vec<Vec<Detection>> = flights
             .into_iter()
             .map(|f| {
@@ -373,6 +377,17 @@ impl CalibrateArgs {
                         "online": online[i],
                     })
                 }).collect::<Vec<_>>(),
+                "reynolds_exponents": REYNOLDS_EXPONENT_NAMES.iter().enumerate().map(|(i, name)| {
+                    let p = &calibration.params;
+                    serde_json::json!({
+                        "name": name,
+                        "value": p.reynolds_exponents[i],
+                        "std_error": p.reynolds_sigma[i],
+                        "prior_sigma": p.reynolds_prior_sigma[i],
+                        "determined": p.reynolds_determined()[i],
+                        "online": calibration.online.params.reynolds_exponents[i],
+                    })
+                }).collect::<Vec<_>>(),
                 "iterations": calibration.iterations,
                 "converged": calibration.converged,
                 "holdout": held_out,
@@ -398,6 +413,30 @@ impl CalibrateArgs {
                     out,
                     "  {:<30} {:>10.5}  {:>10.5}   {:>9.5}  {:>9.5}",
                     name, fitted[i], calibration.params.sigma[i], online[i], start_values[i]
+                );
+            }
+        }
+        let p = &calibration.params;
+        for (i, name) in REYNOLDS_EXPONENT_NAMES.iter().enumerate() {
+            if p.reynolds_prior_sigma[i] > 0.0 {
+                let determined = if p.reynolds_determined()[i] {
+                    ""
+                } else {
+                    "   (not determined by these flights' speeds: kept at its prior)"
+                };
+                let _ = writeln!(
+                    out,
+                    "  {:<30} {:>10.5}  {:>10.5}   {:>9.5}  {:>9.5}{determined}",
+                    format!("Reynolds exponent {name}"),
+                    p.reynolds_exponents[i],
+                    p.reynolds_sigma[i],
+                    calibration.online.params.reynolds_exponents[i],
+                    config
+                        .aero
+                        .reynolds_exponents
+                        .get(i)
+                        .copied()
+                        .unwrap_or(0.0),
                 );
             }
         }

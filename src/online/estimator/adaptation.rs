@@ -45,12 +45,12 @@ use crate::physics::{FlightModel, PARAMS, ParamVector, PhysicsParams};
 /// The parameters learned across tracks: the ball's and table's ([`PARAMS`], each flight's
 /// filter learns them too) and the Reynolds exponents (a_D, a_M), which the flights' scales at
 /// their different speeds teach.
-const SHAPE: usize = PARAMS + 2;
+pub(crate) const SHAPE: usize = PARAMS + 2;
 /// Index of a_D, then a_M, in the learned parameters.
 const DRAG_EXPONENT: usize = PARAMS;
 const MAGNUS_EXPONENT: usize = PARAMS + 1;
-type ShapeVector = SVector<f64, SHAPE>;
-type ShapeCovariance = SMatrix<f64, SHAPE, SHAPE>;
+pub(crate) type ShapeVector = SVector<f64, SHAPE>;
+pub(crate) type ShapeCovariance = SMatrix<f64, SHAPE, SHAPE>;
 /// d(a flight's parameters)/d(the learned ones).
 type FlightMap = SMatrix<f64, PARAMS, SHAPE>;
 /// Linearisations of a track's update: the first at theta_g, each next at the last's result.
@@ -104,6 +104,31 @@ impl Learned {
         }
     }
 
+    /// Nothing learned yet, as `config`'s adaptation starts (without its drift).
+    pub(crate) fn prior_of(config: &Config) -> Self {
+        Self::new(
+            configured_shape(config),
+            shape_prior_variances(config),
+            ShapeVector::zeros(),
+            ParamVector::zeros(),
+        )
+    }
+
+    /// The same prior with theta_g and P_g given (a joint estimate over many flights).
+    pub(crate) fn with_estimate(self, theta: ShapeVector, covariance: ShapeCovariance) -> Self {
+        Self {
+            theta,
+            covariance,
+            ..self
+        }
+    }
+
+    /// theta_g and P_g as learned (an undetermined exponent as well, [`Self::settled`] not
+    /// applied).
+    pub(crate) fn estimate(&self) -> (ShapeVector, ShapeCovariance) {
+        (self.theta, self.covariance)
+    }
+
     /// D, the flight-to-flight dispersion (variances).
     pub(crate) fn dispersion(&self) -> ParamVector {
         self.dispersion
@@ -144,6 +169,7 @@ impl Learned {
             }
             let gain = covariance.column(i) / variance;
             theta += gain * (self.prior[i] - theta[i]);
+            theta[i] = self.prior[i];
             covariance -= gain * covariance.row(i);
         }
         (theta, covariance)
@@ -333,11 +359,19 @@ fn positive_part(m: &ParamCovariance) -> ParamCovariance {
 
 /// The prior variances of the learned physical parameters (`adaptation.*_sigma` squared; zero,
 /// not adapted, without the adaptation).
-pub(crate) fn param_prior_variances(config: &Config) -> ParamVector {
+fn param_prior_variances(config: &Config) -> ParamVector {
     let adaptation = &config.adaptation;
     let sigmas = ParamVector::from_fn(|i, _| AdaptationParams::of(&adaptation.sigma, i))
         * if adaptation.enabled { 1.0 } else { 0.0 };
     sigmas.component_mul(&sigmas)
+}
+
+/// The configured learned parameters: the ball's and table's, then the Reynolds exponents.
+pub(crate) fn configured_shape(config: &Config) -> ShapeVector {
+    shape_vector(
+        &PhysicsParams::from_config(config).to_vector(),
+        FlightModel::new(config).reynolds_exponents(),
+    )
 }
 
 /// The learned parameters of the ball's and table's `params` and the Reynolds `exponents`.
@@ -351,7 +385,7 @@ fn shape_vector(params: &ParamVector, [a_d, a_m]: [f64; 2]) -> ShapeVector {
 
 /// The prior variances of the learned parameters: [`param_prior_variances`], then the
 /// Reynolds exponents' (`adaptation.reynolds_sigma` squared).
-fn shape_prior_variances(config: &Config) -> ShapeVector {
+pub(crate) fn shape_prior_variances(config: &Config) -> ShapeVector {
     let on = if config.adaptation.enabled { 1.0 } else { 0.0 };
     let variance = |k| (AdaptationParams::of(&config.adaptation.reynolds_sigma, k) * on).powi(2);
     shape_vector(&param_prior_variances(config), [variance(0), variance(1)])
@@ -389,10 +423,7 @@ impl Adaptation {
         let dispersion = ParamVector::from_fn(|i, _| AdaptationParams::of(flight, i));
         Self {
             physics: Learned::new(
-                shape_vector(
-                    &PhysicsParams::from_config(config).to_vector(),
-                    FlightModel::new(config).reynolds_exponents(),
-                ),
+                configured_shape(config),
                 shape_prior_variances(config),
                 shape_drift_density(config),
                 dispersion.component_mul(&dispersion),

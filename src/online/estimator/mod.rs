@@ -27,7 +27,7 @@ mod tracker;
 use crate::config::Config;
 use crate::model::detection::{Detection, seconds_to_ns};
 use crate::online::contact_side::with_contact_side;
-use crate::online::ekf::{BounceNoise, ParamCovariance};
+use crate::online::ekf::BounceNoise;
 use crate::online::intercept::{Intercept, InterceptQuery, InterceptTracker};
 pub use crate::online::learned::{
     LearnedParams, LearnedSourceNoise, LearnedSummary, describe_params, describe_source_noise,
@@ -37,8 +37,10 @@ use crate::physics::{
     BallState, ParamVector, PhysicsParams, PredictOptions, Propagator, StateMatrix, Trajectory,
     predict,
 };
-pub(crate) use adaptation::param_prior_variances;
-use adaptation::{Adaptation, Learned, drift_density};
+use adaptation::{Adaptation, drift_density};
+pub(crate) use adaptation::{
+    Learned, SHAPE, ShapeCovariance, ShapeVector, configured_shape, shape_prior_variances,
+};
 pub use camera_noise::PRIOR_WEIGHT;
 pub use camera_noise::SourceNoiseEstimate;
 pub use counters::{Counters, Rejection, Verdict};
@@ -115,7 +117,7 @@ pub struct Output {
 /// ([`Estimator::learned_physics`], [`Estimator::adopt_learned_physics`]).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct LearnedPhysics {
-    params: Learned,
+    pub(crate) params: Learned,
 }
 
 impl LearnedPhysics {
@@ -288,10 +290,11 @@ impl Estimator {
         }
     }
 
-    /// The ball's and table's parameters learned so far (the live track's lesson included as
-    /// far as it has come) and their covariance.
-    pub(crate) fn learned_global(&self) -> (ParamVector, ParamCovariance) {
-        self.learned_with_live_track().global()
+    /// The parameters learned so far (the live track's lesson included as far as it has come),
+    /// the ball's and table's and the Reynolds exponents, and their covariance, as learned
+    /// (an undetermined exponent's too).
+    pub(crate) fn learned_shape(&self) -> (ShapeVector, ShapeCovariance) {
+        self.learned_with_live_track().estimate()
     }
 
     /// Starts from what another estimator (of the same configuration) learned of the physical
