@@ -114,6 +114,24 @@ pub const MISMATCH_B: Mismatch = Mismatch {
     magnus_exponent: 0.0,
 };
 
+/// Elite play, seen by both cameras, whose Magnus force falls faster with speed than configured
+/// (a_M 0.35 below the configured), the ball's scales and the table as configured otherwise:
+/// the set that tells the Reynolds exponent (not among [`standard_sets`]).
+pub const STEEPER_ELITE: TrialSet = TrialSet {
+    name: "steeper-elite",
+    mismatch: Some(Mismatch {
+        drag: 1.0,
+        magnus: 1.0,
+        restitution: 0.9,
+        friction: 0.25,
+        magnus_exponent: -0.35,
+    }),
+    noise_factor: 1.0,
+    tracker: Tracker::TwoCameras,
+    play: Play::Elite,
+    net: true,
+};
+
 /// Today's sets (the configured physics and noise) and the harder ones.
 pub fn standard_sets() -> Vec<TrialSet> {
     let set = |name, mismatch, noise_factor, tracker, play, net| TrialSet {

@@ -121,21 +121,7 @@ fn a_smoothed_flight_teaches_the_magnus_scale() {
 /// the 100 ms interception is further from the true physics'.
 #[test]
 fn elite_flights_teach_the_magnus_forces_reynolds_exponent() {
-    use ttball::eval::sets::{Mismatch, Play, Tracker};
-    let steeper = TrialSet {
-        name: "steeper-elite",
-        mismatch: Some(Mismatch {
-            drag: 1.0,
-            magnus: 1.0,
-            restitution: 0.9,
-            friction: 0.25,
-            magnus_exponent: -0.35,
-        }),
-        noise_factor: 1.0,
-        tracker: Tracker::TwoCameras,
-        play: Play::Elite,
-        net: true,
-    };
+    let steeper = ttball::eval::sets::STEEPER_ELITE;
     let config = Config::default();
     let r = run_set(&config, &steeper, 60, 3).unwrap();
     let learned = &r.learned;

@@ -324,24 +324,11 @@ fn the_estimators_route_recovers_the_physics_and_the_online_numbers() {
 /// the exponent stays at its prior.
 #[test]
 fn the_estimators_route_fits_the_reynolds_exponent_of_fast_flights() {
-    use ttball::eval::sets::{Mismatch, Play, Tracker, TrialSet, configurations, sim_options};
+    use ttball::eval::sets::{STEEPER_ELITE, configurations, sim_options};
     use ttball::offline::two_level::calibrate_two_level;
-    let steeper = TrialSet {
-        name: "steeper-elite",
-        mismatch: Some(Mismatch {
-            drag: 1.0,
-            magnus: 1.0,
-            restitution: 0.9,
-            friction: 0.25,
-            magnus_exponent: -0.35,
-        }),
-        noise_factor: 1.0,
-        tracker: Tracker::TwoCameras,
-        play: Play::Elite,
-        net: true,
-    };
-    let (truth, filter, _) = configurations(&Config::default(), &steeper);
-    let session = simulate(&truth, &sim_options(&filter, &steeper, 40, 3)).expect("simulated");
+    let (truth, filter, _) = configurations(&Config::default(), &STEEPER_ELITE);
+    let session =
+        simulate(&truth, &sim_options(&filter, &STEEPER_ELITE, 40, 3)).expect("simulated");
     let mut flights: Vec<Vec<_>> = vec![Vec::new(); session.shots.len()];
     for sim in &session.stream {
         flights[sim.shot].push(sim.detection);
