@@ -20,8 +20,9 @@
 //! theta_g also holds the Reynolds exponents (a_D, a_M), which no single flight's filter
 //! learns: a track flies with the learned ones, and its scales are the ball's at its speeds,
 //! theta_f = h(theta_g) with k_f = k_g exp((a_g - a_flown) L), L its mean ln f(Re)
-//! ([`Learned::flight_params`]). The update above takes h linearised at theta_g: the
-//! information H' J_g H and the mean H' (I + J D)^-1 (b - J c), c = h - H theta_g.
+//! ([`Learned::flight_params`]). The update above takes h linearised at a point theta_l: the
+//! information H' J_g H and the mean H' (I + J D)^-1 (b - J c), c = h - H theta_l; theta_l is
+//! theta_g, then the updated estimate, [`LINEARISATIONS`] times (Gauss-Newton).
 //!
 //! An exponent the flights have not determined (its sigma not below [`DETERMINED_SHARE`] of its
 //! prior's: flights of too narrow a band of speeds) stays at its prior wherever it is used, the
