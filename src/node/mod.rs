@@ -414,22 +414,27 @@ fn node_pipeline(config: &Config, table_pose: Option<&TFMessage>) -> Pipeline {
     pipeline
 }
 
-/// The Foxglove live view, when asked for.
+/// A running Foxglove live view and the topics it shows.
+type RunningLiveView = (LiveView, crate::config::TopicsParams);
+
+/// The Foxglove live view, when asked for, and the receiver of its app's requests (one that
+/// never delivers without a live view).
 fn start_live_view(
     placement: &Placement,
     topics: &crate::config::TopicsParams,
-    (app_requests, fq_name): (&Sender<foxglove::AppRequest>, &str),
-) -> Result<Option<(LiveView, crate::config::TopicsParams)>, NodeError> {
+    fq_name: &str,
+) -> Result<(Option<RunningLiveView>, Receiver<foxglove::AppRequest>), NodeError> {
     let Some(address) = &placement.live_view else {
-        return Ok(None);
+        return Ok((None, channel::never()));
     };
-    let view = LiveView::start_with(address, Some(foxglove::interaction(app_requests, fq_name)))?;
+    let (app_tx, app_rx) = channel::bounded::<foxglove::AppRequest>(REQUEST_QUEUE);
+    let view = LiveView::start_with(address, Some(foxglove::interaction(&app_tx, fq_name)))?;
     info!(
         "Foxglove live view on ws://{}:{} (in Foxglove: Open connection)",
         address.rsplit_once(':').map_or("", |(host, _)| host),
         view.port()
     );
-    Ok(Some((view, topics.clone())))
+    Ok((Some((view, topics.clone())), app_rx))
 }
 
 /// The keeper of the learned file, when asked for.
@@ -526,14 +531,7 @@ fn start_here(config: &Config, placement: &Placement) -> Result<NodeHandle, Node
 
     let parameters = Parameters::new(config);
     let pipeline = node_pipeline(config, table_pose.as_ref());
-    // The live view's app requests; none without a live view.
-    let (app_tx, app_rx) = channel::bounded::<foxglove::AppRequest>(REQUEST_QUEUE);
-    let live_view = start_live_view(placement, topics, (&app_tx, &fq_name))?;
-    let app_rx = if live_view.is_some() {
-        app_rx
-    } else {
-        channel::never()
-    };
+    let (live_view, app_rx) = start_live_view(placement, topics, &fq_name)?;
     let keeper = start_keeper(placement, config, &fq_name)?;
     let estimator = EstimatorThread {
         keeper,
@@ -747,7 +745,7 @@ struct EstimatorThread {
     /// The writer of the table's pose (kept: the transform is transient local).
     _tf_publisher: Option<Publisher<TFMessage>>,
     /// The Foxglove live view, and the topics it shows the detections and outputs on.
-    live_view: Option<(LiveView, crate::config::TopicsParams)>,
+    live_view: Option<RunningLiveView>,
     /// The keeper of what the estimator learned in a file (`--learned`).
     keeper: Option<keeper::LearnedKeeper>,
 }

@@ -15,7 +15,7 @@ use ttball::offline::calibrate::{
     Calibration, FlightInput, FlightLabel, Holdout, Options, Parameter, calibrate, holdout,
 };
 use ttball::offline::smooth::split_flights;
-use ttball::offline::two_level::calibrate_two_level;
+use ttball::offline::two_level::{TwoLevelCalibration, calibrate_two_level};
 use ttball::online::estimator::describe_params;
 use ttball::online::learned::REYNOLDS_EXPONENT_NAMES;
 use ttball::physics::params::PhysicsParams;
@@ -315,21 +315,6 @@ impl CalibrateArgs {
         flights: Vec<FlightInput>,
         held: &[FlightInput],
     ) -> anyhow::Result<ExitCode> {
-        let mut start = config.clone();
-        // In the order of PhysicsParams::NAMES: the scales, then the bounce.
-        let sigma = &mut start.adaptation.sigma;
-        sigma.resize(4, 0.0);
-        if !fit.contains(&Group::Scales) {
-            sigma[0] = 0.0;
-            sigma[1] = 0.0;
-        }
-        if !fit.contains(&Group::Bounce) {
-            sigma[2] = 0.0;
-            sigma[3] = 0.0;
-        }
-        if !fit.contains(&Group::Reynolds) {
-            start.adaptation.reynolds_sigma = vec![0.0; 2];
-        }
         let detections: Vec<Vec<Detection>> = flights
             .into_iter()
             .map(|f| {
@@ -339,8 +324,9 @@ impl CalibrateArgs {
             })
             .collect();
         let mut progress = |line: &str| eprintln!("{line}");
-        let calibration = calibrate_two_level(&start, &detections, &mut progress)
-            .map_err(|e| BadUsage(format!("cannot calibrate: {e}")))?;
+        let calibration =
+            calibrate_two_level(&estimator_start(config, fit), &detections, &mut progress)
+                .map_err(|e| BadUsage(format!("cannot calibrate: {e}")))?;
         let held_out = self
             .holdout
             .then(|| holdout(config, &calibration.config, held, HOLDOUT_FRACTION));
@@ -361,85 +347,10 @@ impl CalibrateArgs {
         }
         text.push_str(&changed_params_yaml(config, &calibration.config));
         write_file(&self.output, text)?;
-        let start_values = PhysicsParams::from_config(config).to_vector();
-        let online = calibration.online.params.params.to_vector();
-        let fitted = calibration.params.params.to_vector();
         if let Some(path) = &self.json {
-            let json = serde_json::json!({
-                "method": "estimator",
-                "flights": calibration.params.tracks,
-                "parameters": PhysicsParams::NAMES.iter().enumerate().map(|(i, name)| {
-                    serde_json::json!({
-                        "name": name,
-                        "value": fitted[i],
-                        "std_error": calibration.params.sigma[i],
-                        "initial": start_values[i],
-                        "online": online[i],
-                    })
-                }).collect::<Vec<_>>(),
-                "reynolds_exponents": REYNOLDS_EXPONENT_NAMES.iter().enumerate().map(|(i, name)| {
-                    let p = &calibration.params;
-                    serde_json::json!({
-                        "name": name,
-                        "value": p.reynolds_exponents[i],
-                        "std_error": p.reynolds_sigma[i],
-                        "prior_sigma": p.reynolds_prior_sigma[i],
-                        "determined": p.reynolds_determined()[i],
-                        "online": calibration.online.params.reynolds_exponents[i],
-                    })
-                }).collect::<Vec<_>>(),
-                "iterations": calibration.iterations,
-                "converged": calibration.converged,
-                "holdout": held_out,
-            });
-            write_json(path, &json)?;
+            write_json(path, &estimator_json(&calibration, config, &held_out))?;
         }
-        let mut out = format!(
-            "calibrated from {} flights with the estimator's model, {} iterations{}\n",
-            calibration.params.tracks,
-            calibration.iterations,
-            if calibration.converged {
-                ""
-            } else {
-                " (not converged: the last is written)"
-            }
-        );
-        out.push_str(
-            "parameter                         fitted      +- std error   online     start\n",
-        );
-        for (i, name) in PhysicsParams::NAMES.iter().enumerate() {
-            if calibration.params.sigma[i] > 0.0 {
-                let _ = writeln!(
-                    out,
-                    "  {:<30} {:>10.5}  {:>10.5}   {:>9.5}  {:>9.5}",
-                    name, fitted[i], calibration.params.sigma[i], online[i], start_values[i]
-                );
-            }
-        }
-        let p = &calibration.params;
-        for (i, name) in REYNOLDS_EXPONENT_NAMES.iter().enumerate() {
-            if p.reynolds_prior_sigma[i] > 0.0 {
-                let determined = if p.reynolds_determined()[i] {
-                    ""
-                } else {
-                    "   (not determined by these flights' speeds: kept at its prior)"
-                };
-                let _ = writeln!(
-                    out,
-                    "  {:<30} {:>10.5}  {:>10.5}   {:>9.5}  {:>9.5}{determined}",
-                    format!("Reynolds exponent {name}"),
-                    p.reynolds_exponents[i],
-                    p.reynolds_sigma[i],
-                    calibration.online.params.reynolds_exponents[i],
-                    config
-                        .aero
-                        .reynolds_exponents
-                        .get(i)
-                        .copied()
-                        .unwrap_or(0.0),
-                );
-            }
-        }
+        let mut out = estimator_table(&calibration, config);
         for line in calibration.online.lines().iter().skip(1) {
             let _ = writeln!(out, "  also written: {line}");
         }
@@ -450,6 +361,113 @@ impl CalibrateArgs {
         write_stdout(&out)?;
         Ok(ExitCode::SUCCESS)
     }
+}
+
+/// The start of `--method estimator`: `config` with the groups not in `fit` held (their prior
+/// sigmas zero).
+fn estimator_start(config: &Config, fit: &[Group]) -> Config {
+    let mut start = config.clone();
+    // In the order of PhysicsParams::NAMES: the scales, then the bounce.
+    let sigma = &mut start.adaptation.sigma;
+    sigma.resize(4, 0.0);
+    if !fit.contains(&Group::Scales) {
+        sigma[0] = 0.0;
+        sigma[1] = 0.0;
+    }
+    if !fit.contains(&Group::Bounce) {
+        sigma[2] = 0.0;
+        sigma[3] = 0.0;
+    }
+    if !fit.contains(&Group::Reynolds) {
+        start.adaptation.reynolds_sigma = vec![0.0; 2];
+    }
+    start
+}
+
+/// `--method estimator`'s JSON: each parameter and exponent fitted, with its standard error, the
+/// start and the online value.
+fn estimator_json(
+    calibration: &TwoLevelCalibration,
+    config: &Config,
+    held_out: &Option<Holdout>,
+) -> serde_json::Value {
+    let (p, online) = (&calibration.params, &calibration.online.params);
+    let (fitted, online_values) = (p.params.to_vector(), online.params.to_vector());
+    let start = PhysicsParams::from_config(config).to_vector();
+    serde_json::json!({
+        "method": "estimator",
+        "flights": p.tracks,
+        "parameters": PhysicsParams::NAMES.iter().enumerate().map(|(i, name)| {
+            serde_json::json!({
+                "name": name,
+                "value": fitted[i],
+                "std_error": p.sigma[i],
+                "initial": start[i],
+                "online": online_values[i],
+            })
+        }).collect::<Vec<_>>(),
+        "reynolds_exponents": REYNOLDS_EXPONENT_NAMES.iter().enumerate().map(|(i, name)| {
+            serde_json::json!({
+                "name": name,
+                "value": p.reynolds_exponents[i],
+                "std_error": p.reynolds_sigma[i],
+                "prior_sigma": p.reynolds_prior_sigma[i],
+                "determined": p.reynolds_determined()[i],
+                "online": online.reynolds_exponents[i],
+            })
+        }).collect::<Vec<_>>(),
+        "iterations": calibration.iterations,
+        "converged": calibration.converged,
+        "holdout": held_out,
+    })
+}
+
+/// `--method estimator`'s table: each parameter and exponent fitted (not held), its standard
+/// error, the online value and the start.
+fn estimator_table(calibration: &TwoLevelCalibration, config: &Config) -> String {
+    let (p, online) = (&calibration.params, &calibration.online.params);
+    let mut out = format!(
+        "calibrated from {} flights with the estimator's model, {} iterations{}\n",
+        p.tracks,
+        calibration.iterations,
+        if calibration.converged {
+            ""
+        } else {
+            " (not converged: the last is written)"
+        }
+    );
+    out.push_str("parameter                         fitted      +- std error   online     start\n");
+    let (fitted, online_values) = (p.params.to_vector(), online.params.to_vector());
+    let start = PhysicsParams::from_config(config).to_vector();
+    for (i, name) in PhysicsParams::NAMES.iter().enumerate() {
+        if p.sigma[i] > 0.0 {
+            let _ = writeln!(
+                out,
+                "  {:<30} {:>10.5}  {:>10.5}   {:>9.5}  {:>9.5}",
+                name, fitted[i], p.sigma[i], online_values[i], start[i]
+            );
+        }
+    }
+    let start_exponents = ttball::physics::FlightModel::new(config).reynolds_exponents();
+    for (i, name) in REYNOLDS_EXPONENT_NAMES.iter().enumerate() {
+        if p.reynolds_prior_sigma[i] > 0.0 {
+            let determined = if p.reynolds_determined()[i] {
+                ""
+            } else {
+                "   (not determined by these flights' speeds: kept at its prior)"
+            };
+            let _ = writeln!(
+                out,
+                "  {:<30} {:>10.5}  {:>10.5}   {:>9.5}  {:>9.5}{determined}",
+                format!("Reynolds exponent {name}"),
+                p.reynolds_exponents[i],
+                p.reynolds_sigma[i],
+                online.reynolds_exponents[i],
+                start_exponents[i],
+            );
+        }
+    }
+    out
 }
 
 /// The configuration snippet: the fitted values, with the fit's numbers in comments.
