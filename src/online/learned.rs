@@ -66,6 +66,13 @@ pub const REYNOLDS_EXPONENT_NAMES: [&str; 2] = ["a_D", "a_M"];
 /// (the flights' speeds have told it apart from the scale).
 pub const DETERMINED_SHARE: f64 = 0.8;
 
+/// Whether flights have determined an exponent of standard deviation `sigma` and prior standard
+/// deviation `prior_sigma`: learned (a prior sigma above zero) and its sigma below
+/// [`DETERMINED_SHARE`] of the prior's.
+pub(crate) fn exponent_determined(sigma: f64, prior_sigma: f64) -> bool {
+    prior_sigma > 0.0 && sigma < DETERMINED_SHARE * prior_sigma
+}
+
 impl LearnedParams {
     /// Parameters `theta` of covariance `covariance`, learned over `tracks` tracks, with a
     /// flight-to-flight dispersion of variances `dispersion`.
@@ -111,8 +118,7 @@ impl LearnedParams {
     /// [`DETERMINED_SHARE`] of its prior's); one not learned is not.
     pub fn reynolds_determined(&self) -> [bool; 2] {
         std::array::from_fn(|i| {
-            self.reynolds_prior_sigma[i] > 0.0
-                && self.reynolds_sigma[i] < DETERMINED_SHARE * self.reynolds_prior_sigma[i]
+            exponent_determined(self.reynolds_sigma[i], self.reynolds_prior_sigma[i])
         })
     }
 }

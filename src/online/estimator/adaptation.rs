@@ -24,10 +24,11 @@
 //! information H' J_g H and the mean H' (I + J D)^-1 (b - J c), c = h - H theta_l; theta_l is
 //! theta_g, then the updated estimate, [`LINEARISATIONS`] times (Gauss-Newton).
 //!
-//! An exponent the flights have not determined (its sigma not below [`DETERMINED_SHARE`] of its
-//! prior's: flights of too narrow a band of speeds) stays at its prior wherever it is used, the
-//! other parameters conditioned on it ([`Learned::settled`]): what the flights taught of the
-//! scale and the exponent together is kept, and theta_g itself learns on.
+//! An exponent the flights have not determined (its sigma not below
+//! [`DETERMINED_SHARE`](crate::online::learned::DETERMINED_SHARE) of its prior's: flights of too
+//! narrow a band of speeds) stays at its prior wherever it is used, the other parameters
+//! conditioned on it ([`Learned::settled`]): what the flights taught of the scale and the
+//! exponent together is kept, and theta_g itself learns on.
 //!
 //! Parameters with a zero prior sigma are not adapted: they keep their configured value and a
 //! zero variance throughout.
@@ -39,7 +40,7 @@ use super::lessons::Lessons;
 use super::smoother::{Flown, Lesson, LessonJob};
 use crate::config::{AdaptationParams, Config};
 use crate::online::ekf::ParamCovariance;
-use crate::online::learned::DETERMINED_SHARE;
+use crate::online::learned::exponent_determined;
 use crate::physics::params::{DRAG_SCALE, MAGNUS_SCALE};
 use crate::physics::{FlightModel, PARAMS, ParamVector, PhysicsParams};
 
@@ -151,11 +152,12 @@ impl Learned {
         [theta[DRAG_EXPONENT], theta[MAGNUS_EXPONENT]]
     }
 
-    /// Whether the flights have determined the exponent at `index`: adapted, and its sigma
-    /// below [`DETERMINED_SHARE`] of its prior's.
+    /// Whether the flights have determined the exponent at `index` ([`exponent_determined`]).
     fn determined(&self, index: usize) -> bool {
-        let prior = self.prior_var[index];
-        prior > 0.0 && self.covariance[(index, index)] < DETERMINED_SHARE.powi(2) * prior
+        exponent_determined(
+            self.covariance[(index, index)].max(0.0).sqrt(),
+            self.prior_var[index].max(0.0).sqrt(),
+        )
     }
 
     /// theta_g with `covariance` (P_g, or P_g drifted) as the tracks use them: each adapted
