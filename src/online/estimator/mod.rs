@@ -393,28 +393,37 @@ impl Estimator {
 
     /// The predicted trajectory of the tracked ball from its current estimate, sampled every
     /// `dt` seconds over `horizon` seconds (for `PredictedTrajectory`; allocates its samples).
+    /// It flies the live track's own physical parameters, as its interception does, so that the
+    /// two agree where the trajectory crosses the hitting plane.
     pub fn predicted_trajectory(&self, dt: f64, horizon: f64) -> Option<(i64, Trajectory)> {
         let track = self.tracker.track.as_ref()?;
         let start = BallState::from_vector(&track.now.ekf.x);
-        Some((track.now.stamp, self.predict_flight(&start, dt, horizon)))
+        let propagator = self.propagator().with_params(&track.now.ekf.params());
+        Some((
+            track.now.stamp,
+            predict(&propagator, &start, &self.flight_options(dt, horizon)),
+        ))
     }
 
     /// The predicted flight of any ball state with this estimator's model and learned
     /// parameters, sampled every `dt` seconds over `horizon` seconds (events: table, net,
     /// floor, the hitting plane).
     pub fn predict_flight(&self, start: &BallState, dt: f64, horizon: f64) -> Trajectory {
-        let options = PredictOptions {
-            horizon,
-            sample_interval: dt,
-            plane_x: Some(self.publishing.plane_x),
-            stop_at_plane: false,
-        };
         let learned = self.learned_with_live_track();
         let propagator = self
             .propagator()
             .with_params(&PhysicsParams::from_vector(&learned.global().0))
             .with_reynolds_exponents(learned.exponents());
-        predict(&propagator, start, &options)
+        predict(&propagator, start, &self.flight_options(dt, horizon))
+    }
+
+    fn flight_options(&self, dt: f64, horizon: f64) -> PredictOptions {
+        PredictOptions {
+            horizon,
+            sample_interval: dt,
+            plane_x: Some(self.publishing.plane_x),
+            stop_at_plane: false,
+        }
     }
 
     /// Counts a detection that an adapter rejected before it reached the filter (e.g. its
