@@ -7,9 +7,9 @@
 mod common;
 
 mod config;
+mod doc_tables;
 mod golden;
 mod node;
 mod predict;
 mod racket;
-mod readme;
 mod replay;

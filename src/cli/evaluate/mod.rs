@@ -21,6 +21,11 @@ use ttball::eval::{
 use ttball::model::stats::ErrorStats;
 use ttball::physics::{BallState, PhysicsParams};
 
+mod tables;
+
+pub use tables::DocTable;
+use tables::{doc_table, readme_tables};
+
 use super::report::accuracy_table;
 use super::{ConfigArgs, write_json, write_stdout};
 
@@ -91,6 +96,11 @@ pub struct EvaluateArgs {
     #[arg(long, conflicts_with_all = ["sets", "efficiency", "real"])]
     pub readme: bool,
 
+    /// Print a table of `docs/` instead, as the file holds it (run from the repository's
+    /// root). `cargo test` checks that the files hold exactly these tables.
+    #[arg(long, value_enum, value_name = "TABLE", conflicts_with_all = ["sets", "efficiency", "real", "readme"])]
+    pub doc_table: Option<DocTable>,
+
     /// Also write the report as JSON to this file (with `--real`: the summaries and every
     /// flight's outcome at each lead, in SI units).
     #[arg(long, value_name = "FILE")]
@@ -107,6 +117,10 @@ impl EvaluateArgs {
         if self.readme {
             let config = self.config.load()?;
             write_stdout(&readme_tables(&config)?)?;
+            return Ok(ExitCode::SUCCESS);
+        }
+        if let Some(table) = self.doc_table {
+            write_stdout(&doc_table(table, &self.config.layers())?)?;
             return Ok(ExitCode::SUCCESS);
         }
         if let Some(names) = &self.sets {
@@ -188,112 +202,6 @@ fn triple(values: [f64; 3], scale: f64, decimals: usize) -> String {
     values
         .map(|v| format!("{:.*}", decimals, v * scale))
         .join(" / ")
-}
-
-/// The accuracy tables of README.md (see `--readme`), as Markdown.
-fn readme_tables(config: &ttball::config::Config) -> anyhow::Result<String> {
-    let mut reports = Vec::new();
-    for cameras in [Cameras::WideAndHighSpeed, Cameras::WideOnly] {
-        let mut config = config.clone();
-        let options = SimOptions {
-            cameras,
-            shots: 200,
-            seed: 1,
-            ..SimOptions::default()
-        };
-        options.params.configure_estimator(&mut config);
-        let session = simulate(&config, &options).context("cannot simulate the session")?;
-        reports.push(evaluate_learning(&config, &session).0);
-    }
-    // LEADS are 300, 200, 100 ms: in the tables 100, 200, 300.
-    let by_lead = |r: &EvalReport, f: &dyn Fn(&ttball::eval::LeadReport) -> f64| {
-        [f(&r.leads[2]), f(&r.leads[1]), f(&r.leads[0])]
-    };
-    let column = |r: &EvalReport| {
-        [
-            triple(by_lead(r, &|l| l.position_error.rms), 1e3, 1),
-            triple(by_lead(r, &|l| l.position_error.median), 1e3, 1),
-            format!("{:.2}", r.velocity_error.rms),
-            format!(
-                "{:.2} ({:.2} / {:.2})",
-                r.state_nees, r.bounce_nees[0], r.bounce_nees[1]
-            ),
-            triple(by_lead(r, &|l| l.position_nees), 1.0, 2),
-            format!("{} of {}", r.single_track_shots, r.shots),
-        ]
-    };
-    let (both, wide) = (column(&reports[0]), column(&reports[1]));
-    let rows = [
-        (
-            "interception position RMS at 100 / 200 / 300 ms lead [mm]",
-            "3 at 100 ms",
-        ),
-        (
-            "interception position median at 100 / 200 / 300 ms lead [mm]",
-            "- / 3 / 40",
-        ),
-        ("velocity after 100 ms of track, RMS [m/s]", "0.05"),
-        (
-            "state NEES per dimension (before / after the bounce)",
-            "0.7-1.5",
-        ),
-        (
-            "interception NEES per dimension at 100 / 200 / 300 ms",
-            "0.7-1.5",
-        ),
-        ("shots tracked as one track", "all"),
-    ];
-    let mut text = String::from(
-        "| simulated play, seed 1, 200 shots | 150 + 900 fps | 150 fps alone | target |\n\
-         |---|---|---|---|\n",
-    );
-    for (i, (name, target)) in rows.iter().enumerate() {
-        text.push_str(&format!(
-            "| {name} | {} | {} | {target} |\n",
-            both[i], wide[i]
-        ));
-    }
-    let r = &reports[0];
-    text.push_str(&format!(
-        "| velocity / spin where the 900 fps camera sees the ball, RMS | {:.2} m/s / {:.1} \
-         rad/s | - | 0.05 m/s / 15 rad/s |\n",
-        r.velocity_error_high_speed.rms, r.spin_error_high_speed.rms
-    ));
-
-    let files: Vec<PathBuf> = ["backspin", "no_spin", "topspin"]
-        .iter()
-        .map(|kind| PathBuf::from(format!("tests/data/mpi_launcher/mn5008_{kind}.csv")))
-        .collect();
-    let (launcher, config) = launcher_flights(config, &files)
-        .context("the real launcher flights are read from the repository's root")?;
-    let real = evaluate_flights(&config, &launcher.flights, &RealEvalOptions::default());
-    let all = real.overall().context("no real flight was scored")?;
-    let tracks: u64 = real.flights.iter().map(|f| f.counters.tracks).sum();
-    let gated = real
-        .flights
-        .iter()
-        .filter(|f| f.gated_after_bounce > 0)
-        .count();
-    text.push_str(&format!(
-        "\n| real launcher flights, {} ({} crossings measured) | crossing error RMS / median \
-         [mm] | NEES per dimension | target |\n|---|---|---|---|\n",
-        real.flights.len(),
-        all.scored
-    ));
-    for (l, target) in all.leads.iter().zip(["15 mm RMS", "10 mm RMS"]) {
-        text.push_str(&format!(
-            "| {:.0} ms lead | {:.1} / {:.1} | {:.2} | {target} |\n",
-            l.lead * 1e3,
-            l.position_error.rms * 1e3,
-            l.position_error.median * 1e3,
-            l.crossing_nees
-        ));
-    }
-    text.push_str(&format!(
-        "| tracks; flights with a detection gated within 50 ms after the bounce | {tracks}; \
-         {gated} | | one a flight; none |\n"
-    ));
-    Ok(text)
 }
 
 impl EvaluateArgs {

@@ -1,0 +1,312 @@
+//! The tables README.md and `docs/` quote, printed exactly as those files hold them
+//! (`ttball evaluate --readme`, `ttball evaluate --doc-table NAME`); `cargo test` checks that
+//! the files hold what these print, so that a change of numbers is a reviewed decision.
+
+use std::path::PathBuf;
+
+use anyhow::Context;
+use clap::ValueEnum;
+use ttball::config::Config;
+use ttball::config::yaml::{Layer, load_layers};
+use ttball::eval::real::{RealEvalOptions, RealReport, evaluate_flights};
+use ttball::eval::sets::{SETTLE_FLIGHTS, run_set, standard_sets};
+use ttball::eval::sim::{Cameras, SimOptions, simulate};
+use ttball::eval::{BatchPhysics, EvalReport, efficiency, evaluate_learning};
+use ttball::physics::PhysicsParams;
+
+use super::{launcher_flights, triple};
+
+/// A table of `docs/`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum DocTable {
+    /// docs/accuracy.md: the filter against the batch fit on simulated play (seed 1, 200 shots,
+    /// both camera setups; about 1 minute).
+    Efficiency,
+    /// docs/accuracy.md: the harder sets (seed 1, 60 shots per set).
+    Sets,
+    /// docs/real_flights.md: the real launcher flights under other configurations.
+    RealConfigurations,
+}
+
+/// The table `table` of `docs/`, as Markdown, from the configuration of `layers`.
+pub(super) fn doc_table(table: DocTable, layers: &[Layer]) -> anyhow::Result<String> {
+    let config = load_layers(layers, None)?;
+    match table {
+        DocTable::Efficiency => efficiency_doc_table(&config),
+        DocTable::Sets => sets_doc_table(&config),
+        DocTable::RealConfigurations => real_configurations_table(&config, layers),
+    }
+}
+
+/// Simulated play, seed 1, 200 shots, seen by `cameras`: the session and `config` with the
+/// simulated cameras' noise.
+fn simulated_play(
+    config: &Config,
+    cameras: Cameras,
+) -> anyhow::Result<(Config, ttball::eval::sim::Session)> {
+    let mut config = config.clone();
+    let options = SimOptions {
+        cameras,
+        shots: 200,
+        seed: 1,
+        ..SimOptions::default()
+    };
+    options.params.configure_estimator(&mut config);
+    let session = simulate(&config, &options).context("cannot simulate the session")?;
+    Ok((config, session))
+}
+
+/// The efficiency table of docs/accuracy.md: the filter's errors over the batch fit's flying the
+/// physics the estimator had learned, for both camera setups.
+fn efficiency_doc_table(config: &Config) -> anyhow::Result<String> {
+    let mut columns = Vec::new();
+    for cameras in [Cameras::WideAndHighSpeed, Cameras::WideOnly] {
+        let (config, session) = simulated_play(config, cameras)?;
+        let learned = efficiency(&config, &session)
+            .into_iter()
+            .find(|e| e.physics == BatchPhysics::Learned)
+            .context("the efficiency with the learned physics")?;
+        // LEADS are 300, 200, 100 ms: in the table 100, 200, 300.
+        let leads = |f: &dyn Fn(&ttball::eval::LeadEfficiency) -> f64| {
+            triple(
+                [
+                    f(&learned.leads[2]),
+                    f(&learned.leads[1]),
+                    f(&learned.leads[0]),
+                ],
+                1.0,
+                2,
+            )
+        };
+        columns.push([
+            leads(&|l| l.position.median_ratio),
+            leads(&|l| l.position.ratio),
+            format!("{:.2}", learned.velocity_at_age.ratio),
+            format!("{:.2}", learned.spin_before_bounce.ratio),
+        ]);
+    }
+    let rows = [
+        "interception at 100 / 200 / 300 ms lead, median ratio",
+        "interception at 100 / 200 / 300 ms lead, RMS ratio",
+        "velocity after 100 ms of track, RMS ratio",
+        "spin across v just before the bounce, RMS ratio",
+    ];
+    let mut text = String::from(
+        "| filter / batch fit, seed 1, 200 shots | 150 + 900 fps | 150 fps alone |\n|---|---|---|\n",
+    );
+    for (i, row) in rows.iter().enumerate() {
+        text.push_str(&format!(
+            "| {row} | {} | {} |\n",
+            columns[0][i], columns[1][i]
+        ));
+    }
+    Ok(text)
+}
+
+/// The harder sets' table of docs/accuracy.md: tracks, the interception against the same filter
+/// given the true physics, and what was learned.
+fn sets_doc_table(config: &Config) -> anyhow::Result<String> {
+    let mut text = format!(
+        "| set, seed 1, 60 shots | one track per flight | no good detection gated < 50 ms after \
+         the bounce | interception after {SETTLE_FLIGHTS} flights, 200 ms lead: median / RMS [mm] \
+         (x the true physics') | 100 ms lead | learned {}, error [%] |\n|---|---|---|---|---|---|\n",
+        PhysicsParams::NAMES.join(" / ")
+    );
+    for set in standard_sets() {
+        let r = run_set(config, &set, 60, 1)
+            .with_context(|| format!("cannot simulate the set {}", set.name))?;
+        let leads: Vec<String> = r
+            .settled
+            .iter()
+            .map(|l| {
+                format!(
+                    "{:.1} / {:.1} ({:.2} / {:.2})",
+                    l.filter.median * 1e3,
+                    l.filter.rms * 1e3,
+                    l.median_ratio,
+                    l.rms_ratio
+                )
+            })
+            .collect();
+        let errors: Vec<String> = r
+            .learned_errors()
+            .iter()
+            .map(|e| {
+                // Rounded first, so that a small negative error reads +0.0, not -0.0.
+                let percent = (e * 1000.0).round() / 10.0 + 0.0;
+                format!("{percent:+.1}")
+            })
+            .collect();
+        text.push_str(&format!(
+            "| {} | {:.1} % | {:.1} % | {} | {} |\n",
+            set.name,
+            r.single_track_fraction() * 100.0,
+            r.clean_bounce_fraction() * 100.0,
+            leads.join(" | "),
+            errors.join(" / ")
+        ));
+    }
+    Ok(text)
+}
+
+/// The real launcher flights' crossing error under other configurations, the table of
+/// docs/real_flights.md (run from the repository's root).
+fn real_configurations_table(config: &Config, layers: &[Layer]) -> anyhow::Result<String> {
+    let files = launcher_files();
+    let mut with_seed = layers.to_vec();
+    with_seed.push(Layer::File(PathBuf::from("config/presets/seed_2014.yaml")));
+    let seed = load_layers(&with_seed, None)
+        .context("the seed's preset is read from the repository's root")?;
+    let mut without_adaptation = config.clone();
+    without_adaptation.adaptation.enabled = false;
+    let rows: [(&str, &Config, bool); 4] = [
+        ("the default", config, true),
+        ("each flight alone (`--each-alone`)", config, false),
+        (
+            "the seed's polynomials (`--config config/presets/seed_2014.yaml`)",
+            &seed,
+            true,
+        ),
+        (
+            "without the adaptation (`-p adaptation.enabled:=false`)",
+            &without_adaptation,
+            true,
+        ),
+    ];
+    let mut text = String::from(
+        "| configuration | crossing RMS / median at 200 ms lead [mm] | at 100 ms lead |\n|---|---|---|\n",
+    );
+    for (name, config, carry_over) in rows {
+        let report = real_flights(config, &files, carry_over)?;
+        let all = report.overall().context("no real flight was scored")?;
+        let leads: Vec<String> = all
+            .leads
+            .iter()
+            .map(|l| {
+                format!(
+                    "{:.1} / {:.1}",
+                    l.position_error.rms * 1e3,
+                    l.position_error.median * 1e3
+                )
+            })
+            .collect();
+        text.push_str(&format!("| {name} | {} |\n", leads.join(" | ")));
+    }
+    Ok(text)
+}
+
+/// The real launcher flights' files in the repository.
+fn launcher_files() -> Vec<PathBuf> {
+    ["backspin", "no_spin", "topspin"]
+        .iter()
+        .map(|kind| PathBuf::from(format!("tests/data/mpi_launcher/mn5008_{kind}.csv")))
+        .collect()
+}
+
+/// The real launcher flights of `files` through `config`'s estimator, each from what the ones
+/// before it taught (`carry_over`) or from the configuration.
+fn real_flights(
+    config: &Config,
+    files: &[PathBuf],
+    carry_over: bool,
+) -> anyhow::Result<RealReport> {
+    let (launcher, config) = launcher_flights(config, files)
+        .context("the real launcher flights are read from the repository's root")?;
+    let options = RealEvalOptions {
+        carry_over,
+        ..RealEvalOptions::default()
+    };
+    Ok(evaluate_flights(&config, &launcher.flights, &options))
+}
+
+/// The accuracy tables of README.md (see `--readme`), as Markdown.
+pub(super) fn readme_tables(config: &Config) -> anyhow::Result<String> {
+    let mut reports = Vec::new();
+    for cameras in [Cameras::WideAndHighSpeed, Cameras::WideOnly] {
+        let (config, session) = simulated_play(config, cameras)?;
+        reports.push(evaluate_learning(&config, &session).0);
+    }
+    // LEADS are 300, 200, 100 ms: in the tables 100, 200, 300.
+    let by_lead = |r: &EvalReport, f: &dyn Fn(&ttball::eval::LeadReport) -> f64| {
+        [f(&r.leads[2]), f(&r.leads[1]), f(&r.leads[0])]
+    };
+    let column = |r: &EvalReport| {
+        [
+            triple(by_lead(r, &|l| l.position_error.rms), 1e3, 1),
+            triple(by_lead(r, &|l| l.position_error.median), 1e3, 1),
+            format!("{:.2}", r.velocity_error.rms),
+            format!(
+                "{:.2} ({:.2} / {:.2})",
+                r.state_nees, r.bounce_nees[0], r.bounce_nees[1]
+            ),
+            triple(by_lead(r, &|l| l.position_nees), 1.0, 2),
+            format!("{} of {}", r.single_track_shots, r.shots),
+        ]
+    };
+    let (both, wide) = (column(&reports[0]), column(&reports[1]));
+    let rows = [
+        (
+            "interception position RMS at 100 / 200 / 300 ms lead [mm]",
+            "3 at 100 ms",
+        ),
+        (
+            "interception position median at 100 / 200 / 300 ms lead [mm]",
+            "- / 3 / 40",
+        ),
+        ("velocity after 100 ms of track, RMS [m/s]", "0.05"),
+        (
+            "state NEES per dimension (before / after the bounce)",
+            "0.7-1.5",
+        ),
+        (
+            "interception NEES per dimension at 100 / 200 / 300 ms",
+            "0.7-1.5",
+        ),
+        ("shots tracked as one track", "all"),
+    ];
+    let mut text = String::from(
+        "| simulated play, seed 1, 200 shots | 150 + 900 fps | 150 fps alone | target |\n\
+         |---|---|---|---|\n",
+    );
+    for (i, (name, target)) in rows.iter().enumerate() {
+        text.push_str(&format!(
+            "| {name} | {} | {} | {target} |\n",
+            both[i], wide[i]
+        ));
+    }
+    let r = &reports[0];
+    text.push_str(&format!(
+        "| velocity / spin where the 900 fps camera sees the ball, RMS | {:.2} m/s / {:.1} \
+         rad/s | - | 0.05 m/s / 15 rad/s |\n",
+        r.velocity_error_high_speed.rms, r.spin_error_high_speed.rms
+    ));
+
+    let real = real_flights(config, &launcher_files(), true)?;
+    let all = real.overall().context("no real flight was scored")?;
+    let tracks: u64 = real.flights.iter().map(|f| f.counters.tracks).sum();
+    let gated = real
+        .flights
+        .iter()
+        .filter(|f| f.gated_after_bounce > 0)
+        .count();
+    text.push_str(&format!(
+        "\n| real launcher flights, {} ({} crossings measured) | crossing error RMS / median \
+         [mm] | NEES per dimension | target |\n|---|---|---|---|\n",
+        real.flights.len(),
+        all.scored
+    ));
+    for (l, target) in all.leads.iter().zip(["15 mm RMS", "10 mm RMS"]) {
+        text.push_str(&format!(
+            "| {:.0} ms lead | {:.1} / {:.1} | {:.2} | {target} |\n",
+            l.lead * 1e3,
+            l.position_error.rms * 1e3,
+            l.position_error.median * 1e3,
+            l.crossing_nees
+        ));
+    }
+    text.push_str(&format!(
+        "| tracks; flights with a detection gated within 50 ms after the bounce | {tracks}; \
+         {gated} | | one a flight; none |\n"
+    ));
+    Ok(text)
+}
