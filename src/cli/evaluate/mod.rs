@@ -352,18 +352,21 @@ learned physics at the end (relative error against the truth):
     }
 }
 
+/// A settled lead of a set: the filter's median / RMS [mm] (each `width` wide) and their ratios to
+/// the same filter's given the true physics.
+fn settled_lead(l: &LeadComparison, width: usize) -> String {
+    format!(
+        "{:width$.1} / {:width$.1} ({:.2} / {:.2})",
+        l.filter.median * 1e3,
+        l.filter.rms * 1e3,
+        l.median_ratio,
+        l.rms_ratio
+    )
+}
+
 /// One set's line of the harder evaluation.
 fn set_line(r: &SetReport) -> String {
-    let lead = |l: &LeadComparison| {
-        format!(
-            "{:6.1} / {:6.1} ({:.2} / {:.2})",
-            l.filter.median * 1e3,
-            l.filter.rms * 1e3,
-            l.median_ratio,
-            l.rms_ratio
-        )
-    };
-    let leads: Vec<String> = r.settled.iter().map(lead).collect();
+    let leads: Vec<String> = r.settled.iter().map(|l| settled_lead(l, 6)).collect();
     format!(
         "{:<13} {:>8.1} %  {:>8.1} %      {}
 ",

@@ -14,7 +14,7 @@ use ttball::eval::sim::{Cameras, SimOptions, simulate};
 use ttball::eval::{BatchPhysics, EvalReport, efficiency, evaluate_learning};
 use ttball::physics::PhysicsParams;
 
-use super::{launcher_flights, triple};
+use super::{launcher_flights, settled_lead, triple};
 
 /// A table of `docs/`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
@@ -115,19 +115,7 @@ fn sets_doc_table(config: &Config) -> anyhow::Result<String> {
     for set in standard_sets() {
         let r = run_set(config, &set, 60, 1)
             .with_context(|| format!("cannot simulate the set {}", set.name))?;
-        let leads: Vec<String> = r
-            .settled
-            .iter()
-            .map(|l| {
-                format!(
-                    "{:.1} / {:.1} ({:.2} / {:.2})",
-                    l.filter.median * 1e3,
-                    l.filter.rms * 1e3,
-                    l.median_ratio,
-                    l.rms_ratio
-                )
-            })
-            .collect();
+        let leads: Vec<String> = r.settled.iter().map(|l| settled_lead(l, 0)).collect();
         let errors: Vec<String> = r
             .learned_errors()
             .iter()
