@@ -8,7 +8,9 @@
 //! `/ball/state` and `/ball/intercept` messages, and the `/ball/trajectory` + markers at their
 //! 50 Hz), the tracks' lessons on a worker thread that the detections never wait for, as in the
 //! node. Criterion times each whole stream (its time over its count is the mean per
-//! detection); each call is then timed alone over [`RUNS`] runs for the tail. The whole replay
+//! detection, trajectories included); then, over [`RUNS`] runs, each detection's own work
+//! (`Pipeline::handle_detection`, what the node publishes before anything else) and each
+//! trajectory after it (`Pipeline::add_due_trajectory`) are timed alone for the tail. The whole replay
 //! (`ttball::bag::replay::replay`: reading, decoding, the pipeline, encoding, compressing,
 //! writing) is timed [`RUNS`] times, its median quoted as a multiple of real time.
 //!
@@ -62,6 +64,9 @@ fn messages(config: &Config, name: &str) -> Vec<BallDetection> {
 }
 
 fn quantile(sorted: &[u64], q: f64) -> f64 {
+    if sorted.is_empty() {
+        return 0.0;
+    }
     sorted[((sorted.len() - 1) as f64 * q).round() as usize] as f64 * 1e-3
 }
 
@@ -93,23 +98,29 @@ fn benches(c: &mut Criterion) {
 
     let machine = std::thread::available_parallelism().map_or(1, |n| n.get());
     println!(
-        "\n| bag ({machine} cores) | per detection, the node's path: mean / p50 / p99 / p99.9 / \
-         max [us] | whole replay [x real time] |\n|---|---|---|"
+        "\n| bag ({machine} cores) | per detection, its own work: mean / p50 / p99 / p99.9 / max \
+         [us] | then each trajectory: mean / p99 [us] | whole replay [x real time] |\n\
+         |---|---|---|---|"
     );
     let cancel = AtomicBool::new(false);
     let output = Path::new(env!("CARGO_TARGET_TMPDIR")).join("bench-per-detection.mcap");
     for (name, what, messages) in &streams {
-        let mut times = Vec::with_capacity(RUNS * messages.len());
+        let (mut times, mut trajectories) = (Vec::with_capacity(RUNS * messages.len()), Vec::new());
         for _ in 0..RUNS {
             let mut pipeline = node_pipeline(&config);
             for msg in messages {
                 let started = Instant::now();
-                black_box(pipeline.on_detection(black_box(msg)));
+                let mut step = black_box(pipeline.handle_detection(black_box(msg)));
                 times.push(started.elapsed().as_nanos() as u64);
+                let started = Instant::now();
+                if black_box(pipeline.add_due_trajectory(&mut step.published)) {
+                    trajectories.push(started.elapsed().as_nanos() as u64);
+                }
             }
         }
         times.sort_unstable();
-        let mean = times.iter().sum::<u64>() as f64 / times.len() as f64 * 1e-3;
+        trajectories.sort_unstable();
+        let mean = |t: &[u64]| t.iter().sum::<u64>() as f64 / t.len().max(1) as f64 * 1e-3;
         let mut factors: Vec<f64> = (0..RUNS)
             .map(|_| {
                 let started = Instant::now();
@@ -120,11 +131,15 @@ fn benches(c: &mut Criterion) {
             .collect();
         factors.sort_by(f64::total_cmp);
         println!(
-            "| {what} (`bags/{name}.mcap`) | {mean:.1} / {:.1} / {:.1} / {:.1} / {:.1} | {:.0} |",
+            "| {what} (`bags/{name}.mcap`) | {:.1} / {:.1} / {:.1} / {:.1} / {:.1} | {:.1} / {:.1} \
+             | {:.0} |",
+            mean(&times),
             quantile(&times, 0.5),
             quantile(&times, 0.99),
             quantile(&times, 0.999),
             times.last().copied().unwrap_or(0) as f64 * 1e-3,
+            mean(&trajectories),
+            quantile(&trajectories, 0.99),
             factors[RUNS / 2]
         );
     }

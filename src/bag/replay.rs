@@ -1,6 +1,6 @@
 //! Offline replay of a ROS 2 MCAP bag through the node's own code path ([`Pipeline`]): the
-//! detections of the bag, in log-time order, go through `Pipeline::on_detection` exactly as the
-//! live node's would, and the output bag holds the input topics unchanged plus what the node
+//! detections of the bag, in log-time order, go through `Pipeline::handle_detection` and
+//! `Pipeline::add_due_trajectory` exactly as the live node's would, and the output bag holds the input topics unchanged plus what the node
 //! would have published, each with the log time of the detection that produced it. Time comes
 //! from the messages only, so two replays give byte-identical files.
 //!
@@ -118,9 +118,17 @@ pub struct ReplaySummary {
     pub processing_mean_ns: f64,
     /// 99th percentile of the processing time per detection [ns].
     pub processing_p99_ns: f64,
+    /// Trajectories published (`/ball/trajectory` with its markers), each after the detection's
+    /// own messages.
+    pub trajectories: u64,
+    /// Time to predict one and make its messages [ns], mean.
+    pub trajectory_mean_ns: f64,
+    /// Its 99th percentile [ns].
+    pub trajectory_p99_ns: f64,
     /// Log time spanned by the detections [s].
     pub recorded_seconds: f64,
-    /// Time spent processing them [s], their own work (waits for the lessons worker left out).
+    /// Time spent processing them [s], their own work and the trajectories (waits for the
+    /// lessons worker left out).
     pub processing_seconds: f64,
     /// Time the detections waited for the lessons worker [s] (a replay keeps the live node's
     /// lessons at the same points by waiting where one is due and not yet done).
@@ -565,6 +573,7 @@ pub fn replay_observed(
         undecodable: 0,
         robot_hits_refused: 0,
         times: DurationHistogram::new(),
+        trajectory_times: DurationHistogram::new(),
         first_last: None,
     };
     let mut interrupted = false;
@@ -625,6 +634,8 @@ struct Session {
     undecodable: u64,
     robot_hits_refused: u64,
     times: DurationHistogram,
+    /// The trajectories' times [ns].
+    trajectory_times: DurationHistogram,
     /// Log times of the first and the latest detection [ns].
     first_last: Option<(u64, u64)>,
 }
@@ -734,13 +745,18 @@ impl Session {
             return None;
         };
         let (started, waited) = (Instant::now(), self.pipeline.lesson_wait());
-        let step = self.pipeline.on_detection(&msg);
+        let mut step = self.pipeline.handle_detection(&msg);
         // The detection's own work: what it waited for the worker's lessons is the worker's.
         let own = started
             .elapsed()
             .saturating_sub(self.pipeline.lesson_wait() - waited);
         self.times
             .record(u64::try_from(own.as_nanos()).unwrap_or(u64::MAX));
+        let started = Instant::now();
+        if self.pipeline.add_due_trajectory(&mut step.published) {
+            self.trajectory_times
+                .record(u64::try_from(started.elapsed().as_nanos()).unwrap_or(u64::MAX));
+        }
         self.first_last = Some(
             self.first_last
                 .map_or((m.log_time, m.log_time), |(a, _)| (a, m.log_time)),
@@ -761,6 +777,7 @@ impl Session {
         written: u64,
     ) -> ReplaySummary {
         let timing = self.times.summary();
+        let trajectory_timing = self.trajectory_times.summary();
         // The bag has ended: the live track's lesson is learned, as when a node stops.
         self.pipeline.end_of_input();
         let counters = self.pipeline.counters();
@@ -778,8 +795,11 @@ impl Session {
             written,
             processing_mean_ns: timing.mean,
             processing_p99_ns: timing.p99,
+            trajectories: trajectory_timing.count as u64,
+            trajectory_mean_ns: trajectory_timing.mean,
+            trajectory_p99_ns: trajectory_timing.p99,
             recorded_seconds: self.first_last.map_or(0.0, |(a, b)| (b - a) as f64 * 1e-9),
-            processing_seconds: timing.total * 1e-9,
+            processing_seconds: (timing.total + trajectory_timing.total) * 1e-9,
             lesson_wait_seconds: estimator.lesson_wait().as_secs_f64(),
             damage,
             interrupted,

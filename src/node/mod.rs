@@ -1,7 +1,7 @@
 //! The live ROS 2 node (`ttball node`), on ros2-client (pure-Rust ROS 2 on RustDDS): detections
-//! in from `topics.detections`, [`Pipeline::on_detection`] (the code path `ttball replay` runs),
-//! state, intercept, trajectory, markers and diagnostics out, and three services, private to the
-//! node:
+//! in from `topics.detections`, [`Pipeline::handle_detection`] then
+//! [`Pipeline::add_due_trajectory`] (the code path `ttball replay` runs), state, intercept,
+//! trajectory, markers and diagnostics out, and three services, private to the node:
 //! - `~/predict_trajectory` (`ttball_msgs/srv/PredictTrajectory`): the flight of the live track
 //!   or of a given state ([`Pipeline::predict_trajectory`]);
 //! - `~/predict_rebound` (`ttball_msgs/srv/PredictRebound`): the ball's rebound off the racket
@@ -1118,10 +1118,11 @@ impl EstimatorThread {
         }
     }
 
-    /// Runs the pipeline on one detection and publishes what it gives.
+    /// Runs the pipeline on one detection and publishes what it gives: the detection's own
+    /// messages first, then the trajectory when one is due.
     fn process(&mut self, (detection, taken_at): Queued, timings: &mut Timings) {
         let started = Instant::now();
-        let step = self.pipeline.on_detection(&detection);
+        let step = self.pipeline.handle_detection(&detection);
         let ns = nanos(started.elapsed());
         let fused = matches!(
             step.verdict,
@@ -1136,23 +1137,36 @@ impl EstimatorThread {
         timings.total_ns += ns as f64;
         timings.max_ns = timings.max_ns.max(ns);
         timings.count += 1;
+        let own = step.published;
         if let Some((view, topics)) = &mut self.live_view {
             let now = mcap_time(self.clock.now_ns());
             view.log_message(&topics.detections, DETECTION_TYPE, now, &detection);
-            let p = &step.published;
-            view.log_optional(&topics.state, STATE_TYPE, now, p.state.as_ref());
-            view.log_optional(&topics.intercept, INTERCEPT_TYPE, now, p.intercept.as_ref());
+            view.log_optional(&topics.state, STATE_TYPE, now, own.state.as_ref());
             view.log_optional(
-                &topics.trajectory,
-                TRAJECTORY_TYPE,
+                &topics.intercept,
+                INTERCEPT_TYPE,
                 now,
-                p.trajectory.as_ref(),
+                own.intercept.as_ref(),
             );
-            view.log_optional(&topics.markers, MARKERS_TYPE, now, p.markers.as_ref());
-            view.log_optional(&topics.odometry, ODOMETRY_TYPE, now, p.odometry.as_ref());
+            view.log_optional(&topics.odometry, ODOMETRY_TYPE, now, own.odometry.as_ref());
         }
-        self.publish(step.published);
+        self.publish(own);
         timings.in_node.record(nanos(taken_at.elapsed()));
+        let mut trajectory = Published::default();
+        if self.pipeline.add_due_trajectory(&mut trajectory) {
+            if let Some((view, topics)) = &mut self.live_view {
+                let now = mcap_time(self.clock.now_ns());
+                let p = &trajectory;
+                view.log_optional(
+                    &topics.trajectory,
+                    TRAJECTORY_TYPE,
+                    now,
+                    p.trajectory.as_ref(),
+                );
+                view.log_optional(&topics.markers, MARKERS_TYPE, now, p.markers.as_ref());
+            }
+            self.publish(trajectory);
+        }
     }
 
     fn publish(&self, published: Published) {

@@ -78,6 +78,8 @@ pub struct Pipeline {
     next_trajectory: Option<(u32, i64)>,
     /// The interception last published on `/ball/intercept`.
     last_intercept: Option<InterceptEstimate>,
+    /// The estimate and interception whose trajectory is due, from the last detection.
+    due_trajectory: Option<(Estimate, InterceptEstimate)>,
     /// The static transforms from `/tf_static` that bring detections in other frames into
     /// `table`.
     frames: Frames,
@@ -98,6 +100,7 @@ impl Pipeline {
             horizon: config.prediction.horizon,
             next_trajectory: None,
             last_intercept: None,
+            due_trajectory: None,
             frames: Frames::new(&config.frames.table_frame),
             odometry: !config.topics.odometry.is_empty(),
             table: config.table.clone(),
@@ -150,6 +153,7 @@ impl Pipeline {
         self.stroke = Stroke::new(config);
         self.next_trajectory = None;
         self.last_intercept = None;
+        self.due_trajectory = None;
     }
 
     /// What happened to the detections so far.
@@ -167,8 +171,21 @@ impl Pipeline {
         Ok(())
     }
 
-    /// Handles one detection message, in arrival order.
+    /// Handles one detection message, in arrival order: [`Self::handle_detection`], then
+    /// [`Self::add_due_trajectory`].
     pub fn on_detection(&mut self, msg: &BallDetection) -> Step {
+        let mut step = self.handle_detection(msg);
+        self.add_due_trajectory(&mut step.published);
+        step
+    }
+
+    /// The detection's own work: the message converted, the estimator's update and the
+    /// interception, and the messages that publish them (`/ball/state`, `/ball/intercept`,
+    /// odometry). When the trajectory is due after it, [`Self::add_due_trajectory`] adds it:
+    /// the node publishes the detection's own messages first, so that the trajectory (a 1.5 s
+    /// flight predicted at most 50 times a second) never delays them.
+    pub fn handle_detection(&mut self, msg: &BallDetection) -> Step {
+        self.due_trajectory = None;
         let detection = match detection_from_msg_in(msg, &self.frames) {
             Ok(d) => d,
             Err(e) => {
@@ -184,16 +201,16 @@ impl Pipeline {
         let full_before = self.estimator.intercept_counts().full;
         let out = self.estimator.handle(&detection);
         let predicted_in_full = self.estimator.intercept_counts().full > full_before;
-        let trajectory_due = out.intercept.is_some()
-            && out
-                .estimate
-                .as_ref()
-                .is_some_and(|e| self.trajectory_due(e, predicted_in_full));
+        if let (Some(estimate), Some(intercept)) = (&out.estimate, &out.intercept)
+            && self.trajectory_due(estimate, predicted_in_full)
+        {
+            self.due_trajectory = Some((*estimate, *intercept));
+        }
         let frame = self.frames.fixed();
         if out.intercept.is_some() {
             self.last_intercept = out.intercept;
         }
-        let mut published = Published {
+        let published = Published {
             state: out.estimate.as_ref().map(|e| state_msg(e, frame)),
             intercept: out.intercept.as_ref().map(|i| intercept_msg(i, frame)),
             odometry: out
@@ -203,28 +220,36 @@ impl Pipeline {
                 .map(|e| odometry_msg(e, frame)),
             ..Published::default()
         };
-        if trajectory_due
-            && let (Some(estimate), Some(intercept)) = (&out.estimate, &out.intercept)
-            && let Some((stamp, trajectory)) = self
-                .estimator
-                .predicted_trajectory(self.trajectory_dt, self.horizon)
-        {
-            published.trajectory =
-                Some(trajectory_msg(stamp, estimate.track_id, &trajectory, frame));
-            published.markers = Some(markers(
-                estimate,
-                Some(intercept),
-                &trajectory,
-                &self.table,
-                frame,
-            ));
-        }
         Step {
             verdict: Ok(out.verdict),
             detection: Some(detection),
             output: Some(out),
             published,
         }
+    }
+
+    /// Adds `/ball/trajectory` and `/ball/markers` to `published` when the trajectory is due
+    /// after the last detection ([`Self::handle_detection`]); true when it did.
+    pub fn add_due_trajectory(&mut self, published: &mut Published) -> bool {
+        let Some((estimate, intercept)) = self.due_trajectory.take() else {
+            return false;
+        };
+        let Some((stamp, trajectory)) = self
+            .estimator
+            .predicted_trajectory(self.trajectory_dt, self.horizon)
+        else {
+            return false;
+        };
+        let frame = self.frames.fixed();
+        published.trajectory = Some(trajectory_msg(stamp, estimate.track_id, &trajectory, frame));
+        published.markers = Some(markers(
+            &estimate,
+            Some(&intercept),
+            &trajectory,
+            &self.table,
+            frame,
+        ));
+        true
     }
 
     /// True when the trajectory is to be published after the detection that gave `estimate`, the
