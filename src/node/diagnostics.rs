@@ -37,10 +37,12 @@ pub struct TransportCounters {
 /// Processing and queueing times of one diagnostics period.
 #[derive(Debug, Clone, Default)]
 pub struct Window {
-    /// `Pipeline::on_detection` time per detection [ns].
+    /// `Pipeline::handle_detection` time per detection, its own work [ns].
     pub processing: Vec<u64>,
     /// Time each detection waited from DDS receiving it to its processing [ns].
     pub queue_wait: Vec<u64>,
+    /// `Pipeline::add_due_trajectory` time per published trajectory [ns].
+    pub trajectory: Vec<u64>,
 }
 
 impl Window {
@@ -49,6 +51,7 @@ impl Window {
         Self {
             processing: Vec::with_capacity(capacity),
             queue_wait: Vec::with_capacity(capacity),
+            trajectory: Vec::with_capacity(capacity),
         }
     }
 
@@ -56,6 +59,11 @@ impl Window {
     pub fn record(&mut self, processing_ns: u64, queue_wait_ns: u64) {
         self.processing.push(processing_ns);
         self.queue_wait.push(queue_wait_ns);
+    }
+
+    /// Records one published trajectory.
+    pub fn record_trajectory(&mut self, ns: u64) {
+        self.trajectory.push(ns);
     }
 }
 
@@ -185,8 +193,10 @@ pub fn diagnostics_msg(snapshot: &Snapshot<'_>, window: &mut Window) -> Diagnost
     let s = snapshot;
     let processing = DurationSummary::of(&mut window.processing);
     let wait = DurationSummary::of(&mut window.queue_wait);
+    let trajectory = DurationSummary::of(&mut window.trajectory);
     window.processing.clear();
     window.queue_wait.clear();
+    window.trajectory.clear();
     let rate = processing.count as f64 / s.period.max(1e-9);
     let dropped_now = s.transport.dropped_queue_full - s.transport_before.dropped_queue_full;
     let undecodable_now = s.transport.undecodable - s.transport_before.undecodable;
@@ -205,6 +215,8 @@ pub fn diagnostics_msg(snapshot: &Snapshot<'_>, window: &mut Window) -> Diagnost
         kv("processing time mean [us]", us(processing.mean)),
         kv("processing time p99 [us]", us(processing.p99)),
         kv("processing time max [us]", us(processing.max)),
+        kv("trajectories published", trajectory.count.to_string()),
+        kv("trajectory time p99 [us]", us(trajectory.p99)),
         kv("queue wait p99 [us]", us(wait.p99)),
         kv("queue length", s.queue_len.to_string()),
         kv("detections received", t.received.to_string()),
@@ -548,6 +560,7 @@ mod tests {
         for i in 0..150 {
             window.record(10_000 + i * 100, 2_000);
         }
+        window.record_trajectory(30_000);
         let msg = diagnostics_msg(
             &Snapshot {
                 node: "/ttball",
@@ -564,13 +577,19 @@ mod tests {
             },
             &mut window,
         );
-        assert!(window.processing.is_empty() && window.queue_wait.is_empty());
+        assert!(
+            window.processing.is_empty()
+                && window.queue_wait.is_empty()
+                && window.trajectory.is_empty()
+        );
         let status = &msg.status[0];
         assert_eq!(status.name, "ttball: estimator");
         assert_eq!(status.level, DiagnosticStatus::OK);
         assert_eq!(status.message, "tracking ball 4 (150 detections/s)");
         assert_eq!(value(&msg, "detections per second [1/s]"), "150.0");
         assert_eq!(value(&msg, "processing time max [us]"), "24.9");
+        assert_eq!(value(&msg, "trajectories published"), "1");
+        assert_eq!(value(&msg, "trajectory time p99 [us]"), "30.0");
         assert_eq!(value(&msg, "rejected"), "4");
         assert_eq!(
             value(&msg, &format!("rejected: {}", Rejection::ALL[0].name())),

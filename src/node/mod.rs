@@ -1153,7 +1153,9 @@ impl EstimatorThread {
         self.publish(own);
         timings.in_node.record(nanos(taken_at.elapsed()));
         let mut trajectory = Published::default();
+        let started = Instant::now();
         if self.pipeline.add_due_trajectory(&mut trajectory) {
+            timings.window.record_trajectory(nanos(started.elapsed()));
             if let Some((view, topics)) = &mut self.live_view {
                 let now = mcap_time(self.clock.now_ns());
                 let p = &trajectory;
