@@ -690,6 +690,35 @@ mod tests {
         }
     }
 
+    /// The node's two steps: a detection's own messages never carry the trajectory, and the
+    /// trajectory added after them is the one, and the only one, `on_detection` gives.
+    #[test]
+    fn the_due_trajectory_comes_after_the_detections_own_messages() {
+        let config = Config::default();
+        let (mut whole, mut split) = (Pipeline::new(&config), Pipeline::new(&config));
+        let options = SimOptions {
+            shots: 2,
+            ..SimOptions::default()
+        };
+        let session = simulate(&config, &options).expect("simulated");
+        let mut trajectories = 0;
+        for d in &session.stream {
+            let msg = detection_to_msg(&d.detection);
+            let expected = whole.on_detection(&msg);
+            let mut step = split.handle_detection(&msg);
+            assert!(step.published.trajectory.is_none() && step.published.markers.is_none());
+            let added = split.add_due_trajectory(&mut step.published);
+            assert_eq!(added, expected.published.trajectory.is_some());
+            assert!(
+                !split.add_due_trajectory(&mut step.published),
+                "added twice"
+            );
+            assert_eq!(step, expected);
+            trajectories += usize::from(added);
+        }
+        assert!(trajectories > 10, "{trajectories}");
+    }
+
     #[test]
     fn predict_trajectory_refuses_bad_requests_with_a_reason() {
         let pipeline = Pipeline::new(&Config::default());
