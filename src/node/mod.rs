@@ -1137,38 +1137,38 @@ impl EstimatorThread {
         timings.total_ns += ns as f64;
         timings.max_ns = timings.max_ns.max(ns);
         timings.count += 1;
-        let own = step.published;
         if let Some((view, topics)) = &mut self.live_view {
             let now = mcap_time(self.clock.now_ns());
             view.log_message(&topics.detections, DETECTION_TYPE, now, &detection);
-            view.log_optional(&topics.state, STATE_TYPE, now, own.state.as_ref());
-            view.log_optional(
-                &topics.intercept,
-                INTERCEPT_TYPE,
-                now,
-                own.intercept.as_ref(),
-            );
-            view.log_optional(&topics.odometry, ODOMETRY_TYPE, now, own.odometry.as_ref());
         }
-        self.publish(own);
+        self.log_to_live_view(&step.published);
+        self.publish(step.published);
         timings.in_node.record(nanos(taken_at.elapsed()));
         let mut trajectory = Published::default();
         let started = Instant::now();
         if self.pipeline.add_due_trajectory(&mut trajectory) {
             timings.window.record_trajectory(nanos(started.elapsed()));
-            if let Some((view, topics)) = &mut self.live_view {
-                let now = mcap_time(self.clock.now_ns());
-                let p = &trajectory;
-                view.log_optional(
-                    &topics.trajectory,
-                    TRAJECTORY_TYPE,
-                    now,
-                    p.trajectory.as_ref(),
-                );
-                view.log_optional(&topics.markers, MARKERS_TYPE, now, p.markers.as_ref());
-            }
+            self.log_to_live_view(&trajectory);
             self.publish(trajectory);
         }
+    }
+
+    /// Logs what is about to be published to the live view, when there is one.
+    fn log_to_live_view(&mut self, p: &Published) {
+        let Some((view, topics)) = &mut self.live_view else {
+            return;
+        };
+        let now = mcap_time(self.clock.now_ns());
+        view.log_optional(&topics.state, STATE_TYPE, now, p.state.as_ref());
+        view.log_optional(&topics.intercept, INTERCEPT_TYPE, now, p.intercept.as_ref());
+        view.log_optional(
+            &topics.trajectory,
+            TRAJECTORY_TYPE,
+            now,
+            p.trajectory.as_ref(),
+        );
+        view.log_optional(&topics.markers, MARKERS_TYPE, now, p.markers.as_ref());
+        view.log_optional(&topics.odometry, ODOMETRY_TYPE, now, p.odometry.as_ref());
     }
 
     fn publish(&self, published: Published) {
