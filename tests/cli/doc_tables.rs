@@ -22,11 +22,12 @@ const STARTS: [&str; 2] = [
 ];
 
 /// The commands whose tables the tests below check.
-const CHECKED: [&str; 4] = [
+const CHECKED: [&str; 5] = [
     "evaluate --readme",
     "evaluate --doc-table efficiency",
     "evaluate --doc-table sets",
     "evaluate --doc-table real-configurations",
+    "evaluate --doc-table real-flights",
 ];
 
 /// One quoted table: the file, the `ttball` arguments, and the byte range between its markers.
@@ -143,6 +144,11 @@ fn the_accuracy_doc_holds_the_sets_table_evaluate_prints() {
 #[test]
 fn the_real_flights_doc_holds_the_configurations_table_evaluate_prints() {
     check(CHECKED[3]);
+}
+
+#[test]
+fn the_real_flights_doc_holds_the_flights_table_evaluate_prints() {
+    check(CHECKED[4]);
 }
 
 /// A table quoted from a `ttball` command that no test checks would go stale unseen.

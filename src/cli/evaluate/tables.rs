@@ -24,6 +24,8 @@ pub enum DocTable {
     Efficiency,
     /// docs/accuracy.md: the harder sets (seed 1, 60 shots per set).
     Sets,
+    /// docs/real_flights.md: the real launcher flights by spin kind.
+    RealFlights,
     /// docs/real_flights.md: the real launcher flights under other configurations.
     RealConfigurations,
 }
@@ -34,6 +36,7 @@ pub(super) fn doc_table(table: DocTable, layers: &[Layer]) -> anyhow::Result<Str
     match table {
         DocTable::Efficiency => efficiency_doc_table(&config),
         DocTable::Sets => sets_doc_table(&config),
+        DocTable::RealFlights => real_flights_table(&config),
         DocTable::RealConfigurations => real_configurations_table(&config, layers),
     }
 }
@@ -133,6 +136,36 @@ fn sets_doc_table(config: &Config) -> anyhow::Result<String> {
             leads.join(" | "),
             errors.join(" / ")
         ));
+    }
+    Ok(text)
+}
+
+/// The real launcher flights' crossing error by spin kind and overall, at each lead, the main
+/// table of docs/real_flights.md (run from the repository's root).
+fn real_flights_table(config: &Config) -> anyhow::Result<String> {
+    let report = real_flights(config, &launcher_files(), true)?;
+    let mut text = String::from(
+        "| flights scored | lead | crossing RMS / median [mm] | time RMS [ms] | NEES per dimension \
+         |\n|---|---|---|---|---|\n",
+    );
+    for g in &report.groups {
+        let name = g.spin_kind.map_or("all", |k| k.name());
+        let bold = if g.spin_kind.is_none() { "**" } else { "" };
+        for (i, l) in g.leads.iter().enumerate() {
+            let flights = if i == 0 {
+                format!("{bold}{name} ({}){bold}", g.scored)
+            } else {
+                format!("{bold}{name}{bold}")
+            };
+            text.push_str(&format!(
+                "| {flights} | {:.0} ms | {bold}{:.1} / {:.1}{bold} | {:.1} | {:.2} |\n",
+                l.lead * 1e3,
+                l.position_error.rms * 1e3,
+                l.position_error.median * 1e3,
+                l.time_error.rms * 1e3,
+                l.crossing_nees
+            ));
+        }
     }
     Ok(text)
 }
