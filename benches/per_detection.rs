@@ -10,9 +10,9 @@
 //! node. Criterion times each whole stream (its time over its count is the mean per
 //! detection, trajectories included); then, over [`RUNS`] runs, each detection's own work
 //! (`Pipeline::handle_detection`, what the node publishes before anything else) and each
-//! trajectory after it (`Pipeline::add_due_trajectory`) are timed alone for the tail. The whole replay
-//! (`ttball::bag::replay::replay`: reading, decoding, the pipeline, encoding, compressing,
-//! writing) is timed [`RUNS`] times, its median quoted as a multiple of real time.
+//! trajectory after it (`Pipeline::add_due_trajectory`) are timed alone for the tail. The whole
+//! replay (`ttball::bag::replay::replay`: reading, decoding, the pipeline, encoding,
+//! compressing, writing) is timed [`RUNS`] times, its median quoted as a multiple of real time.
 //!
 //! `cargo bench --bench per_detection` prints README.md's performance table last.
 #![allow(

@@ -1,8 +1,9 @@
 //! Offline replay of a ROS 2 MCAP bag through the node's own code path ([`Pipeline`]): the
 //! detections of the bag, in log-time order, go through `Pipeline::handle_detection` and
-//! `Pipeline::add_due_trajectory` exactly as the live node's would, and the output bag holds the input topics unchanged plus what the node
-//! would have published, each with the log time of the detection that produced it. Time comes
-//! from the messages only, so two replays give byte-identical files.
+//! `Pipeline::add_due_trajectory` exactly as the live node's would, and the output bag holds the
+//! input topics unchanged plus what the node would have published, each with the log time of the
+//! detection that produced it. Time comes from the messages only, so two replays give
+//! byte-identical files.
 //!
 //! When the bag carries the simulator's truth (`/ball/truth`: the true state at each detection's
 //! stamp; `/ball/truth/intercept`: each shot's true crossing and bounce), the replay scores the

@@ -98,7 +98,12 @@ pub struct EvaluateArgs {
 
     /// Print a table of `docs/` instead, as the file holds it (run from the repository's
     /// root). `cargo test` checks that the files hold exactly these tables.
-    #[arg(long, value_enum, value_name = "TABLE", conflicts_with_all = ["sets", "efficiency", "real", "readme"])]
+    #[arg(
+        long,
+        value_enum,
+        value_name = "TABLE",
+        conflicts_with_all = ["sets", "efficiency", "real", "readme"]
+    )]
     pub doc_table: Option<DocTable>,
 
     /// Also write the report as JSON to this file (with `--real`: the summaries and every

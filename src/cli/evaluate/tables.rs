@@ -59,6 +59,12 @@ fn simulated_play(
     Ok((config, session))
 }
 
+/// What `f` gives at each of [`LEADS`](ttball::eval::LEADS) (300, 200, 100 ms), in the tables'
+/// order: 100, 200, 300 ms.
+fn by_ascending_lead<T>(leads: &[T], f: impl Fn(&T) -> f64) -> [f64; 3] {
+    [f(&leads[2]), f(&leads[1]), f(&leads[0])]
+}
+
 /// The efficiency table of docs/accuracy.md: the filter's errors over the batch fit's flying the
 /// physics the estimator had learned, for both camera setups.
 fn efficiency_doc_table(config: &Config) -> anyhow::Result<String> {
@@ -69,17 +75,8 @@ fn efficiency_doc_table(config: &Config) -> anyhow::Result<String> {
             .into_iter()
             .find(|e| e.physics == BatchPhysics::Learned)
             .context("the efficiency with the learned physics")?;
-        // LEADS are 300, 200, 100 ms: in the table 100, 200, 300.
         let leads = |f: &dyn Fn(&ttball::eval::LeadEfficiency) -> f64| {
-            triple(
-                [
-                    f(&learned.leads[2]),
-                    f(&learned.leads[1]),
-                    f(&learned.leads[0]),
-                ],
-                1.0,
-                2,
-            )
+            triple(by_ascending_lead(&learned.leads, f), 1.0, 2)
         };
         columns.push([
             leads(&|l| l.position.median_ratio),
@@ -247,9 +244,8 @@ pub(super) fn readme_tables(config: &Config) -> anyhow::Result<String> {
         let (config, session) = simulated_play(config, cameras)?;
         reports.push(evaluate_learning(&config, &session).0);
     }
-    // LEADS are 300, 200, 100 ms: in the tables 100, 200, 300.
     let by_lead = |r: &EvalReport, f: &dyn Fn(&ttball::eval::LeadReport) -> f64| {
-        [f(&r.leads[2]), f(&r.leads[1]), f(&r.leads[0])]
+        by_ascending_lead(&r.leads, f)
     };
     let column = |r: &EvalReport| {
         [
