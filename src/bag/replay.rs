@@ -37,7 +37,7 @@ pub use crate::ros::msgs::type_names::{
     DETECTION_TYPE, INTERCEPT_TYPE, MARKERS_TYPE, ODOMETRY_TYPE, ROBOT_HIT_TYPE, STATE_TYPE,
     TF_MESSAGE_TYPE, TRAJECTORY_TYPE,
 };
-use crate::ros::pipeline::{Pipeline, Published};
+use crate::ros::pipeline::{DueTrajectory, Pipeline, Published};
 
 /// The static transforms' topic (tf2), read by the node and, when a bag has it, by the replay.
 pub const TF_STATIC_TOPIC: &str = "/tf_static";
@@ -221,17 +221,26 @@ enum Writing {
     Channel(ChannelInfo),
     /// An input message, copied unchanged (its channel is the input's index).
     Copy(BagMessage),
-    /// What the pipeline published for a detection of this log time.
-    Published(u64, Box<Published>),
+    /// What the pipeline published for a detection of this log time, with the trajectory due
+    /// after it, predicted by the writer: off the detections' thread when it has its own.
+    Published(u64, Box<Published>, Option<Box<DueTrajectory>>),
 }
 
 /// The output bag as the replay writes it: its writer, the pipeline's channels, the channels
-/// copied from the input (by the input's index) and how many messages it holds.
+/// copied from the input (by the input's index), how many messages it holds and the times its
+/// trajectories took to predict.
 struct OutputBag {
     writer: BagWriter<std::io::BufWriter<std::fs::File>>,
     outputs: Outputs,
     copied: Vec<u16>,
-    written: u64,
+    written: Written,
+}
+
+/// What an output bag was given: the messages it holds and its trajectories' times [ns].
+#[derive(Debug, Default)]
+struct Written {
+    messages: u64,
+    trajectory_times: DurationHistogram,
 }
 
 impl OutputBag {
@@ -249,18 +258,25 @@ impl OutputBag {
                         })?;
                 self.writer
                     .write_raw(channel, m.log_time, m.publish_time, &m.data)?;
-                self.written += 1;
+                self.written.messages += 1;
             }
-            Writing::Published(t, published) => {
-                self.written += self.outputs.write(&mut self.writer, t, &published)?;
+            Writing::Published(t, mut published, due) => {
+                if let Some(due) = due {
+                    let started = Instant::now();
+                    due.publish_into(&mut published);
+                    self.written
+                        .trajectory_times
+                        .record(u64::try_from(started.elapsed().as_nanos()).unwrap_or(u64::MAX));
+                }
+                self.written.messages += self.outputs.write(&mut self.writer, t, &published)?;
             }
         }
         Ok(())
     }
 
-    /// Finishes the file (also after an error, which `result` holds and is given first); how
-    /// many messages it holds.
-    fn finish(self, result: Result<(), BagError>) -> Result<u64, BagError> {
+    /// Finishes the file (also after an error, which `result` holds and is given first); what
+    /// it was given.
+    fn finish(self, result: Result<(), BagError>) -> Result<Written, BagError> {
         let finished = self.writer.finish();
         result?;
         finished?;
@@ -287,7 +303,7 @@ enum Writes {
         /// What is given but not yet sent.
         batch: Vec<Writing>,
         queue: std::sync::mpsc::SyncSender<Vec<Writing>>,
-        thread: std::thread::JoinHandle<Result<u64, BagError>>,
+        thread: std::thread::JoinHandle<Result<Written, BagError>>,
         path: PathBuf,
     },
 }
@@ -347,9 +363,9 @@ impl Writes {
         }
     }
 
-    /// Writes what is given, finishes the file and gives how many messages it holds, or the
-    /// first error.
-    fn finish(self) -> Result<u64, BagError> {
+    /// Writes what is given, finishes the file and gives what it was given, or the first
+    /// error.
+    fn finish(self) -> Result<Written, BagError> {
         match self {
             Self::Inline(bag, error) => bag.finish(error.map_or(Ok(()), Err)),
             Self::Threaded {
@@ -550,7 +566,7 @@ pub fn replay_observed(
         writer,
         outputs,
         copied: Vec::new(),
-        written: 0,
+        written: Written::default(),
     };
     let mut writing = Writes::start(bag, output)?;
     let mut pipeline = Pipeline::new(config);
@@ -574,7 +590,6 @@ pub fn replay_observed(
         undecodable: 0,
         robot_hits_refused: 0,
         times: DurationHistogram::new(),
-        trajectory_times: DurationHistogram::new(),
         first_last: None,
     };
     let mut interrupted = false;
@@ -635,8 +650,6 @@ struct Session {
     undecodable: u64,
     robot_hits_refused: u64,
     times: DurationHistogram,
-    /// The trajectories' times [ns].
-    trajectory_times: DurationHistogram,
     /// Log times of the first and the latest detection [ns].
     first_last: Option<(u64, u64)>,
 }
@@ -670,7 +683,11 @@ impl Session {
             return Ok(false);
         }
         Ok(match published {
-            Some(published) => writing.send(Writing::Published(log_time, Box::new(published))),
+            Some((published, due)) => writing.send(Writing::Published(
+                log_time,
+                Box::new(published),
+                due.map(Box::new),
+            )),
             None => true,
         })
     }
@@ -702,8 +719,9 @@ impl Session {
         Ok(())
     }
 
-    /// Feeds one input message to the pipeline; what it published, when it is a detection.
-    fn feed(&mut self, m: &BagMessage) -> Option<Published> {
+    /// Feeds one input message to the pipeline; what it published, when it is a detection, and
+    /// the trajectory due after it.
+    fn feed(&mut self, m: &BagMessage) -> Option<(Published, Option<DueTrajectory>)> {
         // Static transforms bring detections in other frames into `table`, as in the node.
         if Some(m.channel) == self.tf_static_on {
             if let Ok(msg) = decode::<TFMessage>(&m.data) {
@@ -746,18 +764,14 @@ impl Session {
             return None;
         };
         let (started, waited) = (Instant::now(), self.pipeline.lesson_wait());
-        let mut step = self.pipeline.handle_detection(&msg);
+        let step = self.pipeline.handle_detection(&msg);
         // The detection's own work: what it waited for the worker's lessons is the worker's.
         let own = started
             .elapsed()
             .saturating_sub(self.pipeline.lesson_wait() - waited);
         self.times
             .record(u64::try_from(own.as_nanos()).unwrap_or(u64::MAX));
-        let started = Instant::now();
-        if self.pipeline.add_due_trajectory(&mut step.published) {
-            self.trajectory_times
-                .record(u64::try_from(started.elapsed().as_nanos()).unwrap_or(u64::MAX));
-        }
+        let due = self.pipeline.take_due_trajectory();
         self.first_last = Some(
             self.first_last
                 .map_or((m.log_time, m.log_time), |(a, _)| (a, m.log_time)),
@@ -765,7 +779,7 @@ impl Session {
         if let Some(truth) = self.truth.as_mut() {
             truth.waiting = step.detection.zip(step.output);
         }
-        Some(step.published)
+        Some((step.published, due))
     }
 
     /// What the replay did.
@@ -775,10 +789,10 @@ impl Session {
         output: &Path,
         damage: Vec<Damage>,
         interrupted: bool,
-        written: u64,
+        written: Written,
     ) -> ReplaySummary {
         let timing = self.times.summary();
-        let trajectory_timing = self.trajectory_times.summary();
+        let trajectory_timing = written.trajectory_times.summary();
         // The bag has ended: the live track's lesson is learned, as when a node stops.
         self.pipeline.end_of_input();
         let counters = self.pipeline.counters();
@@ -793,7 +807,7 @@ impl Session {
             counters,
             intercepts: estimator.intercept_counts(),
             learned: estimator.learned_summary(),
-            written,
+            written: written.messages,
             processing_mean_ns: timing.mean,
             processing_p99_ns: timing.p99,
             trajectories: trajectory_timing.count as u64,

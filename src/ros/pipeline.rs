@@ -15,7 +15,7 @@ use crate::config::Config;
 use crate::model::detection::Detection;
 use crate::model::frames::{FrameError, Frames};
 use crate::online::estimator::{
-    Counters, Estimate, Estimator, InterceptEstimate, Output, Rejection, Verdict, Waiting,
+    Counters, Estimate, Estimator, Flight, InterceptEstimate, Output, Rejection, Verdict, Waiting,
 };
 use crate::online::stroke::{Aim, PlanError, Stroke};
 use crate::physics::{self, StateMatrix};
@@ -49,6 +49,37 @@ pub struct Published {
     pub markers: Option<MarkerArray>,
     /// `topics.odometry`, with each state, when that topic is set.
     pub odometry: Option<Odometry>,
+}
+
+/// A trajectory due after a detection: the flight to predict and what its messages say.
+#[derive(Debug, Clone, PartialEq)]
+pub struct DueTrajectory {
+    flight: Flight,
+    estimate: Estimate,
+    intercept: InterceptEstimate,
+    frame: String,
+    table: crate::config::TableParams,
+}
+
+impl DueTrajectory {
+    /// Predicts the trajectory and adds `/ball/trajectory` and `/ball/markers` to `published`.
+    pub fn publish_into(&self, published: &mut Published) {
+        let trajectory = self.flight.fly();
+        let (estimate, frame) = (&self.estimate, self.frame.as_str());
+        published.trajectory = Some(trajectory_msg(
+            self.flight.stamp,
+            estimate.track_id,
+            &trajectory,
+            frame,
+        ));
+        published.markers = Some(markers(
+            estimate,
+            Some(&self.intercept),
+            &trajectory,
+            &self.table,
+            frame,
+        ));
+    }
 }
 
 /// What happened to one detection message.
@@ -231,25 +262,25 @@ impl Pipeline {
     /// Adds `/ball/trajectory` and `/ball/markers` to `published` when the trajectory is due
     /// after the last detection ([`Self::handle_detection`]); true when it did.
     pub fn add_due_trajectory(&mut self, published: &mut Published) -> bool {
-        let Some((estimate, intercept)) = self.due_trajectory.take() else {
-            return false;
-        };
-        let Some((stamp, trajectory)) = self
-            .estimator
-            .predicted_trajectory(self.trajectory_dt, self.horizon)
-        else {
-            return false;
-        };
-        let frame = self.frames.fixed();
-        published.trajectory = Some(trajectory_msg(stamp, estimate.track_id, &trajectory, frame));
-        published.markers = Some(markers(
-            &estimate,
-            Some(&intercept),
-            &trajectory,
-            &self.table,
-            frame,
-        ));
-        true
+        self.take_due_trajectory()
+            .map(|due| due.publish_into(published))
+            .is_some()
+    }
+
+    /// The trajectory due after the last detection ([`Self::handle_detection`]), as a value to
+    /// predict and publish anywhere ([`DueTrajectory::publish_into`]; the replay does it on its
+    /// writing thread): what [`Self::add_due_trajectory`] does in two steps.
+    pub fn take_due_trajectory(&mut self) -> Option<DueTrajectory> {
+        let (estimate, intercept) = self.due_trajectory.take()?;
+        Some(DueTrajectory {
+            flight: self
+                .estimator
+                .trajectory_flight(self.trajectory_dt, self.horizon)?,
+            estimate,
+            intercept,
+            frame: self.frames.fixed().to_owned(),
+            table: self.table.clone(),
+        })
     }
 
     /// True when the trajectory is to be published after the detection that gave `estimate`, the

@@ -1,37 +1,13 @@
-//! What the estimator learns across tracks: the physical parameters of this ball and table
-//! (a two-level model) and each camera's noise ([`super::camera_noise`]).
+//! What the estimator learns across tracks (docs/estimator.md, "The adaptation"): the ball's and
+//! table's parameters in a two-level model and each camera's noise ([`super::camera_noise`]).
 //!
-//! Each flight has its own parameters theta_f (its ball, its spin axis, the part of the table it
-//! hits), scattered about the global ones theta_g of this ball and table: theta_f = theta_g + d,
-//! d ~ N(0, D), D the configured flight-to-flight dispersion (`adaptation.flight_sigma`).
-//! theta_g follows a slow random walk (`adaptation.drift_per_hour`), its variance capped at the
-//! prior's.
-//!
-//! - A track starts its filter at theta_g with covariance P_g (drifted) + D: the filter learns
-//!   its own flight's parameters, beside its state.
-//! - When it ends, what it learned (its lesson: its flight smoothed, [`super::smoother`], or the
-//!   filter's own estimate) updates theta_g. Its posterior N(theta_t, P_t) over its prior
-//!   N(theta_g, P_pr) is the likelihood of theta_f with information J = P_t^-1 - P_pr^-1 and
-//!   information-weighted mean b = P_t^-1 theta_t - P_pr^-1 theta_g; as a likelihood of theta_g
-//!   (theta_f = theta_g + d) its information is J_g = (I + J D)^-1 J and its weighted mean
-//!   (I + J D)^-1 b. So P_g'^-1 = P_g^-1 + J_g and theta_g' = P_g' (P_g^-1 theta_g +
-//!   (I + J D)^-1 b). With D = 0 this is the track's posterior itself.
-//!
-//! theta_g also holds the Reynolds exponents (a_D, a_M), which no single flight's filter
-//! learns: a track flies with the learned ones, and its scales are the ball's at its speeds,
-//! theta_f = h(theta_g) with k_f = k_g exp((a_g - a_flown) L), L its mean ln f(Re)
-//! ([`Learned::flight_params`]). The update above takes h linearised at a point theta_l: the
-//! information H' J_g H and the mean H' (I + J D)^-1 (b - J c), c = h - H theta_l; theta_l is
-//! theta_g, then the updated estimate, [`LINEARISATIONS`] times (Gauss-Newton).
-//!
-//! An exponent the flights have not determined (its sigma not below
-//! [`DETERMINED_SHARE`](crate::online::learned::DETERMINED_SHARE) of its prior's: flights of too
-//! narrow a band of speeds) stays at its prior wherever it is used, the other parameters
-//! conditioned on it ([`Learned::settled`]): what the flights taught of the scale and the
-//! exponent together is kept, and theta_g itself learns on.
-//!
-//! Parameters with a zero prior sigma are not adapted: they keep their configured value and a
-//! zero variance throughout.
+//! A flight's parameters scatter about the global ones, theta_f = theta_g + d, d ~ N(0, D). A
+//! track's lesson, posterior N(theta_t, P_t) over prior N(theta_g, P_pr), is a likelihood of
+//! theta_f with information J = P_t^-1 - P_pr^-1 and weighted mean b = P_t^-1 theta_t -
+//! P_pr^-1 theta_g; of theta_g, (I + J D)^-1 J and (I + J D)^-1 b. The Reynolds exponents
+//! (a_D, a_M) enter through k_f = k_g exp((a_g - a_flown) L) ([`Learned::flight_params`]),
+//! linearised [`LINEARISATIONS`] times (Gauss-Newton); an exponent the flights have not
+//! determined stays at its prior ([`Learned::settled`]).
 
 use nalgebra::{SMatrix, SVector, SymmetricEigen};
 

@@ -1,19 +1,9 @@
-//! The measurement noise each camera source really has, learned from the filter's innovations
-//! and carried from track to track.
-//!
-//! A source's position noise is modelled as R = s R_0 + tau v v': its configured (or the
-//! detection's own) covariance R_0 times a scale s, and the error of its stamps (variance tau
-//! [s^2]) moving the measured position along the velocity v; its spin noise as s_w R_w. For a
-//! consistent filter the prior innovation y = z - H x^- has E[y y'] = H P^- H' + R, so each
-//! detection gives an unbiased sample of the noise in its own directions: across the flight
-//! (the plane perpendicular to v), s = (|y_c|^2 - tr(P_c H P^- H' P_c)) / tr(P_c R_0 P_c); along
-//! it, tau = (y_a^2 - v^ H P^- H' v^ - s v^ R_0 v^) / |v|^2; and s_w likewise from the spin. Each
-//! sample is limited to [`SAMPLE_LIMIT`] times the current estimate (an outlier moves it little)
-//! and averaged with a fading memory of [`MEMORY`] detections, starting from the
-//! configured values with the weight of [`PRIOR_WEIGHT`] detections. Gated detections count
-//! too: leaving them out would bias the estimate low and keep it there. A detection whose
-//! prediction is less certain than its noise (a new track, just after a bounce, a spin just
-//! reset) teaches nothing: its sample would be mostly the prediction's error.
+//! The measurement noise each camera source really has, learned from the filter's prior
+//! innovations (docs/estimator.md, "The adaptation"): R = s R_0 + tau v v' and s_w R_w, from
+//! E[y y'] = H P^- H' + R across the flight (s), along it (tau) and of the spin (s_w), each
+//! sample limited to [`SAMPLE_LIMIT`] times the estimate, averaged over [`MEMORY`] detections
+//! from the configured values weighted as [`PRIOR_WEIGHT`]. A detection whose prediction is less
+//! certain than its noise teaches nothing.
 
 use nalgebra::Matrix3;
 

@@ -1,20 +1,9 @@
-//! How one detection moves an estimate: the estimate flown to the detection's stamp through the
-//! physics ([`Ekf::predict`]), the measurement as the estimate sees it, and the update.
-//!
-//! - A ball within [`CONTACT_BAND`] of its contact with the table gets the extra position noise
-//!   `ekf.contact_position_sigma` (its image meets its reflection and shadow on the surface).
-//! - A stamp's timing noise (learned per source) moves the measured position along the
-//!   estimate's velocity: R + tau v v'.
-//! - A position takes only [`SPIN_ALONG_FLIGHT_GAIN`] of its gain on the spin along the flight
-//!   before the track's first bounce: positions see that spin only through the turning flight's
-//!   sideways force, and a filter linearised at its own uncertain spin would grow sure of a
-//!   misread (the partial update, [`Ekf::update_partially`]).
-//! - A position + spin measurement is gated on its position first; when the position fits and
-//!   the spin does not, the filter's spin (learned from curvature) is forgotten in favour of the
-//!   camera's, or, at the table (where the measured spin may be of the bounce's other side),
-//!   the position alone is fused.
-//!
-//! Shared by the tracker and the smoother, so that a track's lesson flies the filter's model.
+//! How one detection moves an estimate (docs/estimator.md, "The filter"): the estimate flown to
+//! the detection's stamp ([`Ekf::predict`]), the measurement as the estimate sees it (the
+//! table contact's extra noise within [`CONTACT_BAND`], the stamp's timing noise R + tau v v'),
+//! the partial update of the spin along the flight ([`SPIN_ALONG_FLIGHT_GAIN`]) and a measured
+//! spin that contradicts the filter's. Shared by the tracker and the smoother, so that a
+//! track's lesson flies the filter's model.
 
 use nalgebra::{Matrix3, Matrix6, SVector, Vector3};
 

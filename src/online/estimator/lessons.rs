@@ -1,24 +1,10 @@
-//! The lessons of ended tracks on their way into the adaptation, off the detection path.
-//!
-//! A track of positions alone teaches its flight smoothed ([`super::smoother`]): a few
-//! milliseconds of work that the next estimate does not need. It is queued when the track ends
-//! and enters the adaptation at a point the data decide: before the first detection stamped
-//! [`LESSON_DELAY`] or more after the detection that ended the track (and at the input's end).
-//! What is learned, and from which detection on, is therefore the same however the smoothing is
-//! run:
-//!
-//! - inline (the default of an [`super::Estimator`]): on the caller's thread, at that point;
-//! - on a worker thread ([`Lessons::spawn_worker`]) fed over crossbeam channels, which the
-//!   adapters start: a replay waits at that point for a lesson not yet done ([`Waiting::Wait`]),
-//!   so that it is the same with one core or more; the live node never waits on a detection
-//!   ([`Waiting::Never`]): a lesson not done by then is dropped and counted
-//!   ([`Dropped::Late`]).
-//!
-//! At most [`MAX_PENDING`] lessons wait at a time; one more is dropped and counted
-//! ([`Dropped::Backlog`]): a count the data decide too. A smoothing that panics on the worker is
-//! caught there and counted ([`Dropped::Failed`]), and a worker that is gone leaves the lessons
-//! to be run inline. The detections' buffers travel with the jobs and come back with the
-//! lessons: nothing is allocated per detection.
+//! The lessons of ended tracks on their way into the adaptation, off the detection path
+//! (docs/estimator.md, "The lessons"). A track's flight is smoothed ([`super::smoother`]) inline
+//! or on a worker thread fed over crossbeam channels ([`Lessons::spawn_worker`]), and its lesson
+//! enters before the first detection stamped [`LESSON_DELAY`] after the one that ended the
+//! track, so what is learned, and when, depends on the data alone. At most [`MAX_PENDING`] wait;
+//! what is dropped is counted by reason ([`Dropped`]). The detections' buffers travel with the
+//! jobs and come back with the lessons.
 
 use std::collections::VecDeque;
 use std::time::{Duration, Instant};

@@ -1,20 +1,8 @@
-//! The estimator: one entry point, [`Estimator::handle`], that takes every detection as it
-//! arrives and returns the filtered state and the interception prediction. The ROS node and the
-//! MCAP replay both call it, so a replay runs exactly the code path of the live node.
-//!
-//! Three parts, each with its own state, behind this facade:
-//!
-//! - the tracker (`tracker.rs`): initialisation, gating, the history and out-of-order fusion,
-//!   each detection fused by the EKF (`fusion.rs`, [`crate::online::ekf`]);
-//! - the adaptation (`adaptation.rs`): what is learned across tracks, the ball's and table's
-//!   physical parameters (a two-level model) and each camera's noise;
-//! - the lessons (`lessons.rs`, `smoother.rs`): an ended track's flight smoothed, off the
-//!   detection path, entering the adaptation at a point the data decide.
-//!
-//! After every detection the interception is predicted from the track's estimate
-//! ([`crate::online::intercept`]), and the published covariance is widened near a table contact
-//! by the chance that the ball is on its other side ([`crate::online::contact_side`]). No heap
-//! allocation per detection.
+//! The estimator: one entry point, [`Estimator::handle`], takes every detection as it arrives
+//! and returns the filtered state and the interception predicted from it; the ROS node and the
+//! MCAP replay both call it. Behind it three parts keep their own state (docs/estimator.md): the
+//! tracker (`tracker.rs`, `fusion.rs`), the adaptation (`adaptation.rs`, `camera_noise.rs`) and
+//! the lessons (`lessons.rs`, `smoother.rs`). No heap allocation per detection.
 
 mod adaptation;
 mod camera_noise;
@@ -157,6 +145,25 @@ impl Publishing {
             horizon: config.prediction.horizon,
             bounce: BounceNoise::from_config(config),
         }
+    }
+}
+
+/// A flight to predict: its start, the physics it flies and how it is sampled; a plain value
+/// ([`Estimator::trajectory_flight`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Flight {
+    /// Time of the start [ns].
+    pub stamp: i64,
+    /// The ball's state at the start.
+    pub start: BallState,
+    propagator: Propagator,
+    options: PredictOptions,
+}
+
+impl Flight {
+    /// The predicted trajectory (allocates its samples).
+    pub fn fly(&self) -> Trajectory {
+        predict(&self.propagator, &self.start, &self.options)
     }
 }
 
@@ -392,17 +399,24 @@ impl Estimator {
     }
 
     /// The predicted trajectory of the tracked ball from its current estimate, sampled every
-    /// `dt` seconds over `horizon` seconds (for `PredictedTrajectory`; allocates its samples).
-    /// It flies the live track's own physical parameters, as its interception does, so that the
-    /// two agree where the trajectory crosses the hitting plane.
+    /// `dt` seconds over `horizon` seconds (for `PredictedTrajectory`; allocates its samples):
+    /// [`Self::trajectory_flight`] flown.
     pub fn predicted_trajectory(&self, dt: f64, horizon: f64) -> Option<(i64, Trajectory)> {
+        let flight = self.trajectory_flight(dt, horizon)?;
+        Some((flight.stamp, flight.fly()))
+    }
+
+    /// The flight [`Self::predicted_trajectory`] predicts, as a value to fly anywhere (another
+    /// thread: the replay's writer). It flies the live track's own physical parameters, as its
+    /// interception does, so that the two agree where the trajectory crosses the hitting plane.
+    pub fn trajectory_flight(&self, dt: f64, horizon: f64) -> Option<Flight> {
         let track = self.tracker.track.as_ref()?;
-        let start = BallState::from_vector(&track.now.ekf.x);
-        let propagator = self.propagator().with_params(&track.now.ekf.params());
-        Some((
-            track.now.stamp,
-            predict(&propagator, &start, &self.flight_options(dt, horizon)),
-        ))
+        Some(Flight {
+            stamp: track.now.stamp,
+            start: BallState::from_vector(&track.now.ekf.x),
+            propagator: self.propagator().with_params(&track.now.ekf.params()),
+            options: self.flight_options(dt, horizon),
+        })
     }
 
     /// The predicted flight of any ball state with this estimator's model and learned

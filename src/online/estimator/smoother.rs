@@ -1,19 +1,8 @@
-//! A track's lesson of the physics: its flight smoothed when it ends.
-//!
-//! The filter's own estimate of the Magnus scale from positions alone leans low: the curvature
-//! fixes the product of the Magnus scale and the spin, the bounce the spin, and an update
-//! linearised at the filter's estimates moves along the tangent of that hyperbola, below it on
-//! either side. The lesson of a track of positions alone is therefore its flight smoothed: the
-//! filter run again over the track's detections from its first estimate, each prediction
-//! linearised along the flight the last pass smoothed to rather than at its own estimates, and
-//! smoothed back (Rauch-Tung-Striebel): the iterated extended Kalman smoother (Bell, "The
-//! iterated Kalman smoother as a Gauss-Newton method", SIAM J. Optim. 1994), [`ITERATIONS`]
-//! passes. The last pass's parameters at the track's last detection are the lesson, where the
-//! pass bounces on the table when the track's estimates did and stays finite; else the
-//! filter's own estimate is.
-//!
-//! A pure function of its [`LessonJob`] ([`Smoother::lesson`]): the same lesson on any thread,
-//! at any time ([`super::lessons`] runs it off the detection path).
+//! A track's lesson of the physics: its flight smoothed when it ends (docs/estimator.md, "The
+//! lessons"). The filter is run again over the track's detections, each prediction linearised
+//! along the flight the last pass smoothed to, and smoothed back (Rauch-Tung-Striebel): the
+//! iterated extended Kalman smoother (Bell 1994), [`ITERATIONS`] passes. A pure function of its
+//! [`LessonJob`] ([`Smoother::lesson`]): the same lesson on any thread, at any time.
 
 use super::fusion::{Fusion, Snapshot};
 use crate::online::ekf::{Ekf, ParamCovariance, position_H};

@@ -1,29 +1,9 @@
-//! The tracker: which detections are the ball and which track they belong to.
-//!
-//! - Initialisation from the first [`INIT_DETECTIONS`] detections within `tracking.timeout`
-//!   (`online::initial_fit`); a track that starts on the robot's half with the ball rising
-//!   toward the robot counts the bounce it must already have made.
-//! - Gating by the Mahalanobis distance at `gating.probability`; a run of
-//!   `gating.max_consecutive_rejections` rejections, or a gap longer than `tracking.timeout`,
-//!   ends the track, and the next detections start a new one. A track refuted by a run of
-//!   rejections and started again on them within [`REANCHOR_DISTANCE`] of where it had flown is
-//!   the same ball: it keeps its id, and counts the bounce the refuted estimate missed (the
-//!   ball falling there, rising here: a bounce on the table's edge).
-//! - Out-of-order fusion: a detection older than the newest fused one (the two cameras have
-//!   different latencies) is fused by rolling back to the estimate before its stamp and
-//!   re-applying the newer detections, from a bounded history (`tracking.rollback_window`); an
-//!   older one is dropped and counted.
-//! - An estimate low over the table's edge is also fused with the table grown and shrunk by
-//!   [`EDGE_MARGIN`], the hypothesis that explains the detection best kept; a detection gated
-//!   just after an edge bounce tries the other hypotheses again over the few detections since.
-//! - A detection whose stamp jumps beyond `tracking.timeout` is held until the next one confirms
-//!   the jump (a new ball, a restarted clock: a new track) or shows a glitch
-//!   ([`Rejection::StampJump`]).
-//! - The robot's announced hit ([`Tracker::expect_hit`]) starts the return's track at its first
-//!   detection, from the predicted rebound.
-//!
-//! Every detection is accounted for in [`Counters`]. No heap allocation per detection: the
-//! history and buffers are allocated once.
+//! The tracker: which detections are the ball and which track they belong to
+//! (docs/estimator.md, "The tracker"): initialisation from [`INIT_DETECTIONS`] detections,
+//! Mahalanobis gating, out-of-order fusion by rolling back over a bounded history, the table's
+//! edge hypotheses ([`EDGE_MARGIN`]), a refuted track re-anchored ([`REANCHOR_DISTANCE`]),
+//! stamp jumps held until confirmed, and the robot's announced hit seeding the return's track.
+//! Every detection is accounted for in [`Counters`]; the buffers are allocated once.
 
 use std::collections::VecDeque;
 
