@@ -22,12 +22,13 @@ const STARTS: [&str; 2] = [
 ];
 
 /// The commands whose tables the tests below check.
-const CHECKED: [&str; 5] = [
+const CHECKED: [&str; 6] = [
     "evaluate --readme",
     "evaluate --doc-table efficiency",
     "evaluate --doc-table sets",
     "evaluate --doc-table real-configurations",
     "evaluate --doc-table real-flights",
+    "evaluate --doc-table rubbers",
 ];
 
 /// One quoted table: the file, the `ttball` arguments, and the byte range between its markers.
@@ -149,6 +150,11 @@ fn the_real_flights_doc_holds_the_configurations_table_evaluate_prints() {
 #[test]
 fn the_real_flights_doc_holds_the_flights_table_evaluate_prints() {
     check(CHECKED[4]);
+}
+
+#[test]
+fn the_racket_doc_holds_the_rubbers_table_evaluate_prints() {
+    check(CHECKED[5]);
 }
 
 /// A table quoted from a `ttball` command that no test checks would go stale unseen.

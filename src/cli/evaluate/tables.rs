@@ -12,6 +12,9 @@ use ttball::eval::real::{RealEvalOptions, RealReport, evaluate_flights};
 use ttball::eval::sets::{SETTLE_FLIGHTS, run_set, standard_sets};
 use ttball::eval::sim::{Cameras, SimOptions, simulate};
 use ttball::eval::{BatchPhysics, EvalReport, efficiency, evaluate_learning};
+use ttball::offline::rebound_calibration::{
+    HitSet, RubberCalibration, RubberOptions, calibrate_rubber,
+};
 use ttball::physics::PhysicsParams;
 
 use super::{launcher_flights, settled_lead, triple};
@@ -28,6 +31,8 @@ pub enum DocTable {
     RealFlights,
     /// docs/real_flights.md: the real launcher flights under other configurations.
     RealConfigurations,
+    /// docs/racket.md: the rubbers on the real rebounds of tt_rackets, held out (about 1 minute).
+    Rubbers,
 }
 
 /// The table `table` of `docs/`, as Markdown, from the configuration of `layers`.
@@ -38,6 +43,7 @@ pub(super) fn doc_table(table: DocTable, layers: &[Layer]) -> anyhow::Result<Str
         DocTable::Sets => sets_doc_table(&config),
         DocTable::RealFlights => real_flights_table(&config),
         DocTable::RealConfigurations => real_configurations_table(&config, layers),
+        DocTable::Rubbers => rubbers_table(layers),
     }
 }
 
@@ -210,6 +216,123 @@ fn real_configurations_table(config: &Config, layers: &[Layer]) -> anyhow::Resul
             .collect();
         text.push_str(&format!("| {name} | {} |\n", leads.join(" | ")));
     }
+    Ok(text)
+}
+
+/// The inverted rubbers of tt_rackets by class, in the table's order, and the long pips.
+const INVERTED_CLASSES: [(&str, &[&str]); 2] = [
+    ("inverted offensive", &["01", "03", "09"]),
+    ("inverted allround", &["02", "04"]),
+];
+const LONG_PIPS: &str = "05";
+/// What a racket's or a class's calibration is to reach, and the default rubber (velocity
+/// [m/s], spin [rad/s]).
+const CALIBRATION_TARGET: (f64, f64) = (0.35, 25.0);
+const DEFAULT_RUBBER_TARGET: (f64, f64) = (0.40, 30.0);
+
+/// The rubbers' held-out errors on the real rebounds of tt_rackets, the table of docs/racket.md
+/// (run from the repository's root): each racket's hits predicted by the seed's rubber, by a
+/// calibration on the racket alone, on its class and on all five inverted rubbers (the
+/// default), 5-fold cross-validated; a miss of the target in bold.
+fn rubbers_table(layers: &[Layer]) -> anyhow::Result<String> {
+    let mut with_seed = layers.to_vec();
+    with_seed.push(Layer::File(PathBuf::from(
+        "config/presets/rubber_sriver_seed.yaml",
+    )));
+    let seed = load_layers(&with_seed, None)
+        .context("the seed's rubber is read from the repository's root")?;
+    let calibrated = |rackets: &[&str]| -> anyhow::Result<RubberCalibration> {
+        let mut hits = HitSet::default();
+        for racket in rackets {
+            let path = format!("tests/data/tt_rackets/test/racket_{racket}.csv");
+            let text = std::fs::read_to_string(&path)
+                .with_context(|| format!("{path} is read from the repository's root"))?;
+            hits.add_csv(racket, &text)?;
+        }
+        Ok(calibrate_rubber(&seed, &hits, &RubberOptions::default())?)
+    };
+    let held_out = |c: &RubberCalibration, racket: &str| -> anyhow::Result<(f64, f64)> {
+        let e = c
+            .cross_validation
+            .as_ref()
+            .and_then(|cv| cv.groups.iter().find(|g| g.group == racket))
+            .context("a calibration without its cross-validation")?;
+        Ok((e.calibrated.velocity_rms, e.calibrated.spin_rms))
+    };
+    let cell = |(v, w): (f64, f64), (tv, tw): (f64, f64)| {
+        let bold = |miss: bool, text: String| if miss { format!("**{text}**") } else { text };
+        format!(
+            "{} / {}",
+            bold(v > tv, format!("{v:.3}")),
+            bold(w > tw, format!("{w:.1}"))
+        )
+    };
+    let inverted: Vec<&str> = INVERTED_CLASSES
+        .iter()
+        .flat_map(|(_, r)| r.iter().copied())
+        .collect();
+    let default = calibrated(&inverted)?;
+    let mut text = String::from(
+        "| racket (rubber) | seed's rubber: velocity / spin | calibrated on the racket | class \
+         preset | default (all five inverted) |\n|---|---|---|---|---|\n",
+    );
+    let (mut sum, mut hits) = ((0.0, 0.0), 0.0);
+    for (class, rackets) in INVERTED_CLASSES {
+        let preset = calibrated(rackets)?;
+        for racket in rackets {
+            let own = calibrated(&[racket])?;
+            let start = &own
+                .cross_validation
+                .as_ref()
+                .context("no cross-validation")?
+                .overall
+                .start;
+            let alone = held_out(&own, racket)?;
+            let n = own.predictions.len() as f64;
+            sum = (sum.0 + alone.0 * alone.0 * n, sum.1 + alone.1 * alone.1 * n);
+            hits += n;
+            text.push_str(&format!(
+                "| {racket} ({class}) | {:.2} / {:.0} | {} | {} | {} |\n",
+                start.velocity_rms,
+                start.spin_rms,
+                cell(alone, CALIBRATION_TARGET),
+                cell(held_out(&preset, racket)?, CALIBRATION_TARGET),
+                cell(held_out(&default, racket)?, DEFAULT_RUBBER_TARGET),
+            ));
+        }
+    }
+    let cv = default
+        .cross_validation
+        .as_ref()
+        .context("no cross-validation")?;
+    text.push_str(&format!(
+        "| all five inverted | {:.2} / {:.0} | {} | | {} |\n",
+        cv.overall.start.velocity_rms,
+        cv.overall.start.spin_rms,
+        cell(
+            ((sum.0 / hits).sqrt(), (sum.1 / hits).sqrt()),
+            CALIBRATION_TARGET
+        ),
+        cell(
+            (
+                cv.overall.calibrated.velocity_rms,
+                cv.overall.calibrated.spin_rms
+            ),
+            DEFAULT_RUBBER_TARGET
+        ),
+    ));
+    let pips = calibrated(&[LONG_PIPS])?;
+    let start = &pips
+        .cross_validation
+        .as_ref()
+        .context("no cross-validation")?
+        .overall
+        .start;
+    let (v, w) = held_out(&pips, LONG_PIPS)?;
+    text.push_str(&format!(
+        "| {LONG_PIPS} (long pips) | {:.2} / {:.0} | {v:.3} / {w:.1} | (its own class) | |\n",
+        start.velocity_rms, start.spin_rms,
+    ));
     Ok(text)
 }
 
