@@ -65,8 +65,9 @@ impl Rejection {
         }
     }
 
+    /// Its place in [`Self::ALL`] (the declaration's order).
     pub(crate) fn index(self) -> usize {
-        Self::ALL.iter().position(|r| *r == self).unwrap_or(0)
+        self as usize
     }
 }
 
@@ -117,10 +118,7 @@ impl Counters {
 
     /// Lessons dropped for one reason.
     pub fn lessons_dropped(&self, reason: super::Dropped) -> u64 {
-        super::Dropped::ALL
-            .iter()
-            .position(|r| *r == reason)
-            .map_or(0, |i| self.lessons_dropped[i])
+        self.lessons_dropped[reason.index()]
     }
 
     /// All rejected detections.
@@ -148,6 +146,23 @@ impl From<Unusable> for Rejection {
             Unusable::BadCovariance => Self::BadCovariance,
         }
     }
+}
+
+#[cfg(test)]
+#[test]
+fn every_reason_counts_in_its_own_place() {
+    assert!(
+        Rejection::ALL
+            .iter()
+            .enumerate()
+            .all(|(i, r)| r.index() == i)
+    );
+    assert!(
+        super::Dropped::ALL
+            .iter()
+            .enumerate()
+            .all(|(i, r)| r.index() == i)
+    );
 }
 
 /// What the estimator did with one detection.

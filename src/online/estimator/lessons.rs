@@ -45,12 +45,9 @@ impl Dropped {
         }
     }
 
-    fn index(self) -> usize {
-        match self {
-            Self::Backlog => 0,
-            Self::Late => 1,
-            Self::Failed => 2,
-        }
+    /// Its place in [`Self::ALL`] (the declaration's order).
+    pub(crate) fn index(self) -> usize {
+        self as usize
     }
 }
 
@@ -294,7 +291,17 @@ impl Lessons {
     /// `None` when the worker is gone.
     fn wait_for(&mut self, id: u64) -> Option<Option<Lesson>> {
         let started = Instant::now();
-        let lesson = self.receive(id);
+        let lesson = loop {
+            let Some(Ok(done)) = self.worker.as_ref().map(|w| w.done.recv()) else {
+                self.worker = None;
+                break None;
+            };
+            if done.0 == id {
+                self.recycle(done.2);
+                break Some(done.1);
+            }
+            self.file(done);
+        };
         self.waited += started.elapsed();
         lesson
     }
@@ -303,24 +310,6 @@ impl Lessons {
     /// path that is the worker's, not the detection's (a replay's, [`Waiting::Wait`]).
     pub(crate) fn waited(&self) -> Duration {
         self.waited
-    }
-
-    /// [`Self::wait_for`]'s receiving.
-    fn receive(&mut self, id: u64) -> Option<Option<Lesson>> {
-        loop {
-            let received = self.worker.as_ref()?.done.recv();
-            let Ok((done_id, lesson, buffer)) = received else {
-                self.worker = None;
-                return None;
-            };
-            self.recycle(buffer);
-            if done_id == id {
-                return Some(lesson);
-            }
-            if let Some(p) = self.pending.iter_mut().find(|p| p.id == done_id) {
-                p.done = Some(lesson);
-            }
-        }
     }
 
     /// Files one returned lesson with the lesson waiting for it.

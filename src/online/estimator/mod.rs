@@ -242,10 +242,7 @@ impl Estimator {
         self.tracker.reconfigure(config, fusion);
         self.intercepts
             .reconfigure(config.intercept.refresh.clone());
-        self.publishing = Publishing {
-            bounce: BounceNoise::from_config(config),
-            ..Publishing::new(config)
-        };
+        self.publishing = Publishing::new(config);
         if previous.sources != config.sources {
             self.adaptation.cameras = camera_noise::NoiseLearner::new(config);
         }

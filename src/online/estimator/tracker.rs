@@ -117,8 +117,6 @@ struct Continuation {
 /// The tracker's settings.
 #[derive(Debug, Clone, PartialEq)]
 struct Settings {
-    init_count: usize,
-    init_span: i64,
     gate_probability: f64,
     max_rejections: u32,
     timeout: i64,
@@ -131,8 +129,6 @@ struct Settings {
 impl Settings {
     fn new(config: &Config) -> Self {
         Self {
-            init_count: INIT_DETECTIONS,
-            init_span: seconds_to_ns(config.tracking.timeout),
             gate_probability: config.gating.probability,
             max_rejections: config.gating.max_consecutive_rejections.max(1),
             timeout: seconds_to_ns(config.tracking.timeout),
@@ -146,7 +142,7 @@ impl Settings {
 
     /// The most detections kept waiting to initialise a track.
     fn pending_limit(&self) -> usize {
-        self.init_count.max(self.max_rejections as usize) + 8
+        INIT_DETECTIONS.max(self.max_rejections as usize) + 8
     }
 
     /// The most rejected detections kept to seed a new track.
@@ -435,7 +431,7 @@ impl Tracker {
             while let Some(seed) = self.rejected_run.pop_front() {
                 self.insert_pending(&seed);
             }
-            if self.pending.len() >= self.settings.init_count {
+            if self.pending.len() >= INIT_DETECTIONS {
                 self.try_start_track(adaptation);
             }
         }
@@ -481,9 +477,9 @@ impl Tracker {
         }
         let index = self.pending.partition_point(|p| p.stamp <= d.stamp);
         self.pending.insert(index, *d);
-        // Keep only the detections within the initialisation span of the newest.
+        // Keep only the detections within `tracking.timeout` of the newest.
         let newest = self.pending.last().map_or(d.stamp, |p| p.stamp);
-        let span = self.settings.init_span;
+        let span = self.settings.timeout;
         self.pending.retain(|p| newest - p.stamp <= span);
     }
 
@@ -492,7 +488,7 @@ impl Tracker {
             return Verdict::Rejected(Rejection::Duplicate);
         }
         self.insert_pending(d);
-        if self.pending.len() >= self.settings.init_count && !self.try_start_track(adaptation) {
+        if self.pending.len() >= INIT_DETECTIONS && !self.try_start_track(adaptation) {
             // Inconsistent: drop the worst-fitting detection and wait for more.
             if let Some(fit) = self.fit_pending(adaptation) {
                 self.pending.remove(fit.worst);
