@@ -306,6 +306,53 @@ fn out_of_order_fusion_equals_in_order_fusion() {
     }
 }
 
+/// Two late detections in a row (one camera's frames arriving as 1, 4, 2, 3): the second is
+/// fused from the first's own estimate at its stamp, not from the newer one the rollback
+/// re-applied after it, so the track ends as the same frames taken in stamp order leave it.
+#[test]
+fn consecutive_late_detections_are_fused_at_their_own_stamps() {
+    let start = shot([1.3, 0.0, 0.30], [-4.5, 0.1, 1.6], [20.0, -120.0, 10.0]);
+    let mut rng = Rng::new(4);
+    let frames: Vec<Detection> = camera(
+        &start,
+        150.0,
+        0.0,
+        0.35,
+        0.002,
+        Source::WIDE_150FPS,
+        &mut rng,
+    )
+    .into_iter()
+    .map(|(d, _)| d)
+    .collect();
+    let mut arrivals = frames.clone();
+    for block in arrivals.chunks_mut(4).skip(1) {
+        if let [_, b, c, d] = block {
+            (*b, *c, *d) = (*d, *b, *c);
+        }
+    }
+    let config = wide_config();
+    let (mut in_order, mut arrival_order) = (Estimator::new(&config), Estimator::new(&config));
+    for (a, b) in frames.iter().zip(&arrivals) {
+        in_order.handle(a);
+        arrival_order.handle(b);
+    }
+    let counters = arrival_order.counters();
+    assert!(counters.rollbacks > 10, "{counters:?}");
+    assert_eq!(counters.total_rejected(), 0, "{counters:?}");
+    let (a, b) = (
+        in_order.estimate().unwrap(),
+        arrival_order.estimate().unwrap(),
+    );
+    assert_eq!(a.stamp, b.stamp);
+    let dp = (a.state.position - b.state.position).norm();
+    let dv = (a.state.velocity - b.state.velocity).norm();
+    assert!(
+        dp < 1e-4 && dv < 1e-3,
+        "differences {dp} {dv}: {a:?} vs {b:?}"
+    );
+}
+
 #[test]
 fn outliers_are_rejected_and_the_track_goes_on() {
     let start = shot([1.3, 0.0, 0.30], [-4.5, 0.0, 1.6], [0.0, -80.0, 0.0]);

@@ -390,12 +390,7 @@ impl Tracker {
             self.end_track(d.stamp, adaptation);
             return self.initialise(d, adaptation);
         }
-        let result = if d.stamp >= track.now.stamp {
-            self.fuse_newest(d, m, adaptation)
-        } else {
-            self.fuse_late(d, m, adaptation)
-        };
-        match result {
+        match self.fuse_into_track(d, m, adaptation) {
             Ok(nis) => {
                 if let Some(track) = self.track.as_mut() {
                     track.consecutive_rejections = 0;
@@ -740,8 +735,11 @@ impl Tracker {
         }
     }
 
-    /// Fuses the detection newer than (or as old as) the track's estimate.
-    fn fuse_newest(
+    /// Fuses a detection into the live track at its place in the history: the newest appended
+    /// (an edge ball's bounce hypotheses tried again when it is gated); an older one (the
+    /// cameras' latencies differ) by rolling back to the estimate before its stamp and
+    /// re-applying the newer ones, when it is within `tracking.rollback_window`.
+    fn fuse_into_track(
         &mut self,
         d: &Detection,
         m: Measurement,
@@ -750,16 +748,26 @@ impl Tracker {
         let Some(track) = &self.track else {
             return Err(Rejection::TooOld);
         };
-        if track
-            .history
-            .back()
-            .is_some_and(|e| same_frame(&e.detection, d))
+        let late = d.stamp < track.now.stamp;
+        if late
+            && (track.now.stamp - d.stamp > self.settings.rollback || d.stamp < track.base.stamp)
         {
+            return Err(Rejection::TooOld);
+        }
+        if track.history.iter().any(|e| same_frame(&e.detection, d)) {
             return Err(Rejection::Duplicate);
         }
-        let mut snapshot = track.now;
+        let index = track
+            .history
+            .partition_point(|e| e.detection.stamp <= d.stamp);
+        let mut snapshot = match index {
+            _ if !late => track.now,
+            0 => track.base,
+            i => track.history[i - 1].after,
+        };
         let (mut result, innovation) = self.fuse(&mut snapshot, d, &m);
-        if result == Err(Rejection::Gated)
+        if !late
+            && result == Err(Rejection::Gated)
             && let Some((retried, nis)) = self.retry_edge_bounce(d, &m)
         {
             snapshot = retried;
@@ -767,11 +775,16 @@ impl Tracker {
         }
         self.learn_noise(d, innovation, adaptation);
         let nis = result?;
-        self.push_entry(Entry {
+        let entry = Entry {
             detection: *d,
             measurement: m,
             after: snapshot,
-        });
+        };
+        if late {
+            self.insert_late(index, entry);
+        } else {
+            self.push_entry(entry);
+        }
         self.keep_for_lesson(d, &m);
         Ok(nis)
     }
@@ -944,34 +957,12 @@ impl Tracker {
         }
     }
 
-    /// Fuses a detection older than the newest fused one: roll back, fuse, re-apply the newer.
-    fn fuse_late(
-        &mut self,
-        d: &Detection,
-        m: Measurement,
-        adaptation: &mut Adaptation,
-    ) -> Result<f64, Rejection> {
-        let Some(track) = &self.track else {
-            return Err(Rejection::TooOld);
-        };
-        if track.now.stamp - d.stamp > self.settings.rollback || d.stamp < track.base.stamp {
-            return Err(Rejection::TooOld);
-        }
-        if track.history.iter().any(|e| same_frame(&e.detection, d)) {
-            return Err(Rejection::Duplicate);
-        }
-        let index = track
-            .history
-            .partition_point(|e| e.detection.stamp <= d.stamp);
-        let mut snapshot = match index {
-            0 => track.base,
-            i => track.history[i - 1].after,
-        };
-        let (result, innovation) = self.fuse(&mut snapshot, d, &m);
-        self.learn_noise(d, innovation, adaptation);
-        let nis = result?;
+    /// Inserts a late detection's `entry` at `index` of the history, re-applying the newer
+    /// detections after it (one no longer in the gate is skipped).
+    fn insert_late(&mut self, index: usize, entry: Entry) {
+        let mut snapshot = entry.after;
         let Some(mut track) = self.track.take() else {
-            return Err(Rejection::TooOld);
+            return;
         };
         for entry in track.history.iter_mut().skip(index) {
             // A re-applied detection that no longer passes the gate is skipped.
@@ -994,20 +985,11 @@ impl Tracker {
             track.base = oldest.after;
             index = index.saturating_sub(1);
         }
-        track.history.insert(
-            index,
-            Entry {
-                detection: *d,
-                measurement: m,
-                after: snapshot,
-            },
-        );
+        track.history.insert(index, entry);
         track.now = snapshot;
         track.note_speed(&snapshot, &self.flight);
         self.track = Some(track);
         self.counters.rollbacks += 1;
-        self.keep_for_lesson(d, &m);
-        Ok(nis)
     }
 
     /// Appends the newest fused detection to the history, dropping what is older than the
