@@ -91,9 +91,9 @@ pub struct Counters {
     pub rollbacks: u64,
     /// Tracks whose lesson of the physics was their flight smoothed.
     pub smoothed_lessons: u64,
-    /// Tracks' lessons dropped, by reason in the order of
-    /// [`Dropped::ALL`](super::Dropped::ALL): too many waiting, late for a caller that never
-    /// waits, failed on the worker.
+    /// Tracks' smoothings dropped (each track taught its filter's lesson), by reason in the
+    /// order of [`Dropped::ALL`](super::Dropped::ALL): too many waiting, late for a caller that
+    /// never waits, failed on the worker.
     pub lessons_dropped: [u64; super::Dropped::ALL.len()],
     /// Spin measurements that disagreed with the filter's spin and replaced it.
     pub spin_resets: u64,

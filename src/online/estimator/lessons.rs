@@ -21,7 +21,7 @@ pub const LESSON_DELAY: i64 = 1_000_000_000;
 /// The most lessons waiting at a time.
 pub const MAX_PENDING: usize = 4;
 
-/// Why a track's lesson was not learned.
+/// Why a track's smoothed lesson was dropped (the track teaches its filter's lesson instead).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Dropped {
     /// [`MAX_PENDING`] lessons were already waiting (a burst of short tracks).
@@ -245,34 +245,33 @@ impl Lessons {
     /// The next lesson due before `stamp` (every waiting one with `all`: the input's end),
     /// if any.
     pub(crate) fn next_due(&mut self, stamp: i64, all: bool) -> Option<Lesson> {
-        loop {
-            if !all && stamp < self.pending.front()?.due {
-                return None;
-            }
-            self.collect();
-            let mut pending = self.pending.pop_front()?;
-            if let Some(job) = pending.job.take() {
-                let lesson = self.smoother.lesson(&job);
-                self.recycle(job.record);
-                return Some(self.count(lesson));
-            }
-            let waits = all
-                || self
-                    .worker
-                    .as_ref()
-                    .is_some_and(|w| w.waiting == Waiting::Wait);
-            if pending.done.is_none() && waits {
-                pending.done = self.wait_for(pending.id);
-            }
-            match pending.done {
-                Some(Some(lesson)) => return Some(self.count(lesson)),
-                Some(None) => self.counts.dropped[Dropped::Failed.index()] += 1,
-                None if waits || self.worker.is_none() => {
-                    self.counts.dropped[Dropped::Failed.index()] += 1;
-                }
-                None => self.counts.dropped[Dropped::Late.index()] += 1,
-            }
+        if !all && stamp < self.pending.front()?.due {
+            return None;
         }
+        self.collect();
+        let mut pending = self.pending.pop_front()?;
+        if let Some(job) = pending.job.take() {
+            let lesson = self.smoother.lesson(&job);
+            self.recycle(job.record);
+            return Some(self.count(lesson));
+        }
+        let waits = all
+            || self
+                .worker
+                .as_ref()
+                .is_some_and(|w| w.waiting == Waiting::Wait);
+        if pending.done.is_none() && waits {
+            pending.done = self.wait_for(pending.id);
+        }
+        // A smoothing dropped leaves its track the filter's lesson.
+        let dropped = match pending.done {
+            Some(Some(lesson)) => return Some(self.count(lesson)),
+            Some(None) => Dropped::Failed,
+            None if waits || self.worker.is_none() => Dropped::Failed,
+            None => Dropped::Late,
+        };
+        self.counts.dropped[dropped.index()] += 1;
+        Some(pending.filter)
     }
 
     /// Takes what the worker has returned into the lessons waiting for it (a lesson no longer
@@ -438,14 +437,18 @@ mod tests {
     }
 
     /// A worker that has not finished a lesson when it is due: a caller that never waits drops
-    /// it (counted late) and does not block; the lesson the worker returns later is thrown
-    /// away, its record kept. A worker that is gone fails its lessons, counted.
+    /// the smoothing (counted late), learns the filter's lesson and does not block; the lesson
+    /// the worker returns later is thrown away, its record kept. A worker that is gone fails its
+    /// lessons, counted, each track teaching its filter's lesson.
     #[test]
     fn a_lesson_not_done_in_time_is_dropped_for_a_caller_that_never_waits() {
         let mut lessons = Lessons::new();
         let (inbox, outbox) = hand_worked(&mut lessons, Waiting::Never);
         assert_eq!(lessons.queue(job(0.9), 0), None);
-        assert_eq!(lessons.next_due(LESSON_DELAY, false), None);
+        let late = lessons
+            .next_due(LESSON_DELAY, false)
+            .expect("the filter's lesson");
+        assert_eq!((late.posterior.0[0], late.smoothed), (0.9, false));
         assert_eq!(lessons.counts().dropped(Dropped::Late), 1);
         // The worker finishes it afterwards: filed nowhere, its record back.
         let (id, taken) = inbox.try_recv().expect("the job was sent");
@@ -457,7 +460,11 @@ mod tests {
         assert_eq!(lessons.spare.len(), spare + 1);
         // The worker gone: the lesson waiting fails.
         drop((inbox, outbox));
-        assert_eq!(lessons.next_due(2 * LESSON_DELAY, false), None);
+        let failed = lessons
+            .next_due(2 * LESSON_DELAY, false)
+            .expect("the filter's lesson");
+        assert_eq!(failed.posterior.0[0], 0.8);
+        assert_eq!(lessons.next_due(i64::MAX, true), None);
         assert_eq!(lessons.counts().dropped(Dropped::Failed), 1);
         assert!(lessons.worker.is_none());
     }
