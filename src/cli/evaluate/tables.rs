@@ -13,7 +13,7 @@ use ttball::eval::sets::{SETTLE_FLIGHTS, run_set, standard_sets};
 use ttball::eval::sim::{Cameras, SimOptions, simulate};
 use ttball::eval::{BatchPhysics, EvalReport, efficiency, evaluate_learning};
 use ttball::offline::rebound_calibration::{
-    HitSet, RubberCalibration, RubberOptions, calibrate_rubber,
+    CrossValidation, HitSet, ReboundErrors, RubberCalibration, RubberOptions, calibrate_rubber,
 };
 use ttball::physics::PhysicsParams;
 
@@ -251,13 +251,20 @@ fn rubbers_table(layers: &[Layer]) -> anyhow::Result<String> {
         }
         Ok(calibrate_rubber(&seed, &hits, &RubberOptions::default())?)
     };
+    let cross_validation = |c: &RubberCalibration| -> anyhow::Result<CrossValidation> {
+        c.cross_validation
+            .clone()
+            .context("a calibration without its cross-validation")
+    };
+    let rms = |e: &ReboundErrors| (e.velocity_rms, e.spin_rms);
     let held_out = |c: &RubberCalibration, racket: &str| -> anyhow::Result<(f64, f64)> {
-        let e = c
-            .cross_validation
-            .as_ref()
-            .and_then(|cv| cv.groups.iter().find(|g| g.group == racket))
-            .context("a calibration without its cross-validation")?;
-        Ok((e.calibrated.velocity_rms, e.calibrated.spin_rms))
+        let cv = cross_validation(c)?;
+        let e = cv
+            .groups
+            .iter()
+            .find(|g| g.group == racket)
+            .context("a racket without its held-out errors")?;
+        Ok(rms(&e.calibrated))
     };
     let cell = |(v, w): (f64, f64), (tv, tw): (f64, f64)| {
         let bold = |miss: bool, text: String| if miss { format!("**{text}**") } else { text };
@@ -281,57 +288,39 @@ fn rubbers_table(layers: &[Layer]) -> anyhow::Result<String> {
         let preset = calibrated(rackets)?;
         for racket in rackets {
             let own = calibrated(&[racket])?;
-            let start = &own
-                .cross_validation
-                .as_ref()
-                .context("no cross-validation")?
-                .overall
-                .start;
+            let start = rms(&cross_validation(&own)?.overall.start);
             let alone = held_out(&own, racket)?;
             let n = own.predictions.len() as f64;
             sum = (sum.0 + alone.0 * alone.0 * n, sum.1 + alone.1 * alone.1 * n);
             hits += n;
             text.push_str(&format!(
                 "| {racket} ({class}) | {:.2} / {:.0} | {} | {} | {} |\n",
-                start.velocity_rms,
-                start.spin_rms,
+                start.0,
+                start.1,
                 cell(alone, CALIBRATION_TARGET),
                 cell(held_out(&preset, racket)?, CALIBRATION_TARGET),
                 cell(held_out(&default, racket)?, DEFAULT_RUBBER_TARGET),
             ));
         }
     }
-    let cv = default
-        .cross_validation
-        .as_ref()
-        .context("no cross-validation")?;
+    let overall = cross_validation(&default)?.overall;
+    let start = rms(&overall.start);
     text.push_str(&format!(
         "| all five inverted | {:.2} / {:.0} | {} | | {} |\n",
-        cv.overall.start.velocity_rms,
-        cv.overall.start.spin_rms,
+        start.0,
+        start.1,
         cell(
             ((sum.0 / hits).sqrt(), (sum.1 / hits).sqrt()),
             CALIBRATION_TARGET
         ),
-        cell(
-            (
-                cv.overall.calibrated.velocity_rms,
-                cv.overall.calibrated.spin_rms
-            ),
-            DEFAULT_RUBBER_TARGET
-        ),
+        cell(rms(&overall.calibrated), DEFAULT_RUBBER_TARGET),
     ));
     let pips = calibrated(&[LONG_PIPS])?;
-    let start = &pips
-        .cross_validation
-        .as_ref()
-        .context("no cross-validation")?
-        .overall
-        .start;
+    let start = rms(&cross_validation(&pips)?.overall.start);
     let (v, w) = held_out(&pips, LONG_PIPS)?;
     text.push_str(&format!(
         "| {LONG_PIPS} (long pips) | {:.2} / {:.0} | {v:.3} / {w:.1} | (its own class) | |\n",
-        start.velocity_rms, start.spin_rms,
+        start.0, start.1,
     ));
     Ok(text)
 }
