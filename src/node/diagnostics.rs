@@ -465,6 +465,33 @@ pub fn source_status(
     }
 }
 
+/// What to log of the tracks' smoothings dropped since `before` (the counts by reason of
+/// [`Counters::lessons_dropped`]): one warning per reason with new ones.
+pub fn dropped_lessons_warnings(
+    before: &[u64; Dropped::ALL.len()],
+    now: &[u64; Dropped::ALL.len()],
+) -> Vec<String> {
+    Dropped::ALL
+        .iter()
+        .zip(before.iter().zip(now))
+        .filter(|(_, (b, n))| n > b)
+        .map(|(reason, (b, n))| {
+            let why = match reason {
+                Dropped::Backlog => "more tracks ended than the lessons worker could take",
+                Dropped::Late => {
+                    "the lessons worker fell behind the detections (give the node more CPUs: node.cpus)"
+                }
+                Dropped::Failed => "the smoothing failed on the lessons worker",
+            };
+            format!(
+                "{} track lesson(s) not smoothed ({}): {why}; each track taught its filter's lesson",
+                n - b,
+                reason.name()
+            )
+        })
+        .collect()
+}
+
 fn kv(key: &str, value: String) -> KeyValue {
     KeyValue {
         key: key.to_owned(),
@@ -475,6 +502,18 @@ fn kv(key: &str, value: String) -> KeyValue {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Only reasons with new drops are warned of, each once with how many.
+    #[test]
+    fn dropped_lessons_are_warned_of_once() {
+        assert!(dropped_lessons_warnings(&[1, 2, 3], &[1, 2, 3]).is_empty());
+        let warnings = dropped_lessons_warnings(&[1, 2, 3], &[1, 2, 5]);
+        assert_eq!(warnings.len(), 1);
+        assert!(
+            warnings[0].starts_with("2 track lesson(s) not smoothed (failed)"),
+            "{warnings:?}"
+        );
+    }
 
     fn value<'a>(msg: &'a DiagnosticArray, key: &str) -> &'a str {
         let status = &msg.status[0];

@@ -63,6 +63,7 @@ use serde::Serialize;
 use tracing::{debug, info, warn};
 
 pub use dds::domain_id;
+use diagnostics::dropped_lessons_warnings;
 pub use diagnostics::{
     Snapshot, SourceExpectation, SourceWindow, TransportCounters, Window, diagnostics_msg,
     source_status,
@@ -78,7 +79,7 @@ use crate::bag::replay::{ODOMETRY_TYPE, TF_MESSAGE_TYPE, TF_STATIC_TOPIC};
 use crate::config::{Config, SourceIndex};
 use crate::model::detection::Source;
 use crate::model::stats::{DurationHistogram, DurationSummary};
-use crate::online::estimator::{Counters, LearnedSummary, Verdict, Waiting};
+use crate::online::estimator::{Counters, Dropped, LearnedSummary, Verdict, Waiting};
 use crate::ros::msgs::diagnostic_msgs::DiagnosticArray;
 use crate::ros::msgs::geometry_msgs::{Quaternion, Transform, TransformStamped, Vector3};
 use crate::ros::msgs::nav_msgs::Odometry;
@@ -556,6 +557,7 @@ fn start_here(config: &Config, placement: &Placement) -> Result<NodeHandle, Node
             .collect(),
         source_index: config.sources.index(),
         started: Instant::now(),
+        lessons_dropped: [0; Dropped::ALL.len()],
     };
     let estimator = std::thread::Builder::new()
         .name("ttball-estimator".to_owned())
@@ -748,6 +750,8 @@ struct EstimatorThread {
     live_view: Option<RunningLiveView>,
     /// The keeper of what the estimator learned in a file (`--learned`).
     keeper: Option<keeper::LearnedKeeper>,
+    /// The tracks' smoothings dropped by the last diagnostics, by reason: new ones are logged.
+    lessons_dropped: [u64; Dropped::ALL.len()],
 }
 
 /// The table's pose in `frames.table_parent` as a `/tf_static` message, if one is configured.
@@ -1218,6 +1222,10 @@ impl EstimatorThread {
     ) {
         let stamp = self.now().to_nanos();
         let counters = self.pipeline.counters();
+        for warning in dropped_lessons_warnings(&self.lessons_dropped, &counters.lessons_dropped) {
+            warn!("{warning}");
+        }
+        self.lessons_dropped = counters.lessons_dropped;
         let estimator = self.pipeline.estimator();
         let learned = estimator.learned_params();
         let learned_noise = estimator.learned_noise();
