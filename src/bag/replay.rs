@@ -1,8 +1,8 @@
 //! Offline replay of a ROS 2 MCAP bag through the node's own code path ([`Pipeline`]): the
-//! detections of the bag, in log-time order, go through `Pipeline::handle_detection` and
-//! `Pipeline::add_due_trajectory` exactly as the live node's would, and the output bag holds the
-//! input topics unchanged plus what the node would have published, each with the log time of the
-//! detection that produced it. Time comes from the messages only, so two replays give
+//! detections of the bag, in log-time order, go through `Pipeline::handle_detection` exactly as
+//! the live node's would, the trajectory due after one (`Pipeline::take_due_trajectory`) flown
+//! where the output is written, and the output bag holds the input topics unchanged plus what the
+//! node would have published, each with the log time of the detection that produced it. Time comes from the messages only, so two replays give
 //! byte-identical files.
 //!
 //! When the bag carries the simulator's truth (`/ball/truth`: the true state at each detection's

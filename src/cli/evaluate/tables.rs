@@ -251,11 +251,6 @@ fn rubbers_table(layers: &[Layer]) -> anyhow::Result<String> {
         }
         Ok(calibrate_rubber(&seed, &hits, &RubberOptions::default())?)
     };
-    let cross_validation = |c: &RubberCalibration| -> anyhow::Result<CrossValidation> {
-        c.cross_validation
-            .clone()
-            .context("a calibration without its cross-validation")
-    };
     let rms = |e: &ReboundErrors| (e.velocity_rms, e.spin_rms);
     let held_out = |c: &RubberCalibration, racket: &str| -> anyhow::Result<(f64, f64)> {
         let cv = cross_validation(c)?;
@@ -303,7 +298,7 @@ fn rubbers_table(layers: &[Layer]) -> anyhow::Result<String> {
             ));
         }
     }
-    let overall = cross_validation(&default)?.overall;
+    let overall = &cross_validation(&default)?.overall;
     let start = rms(&overall.start);
     text.push_str(&format!(
         "| all five inverted | {:.2} / {:.0} | {} | | {} |\n",
@@ -323,6 +318,13 @@ fn rubbers_table(layers: &[Layer]) -> anyhow::Result<String> {
         start.0, start.1,
     ));
     Ok(text)
+}
+
+/// A rubber calibration's held-out errors.
+fn cross_validation(c: &RubberCalibration) -> anyhow::Result<&CrossValidation> {
+    c.cross_validation
+        .as_ref()
+        .context("a calibration without its cross-validation")
 }
 
 /// The real launcher flights' files in the repository.
