@@ -16,7 +16,6 @@ use foxglove::websocket::{Capability, Parameter, ParameterHandler, Status};
 use foxglove::{ChannelBuilder, Context, PartialMetadata, RawChannel, Schema, WebSocketServer};
 
 use crate::bag::{ChannelInfo, encode};
-use crate::ros::msgs::definitions;
 
 /// Why the live view could not start.
 #[derive(Debug, thiserror::Error)]
@@ -57,14 +56,18 @@ pub struct Interaction {
 
 impl LiveView {
     /// Serves on `address` (`HOST:PORT`; port 0 picks a free one, see [`Self::port`]), for
-    /// watching only.
-    pub fn start(address: &str) -> Result<Self, LiveViewError> {
-        Self::start_with(address, None)
+    /// watching only, with `channels` advertised from the start (see [`Self::start_with`]).
+    pub fn start(address: &str, channels: &[ChannelInfo]) -> Result<Self, LiveViewError> {
+        Self::start_with(address, channels, None)
     }
 
     /// Serves on `address`, with the parameters and services of `interaction` when given.
+    /// `channels` (the topics known to come) are advertised to each app as it connects, before
+    /// it can subscribe: a channel first advertised to an app already connected may be lost to
+    /// it (the SDK sends the advertisement before it can take the app's subscription).
     pub fn start_with(
         address: &str,
+        channels: &[ChannelInfo],
         interaction: Option<Interaction>,
     ) -> Result<Self, LiveViewError> {
         let (host, port) = address
@@ -73,6 +76,15 @@ impl LiveView {
             .filter(|(h, _)| !h.is_empty())
             .ok_or_else(|| LiveViewError::Address(address.to_owned()))?;
         let context = Context::new();
+        let mut view = Self {
+            context: context.clone(),
+            server: None,
+            channels: HashMap::new(),
+            pace: None,
+        };
+        for channel in channels {
+            view.advertise(channel);
+        }
         let mut server = WebSocketServer::new()
             .name("ttball")
             .bind(host, port)
@@ -85,16 +97,11 @@ impl LiveView {
                 .supported_encodings(["cdr"]),
             None => server.capabilities([Capability::Time]),
         };
-        let server = server.start_blocking().map_err(|e| LiveViewError::Start {
+        view.server = Some(server.start_blocking().map_err(|e| LiveViewError::Start {
             address: address.to_owned(),
             reason: e.to_string(),
-        })?;
-        Ok(Self {
-            context,
-            server: Some(server),
-            channels: HashMap::new(),
-            pace: None,
-        })
+        })?);
+        Ok(view)
     }
 
     /// Logs messages at the pace of their log times, `rate` times as fast (replays).
@@ -162,14 +169,7 @@ impl LiveView {
             return;
         };
         self.send(topic, log_time, &payload, || {
-            Some(ChannelInfo {
-                topic: topic.to_owned(),
-                schema_name: type_name.to_owned(),
-                schema_encoding: "ros2msg".to_owned(),
-                schema_data: definitions::schema(type_name)?.into_bytes(),
-                message_encoding: "cdr".to_owned(),
-                metadata: std::collections::BTreeMap::new(),
-            })
+            ChannelInfo::ros2(topic, type_name)
         });
     }
 
@@ -183,6 +183,28 @@ impl LiveView {
     ) {
         if let Some(msg) = msg {
             self.log_message(topic, type_name, log_time, msg);
+        }
+    }
+
+    /// Advertises `channel` (once per topic). A topic the SDK refuses (it never has) is not
+    /// shown; the rest goes on.
+    fn advertise(&mut self, channel: &ChannelInfo) {
+        if self.channels.contains_key(&channel.topic) {
+            return;
+        }
+        let built = ChannelBuilder::new(channel.topic.clone())
+            .context(&self.context)
+            .message_encoding(channel.message_encoding.clone())
+            .schema((!channel.schema_name.is_empty()).then(|| {
+                Schema::new(
+                    channel.schema_name.clone(),
+                    channel.schema_encoding.clone(),
+                    channel.schema_data.clone(),
+                )
+            }))
+            .build_raw();
+        if let Ok(raw) = built {
+            self.channels.insert(channel.topic.clone(), raw);
         }
     }
 
@@ -205,22 +227,7 @@ impl LiveView {
             let Some(channel) = describe() else {
                 return;
             };
-            let built = ChannelBuilder::new(channel.topic.clone())
-                .context(&self.context)
-                .message_encoding(channel.message_encoding.clone())
-                .schema((!channel.schema_name.is_empty()).then(|| {
-                    Schema::new(
-                        channel.schema_name.clone(),
-                        channel.schema_encoding.clone(),
-                        channel.schema_data.clone(),
-                    )
-                }))
-                .build_raw();
-            // A topic the SDK refuses (it never has) is not shown; the rest goes on.
-            let Ok(raw) = built else {
-                return;
-            };
-            self.channels.insert(topic.to_owned(), raw);
+            self.advertise(&channel);
         }
         if let Some(raw) = self.channels.get(topic) {
             raw.log_with_meta(

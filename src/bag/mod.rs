@@ -148,6 +148,21 @@ pub struct ChannelInfo {
     pub metadata: BTreeMap<String, String>,
 }
 
+impl ChannelInfo {
+    /// The channel of `topic` carrying one of ttball's known types (`pkg/msg/Type`): its full
+    /// `ros2msg` schema, `cdr` encoded, no metadata; None for a type without a definition.
+    pub fn ros2(topic: &str, type_name: &str) -> Option<Self> {
+        Some(Self {
+            topic: topic.to_owned(),
+            schema_name: type_name.to_owned(),
+            schema_encoding: "ros2msg".to_owned(),
+            schema_data: definitions::schema(type_name)?.into_bytes(),
+            message_encoding: "cdr".to_owned(),
+            metadata: BTreeMap::new(),
+        })
+    }
+}
+
 /// One message of a bag.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct BagMessage {
@@ -1245,16 +1260,11 @@ impl<W: Write + Seek> BagWriter<W> {
         if let Some(id) = self.channels.get(topic) {
             return Ok(*id);
         }
-        let schema = definitions::schema(type_name)
+        let mut info = ChannelInfo::ros2(topic, type_name)
             .ok_or_else(|| BagError::UnknownType(type_name.into()))?;
-        self.add_channel(&ChannelInfo {
-            topic: topic.to_string(),
-            schema_name: type_name.to_string(),
-            schema_encoding: "ros2msg".to_string(),
-            schema_data: schema.into_bytes(),
-            message_encoding: "cdr".to_string(),
-            metadata: BTreeMap::from([(OFFERED_QOS_PROFILES.to_owned(), qos.profiles_yaml())]),
-        })
+        info.metadata
+            .insert(OFFERED_QOS_PROFILES.to_owned(), qos.profiles_yaml());
+        self.add_channel(&info)
     }
 
     /// A channel copied from another bag (same topic, schema, encodings and metadata).

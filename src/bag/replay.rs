@@ -19,7 +19,7 @@ use crate::bag::{
     BagContents, BagError, BagMessage, BagReader, BagWriter, ChannelInfo, Damage, channel_of,
     decode, read_bag_file,
 };
-use crate::config::Config;
+use crate::config::{Config, TopicsParams};
 use crate::eval::{EvalReport, Scorer};
 use crate::model::detection::Detection;
 use crate::model::frames::Frames;
@@ -213,6 +213,29 @@ impl Outputs {
         }
         Ok(written)
     }
+}
+
+/// The channels a replay of `input` with `config` writes, known before it starts: the input's
+/// (when its summary names them) and ttball's outputs (e.g. to advertise them to a live view).
+pub fn replay_channels(input: &Path, config: &Config) -> Result<Vec<ChannelInfo>, ReplayError> {
+    let reader = BagReader::open(input)?;
+    let mut channels = reader.channels().to_vec();
+    channels.extend(output_channels(&config.resolved_topics()));
+    Ok(channels)
+}
+
+/// The channels of ttball's outputs on `topics` (an empty topic is off).
+pub fn output_channels(topics: &TopicsParams) -> impl Iterator<Item = ChannelInfo> {
+    [
+        (&topics.state, STATE_TYPE),
+        (&topics.intercept, INTERCEPT_TYPE),
+        (&topics.trajectory, TRAJECTORY_TYPE),
+        (&topics.markers, MARKERS_TYPE),
+        (&topics.odometry, ODOMETRY_TYPE),
+    ]
+    .into_iter()
+    .filter(|(topic, _)| !topic.is_empty())
+    .filter_map(|(topic, type_name)| ChannelInfo::ros2(topic, type_name))
 }
 
 /// What the replay's writing thread is given to write, in the output's order.

@@ -11,7 +11,7 @@ use anyhow::{Context, bail};
 use clap::Args;
 use ttball::bag::damage_text;
 use ttball::bag::live_view::LiveView;
-use ttball::bag::replay::{ReplaySummary, replay, replay_observed};
+use ttball::bag::replay::{ReplaySummary, replay, replay_channels, replay_observed};
 use ttball::online::estimator::{Dropped, LearnedParams, LearnedSourceNoise, Rejection};
 use ttball::physics::PhysicsParams;
 
@@ -177,7 +177,9 @@ impl ReplayArgs {
                 self.rate
             );
         }
-        let view = LiveView::start(address)?.at_recorded_pace(self.rate);
+        let channels = replay_channels(input, config)
+            .with_context(|| format!("cannot replay {}", input.display()))?;
+        let view = LiveView::start(address, &channels)?.at_recorded_pace(self.rate);
         let url = format!(
             "ws://{}:{}",
             address.rsplit_once(':').map_or("", |(h, _)| h),

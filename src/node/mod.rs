@@ -70,12 +70,13 @@ pub use diagnostics::{
 };
 pub use play::{Latency, LatencyReport, PlayOptions, PlaySummary, play};
 
+use crate::bag::ChannelInfo;
 use crate::bag::live_view::LiveView;
 use crate::bag::mcap_time;
 use crate::bag::replay::{
     DETECTION_TYPE, INTERCEPT_TYPE, MARKERS_TYPE, ROBOT_HIT_TYPE, STATE_TYPE, TRAJECTORY_TYPE,
 };
-use crate::bag::replay::{ODOMETRY_TYPE, TF_MESSAGE_TYPE, TF_STATIC_TOPIC};
+use crate::bag::replay::{ODOMETRY_TYPE, TF_MESSAGE_TYPE, TF_STATIC_TOPIC, output_channels};
 use crate::config::{Config, SourceIndex};
 use crate::model::detection::Source;
 use crate::model::stats::{DurationHistogram, DurationSummary};
@@ -429,7 +430,15 @@ fn start_live_view(
         return Ok((None, channel::never()));
     };
     let (app_tx, app_rx) = channel::bounded::<foxglove::AppRequest>(REQUEST_QUEUE);
-    let view = LiveView::start_with(address, Some(foxglove::interaction(&app_tx, fq_name)))?;
+    let channels: Vec<_> = ChannelInfo::ros2(&topics.detections, DETECTION_TYPE)
+        .into_iter()
+        .chain(output_channels(topics))
+        .collect();
+    let view = LiveView::start_with(
+        address,
+        &channels,
+        Some(foxglove::interaction(&app_tx, fq_name)),
+    )?;
     info!(
         "Foxglove live view on ws://{}:{} (in Foxglove: Open connection)",
         address.rsplit_once(':').map_or("", |(host, _)| host),

@@ -9,7 +9,7 @@
 // or until the server closes. REPORT.json: the server's name, every channel advertised (topic,
 // encoding, schema name and encoding), per topic the messages received and decoded (with the
 // first decoded message and its log time), and every problem (a message that does not decode,
-// or leaves bytes over).
+// or leaves bytes over, or an error the server reports).
 
 import { writeFile } from "node:fs/promises";
 import { plain } from "./plain.mjs";
@@ -35,6 +35,10 @@ const client = await connect(url, (client) => {
   client.on("close", () => client === active && finish());
   client.on("serverInfo", (info) => {
     report.server = { name: info.name, capabilities: info.capabilities };
+  });
+  // The server's errors (e.g. a subscription it refused) are problems of the watch.
+  client.on("status", ({ level, message }) => {
+    if (level >= 2) report.problems.push(`server: ${message}`);
   });
   client.on("advertise", (advertised) => {
     for (const channel of advertised) {
