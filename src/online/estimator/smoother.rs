@@ -205,7 +205,6 @@ impl Smoother {
     /// The Rauch-Tung-Striebel smoother back over the last pass: the smoothed (state,
     /// parameters) at the first estimate's stamp and every step's, the next pass's nominal
     /// (none where it fails).
-    #[expect(non_snake_case, reason = "matrix notation")]
     fn smooth_back(&mut self, job: &LessonJob) {
         self.smoothed.clear();
         let Some(last) = self.steps.last() else {
@@ -232,9 +231,10 @@ impl Smoother {
             let Some(chol) = predicted.cholesky() else {
                 break;
             };
-            // C = P_k Phi' P_{k+1|k}^-1 = (P_{k+1|k}^-1 Phi P_k)'.
-            let C = chol.solve(&(next.transition * filtered.P)).transpose();
-            later = augmented(filtered) + C * (later - next.predicted.0);
+            // C (later - predicted), C = P_k Phi' P_{k+1|k}^-1: only the mean is smoothed, so
+            // one solve and two products with a vector, never C itself.
+            let innovation = chol.solve(&(later - next.predicted.0));
+            later = augmented(filtered) + filtered.P * (next.transition.tr_mul(&innovation));
             if !later.iter().all(|v| v.is_finite()) {
                 self.smoothed.clear();
                 return;
