@@ -7,6 +7,8 @@ mod common;
 
 mod bags;
 mod config_yaml;
+#[cfg(feature = "live-view")]
+mod live_view;
 mod msgs_contract;
 mod plot;
 mod properties;
