@@ -7,6 +7,8 @@
 
 use std::path::{Path, PathBuf};
 
+use crate::docs::source_files;
+
 /// The layers, lowest first, as `src/lib.rs` lists them.
 const LAYERS: [&str; 10] = [
     "model", "config", "physics", "online", "offline", "eval", "plot", "ros", "bag", "node",
@@ -14,17 +16,6 @@ const LAYERS: [&str; 10] = [
 
 fn rank(layer: &str) -> Option<usize> {
     LAYERS.iter().position(|l| *l == layer)
-}
-
-fn sources(dir: &Path, out: &mut Vec<PathBuf>) {
-    for entry in std::fs::read_dir(dir).unwrap() {
-        let path = entry.unwrap().path();
-        if path.is_dir() {
-            sources(&path, out);
-        } else if path.extension().is_some_and(|e| e == "rs") {
-            out.push(path);
-        }
-    }
 }
 
 /// Every layer named after `crate::` on a line of code (comments left out).
@@ -50,8 +41,7 @@ fn used_layers(text: &str) -> Vec<(usize, String)> {
 fn every_module_uses_only_its_layer_and_the_layers_below_it() {
     let src = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("src");
     let mut files = Vec::new();
-    sources(&src, &mut files);
-    files.sort();
+    source_files(&src, &["rs"], &mut files);
     let mut broken = Vec::new();
     let mut checked = 0;
     for file in &files {
@@ -184,8 +174,9 @@ fn function_lengths(text: &str) -> Vec<(usize, String, usize)> {
 #[test]
 fn no_function_in_src_is_longer_than_a_reader_holds() {
     let mut files = Vec::new();
-    sources(
+    source_files(
         &Path::new(env!("CARGO_MANIFEST_DIR")).join("src"),
+        &["rs"],
         &mut files,
     );
     let mut long = Vec::new();
