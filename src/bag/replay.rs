@@ -114,8 +114,8 @@ pub struct ReplaySummary {
     pub learned: crate::online::estimator::LearnedSummary,
     /// Messages written to the output bag.
     pub written: u64,
-    /// Processing time per detection [ns], mean (each detection's own work: its waits for the
-    /// lessons worker left out).
+    /// Processing time per detection [ns], mean (each detection's own work: the lessons'
+    /// smoothing it waited for or took over left out).
     pub processing_mean_ns: f64,
     /// 99th percentile of the processing time per detection [ns].
     pub processing_p99_ns: f64,
@@ -128,11 +128,12 @@ pub struct ReplaySummary {
     pub trajectory_p99_ns: f64,
     /// Log time spanned by the detections [s].
     pub recorded_seconds: f64,
-    /// Time spent processing them [s], their own work and the trajectories (waits for the
-    /// lessons worker left out).
+    /// Time spent processing them [s], their own work and the trajectories (the lessons'
+    /// smoothing left out).
     pub processing_seconds: f64,
-    /// Time the detections waited for the lessons worker [s] (a replay keeps the live node's
-    /// lessons at the same points by waiting where one is due and not yet done).
+    /// Time the detections spent on the lessons worker's smoothing [s]: a replay keeps the live
+    /// node's lessons at the same points by waiting where one is due and not yet done, after
+    /// taking back and smoothing itself the jobs the worker has not started.
     pub lesson_wait_seconds: f64,
     /// Why the input was read only in part (truncated or corrupt); empty when it was whole.
     pub damage: Vec<Damage>,

@@ -344,7 +344,7 @@ pub fn summary_text(s: &ReplaySummary, whole_seconds: Option<f64>) -> String {
     }
     let _ = writeln!(
         out,
-        "  processing per detection: mean {:.1} us, p99 {:.1} us (waits for the lessons worker, {:.1} ms in all, left out); then {} trajectories: mean {:.1} us, p99 {:.1} us; {:.1} s recorded in {:.2} s ({:.0}x real time); {} messages written",
+        "  processing per detection: mean {:.1} us, p99 {:.1} us (the lessons' smoothing it waited for or took over, {:.1} ms in all, left out); then {} trajectories: mean {:.1} us, p99 {:.1} us; {:.1} s recorded in {:.2} s ({:.0}x real time); {} messages written",
         s.processing_mean_ns * 1e-3,
         s.processing_p99_ns * 1e-3,
         s.lesson_wait_seconds * 1e3,

@@ -3,10 +3,13 @@
 //! or on a worker thread fed over crossbeam channels ([`Lessons::spawn_worker`]), and its lesson
 //! enters before the first detection stamped [`LESSON_DELAY`] after the one that ended the
 //! track, so what is learned, and when, depends on the data alone. At most [`MAX_PENDING`] wait;
-//! what is dropped is counted by reason ([`Dropped`]). The detections' buffers travel with the
-//! jobs and come back with the lessons.
+//! what is dropped is counted by reason ([`Dropped`]). A caller that waits for a lesson due
+//! (a replay) first takes back the jobs the worker has not started and smooths them itself: the
+//! same lessons, without waiting for the worker to be scheduled. The detections' buffers travel
+//! with the jobs and come back with the lessons.
 
 use std::collections::VecDeque;
+use std::panic::{AssertUnwindSafe, catch_unwind};
 use std::time::{Duration, Instant};
 
 use crossbeam::channel::{Receiver, Sender, TryRecvError, bounded};
@@ -86,6 +89,9 @@ struct Worker {
     jobs: Sender<(u64, LessonJob)>,
     done: Receiver<Done>,
     waiting: Waiting,
+    /// The jobs' other end, for a caller that waits ([`Waiting::Wait`]): the jobs the worker has
+    /// not started, taken back when due.
+    unstarted: Option<Receiver<(u64, LessonJob)>>,
 }
 
 /// A lesson waiting to enter the adaptation.
@@ -114,7 +120,7 @@ pub(crate) struct Lessons {
     /// Detections' buffers back from lessons, for the next tracks.
     spare: Vec<TrackRecord>,
     counts: LessonCounts,
-    /// How long callers have waited for the worker's lessons ([`Waiting::Wait`]).
+    /// How long callers have spent on the worker's lessons ([`Waiting::Wait`]).
     waited: Duration,
 }
 
@@ -167,6 +173,7 @@ impl Lessons {
     pub(crate) fn spawn_worker(&mut self, waiting: Waiting) -> std::io::Result<()> {
         let (jobs, inbox) = bounded::<(u64, LessonJob)>(MAX_PENDING);
         let (outbox, done) = bounded::<Done>(MAX_PENDING);
+        let unstarted = (waiting == Waiting::Wait).then(|| inbox.clone());
         std::thread::Builder::new()
             .name("ttball-lessons".into())
             .spawn(move || work(&inbox, &outbox))?;
@@ -177,6 +184,7 @@ impl Lessons {
             jobs,
             done,
             waiting,
+            unstarted,
         });
         Ok(())
     }
@@ -261,7 +269,9 @@ impl Lessons {
                 .as_ref()
                 .is_some_and(|w| w.waiting == Waiting::Wait);
         if pending.done.is_none() && waits {
-            pending.done = self.wait_for(pending.id);
+            pending.done = self
+                .smooth_unstarted(pending.id)
+                .or_else(|| self.wait_for(pending.id));
         }
         // A smoothing dropped leaves its track the filter's lesson.
         let dropped = match pending.done {
@@ -286,6 +296,33 @@ impl Lessons {
         }
     }
 
+    /// Takes back the jobs the worker has not started, oldest first, and smooths them here,
+    /// until job `id` (due now) or a later one: the lessons the worker would have returned,
+    /// without waiting for it to be scheduled. The lesson of `id` if it was among them (else the
+    /// worker is on it).
+    fn smooth_unstarted(&mut self, id: u64) -> Option<Option<Lesson>> {
+        let started = Instant::now();
+        let mut found = None;
+        while let Some((taken, job)) = self
+            .worker
+            .as_ref()
+            .and_then(|w| w.unstarted.as_ref()?.try_recv().ok())
+        {
+            let lesson = smoothed(&mut self.smoother, &job);
+            if taken == id {
+                self.recycle(job.record);
+                found = Some(lesson);
+                break;
+            }
+            self.file((taken, lesson, job.record));
+            if taken > id {
+                break;
+            }
+        }
+        self.waited += started.elapsed();
+        found
+    }
+
     /// Waits for the worker's lesson of job `id` (the ones before it filed as they come);
     /// `None` when the worker is gone.
     fn wait_for(&mut self, id: u64) -> Option<Option<Lesson>> {
@@ -305,8 +342,9 @@ impl Lessons {
         lesson
     }
 
-    /// How long callers have waited for the worker's lessons in all: time on the detection
-    /// path that is the worker's, not the detection's (a replay's, [`Waiting::Wait`]).
+    /// How long callers have spent on the worker's lessons in all, waiting for them or smoothing
+    /// the ones it had not started: time on the detection path that is the worker's, not the
+    /// detection's (a replay's, [`Waiting::Wait`]).
     pub(crate) fn waited(&self) -> Duration {
         self.waited
     }
@@ -334,17 +372,23 @@ impl Lessons {
     }
 }
 
-/// The worker thread: each job's lesson, in order, a panicking smoothing caught and reported as
-/// failed, until the jobs' channel closes or no one takes the lessons any more.
+/// A job's lesson as the worker makes it: `None` when the smoothing panicked (caught; the
+/// smoother's buffers start afresh).
+fn smoothed(smoother: &mut Smoother, job: &LessonJob) -> Option<Lesson> {
+    let lesson = catch_unwind(AssertUnwindSafe(|| smoother.lesson(job))).ok();
+    if lesson.is_none() {
+        *smoother = Smoother::new();
+    }
+    lesson
+}
+
+/// The worker thread: each job's lesson, in order, a panicking smoothing reported as failed,
+/// until the jobs' channel closes or no one takes the lessons any more.
 fn work(inbox: &Receiver<(u64, LessonJob)>, outbox: &Sender<Done>) {
     let mut smoother = Smoother::new();
     for (id, job) in inbox {
-        let lesson =
-            std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| smoother.lesson(&job)));
-        if lesson.is_err() {
-            smoother = Smoother::new();
-        }
-        if outbox.send((id, lesson.ok(), job.record)).is_err() {
+        let lesson = smoothed(&mut smoother, &job);
+        if outbox.send((id, lesson, job.record)).is_err() {
             return;
         }
     }
@@ -402,6 +446,7 @@ mod tests {
             jobs,
             done,
             waiting,
+            unstarted: None,
         });
         (inbox, outbox)
     }
@@ -489,6 +534,47 @@ mod tests {
         assert_eq!((before, after), (vec![0.9], vec![0.9]));
         let due = lessons.next_due(LESSON_DELAY, false).expect("due");
         assert_eq!(due.posterior.0[0], 0.7);
+    }
+
+    /// A caller that waits takes back, when a lesson is due, the jobs the worker has not
+    /// started and smooths them itself: the lessons inline smoothing learns, at the same points,
+    /// none dropped. The due job the worker is on is waited for, a later one taken back on the
+    /// way filed until it is due.
+    #[test]
+    fn a_waiting_caller_smooths_the_jobs_the_worker_has_not_started() {
+        let mut inline = Lessons::new();
+        let mut idle = Lessons::new();
+        let (inbox, outbox) = hand_worked(&mut idle, Waiting::Wait);
+        if let Some(worker) = idle.worker.as_mut() {
+            worker.unstarted = Some(inbox.clone());
+        }
+        for lessons in [&mut inline, &mut idle] {
+            for (k, tag) in [0.7, 0.6, 0.5].into_iter().enumerate() {
+                assert_eq!(lessons.queue(job(tag), k as i64), None);
+            }
+        }
+        // The worker is on the first job and answers once the caller has taken the second.
+        let (id, first) = inbox.try_recv().expect("the first job");
+        let (watched, answers) = (inbox.clone(), outbox.clone());
+        let worker = std::thread::spawn(move || {
+            while watched.len() > 1 {
+                std::thread::yield_now();
+            }
+            answers
+                .send((id, Some(first.filter), first.record))
+                .expect("sent");
+        });
+        for due in 0..3 {
+            let a = inline.next_due(due + LESSON_DELAY, false);
+            let b = idle.next_due(due + LESSON_DELAY, false);
+            assert!(a.is_some(), "{due}");
+            assert_eq!(a, b, "{due}");
+        }
+        worker.join().expect("the worker's stand-in");
+        assert!(inbox.is_empty());
+        drop(outbox);
+        assert_eq!(idle.counts(), inline.counts());
+        assert!(idle.waited() > Duration::ZERO);
     }
 
     /// The worker thread's lessons are the inline ones, waited for where they are due.

@@ -203,9 +203,10 @@ impl Estimator {
         self.adaptation.lessons.spawn_worker(waiting)
     }
 
-    /// How long the detections have waited for the worker's lessons in all (with
-    /// [`Waiting::Wait`]; zero inline or with [`Waiting::Never`]): time in [`Self::handle`] that
-    /// is the worker's, for timings of the detections' own work.
+    /// How long the detections have spent on the worker's lessons in all, waiting for them or
+    /// smoothing the jobs it had not started (with [`Waiting::Wait`]; zero inline or with
+    /// [`Waiting::Never`]): time in [`Self::handle`] that is the worker's, for timings of the
+    /// detections' own work.
     pub fn lesson_wait(&self) -> std::time::Duration {
         self.adaptation.lessons.waited()
     }
