@@ -94,6 +94,23 @@ struct Worker {
     unstarted: Option<Receiver<(u64, LessonJob)>>,
 }
 
+impl Worker {
+    /// A worker's channels for a caller `waiting` or not: the caller's ends, then the thread's
+    /// (its jobs' inbox and its lessons' outbox).
+    fn channels(waiting: Waiting) -> (Self, Receiver<(u64, LessonJob)>, Sender<Done>) {
+        let (jobs, inbox) = bounded::<(u64, LessonJob)>(MAX_PENDING);
+        let (outbox, done) = bounded::<Done>(MAX_PENDING);
+        let unstarted = (waiting == Waiting::Wait).then(|| inbox.clone());
+        let worker = Self {
+            jobs,
+            done,
+            waiting,
+            unstarted,
+        };
+        (worker, inbox, outbox)
+    }
+}
+
 /// A lesson waiting to enter the adaptation.
 #[derive(Debug, Clone)]
 struct Pending {
@@ -171,21 +188,16 @@ impl Lessons {
     /// Runs the smoothing on a thread of its own from now on, the caller `waiting` for a lesson
     /// due and not done or not. The thread ends when these lessons are dropped.
     pub(crate) fn spawn_worker(&mut self, waiting: Waiting) -> std::io::Result<()> {
-        let (jobs, inbox) = bounded::<(u64, LessonJob)>(MAX_PENDING);
-        let (outbox, done) = bounded::<Done>(MAX_PENDING);
-        let unstarted = (waiting == Waiting::Wait).then(|| inbox.clone());
+        let (worker, inbox, outbox) = Worker::channels(waiting);
         std::thread::Builder::new()
             .name("ttball-lessons".into())
             .spawn(move || work(&inbox, &outbox))?;
         // crossbeam keeps a context per thread, allocated at the thread's first wait on a
         // channel: taken here (nothing is sent yet), not when a detection first waits.
-        let _ = done.recv_timeout(std::time::Duration::from_millis(1));
-        self.worker = Some(Worker {
-            jobs,
-            done,
-            waiting,
-            unstarted,
-        });
+        let _ = worker
+            .done
+            .recv_timeout(std::time::Duration::from_millis(1));
+        self.worker = Some(worker);
         Ok(())
     }
 
@@ -440,14 +452,8 @@ mod tests {
         lessons: &mut Lessons,
         waiting: Waiting,
     ) -> (Receiver<(u64, LessonJob)>, Sender<Done>) {
-        let (jobs, inbox) = bounded::<(u64, LessonJob)>(MAX_PENDING);
-        let (outbox, done) = bounded::<Done>(MAX_PENDING);
-        lessons.worker = Some(Worker {
-            jobs,
-            done,
-            waiting,
-            unstarted: None,
-        });
+        let (worker, inbox, outbox) = Worker::channels(waiting);
+        lessons.worker = Some(worker);
         (inbox, outbox)
     }
 
@@ -545,9 +551,6 @@ mod tests {
         let mut inline = Lessons::new();
         let mut idle = Lessons::new();
         let (inbox, outbox) = hand_worked(&mut idle, Waiting::Wait);
-        if let Some(worker) = idle.worker.as_mut() {
-            worker.unstarted = Some(inbox.clone());
-        }
         for lessons in [&mut inline, &mut idle] {
             for (k, tag) in [0.7, 0.6, 0.5].into_iter().enumerate() {
                 assert_eq!(lessons.queue(job(tag), k as i64), None);
