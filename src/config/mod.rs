@@ -95,8 +95,8 @@ pub struct AeroParams {
 
 impl Default for AeroParams {
     /// The 40 mm plastic ball: C_D(Sp) = 0.42 + 0.15 Sp, C_M(Sp) = 0.42 - 0.30 Sp + 0.07 Sp^2 at
-    /// k_M = 0.70, the Magnus force falling as Re^-0.65 above Re = 1.6e4 (see
-    /// `config/ttball.yaml` for where the numbers come from).
+    /// k_M = 0.70, the Magnus force falling as Re^-0.65 above Re = 1.6e4, the spin decaying
+    /// at 1 /s (see `config/ttball.yaml` for where the numbers come from).
     fn default() -> Self {
         Self {
             drag_coefficients: vec![0.42, 0.15],
@@ -104,6 +104,7 @@ impl Default for AeroParams {
             magnus_scale: 0.70,
             reynolds_range: vec![1.6e4, 9.0e4],
             reynolds_exponents: vec![0.0, -0.65],
+            spin_decay_rate: 1.0,
             ..Self::seed_2014()
         }
     }

@@ -76,7 +76,7 @@ fn the_bounce_carries_its_uncertainty() {
 /// and 100 ms lead), and the learned drag scale, restitution and friction are within 5 % of
 /// the truth (the Magnus scale within 8 %: learned from the spin the 900 fps camera measures
 /// on the robot's half, biased a few percent low). Without the adaptation the interception is
-/// more than twice as far off.
+/// more than twice as far off (RMS, at both leads).
 #[test]
 fn the_adaptation_learns_what_the_configuration_has_wrong() {
     let config = Config::default();
@@ -94,8 +94,9 @@ fn the_adaptation_learns_what_the_configuration_has_wrong() {
         );
         assert!(k_m.abs() < 0.08, "{name}: {k_m}");
         let without = report(&fixed, name, 60);
-        let lead100 = &without.settled[1];
-        assert!(lead100.median_ratio > 2.0, "{name}: {lead100:?}");
+        for lead in &without.settled {
+            assert!(lead.rms_ratio > 2.0, "{name}: {lead:?}");
+        }
     }
 }
 
@@ -123,7 +124,7 @@ fn a_smoothed_flight_teaches_the_magnus_scale() {
 fn elite_flights_teach_the_magnus_forces_reynolds_exponent() {
     let steeper = ttball::eval::sets::STEEPER_ELITE;
     let config = Config::default();
-    let r = run_set(&config, &steeper, 60, 3).unwrap();
+    let r = run_set(&config, &steeper, 80, 3).unwrap();
     let learned = &r.learned;
     eprintln!(
         "learned {:?}, exponents {:?} +- {:?}; settled {:?}",
@@ -137,7 +138,7 @@ fn elite_flights_teach_the_magnus_forces_reynolds_exponent() {
     assert_eq!(r.single_track_fraction(), 1.0);
     let mut held = config.clone();
     held.adaptation.reynolds_sigma = vec![0.0, 0.0];
-    let without = run_set(&held, &steeper, 60, 3).unwrap();
+    let without = run_set(&held, &steeper, 80, 3).unwrap();
     eprintln!("held: {:?}", without.settled);
     assert!(without.settled[1].median_ratio > r.settled[1].median_ratio);
 }
