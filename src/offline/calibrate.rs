@@ -110,6 +110,8 @@ pub enum Parameter {
     DragReynolds,
     /// The exponent a_M of the Reynolds number's factor on C_M.
     MagnusReynolds,
+    /// The spin's decay rate in flight lambda [1/s].
+    SpinDecay,
 }
 
 impl Parameter {
@@ -125,6 +127,7 @@ impl Parameter {
             Self::AirDensity => "air.density".to_owned(),
             Self::DragReynolds => "aero.reynolds_exponents[0]".to_owned(),
             Self::MagnusReynolds => "aero.reynolds_exponents[1]".to_owned(),
+            Self::SpinDecay => "aero.spin_decay_rate".to_owned(),
         }
     }
 
@@ -142,6 +145,7 @@ impl Parameter {
             Self::AirDensity => config.air.density,
             Self::DragReynolds => element(&aero.reynolds_exponents, 0),
             Self::MagnusReynolds => element(&aero.reynolds_exponents, 1),
+            Self::SpinDecay => aero.spin_decay_rate,
         }
     }
 
@@ -162,6 +166,7 @@ impl Parameter {
             Self::AirDensity => config.air.density = value,
             Self::DragReynolds => coefficient(&mut config.aero.reynolds_exponents, 0),
             Self::MagnusReynolds => coefficient(&mut config.aero.reynolds_exponents, 1),
+            Self::SpinDecay => config.aero.spin_decay_rate = value,
         }
     }
 
@@ -187,6 +192,7 @@ impl Parameter {
                 Self::Friction => (0.0..2.0).contains(&value),
                 Self::AirDensity => value > 0.0,
                 Self::DragReynolds | Self::MagnusReynolds => (-3.0..=3.0).contains(&value),
+                Self::SpinDecay => (0.0..=20.0).contains(&value),
             }
     }
 }
@@ -205,6 +211,8 @@ pub struct Options {
     pub density: bool,
     /// The exponents of the Reynolds number's factors on C_D and C_M.
     pub reynolds: bool,
+    /// The spin's decay rate in flight.
+    pub decay: bool,
     /// Order of C_D; `None` chooses it by AIC.
     pub drag_order: Option<usize>,
     /// Order of C_M; `None` chooses it by AIC.
@@ -493,7 +501,13 @@ pub fn calibrate(
 /// The options' consistency, and the polynomial orders `config` has (capped at the largest
 /// calibrated).
 fn check_options(config: &Config, options: &Options) -> Result<(usize, usize), CalibrationError> {
-    if !(options.aero || options.scales || options.bounce || options.density || options.reynolds) {
+    if !(options.aero
+        || options.scales
+        || options.bounce
+        || options.density
+        || options.reynolds
+        || options.decay)
+    {
         return Err(CalibrationError::NothingToFit);
     }
     if (options.aero || options.scales) && options.density {
@@ -794,6 +808,9 @@ fn parameters(options: &Options, orders: (usize, usize)) -> Vec<Parameter> {
     }
     if options.reynolds {
         out.extend([Parameter::DragReynolds, Parameter::MagnusReynolds]);
+    }
+    if options.decay {
+        out.push(Parameter::SpinDecay);
     }
     out
 }

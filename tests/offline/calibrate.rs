@@ -177,6 +177,20 @@ fn the_command_writes_a_loadable_snippet_and_a_chart() {
     assert!(text.contains("+-"), "{text}");
     assert!(std::fs::read_to_string(&svg).unwrap().contains("<svg"));
 
+    // The spin's decay: the bag's, the default, found again and written where it loads.
+    let decay = d.join("decay.yaml");
+    let report = ok(&[
+        "calibrate",
+        "bags/sim_rally_2cams.mcap",
+        "--fit",
+        "scales,decay",
+        "--output",
+        decay.to_str().unwrap(),
+    ]);
+    let loaded = ttball::config::yaml::load(Some(&decay), &[] as &[String]).expect("loads");
+    let rate = loaded.aero.spin_decay_rate;
+    assert!((rate - 1.0).abs() < 0.1, "{rate}: {report}");
+
     let both = run(&[
         "calibrate",
         "bags/sim_rally_2cams.mcap",
@@ -470,4 +484,34 @@ fn recovers_the_reynolds_exponent_from_simulated_flights() {
     assert!((a_m + 0.3).abs() < 0.03, "{a_m} +- {error}");
     assert!(error < 0.1, "{error}");
     assert!((c.config.aero.magnus_scale - 0.7).abs() < 0.05, "{c:?}");
+}
+
+/// Simulated play (both cameras, spin measured on the robot's half) whose spin decays at half
+/// the configured rate (0.5 /s against 1): `--fit decay` with the scales recovers the rate, none
+/// of the fitted values at a bound.
+#[test]
+fn recovers_the_spin_decay_rate_from_simulated_flights() {
+    let mut truth = Config::default();
+    truth.aero.spin_decay_rate = 0.5;
+    let start = Config::default();
+    let flights = flights(&truth, &start, 16, 5);
+    let options = Options {
+        scales: true,
+        decay: true,
+        ..Options::default()
+    };
+    let c = calibrate(&start, &flights, &options, &mut |_| {}).expect("calibrated");
+    print_fit(&c, &truth);
+    for p in &c.parameters {
+        assert!(!p.parameter.at_bound(p.value), "{}", p.name);
+    }
+    let rate = c.config.aero.spin_decay_rate;
+    let error = c
+        .parameters
+        .iter()
+        .find(|p| p.name == "aero.spin_decay_rate")
+        .unwrap()
+        .std_error;
+    assert!((rate - 0.5).abs() < 0.05, "{rate} +- {error}");
+    assert!(error < 0.05, "{error}");
 }

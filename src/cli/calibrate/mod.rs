@@ -49,6 +49,9 @@ pub enum Group {
     /// how the coefficients change with speed; flights over a wide range of speeds determine
     /// them.
     Reynolds,
+    /// The spin's decay rate in flight (aero.spin_decay_rate): how fast the spin's effect
+    /// fades along a flight; --method batch.
+    Decay,
 }
 
 /// How the flights are fitted.
@@ -182,6 +185,7 @@ impl CalibrateArgs {
             bounce: fit.contains(&Group::Bounce),
             density: fit.contains(&Group::Density),
             reynolds: fit.contains(&Group::Reynolds),
+            decay: fit.contains(&Group::Decay),
             drag_order: self.drag_order,
             magnus_order: self.magnus_order,
         };
@@ -543,6 +547,13 @@ fn snippet(c: &Calibration, inputs: &[String]) -> String {
             aero,
             "      reynolds_exponents: [{}]",
             list(&cfg.aero.reynolds_exponents)
+        );
+    }
+    if fitted(|p| matches!(p, Parameter::SpinDecay)) {
+        let _ = writeln!(
+            aero,
+            "      spin_decay_rate: {:.6}",
+            cfg.aero.spin_decay_rate
         );
     }
     if !aero.is_empty() {
