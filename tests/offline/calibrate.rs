@@ -153,6 +153,22 @@ fn recovers_perturbed_aero_and_bounce_coefficients_from_simulated_flights() {
     assert!(adapting < 0.8 * with_default && adapting < 1.25 * with_truth);
 }
 
+/// `ttball calibrate BAG --fit FIT` into a file in `dir`: its report and the configuration the
+/// file loads to.
+fn calibrated(bag: &str, fit: &str, dir: &std::path::Path) -> (String, Config) {
+    let yaml = dir.join(format!("{}.yaml", fit.replace(',', "-")));
+    let report = ok(&[
+        "calibrate",
+        bag,
+        "--fit",
+        fit,
+        "--output",
+        yaml.to_str().unwrap(),
+    ]);
+    let loaded = ttball::config::yaml::load(Some(&yaml), &[] as &[String]).expect("loads");
+    (report, loaded)
+}
+
 #[test]
 fn the_command_writes_a_loadable_snippet_and_a_chart() {
     let d = scratch("calibrate");
@@ -178,16 +194,7 @@ fn the_command_writes_a_loadable_snippet_and_a_chart() {
     assert!(std::fs::read_to_string(&svg).unwrap().contains("<svg"));
 
     // The spin's decay: the bag's, the default, found again and written where it loads.
-    let decay = d.join("decay.yaml");
-    let report = ok(&[
-        "calibrate",
-        "bags/sim_rally_2cams.mcap",
-        "--fit",
-        "scales,decay",
-        "--output",
-        decay.to_str().unwrap(),
-    ]);
-    let loaded = ttball::config::yaml::load(Some(&decay), &[] as &[String]).expect("loads");
+    let (report, loaded) = calibrated("bags/sim_rally_2cams.mcap", "scales,decay", &d);
     let rate = loaded.aero.spin_decay_rate;
     assert!((rate - 1.0).abs() < 0.1, "{rate}: {report}");
 
@@ -209,16 +216,7 @@ fn the_command_writes_a_loadable_snippet_and_a_chart() {
 #[test]
 fn a_restart_where_every_bounce_rolls_does_not_sink_the_calibration() {
     let d = scratch("calibrate-real");
-    let yaml = d.join("bounce.yaml");
-    let report = ok(&[
-        "calibrate",
-        "bags/real_launcher.mcap",
-        "--fit",
-        "bounce",
-        "--output",
-        yaml.to_str().unwrap(),
-    ]);
-    let loaded = ttball::config::yaml::load(Some(&yaml), &[] as &[String]).expect("loads");
+    let (report, loaded) = calibrated("bags/real_launcher.mcap", "bounce", &d);
     assert!(loaded.table.restitution > 0.92, "{report}");
 }
 
@@ -454,6 +452,30 @@ fn the_estimators_route_holds_flights_out_when_asked() {
     assert_eq!(j["flights"].as_u64().unwrap() + held, 8, "{report}");
 }
 
+/// The scales and `also` fitted to 16 simulated shots flown with `truth` from the defaults, none
+/// of the fitted values at a bound: the calibration, and the value and standard error of
+/// `name`.
+fn scales_and(
+    truth: &Config,
+    also: Options,
+    name: &str,
+) -> (ttball::offline::calibrate::Calibration, f64, f64) {
+    let start = Config::default();
+    let flights = flights(truth, &start, 16, 5);
+    let options = Options {
+        scales: true,
+        ..also
+    };
+    let c = calibrate(&start, &flights, &options, &mut |_| {}).expect("calibrated");
+    print_fit(&c, truth);
+    for p in &c.parameters {
+        assert!(!p.parameter.at_bound(p.value), "{}", p.name);
+    }
+    let fitted = c.parameters.iter().find(|p| p.name == name).unwrap();
+    let (value, error) = (fitted.value, fitted.std_error);
+    (c, value, error)
+}
+
 /// Simulated play (both cameras, spin measured on the robot's half, speeds of about 3 to 13 m/s)
 /// whose Magnus force falls with the Reynolds number less steeply than the default's
 /// (a_M = -0.3 against -0.65): `--fit reynolds` with the scales recovers the exponent within its
@@ -462,25 +484,11 @@ fn the_estimators_route_holds_flights_out_when_asked() {
 fn recovers_the_reynolds_exponent_from_simulated_flights() {
     let mut truth = Config::default();
     truth.aero.reynolds_exponents = vec![0.0, -0.3];
-    let start = Config::default();
-    let flights = flights(&truth, &start, 16, 5);
-    let options = Options {
-        scales: true,
+    let reynolds = Options {
         reynolds: true,
         ..Options::default()
     };
-    let c = calibrate(&start, &flights, &options, &mut |_| {}).expect("calibrated");
-    print_fit(&c, &truth);
-    for p in &c.parameters {
-        assert!(!p.parameter.at_bound(p.value), "{}", p.name);
-    }
-    let a_m = c.config.aero.reynolds_exponents[1];
-    let error = c
-        .parameters
-        .iter()
-        .find(|p| p.name == "aero.reynolds_exponents[1]")
-        .unwrap()
-        .std_error;
+    let (c, a_m, error) = scales_and(&truth, reynolds, "aero.reynolds_exponents[1]");
     assert!((a_m + 0.3).abs() < 0.03, "{a_m} +- {error}");
     assert!(error < 0.1, "{error}");
     assert!((c.config.aero.magnus_scale - 0.7).abs() < 0.05, "{c:?}");
@@ -493,25 +501,11 @@ fn recovers_the_reynolds_exponent_from_simulated_flights() {
 fn recovers_the_spin_decay_rate_from_simulated_flights() {
     let mut truth = Config::default();
     truth.aero.spin_decay_rate = 0.5;
-    let start = Config::default();
-    let flights = flights(&truth, &start, 16, 5);
-    let options = Options {
-        scales: true,
+    let decay = Options {
         decay: true,
         ..Options::default()
     };
-    let c = calibrate(&start, &flights, &options, &mut |_| {}).expect("calibrated");
-    print_fit(&c, &truth);
-    for p in &c.parameters {
-        assert!(!p.parameter.at_bound(p.value), "{}", p.name);
-    }
-    let rate = c.config.aero.spin_decay_rate;
-    let error = c
-        .parameters
-        .iter()
-        .find(|p| p.name == "aero.spin_decay_rate")
-        .unwrap()
-        .std_error;
+    let (_, rate, error) = scales_and(&truth, decay, "aero.spin_decay_rate");
     assert!((rate - 0.5).abs() < 0.05, "{rate} +- {error}");
     assert!(error < 0.05, "{error}");
 }
