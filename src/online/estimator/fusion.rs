@@ -31,15 +31,16 @@ pub(super) const EDGE_MARGIN: f64 = 0.02;
 
 /// The share of a position's gain the filter applies to the spin along the flight before the
 /// track's first bounce (the partial update, Brink 2017). On the real launcher flights the whole
-/// gain (1) predicts the crossing worse at 200 and at 100 ms lead (docs/real_flights.md).
+/// gain (1) predicts the crossing 100 ms ahead worse (docs/estimator.md, "What each part is kept
+/// for").
 pub const SPIN_ALONG_FLIGHT_GAIN: f64 = 0.7;
 
 /// kappa: the filter's prediction evaluates C_D and C_M at the spin parameter of
 /// sqrt(|w_perp|^2 + kappa^2 tr P_w_perp), the spin's magnitude across the flight widened by
 /// kappa times its spread, instead of its estimate's. A spin learned from curvature starts at
 /// zero, the smallest magnitude a spin can have; the forces of the spins it may be are those of
-/// a larger one. On the real launcher flights kappa = 0 predicts the crossing 200 ms ahead half
-/// as badly again (docs/real_flights.md).
+/// a larger one. On the real launcher flights kappa = 0 predicts the crossing worse at 200 and
+/// at 100 ms lead (docs/estimator.md, "What each part is kept for").
 pub const SPIN_PARAMETER_SPREAD: f64 = 0.5;
 
 /// The estimate at one time, with what the track knows at that time.
