@@ -106,7 +106,7 @@ def test_the_estimator_tracks_a_flight_and_predicts_its_crossing():
     assert set(learned) >= {"drag_scale", "magnus_scale", "restitution", "friction", "tracks"}
     a_m, a_m_sigma = learned["reynolds_exponent_a_M"]
     assert abs(a_m + 0.65) < 0.5 and 0 < a_m_sigma <= 0.3
-    assert learned["reynolds_exponent_a_D"] == (0.0, 0.0)
+    assert learned["reynolds_exponent_a_D"] == (-0.3, 0.0)
 
 
 def test_handle_and_handle_many_agree():

@@ -20,8 +20,8 @@ use crate::bag::{
     decode, read_bag_file,
 };
 use crate::config::{Config, TopicsParams};
-use crate::eval::{EvalReport, Scorer};
-use crate::model::detection::Detection;
+use crate::eval::{BOUNCE_WINDOW, EvalReport, Scorer};
+use crate::model::detection::{Detection, seconds_to_ns};
 use crate::model::frames::Frames;
 use crate::model::stats::DurationHistogram;
 use crate::offline::smooth::{SmoothedState, Smoothing, smooth};
@@ -415,6 +415,17 @@ impl Writes {
 /// The true states a bag carries, by stamp (for `ttball smooth`'s errors).
 struct BagTruth {
     states: BTreeMap<i64, crate::physics::BallState>,
+    /// The shots' bounce stamps [ns].
+    bounces: Vec<i64>,
+}
+
+impl BagTruth {
+    /// Whether `stamp` is within [`BOUNCE_WINDOW`] of a shot's bounce, where an estimate's
+    /// velocity is the one before or the one after it by a hair of timing.
+    fn at_a_bounce(&self, stamp: i64) -> bool {
+        let window = seconds_to_ns(BOUNCE_WINDOW);
+        self.bounces.iter().any(|b| (stamp - b).abs() <= window)
+    }
 }
 
 /// The channels of the truth topics (states on `topic`, shot events beside it) among a bag's,
@@ -474,13 +485,16 @@ fn read_truth<M: Borrow<BagMessage>>(
     messages: impl IntoIterator<Item = M>,
 ) -> BagTruth {
     let mut shots = std::collections::BTreeSet::new();
+    let mut bounces = Vec::new();
     let mut shot_states = Vec::new();
     for m in messages {
         let m = m.borrow();
         if m.channel == event_channel
             && let Ok(msg) = decode::<InterceptPrediction>(&m.data)
         {
-            shots.insert(truth_intercept_from_msg(&msg).0);
+            let (shot, truth) = truth_intercept_from_msg(&msg);
+            shots.insert(shot);
+            bounces.push(truth.bounce_stamp);
         } else if m.channel == state_channel
             && let Ok(msg) = decode::<BallState>(&m.data)
         {
@@ -492,7 +506,7 @@ fn read_truth<M: Borrow<BagMessage>>(
         .filter(|(_, shot, _)| shots.contains(shot))
         .map(|(stamp, _, state)| (stamp, state))
         .collect();
-    BagTruth { states }
+    BagTruth { states, bounces }
 }
 
 /// The channel of `topic` in a bag read from `path`, checked to carry `BallDetection`.
@@ -935,6 +949,8 @@ pub struct SmoothSummary {
 pub struct TruthErrors {
     /// States compared.
     pub count: usize,
+    /// States within [`BOUNCE_WINDOW`] of a bounce, left out of the errors.
+    pub at_bounce: usize,
     /// Position [m].
     pub position: f64,
     /// Velocity [m/s].
@@ -1000,7 +1016,9 @@ pub fn smooth_bag(
     let truth_errors = truth.map(|truth| {
         let mut sums = TruthErrors::default();
         for s in &smoothing.states {
-            if let Some(t) = truth.states.get(&s.stamp) {
+            if truth.at_a_bounce(s.stamp) {
+                sums.at_bounce += 1;
+            } else if let Some(t) = truth.states.get(&s.stamp) {
                 let e = &s.fitted.state;
                 sums.count += 1;
                 sums.position += (e.position - t.position).norm_squared();
@@ -1011,6 +1029,7 @@ pub fn smooth_bag(
         let n = sums.count.max(1) as f64;
         TruthErrors {
             count: sums.count,
+            at_bounce: sums.at_bounce,
             position: (sums.position / n).sqrt(),
             velocity: (sums.velocity / n).sqrt(),
             spin: (sums.spin / n).sqrt(),

@@ -103,8 +103,10 @@ fn summary_text(s: &SmoothSummary, topic: &str) -> String {
     if let Some(e) = &s.truth_errors {
         let _ = writeln!(
             out,
-            "  against the bag's truth ({} states): position {:.2} mm, velocity {:.4} m/s, spin {:.1} rad/s RMS",
+            "  against the bag's truth ({} states; {} within {:.0} ms of a bounce left out): position {:.2} mm, velocity {:.4} m/s, spin {:.1} rad/s RMS",
             e.count,
+            e.at_bounce,
+            ttball::eval::BOUNCE_WINDOW * 1e3,
             e.position * 1e3,
             e.velocity,
             e.spin

@@ -95,15 +95,15 @@ pub struct AeroParams {
 
 impl Default for AeroParams {
     /// The 40 mm plastic ball: C_D(Sp) = 0.42 + 0.15 Sp, C_M(Sp) = 0.42 - 0.30 Sp + 0.07 Sp^2 at
-    /// k_M = 0.70, the Magnus force falling as Re^-0.65 above Re = 1.6e4, the spin decaying
-    /// at 1 /s (see `config/ttball.yaml` for where the numbers come from).
+    /// k_M = 0.70, the drag falling as Re^-0.3 and the Magnus force as Re^-0.65 above
+    /// Re = 1.6e4, the spin decaying at 1 /s (see `config/ttball.yaml` for where the numbers come from).
     fn default() -> Self {
         Self {
             drag_coefficients: vec![0.42, 0.15],
             magnus_coefficients: vec![0.42, -0.30, 0.07],
             magnus_scale: 0.70,
             reynolds_range: vec![1.6e4, 9.0e4],
-            reynolds_exponents: vec![0.0, -0.65],
+            reynolds_exponents: vec![-0.3, -0.65],
             spin_decay_rate: 1.0,
             ..Self::seed_2014()
         }

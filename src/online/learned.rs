@@ -316,6 +316,10 @@ mod tests {
         let nothing = LearnedSummary {
             params: LearnedParams {
                 params: PhysicsParams::from_config(&base),
+                reynolds_exponents: [
+                    base.aero.reynolds_exponents[0],
+                    base.aero.reynolds_exponents[1],
+                ],
                 ..learned.params
             },
             source_noise: Vec::new(),

@@ -92,7 +92,7 @@ fn every_shipped_bag_replays() {
         2,
         "{summary}"
     );
-    assert!(summary.contains("detections read 3705"), "{summary}");
+    assert!(summary.contains("detections read 3873"), "{summary}");
     assert!(summary.contains("detections read 4477"), "{summary}");
     // The 40 real launcher flights are 40 tracks (a track refuted at a bounce is re-anchored
     // on its own detections, not split).

@@ -102,15 +102,23 @@ fn the_adaptation_learns_what_the_configuration_has_wrong() {
 
 /// A position-only tracker on play whose Magnus force is 40 % below the model's (`a-lab`):
 /// each track's flight smoothed when it ends (the filter run again over the track linearised
-/// along the flight its detections smooth to) teaches a Magnus scale within 5 % of the truth,
-/// every track but a few its flight smoothed. (What the filter's own estimate would teach
-/// instead, low: `online::estimator`'s unit tests.)
+/// along the flight its detections smooth to) teaches a Magnus scale within 10 % of the truth
+/// and within 2.5 of the standard errors it reports (about 7 % after 60 flights), every track
+/// but a few its flight smoothed. (What the filter's own estimate would teach instead, low:
+/// `online::estimator`'s unit tests.)
 #[test]
 fn a_smoothed_flight_teaches_the_magnus_scale() {
     let r = report(&Config::default(), "a-lab", 60);
-    let relative = r.learned.params.magnus_scale / r.truth.magnus_scale - 1.0;
-    eprintln!("a-lab's Magnus scale: {:+.1} %", relative * 100.0);
-    assert!(relative.abs() < 0.05, "{relative}");
+    let error = r.learned.params.magnus_scale - r.truth.magnus_scale;
+    let relative = error / r.truth.magnus_scale;
+    let sigma = r.learned.sigma[1];
+    eprintln!(
+        "a-lab's Magnus scale: {:+.1} % ({:.1} standard errors)",
+        relative * 100.0,
+        error / sigma
+    );
+    assert!(relative.abs() < 0.10, "{relative}");
+    assert!(error.abs() < 2.5 * sigma, "{error} against {sigma}");
     assert!(r.report.counters.smoothed_lessons >= 50);
     assert_eq!(r.single_track_fraction(), 1.0);
 }

@@ -139,10 +139,17 @@ fn on_a_harder_set_the_filter_is_measured_against_the_fit_with_the_true_physics(
     let [learned, truth] = set_efficiency(&config, &set, 12, 3).expect("simulated");
     assert_eq!(learned.physics, ttball::eval::BatchPhysics::Learned);
     assert_eq!(truth.physics, ttball::eval::BatchPhysics::True);
-    // The same filter in both lines.
+    // The same filter in both lines (over the same shots, where both fits found a crossing;
+    // a fit of the few detections 300 ms ahead may miss one).
     for (l, t) in learned.leads.iter().zip(&truth.leads) {
         assert_eq!(l.lead, t.lead);
-        assert_eq!(l.position.online.median, t.position.online.median);
+        assert!(
+            l.position.shots.abs_diff(t.position.shots) <= 1,
+            "{l:?} {t:?}"
+        );
+        if l.position.shots == t.position.shots {
+            assert_eq!(l.position.online.median, t.position.online.median);
+        }
     }
     let (truth_config, filter, _) = configurations(&config, &set);
     let session = simulate(&truth_config, &sim_options(&filter, &set, 12, 3)).expect("simulated");

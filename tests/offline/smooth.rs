@@ -14,7 +14,7 @@ use std::collections::BTreeMap;
 
 use common::{ok, run, scratch};
 use ttball::bag::{decode, read_bag_file};
-use ttball::ros::msgs::ttball_msgs::msg::{BallDetection, BallState};
+use ttball::ros::msgs::ttball_msgs::msg::{BallDetection, BallState, InterceptPrediction};
 
 /// (stamp in ns, track) of every message of `topic`.
 fn states(path: &std::path::Path, topic: &str) -> Vec<(i64, u32, BallState)> {
@@ -76,11 +76,28 @@ fn smooths_every_fused_detection_on_its_track_deterministically() {
         .map(|(stamp, _, s)| (stamp, s))
         .collect();
     assert!(smoothed.len() >= detection_stamps.len() * 98 / 100);
-    let (mut velocity, mut n) = (0.0, 0);
+    // Each shot's true bounce: within 2 ms of it a velocity is the one before or the one after
+    // by a hair of timing, and is left out.
+    let bag = read_bag_file(&a).unwrap();
+    let events = bag.channel("/ball/truth/intercept").unwrap();
+    let bounces: Vec<i64> = bag
+        .messages
+        .iter()
+        .filter(|m| m.channel == events)
+        .map(|m| {
+            let i: InterceptPrediction = decode(&m.data).unwrap();
+            i64::from(i.bounce_stamp.sec) * 1_000_000_000 + i64::from(i.bounce_stamp.nanosec)
+        })
+        .collect();
+    let (mut velocity, mut n, mut at_bounce) = (0.0, 0, 0);
     for (stamp, track, state) in &smoothed {
         assert!(detection_stamps.contains(stamp));
         if let Some(online_track) = online.get(stamp) {
             assert_eq!(online_track, track, "at {stamp}");
+        }
+        if bounces.iter().any(|b| (stamp - b).abs() <= 2_000_000) {
+            at_bounce += 1;
+            continue;
         }
         let t = &truth[stamp];
         let dv = [
@@ -95,6 +112,11 @@ fn smooths_every_fused_detection_on_its_track_deterministically() {
     }
     let rms = (velocity / f64::from(n)).sqrt();
     assert!(rms < 0.005, "smoothed velocity RMS {rms} m/s");
+    assert!(at_bounce < n / 50, "{at_bounce} of {n} at a bounce");
+    assert!(
+        summary.contains(&format!("{at_bounce} within 2 ms of a bounce left out")),
+        "{summary}"
+    );
 }
 
 #[test]
