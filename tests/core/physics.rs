@@ -116,6 +116,44 @@ fn flight_jacobian_with_the_reynolds_number_matches_finite_differences() {
     approx::assert_relative_eq!(forces.magnus_coefficient, expected, epsilon = 1e-12);
 }
 
+/// The default ball flies the levels docs/models.md ("Reynolds number") derives its defaults
+/// from: the Magnus force 0.63 of the polynomial at 6 m/s (the slow real flights) and about half
+/// at 9 m/s (real elite play); the drag 0.97 / 0.95 / 0.88 / 0.72 of the polynomial at 5 / 6 / 9
+/// / 18 m/s, C_D 0.44 at 9 m/s and Sp 0.55 (real elite play's best constant: 0.43).
+#[test]
+fn the_default_ball_flies_the_documented_levels_at_every_speed() {
+    let config = Config::default();
+    let model = FlightModel::new(&config);
+    let k_m = config.aero.magnus_scale;
+    for (speed, magnus, drag) in [
+        (5.0, None, 0.97),
+        (6.0, Some(0.63), 0.95),
+        (9.0, Some(0.52), 0.88),
+        (18.0, Some(0.35), 0.72),
+        (28.0, Some(0.27), 0.65),
+    ] {
+        let (d, m, _) = model.reynolds_factors(speed);
+        assert!((d - drag).abs() < 0.006, "drag factor {d} at {speed} m/s");
+        if let Some(magnus) = magnus {
+            assert!(
+                (k_m * m - magnus).abs() < 0.006,
+                "Magnus {} at {speed} m/s",
+                k_m * m
+            );
+        }
+    }
+    // A 9 m/s ball at Sp 0.55 (r w / v: 0.02 * 247.5 / 9).
+    let forces = model.forces(
+        &Vector3::new(-9.0, 0.0, 0.0),
+        &Vector3::new(0.0, -247.5, 0.0),
+    );
+    approx::assert_relative_eq!(forces.spin_parameter, 0.55, epsilon = 1e-9);
+    assert!(
+        (forces.drag_coefficient * config.aero.drag_scale - 0.44).abs() < 0.005,
+        "{forces:?}"
+    );
+}
+
 #[test]
 fn flight_jacobian_matches_finite_differences_including_high_spin_parameter() {
     let model = FlightModel::new(&Config::default());
