@@ -20,8 +20,8 @@ use crate::bag::{
     decode, read_bag_file,
 };
 use crate::config::{Config, TopicsParams};
-use crate::eval::{BOUNCE_WINDOW, EvalReport, Scorer};
-use crate::model::detection::{Detection, seconds_to_ns};
+use crate::eval::{EvalReport, Scorer};
+use crate::model::detection::Detection;
 use crate::model::frames::Frames;
 use crate::model::stats::DurationHistogram;
 use crate::offline::smooth::{SmoothedState, Smoothing, smooth};
@@ -415,17 +415,8 @@ impl Writes {
 /// The true states a bag carries, by stamp (for `ttball smooth`'s errors).
 struct BagTruth {
     states: BTreeMap<i64, crate::physics::BallState>,
-    /// The shots' bounce stamps [ns].
-    bounces: Vec<i64>,
-}
-
-impl BagTruth {
-    /// Whether `stamp` is within [`BOUNCE_WINDOW`] of a shot's bounce, where an estimate's
-    /// velocity is the one before or the one after it by a hair of timing.
-    fn at_a_bounce(&self, stamp: i64) -> bool {
-        let window = seconds_to_ns(BOUNCE_WINDOW);
-        self.bounces.iter().any(|b| (stamp - b).abs() <= window)
-    }
+    /// The shots' truth (their bounces).
+    shots: Vec<crate::eval::ShotTruth>,
 }
 
 /// The channels of the truth topics (states on `topic`, shot events beside it) among a bag's,
@@ -485,7 +476,7 @@ fn read_truth<M: Borrow<BagMessage>>(
     messages: impl IntoIterator<Item = M>,
 ) -> BagTruth {
     let mut shots = std::collections::BTreeSet::new();
-    let mut bounces = Vec::new();
+    let mut shot_truths = Vec::new();
     let mut shot_states = Vec::new();
     for m in messages {
         let m = m.borrow();
@@ -494,7 +485,7 @@ fn read_truth<M: Borrow<BagMessage>>(
         {
             let (shot, truth) = truth_intercept_from_msg(&msg);
             shots.insert(shot);
-            bounces.push(truth.bounce_stamp);
+            shot_truths.push(truth);
         } else if m.channel == state_channel
             && let Ok(msg) = decode::<BallState>(&m.data)
         {
@@ -506,7 +497,10 @@ fn read_truth<M: Borrow<BagMessage>>(
         .filter(|(_, shot, _)| shots.contains(shot))
         .map(|(stamp, _, state)| (stamp, state))
         .collect();
-    BagTruth { states, bounces }
+    BagTruth {
+        states,
+        shots: shot_truths,
+    }
 }
 
 /// The channel of `topic` in a bag read from `path`, checked to carry `BallDetection`.
@@ -949,7 +943,7 @@ pub struct SmoothSummary {
 pub struct TruthErrors {
     /// States compared.
     pub count: usize,
-    /// States within [`BOUNCE_WINDOW`] of a bounce, left out of the errors.
+    /// States within [`crate::eval::BOUNCE_WINDOW`] of a bounce, left out of the errors.
     pub at_bounce: usize,
     /// Position [m].
     pub position: f64,
@@ -1016,7 +1010,7 @@ pub fn smooth_bag(
     let truth_errors = truth.map(|truth| {
         let mut sums = TruthErrors::default();
         for s in &smoothing.states {
-            if truth.at_a_bounce(s.stamp) {
+            if truth.shots.iter().any(|shot| shot.at_bounce(s.stamp)) {
                 sums.at_bounce += 1;
             } else if let Some(t) = truth.states.get(&s.stamp) {
                 let e = &s.fitted.state;

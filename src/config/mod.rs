@@ -96,7 +96,8 @@ pub struct AeroParams {
 impl Default for AeroParams {
     /// The 40 mm plastic ball: C_D(Sp) = 0.42 + 0.15 Sp, C_M(Sp) = 0.42 - 0.30 Sp + 0.07 Sp^2 at
     /// k_M = 0.70, the drag falling as Re^-0.3 and the Magnus force as Re^-0.65 above
-    /// Re = 1.6e4, the spin decaying at 1 /s (see `config/ttball.yaml` for where the numbers come from).
+    /// Re = 1.6e4, the spin decaying at 1 /s (see `config/ttball.yaml` for where the numbers
+    /// come from).
     fn default() -> Self {
         Self {
             drag_coefficients: vec![0.42, 0.15],

@@ -119,6 +119,14 @@ pub struct ShotTruth {
     pub toward_robot: bool,
 }
 
+impl ShotTruth {
+    /// Whether `stamp` [ns] is within [`BOUNCE_WINDOW`] of the bounce, where an estimate's
+    /// velocity is the one before or the one after it by a hair of timing.
+    pub fn at_bounce(&self, stamp: i64) -> bool {
+        (stamp - self.bounce_stamp).abs() <= seconds_to_ns(BOUNCE_WINDOW)
+    }
+}
+
 impl From<&crate::eval::sim::ShotTruth> for ShotTruth {
     fn from(shot: &crate::eval::sim::ShotTruth) -> Self {
         Self {
@@ -241,7 +249,7 @@ impl Scorer {
         }
         let start = *record.track_start.get_or_insert(estimate.stamp);
         let error = estimate.state.to_vector() - truth.to_vector();
-        if (detection.stamp - truth_shot.bounce_stamp).abs() <= seconds_to_ns(BOUNCE_WINDOW) {
+        if truth_shot.at_bounce(detection.stamp) {
             self.velocity_bounce
                 .push((estimate.state.velocity - truth.velocity).norm());
             return;
