@@ -22,8 +22,8 @@ pub enum ImportCommand {
     ///
     /// The frame transform into `table` is worked out from the flights themselves (the bounce
     /// heights give the surface, the launch positions the lateral centre, the launcher stands at
-    /// the far end line): x_t = 1.37 - x, y_t = c_y - y, z_t = z - z_surface. The spin kind of each
-    /// file comes from its name (backspin, no_spin, topspin). Flights follow each other 1 s apart.
+    /// the far end line): x_t = 1.37 - x, y_t = c_y - y, z_t = z - z_surface. Flights follow each other 1 s
+    /// apart. Any recordings in this format import the same way.
     #[command(after_help = "Example:\n  \
         ttball import mpi tests/data/mpi_launcher/*.csv --output bags/real_launcher.mcap")]
     Mpi(MpiArgs),
@@ -45,21 +45,12 @@ pub struct MpiArgs {
     pub config: ConfigArgs,
 }
 
-/// The flights of the MPI launcher's CSV files, the spin kind of each from its name.
+/// The flights of CSV files in the MPI launcher's format, the spin kind of each from its name.
 pub(super) fn read_mpi_files(files: &[PathBuf]) -> anyhow::Result<Vec<RawFlight>> {
     let mut raw = Vec::new();
     for file in files {
-        let kind = file
-            .file_name()
-            .and_then(|n| n.to_str())
-            .and_then(SpinKind::of_file_name)
-            .with_context(|| {
-                format!(
-                    "{}: cannot tell the spin kind from the file name (expected one of {})",
-                    file.display(),
-                    SpinKind::ALL.map(|k| k.file_name()).join(", ")
-                )
-            })?;
+        let name = file.file_name().map(|n| n.to_string_lossy());
+        let kind = SpinKind::of_file_name(name.as_deref().unwrap_or_default());
         let text = std::fs::read_to_string(file)
             .with_context(|| format!("cannot read {}", file.display()))?;
         raw.extend(parse_mpi_csv(&text, kind).with_context(|| format!("{}", file.display()))?);

@@ -35,7 +35,7 @@ fn data() -> Option<&'static LauncherFlights> {
         let dir = data_dir();
         let mut raw = Vec::new();
         for kind in SpinKind::ALL {
-            let path = dir.join(kind.file_name());
+            let path = dir.join(kind.file_name().unwrap());
             let text = std::fs::read_to_string(&path).expect("the flights are in the repository");
             raw.extend(parse_mpi_csv(&text, kind).unwrap());
         }
@@ -461,14 +461,14 @@ fn a_fixed_hitting_plane_near_the_robots_end_line() {
 }
 
 /// `ttball evaluate --real` runs the same evaluation from the CSV files and prints the table,
-/// the tracks, the gated detections after the bounce and the spin by kind; a file whose name
-/// does not say its spin kind is refused with the names it expects.
+/// the tracks, the gated detections after the bounce and the spin by kind; a file that is not
+/// in the format is refused with the header it expects.
 #[test]
 #[cfg(feature = "cli")]
 fn the_command_line_evaluates_the_real_flights() {
     let files: Vec<String> = SpinKind::ALL
         .iter()
-        .map(|k| format!("tests/data/mpi_launcher/{}", k.file_name()))
+        .map(|k| format!("tests/data/mpi_launcher/{}", k.file_name().unwrap()))
         .collect();
     let json_path = common::scratch("real_flights_cli").join("real.json");
     let json_arg = json_path.to_string_lossy().into_owned();
@@ -529,9 +529,39 @@ fn the_command_line_evaluates_the_real_flights() {
     assert_eq!(bad.status.code(), Some(1));
     let stderr = String::from_utf8_lossy(&bad.stderr);
     assert!(
-        stderr.contains("cannot tell the spin kind") && stderr.contains("mn5008_topspin.csv"),
+        stderr.contains("Cargo.toml") && stderr.contains("expected the header"),
         "{stderr}"
     );
+}
+
+/// Flights in a file whose name states no spin are evaluated and imported like the launcher's,
+/// grouped as "not stated": the same flights give the same numbers under any name.
+#[test]
+#[cfg(feature = "cli")]
+fn flights_under_any_file_name_are_evaluated_as_spin_not_stated() {
+    let dir = common::scratch("real_flights_any_name");
+    let renamed = dir.join("lab_session_3.csv");
+    std::fs::copy(data_dir().join("mn5008_topspin.csv"), &renamed).unwrap();
+    let renamed = renamed.to_string_lossy().into_owned();
+    let named = common::ok(&[
+        "evaluate",
+        "--real",
+        "tests/data/mpi_launcher/mn5008_topspin.csv",
+    ]);
+    let unnamed = common::ok(&["evaluate", "--real", &renamed]);
+    let rows = |out: &str, group: &str| -> Vec<String> {
+        out.lines()
+            .filter(|l| l.starts_with(&format!("| {group} (15)")))
+            .map(|l| l.replacen(group, "", 1))
+            .collect()
+    };
+    assert_eq!(rows(&named, "topspin").len(), 2, "{named}");
+    assert_eq!(rows(&named, "topspin"), rows(&unnamed, "not stated"), "{unnamed}");
+    assert!(unnamed.contains("  not stated filter "), "{unnamed}");
+    assert!(!unnamed.contains("backspin"), "{unnamed}");
+    let bag = dir.join("lab.mcap").to_string_lossy().into_owned();
+    let imported = common::ok(&["import", "mpi", &renamed, "--output", &bag]);
+    assert!(imported.contains("15 flights"), "{imported}");
 }
 
 /// The spin's decay in flight (`aero.spin_decay_rate`, 1 /s) pays on these flights: against

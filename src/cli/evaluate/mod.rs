@@ -74,8 +74,9 @@ pub struct EvaluateArgs {
     #[arg(long, value_name = "SETS")]
     pub sets: Option<String>,
 
-    /// Evaluate on real launcher flights instead: the MPI launcher's CSV files (the spin kind
-    /// from each file's name, e.g. `tests/data/mpi_launcher/*.csv`). Every flight runs through
+    /// Evaluate on real launcher flights instead: CSV files in the MPI launcher's format
+    /// (`trajectory,t_s,x_m,y_m,z_m`, e.g. `tests/data/mpi_launcher/*.csv`), grouped by the
+    /// spin a file's name states (`backspin`, `no_spin`, `topspin`, else "not stated"). Every flight runs through
     /// its own estimator, which starts from what the flights before it taught; its crossing of
     /// a plane 20 ms after its measured bounce is predicted 200 and 100 ms ahead and compared
     /// with the measured one (the error, its bias, and its NEES per dimension: about 1 when the
@@ -455,7 +456,8 @@ fn spin_before_bounce_text(report: &RealReport) -> String {
         "topspin component just before the bounce [rad/s], filter / batch fit of the same \
          detections with the same physics:\n",
     );
-    for kind in SpinKind::ALL {
+    let present = |kind: &SpinKind| report.flights.iter().any(|f| f.spin_kind == *kind);
+    for kind in SpinKind::GROUPS.into_iter().filter(present) {
         let of_kind = || report.flights.iter().filter(|f| f.spin_kind == kind);
         let list = |pick: &dyn Fn(&FlightResult) -> Option<BallState>| {
             let values: Vec<f64> = of_kind()

@@ -361,7 +361,7 @@ pub struct RealReport {
     pub options: RealEvalOptions,
     /// Every flight.
     pub flights: Vec<FlightResult>,
-    /// Per spin kind present, in [`SpinKind::ALL`] order, then all flights.
+    /// Per spin kind present, in [`SpinKind::GROUPS`] order, then all flights.
     pub groups: Vec<GroupSummary>,
     /// What the last flight's estimator had learned of the physics at its end (with
     /// [`RealEvalOptions::carry_over`], over all the flights).
@@ -484,7 +484,7 @@ pub fn evaluate_flights(
             result
         })
         .collect();
-    let mut groups: Vec<GroupSummary> = SpinKind::ALL
+    let mut groups: Vec<GroupSummary> = SpinKind::GROUPS
         .iter()
         .filter(|k| flights.iter().any(|f| f.spin_kind == **k))
         .map(|k| summarise(Some(*k), &results, options))

@@ -60,7 +60,7 @@ use super::noise::{NoiseEstimate, estimate_noise};
 use crate::model::detection::{Detection, Source, seconds_to_ns};
 use crate::offline::ballistic::{Sample, detect_bounce};
 
-/// The kind of spin the launcher was set to.
+/// The kind of spin the launcher was set to, as a file's name states it.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
 pub enum SpinKind {
     /// Wheels 350/350/2800 (bottom wheel fastest): backspin.
@@ -69,11 +69,16 @@ pub enum SpinKind {
     NoSpin,
     /// Wheels 1800/1800/400 (top wheels fastest): topspin.
     Topspin,
+    /// Flights in a file whose name states no spin (other recordings in the same format).
+    NotStated,
 }
 
 impl SpinKind {
-    /// Every kind, in the order of the data set's files.
+    /// The launcher's settings, in the order of the data set's files.
     pub const ALL: [Self; 3] = [Self::Backspin, Self::NoSpin, Self::Topspin];
+
+    /// Every kind a flight can have, in the order of the tables.
+    pub const GROUPS: [Self; 4] = [Self::Backspin, Self::NoSpin, Self::Topspin, Self::NotStated];
 
     /// A short name for tables.
     pub fn name(self) -> &'static str {
@@ -81,24 +86,33 @@ impl SpinKind {
             Self::Backspin => "backspin",
             Self::NoSpin => "no spin",
             Self::Topspin => "topspin",
+            Self::NotStated => "not stated",
         }
     }
 
-    /// The data set's file name for this kind, e.g. `mn5008_no_spin.csv`.
-    pub fn file_name(self) -> &'static str {
+    /// The data set's file name for a launcher setting, e.g. `mn5008_no_spin.csv`.
+    pub fn file_name(self) -> Option<&'static str> {
         match self {
-            Self::Backspin => "mn5008_backspin.csv",
-            Self::NoSpin => "mn5008_no_spin.csv",
-            Self::Topspin => "mn5008_topspin.csv",
+            Self::Backspin => Some("mn5008_backspin.csv"),
+            Self::NoSpin => Some("mn5008_no_spin.csv"),
+            Self::Topspin => Some("mn5008_topspin.csv"),
+            Self::NotStated => None,
         }
     }
 
-    /// The kind of a file of the data set from its name (`.../mn5008_topspin.csv`), if it is
-    /// one of them.
-    pub fn of_file_name(name: &str) -> Option<Self> {
-        Self::ALL
-            .into_iter()
-            .find(|k| name.ends_with(k.file_name()))
+    /// The kind a file's name states (`backspin`, `no_spin` or `topspin` in it, in any case,
+    /// as in `.../mn5008_topspin.csv`), else [`Self::NotStated`].
+    pub fn of_file_name(name: &str) -> Self {
+        let name = name.to_ascii_lowercase().replace('-', "_");
+        [
+            (Self::Backspin, "backspin"),
+            (Self::NoSpin, "no_spin"),
+            (Self::NoSpin, "nospin"),
+            (Self::Topspin, "topspin"),
+        ]
+        .into_iter()
+        .find(|(_, word)| name.contains(word))
+        .map_or(Self::NotStated, |(kind, _)| kind)
     }
 }
 
@@ -107,7 +121,7 @@ impl SpinKind {
 pub struct RawFlight {
     /// The `trajectory` number in its file [-].
     pub id: u32,
-    /// The launcher's spin setting.
+    /// The spin its file's name states.
     pub spin_kind: SpinKind,
     /// (time since the first sample [s], ball centre in the launcher's frame [m]), in time order.
     pub samples: Vec<Sample>,
@@ -118,7 +132,7 @@ pub struct RawFlight {
 pub struct Flight {
     /// The `trajectory` number in its file [-].
     pub id: u32,
-    /// The launcher's spin setting.
+    /// The spin its file's name states.
     pub spin_kind: SpinKind,
     /// (time since the first sample [s], ball centre in the `table` frame [m]), in time order.
     pub samples: Vec<Sample>,
@@ -431,6 +445,17 @@ pub fn flight_detections(flight: &Flight, epoch_ns: i64, source: Source) -> Vec<
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_file_name_states_its_spin_or_none() {
+        for kind in SpinKind::ALL {
+            assert_eq!(SpinKind::of_file_name(kind.file_name().unwrap()), kind);
+        }
+        assert_eq!(SpinKind::of_file_name("Lab-No-Spin.csv"), SpinKind::NoSpin);
+        assert_eq!(SpinKind::of_file_name("session_TOPSPIN_2.csv"), SpinKind::Topspin);
+        assert_eq!(SpinKind::of_file_name("human_play.csv"), SpinKind::NotStated);
+        assert_eq!(SpinKind::NotStated.file_name(), None);
+    }
 
     #[test]
     fn parses_and_groups_by_trajectory() {
