@@ -23,7 +23,8 @@ pub enum ImportCommand {
     /// The frame transform into `table` is worked out from the flights themselves (the bounce
     /// heights give the surface, the launch positions the lateral centre, the launcher stands at
     /// the far end line): x_t = 1.37 - x, y_t = c_y - y, z_t = z - z_surface. Flights follow each other 1 s
-    /// apart. Any recordings in this format import the same way.
+    /// apart. Other recordings in this format and frame (x along the table from the launcher's
+    /// end line, z up) import the same way, whatever their files' names.
     #[command(after_help = "Example:\n  \
         ttball import mpi tests/data/mpi_launcher/*.csv --output bags/real_launcher.mcap")]
     Mpi(MpiArgs),

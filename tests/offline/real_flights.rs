@@ -556,7 +556,11 @@ fn flights_under_any_file_name_are_evaluated_as_spin_not_stated() {
             .collect()
     };
     assert_eq!(rows(&named, "topspin").len(), 2, "{named}");
-    assert_eq!(rows(&named, "topspin"), rows(&unnamed, "not stated"), "{unnamed}");
+    assert_eq!(
+        rows(&named, "topspin"),
+        rows(&unnamed, "not stated"),
+        "{unnamed}"
+    );
     assert!(unnamed.contains("  not stated filter "), "{unnamed}");
     assert!(!unnamed.contains("backspin"), "{unnamed}");
     let bag = dir.join("lab.mcap").to_string_lossy().into_owned();

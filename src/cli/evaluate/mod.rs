@@ -74,8 +74,9 @@ pub struct EvaluateArgs {
     #[arg(long, value_name = "SETS")]
     pub sets: Option<String>,
 
-    /// Evaluate on real launcher flights instead: CSV files in the MPI launcher's format
-    /// (`trajectory,t_s,x_m,y_m,z_m`, e.g. `tests/data/mpi_launcher/*.csv`), grouped by the
+    /// Evaluate on real launcher flights instead: CSV files in the MPI launcher's format and
+    /// frame (`trajectory,t_s,x_m,y_m,z_m`, x along the table from the launcher's end line, z up;
+    /// e.g. `tests/data/mpi_launcher/*.csv`; `ttball import mpi --help`), grouped by the
     /// spin a file's name states (`backspin`, `no_spin`, `topspin`, else "not stated"). Every flight runs through
     /// its own estimator, which starts from what the flights before it taught; its crossing of
     /// a plane 20 ms after its measured bounce is predicted 200 and 100 ms ahead and compared

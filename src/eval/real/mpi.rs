@@ -452,8 +452,14 @@ mod tests {
             assert_eq!(SpinKind::of_file_name(kind.file_name().unwrap()), kind);
         }
         assert_eq!(SpinKind::of_file_name("Lab-No-Spin.csv"), SpinKind::NoSpin);
-        assert_eq!(SpinKind::of_file_name("session_TOPSPIN_2.csv"), SpinKind::Topspin);
-        assert_eq!(SpinKind::of_file_name("human_play.csv"), SpinKind::NotStated);
+        assert_eq!(
+            SpinKind::of_file_name("session_TOPSPIN_2.csv"),
+            SpinKind::Topspin
+        );
+        assert_eq!(
+            SpinKind::of_file_name("human_play.csv"),
+            SpinKind::NotStated
+        );
         assert_eq!(SpinKind::NotStated.file_name(), None);
     }
 
