@@ -75,7 +75,7 @@ fn the_files_hold_forty_flights_of_three_kinds() {
 #[test]
 fn the_transform_puts_every_bounce_on_the_robots_half_at_one_radius() {
     let Some(data) = data() else { return };
-    let e = &data.estimate;
+    let e = data.estimate.as_ref().unwrap();
     let t = e.transform;
     println!(
         "transform: x_t = {:.3} - x, y_t = {:.4} - y, z_t = z - {:.4} [m]",
@@ -532,6 +532,58 @@ fn the_command_line_evaluates_the_real_flights() {
         stderr.contains("Cargo.toml") && stderr.contains("expected the header"),
         "{stderr}"
     );
+}
+
+/// Flights recorded in the `table` frame (`--frame table`) are evaluated and imported as they are,
+/// a flight moving toward +x turned to come toward the robot: the launcher flights written in the
+/// table frame, every other one turned around, give the launcher frame's numbers.
+#[test]
+#[cfg(feature = "cli")]
+fn flights_recorded_in_the_table_frame_are_taken_as_they_are() {
+    let data = data().unwrap();
+    let mut csv = String::from("trajectory,t_s,x_m,y_m,z_m\n");
+    for (i, flight) in data.flights.iter().enumerate() {
+        let turn = if i % 2 == 1 { -1.0 } else { 1.0 };
+        for (t, p) in &flight.samples {
+            csv.push_str(&format!("{i},{t},{},{},{}\n", turn * p.x, turn * p.y, p.z));
+        }
+    }
+    let dir = common::scratch("real_flights_table_frame");
+    let file = dir.join("recorded_in_table.csv");
+    std::fs::write(&file, csv).unwrap();
+    let file = file.to_string_lossy().into_owned();
+    let launcher_files: Vec<String> = SpinKind::ALL
+        .iter()
+        .map(|k| format!("tests/data/mpi_launcher/{}", k.file_name().unwrap()))
+        .collect();
+    let mut args = vec!["evaluate", "--real"];
+    args.extend(launcher_files.iter().map(String::as_str));
+    let launcher = common::ok(&args);
+    let table = common::ok(&["evaluate", "--real", &file, "--frame", "table"]);
+    let all_rows = |out: &str| -> Vec<String> {
+        out.lines()
+            .filter(|l| l.starts_with("| all (40)"))
+            .map(str::to_owned)
+            .collect()
+    };
+    assert_eq!(all_rows(&launcher).len(), 2, "{launcher}");
+    assert_eq!(all_rows(&launcher), all_rows(&table), "{table}");
+    // Read in the launcher's frame, half of them fly away from the robot.
+    let misread = common::ok(&["evaluate", "--real", &file]);
+    assert_ne!(all_rows(&launcher), all_rows(&misread), "{misread}");
+    let bag = dir.join("table.mcap").to_string_lossy().into_owned();
+    let imported = common::ok(&["import", "mpi", &file, "--frame", "table", "-o", &bag]);
+    assert!(
+        imported.contains("40 flights") && imported.contains("frame: table, as recorded"),
+        "{imported}"
+    );
+    let replayed = common::ok(&[
+        "replay",
+        &bag,
+        "-o",
+        &dir.join("out.mcap").to_string_lossy(),
+    ]);
+    assert!(replayed.contains("tracks 40"), "{replayed}");
 }
 
 /// Flights in a file whose name states no spin are evaluated and imported like the launcher's,

@@ -26,6 +26,7 @@ mod tables;
 pub use tables::DocTable;
 use tables::{doc_table, readme_tables};
 
+use super::import::{CsvFrame, FRAME_HELP};
 use super::report::accuracy_table;
 use super::{ConfigArgs, write_json, write_stdout};
 
@@ -90,6 +91,9 @@ pub struct EvaluateArgs {
     /// before it taught.
     #[arg(long, requires = "real")]
     pub each_alone: bool,
+
+    #[arg(long, value_enum, default_value = "launcher", requires = "real", help = FRAME_HELP)]
+    pub frame: CsvFrame,
 
     /// Print the accuracy tables of README.md instead, as README.md holds them: simulated play
     /// with truth (seed 1, 200 shots, both camera setups) and the real launcher flights of
@@ -186,17 +190,15 @@ impl EvaluateArgs {
     }
 }
 
-/// The real launcher flights of `files` in the table frame, and `config` with the 150 fps
-/// camera's noise as measured from them.
+/// The recorded flights of `files` (given in `frame`) in the table frame, and `config` with the
+/// 150 fps camera's noise as measured from them.
 fn launcher_flights(
     config: &ttball::config::Config,
     files: &[PathBuf],
+    frame: CsvFrame,
 ) -> anyhow::Result<(LauncherFlights, ttball::config::Config)> {
     let mut config = config.clone();
-    let raw = super::import::read_mpi_files(files)?;
-    let launcher =
-        LauncherFlights::new(raw, config.ball.radius, config.table.length, config.gravity)
-            .context("cannot work out the frame transform from these flights")?;
+    let launcher = super::import::recorded_flights(files, frame, &config)?;
     config.sources.wide_150fps.position_sigma = launcher.position_sigma();
     config
         .validate()
@@ -215,7 +217,7 @@ impl EvaluateArgs {
     /// Real launcher flights: the accuracy table, the detections gated after each bounce, the
     /// spin learned before it by kind, and the physics learned at the end.
     fn run_real(&self) -> anyhow::Result<ExitCode> {
-        let (launcher, config) = launcher_flights(&self.config.load()?, &self.real)?;
+        let (launcher, config) = launcher_flights(&self.config.load()?, &self.real, self.frame)?;
         let options = RealEvalOptions {
             carry_over: !self.each_alone,
             ..RealEvalOptions::default()

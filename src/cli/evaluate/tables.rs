@@ -17,6 +17,7 @@ use ttball::offline::rebound_calibration::{
 };
 use ttball::physics::PhysicsParams;
 
+use super::super::import::CsvFrame;
 use super::{launcher_flights, settled_lead, triple};
 
 /// A table of `docs/`.
@@ -342,7 +343,7 @@ fn real_flights(
     files: &[PathBuf],
     carry_over: bool,
 ) -> anyhow::Result<RealReport> {
-    let (launcher, config) = launcher_flights(config, files)
+    let (launcher, config) = launcher_flights(config, files, CsvFrame::Launcher)
         .context("the real launcher flights are read from the repository's root")?;
     let options = RealEvalOptions {
         carry_over,

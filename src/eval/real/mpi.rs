@@ -258,26 +258,43 @@ impl FrameTransform {
 impl RawFlight {
     /// The flight in the `table` frame.
     pub fn to_table(&self, transform: &FrameTransform) -> Flight {
+        self.mapped(|p| transform.apply(p))
+    }
+
+    /// The flight, recorded in the `table` frame already, coming toward the robot: one that
+    /// moves toward +x (from its first sample to its last) is turned half a turn about z, as the
+    /// robot at the other end would see it.
+    pub fn incoming(&self) -> Flight {
+        let away = match (self.samples.first(), self.samples.last()) {
+            (Some((_, first)), Some((_, last))) => last.x > first.x,
+            _ => false,
+        };
+        self.mapped(|p| {
+            if away {
+                Vector3::new(-p.x, -p.y, p.z)
+            } else {
+                *p
+            }
+        })
+    }
+
+    fn mapped(&self, map: impl Fn(&Vector3<f64>) -> Vector3<f64>) -> Flight {
         Flight {
             id: self.id,
             spin_kind: self.spin_kind,
-            samples: self
-                .samples
-                .iter()
-                .map(|(t, p)| (*t, transform.apply(p)))
-                .collect(),
+            samples: self.samples.iter().map(|(t, p)| (*t, map(p))).collect(),
         }
     }
 }
 
-/// Launcher flights ready for the estimator: in the `table` frame by the transform worked out
-/// from them, with their measured noise.
+/// Recorded flights ready for the estimator: in the `table` frame (by the transform worked out
+/// from launcher flights, or as recorded), with their measured noise.
 #[derive(Debug, Clone, PartialEq)]
 pub struct LauncherFlights {
     /// The flights as recorded.
     pub raw: Vec<RawFlight>,
-    /// The transform into the `table` frame and its evidence.
-    pub estimate: TransformEstimate,
+    /// The transform into the `table` frame and its evidence (none for flights recorded in it).
+    pub estimate: Option<TransformEstimate>,
     /// The flights in the `table` frame.
     pub flights: Vec<Flight>,
     /// Their position noise.
@@ -295,17 +312,36 @@ impl LauncherFlights {
         gravity: f64,
     ) -> Result<Self, MpiError> {
         let estimate = estimate_transform(&raw, ball_radius, table_length, gravity)?;
-        let flights: Vec<Flight> = raw
+        let flights = raw
             .iter()
             .map(|f| f.to_table(&estimate.transform))
             .collect();
-        let noise = estimate_noise(flights.iter().map(|f| f.samples.as_slice()), gravity);
-        Ok(Self {
+        Ok(Self::with_flights(raw, Some(estimate), flights, gravity))
+    }
+
+    /// Flights recorded in the `table` frame, each coming toward the robot
+    /// ([`RawFlight::incoming`]), and their noise under `gravity` [m/s^2].
+    pub fn in_table_frame(raw: Vec<RawFlight>, gravity: f64) -> Self {
+        let flights = raw.iter().map(RawFlight::incoming).collect();
+        Self::with_flights(raw, None, flights, gravity)
+    }
+
+    fn with_flights(
+        raw: Vec<RawFlight>,
+        estimate: Option<TransformEstimate>,
+        flights: Vec<Flight>,
+        gravity: f64,
+    ) -> Self {
+        let noise = estimate_noise(
+            flights.iter().map(|f: &Flight| f.samples.as_slice()),
+            gravity,
+        );
+        Self {
             raw,
             estimate,
             flights,
             noise,
-        })
+        }
     }
 
     /// The `sources.*.position_sigma` these detections need [m]: the noise's recommended
