@@ -27,8 +27,11 @@ pub enum ImportCommand {
     /// heights give the surface, the launch positions the lateral centre, the launcher stands at
     /// the far end line): x_t = 1.37 - x, y_t = c_y - y, z_t = z - z_surface. Flights follow each
     /// other 1 s apart.
-    #[command(after_help = "Example:\n  \
-        ttball import mpi tests/data/mpi_launcher/*.csv --output bags/real_launcher.mcap")]
+    #[command(
+        visible_alias = "csv",
+        after_help = "Example:\n  \
+        ttball import mpi tests/data/mpi_launcher/*.csv --output bags/real_launcher.mcap"
+    )]
     Mpi(MpiArgs),
 }
 

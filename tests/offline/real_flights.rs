@@ -572,7 +572,7 @@ fn flights_recorded_in_the_table_frame_are_taken_as_they_are() {
     let misread = common::ok(&["evaluate", "--real", &file]);
     assert_ne!(all_rows(&launcher), all_rows(&misread), "{misread}");
     let bag = dir.join("table.mcap").to_string_lossy().into_owned();
-    let imported = common::ok(&["import", "mpi", &file, "--frame", "table", "-o", &bag]);
+    let imported = common::ok(&["import", "csv", &file, "--frame", "table", "-o", &bag]);
     assert!(
         imported.contains("40 flights") && imported.contains("frame: table, as recorded"),
         "{imported}"
