@@ -568,6 +568,11 @@ fn flights_recorded_in_the_table_frame_are_taken_as_they_are() {
     };
     assert_eq!(all_rows(&launcher).len(), 2, "{launcher}");
     assert_eq!(all_rows(&launcher), all_rows(&table), "{table}");
+    // Forty spins in one group are summarised, not listed.
+    assert!(
+        table.contains("not stated filter median ") && table.contains("(40 flights)"),
+        "{table}"
+    );
     // Read in the launcher's frame, half of them fly away from the robot.
     let misread = common::ok(&["evaluate", "--real", &file]);
     assert_ne!(all_rows(&launcher), all_rows(&misread), "{misread}");

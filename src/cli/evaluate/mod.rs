@@ -466,8 +466,7 @@ fn spin_before_bounce_text(report: &RealReport) -> String {
             let values: Vec<f64> = of_kind()
                 .filter_map(|f| pick(f).as_ref().and_then(topspin))
                 .collect();
-            let text: Vec<String> = values.iter().map(|w| format!("{w:.0}")).collect();
-            (text.join(" "), ErrorStats::of(&deviations(&values)).rms)
+            (listed(&values), ErrorStats::of(&deviations(&values)).rms)
         };
         let (online, online_scatter) = list(&|f| f.before_bounce);
         let (batch, batch_scatter) = list(&|f| f.batch_before_bounce);
@@ -497,6 +496,27 @@ fn spin_before_bounce_text(report: &RealReport) -> String {
         ErrorStats::of(&differences).rms,
     ));
     text
+}
+
+/// Most values listed one by one; more are summarised.
+const LISTED: usize = 20;
+
+/// The values one by one, or their median and middle half when there are more than [`LISTED`].
+fn listed(values: &[f64]) -> String {
+    if values.len() <= LISTED {
+        let text: Vec<String> = values.iter().map(|w| format!("{w:.0}")).collect();
+        return text.join(" ");
+    }
+    let mut sorted = values.to_vec();
+    sorted.sort_by(f64::total_cmp);
+    let at = |q: f64| sorted[((sorted.len() - 1) as f64 * q).round() as usize];
+    format!(
+        "median {:.0}, middle half {:.0} to {:.0} ({} flights)",
+        at(0.5),
+        at(0.25),
+        at(0.75),
+        sorted.len()
+    )
 }
 
 /// Each value less the values' mean.
