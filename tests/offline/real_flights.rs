@@ -507,6 +507,20 @@ fn the_command_line_evaluates_the_real_flights() {
         assert_eq!(errors.len(), lead.valid);
         let rms = (errors.iter().map(|e| e * e).sum::<f64>() / errors.len() as f64).sqrt();
         approx::assert_relative_eq!(rms, lead.position_error.rms, max_relative = 1e-9);
+        // Each crossing comes with its predicted spread: millimetres in y and z and in time.
+        for l in flights
+            .iter()
+            .filter_map(|f| f["leads"].as_array()?.get(i))
+            .filter(|l| l["outcome"] == "predicted")
+        {
+            let sigma = |key: &str| l[key].as_f64().unwrap();
+            assert!(
+                (5e-4..0.05).contains(&sigma("y_sigma"))
+                    && (5e-4..0.05).contains(&sigma("z_sigma"))
+                    && (0.0..0.05).contains(&sigma("time_sigma")),
+                "{l}"
+            );
+        }
         let group = json["groups"].as_array().unwrap().last().unwrap();
         assert_eq!(group["spin_kind"], "all");
         let summary = &group["leads"][i];

@@ -577,6 +577,7 @@ fn real_report_json(
                         y_error,
                         z_error,
                         time_error,
+                        sigma: [y_sigma, z_sigma, time_sigma],
                         nees,
                         ..
                     } => serde_json::json!({
@@ -586,6 +587,9 @@ fn real_report_json(
                         "y_error": y_error,
                         "z_error": z_error,
                         "time_error": time_error,
+                        "y_sigma": y_sigma,
+                        "z_sigma": z_sigma,
+                        "time_sigma": time_sigma,
                         "nees": nees,
                     }),
                     LeadOutcome::NoTrack => {

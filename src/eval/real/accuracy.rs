@@ -231,6 +231,8 @@ pub enum LeadOutcome {
         z_error: f64,
         /// Crossing time error [s].
         time_error: f64,
+        /// The predicted standard deviations of the crossing's y, z [m] and time [s].
+        sigma: [f64; 3],
         /// Velocity error at the crossing [m/s].
         velocity_error: Vector3<f64>,
         /// The crossing point's error normalised by its predicted covariance (y, z), per
@@ -644,6 +646,11 @@ fn outcome(p: &InterceptEstimate, measured: &MeasuredCrossing, epoch: i64) -> Le
             y_error: c.state.position.y - measured.position.y,
             z_error: c.state.position.z - measured.position.z,
             time_error: since_epoch + c.time - measured.time,
+            sigma: [
+                c.covariance[(1, 1)].max(0.0).sqrt(),
+                c.covariance[(2, 2)].max(0.0).sqrt(),
+                c.time_sigma,
+            ],
             velocity_error: c.state.velocity - measured.velocity,
             nees: c.point_nees(&measured.position),
             bounce_error: p.intercept.bounce.map(|b| {
@@ -698,6 +705,7 @@ fn summarise(
                     velocity_error,
                     nees: crossing_nees,
                     bounce_error,
+                    ..
                 }) = r.leads.get(slot)
                 else {
                     continue;
