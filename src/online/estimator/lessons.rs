@@ -579,19 +579,4 @@ mod tests {
         assert_eq!(idle.counts(), inline.counts());
         assert!(idle.waited() > Duration::ZERO);
     }
-
-    /// The worker thread's lessons are the inline ones, waited for where they are due.
-    #[test]
-    fn the_worker_learns_what_inline_smoothing_learns() {
-        let mut inline = Lessons::new();
-        let mut threaded = Lessons::new();
-        threaded.spawn_worker(Waiting::Wait).expect("a thread");
-        for (k, lessons) in [&mut inline, &mut threaded].into_iter().enumerate() {
-            assert_eq!(lessons.queue(job(0.7), 0), None, "{k}");
-        }
-        let a = inline.next_due(LESSON_DELAY, false);
-        let b = threaded.next_due(LESSON_DELAY, false);
-        assert!(a.is_some());
-        assert_eq!(a, b);
-    }
 }
