@@ -29,7 +29,7 @@ impl DurationSummary {
             return Self::default();
         };
         let total: f64 = durations.iter().map(|d| *d as f64).sum();
-        let rank = |q: f64| durations[((durations.len() - 1) as f64 * q).round() as usize] as f64;
+        let rank = |q: f64| nearest_rank(durations, q).unwrap_or(0) as f64;
         Self {
             count: durations.len(),
             mean: total / durations.len() as f64,
@@ -190,6 +190,15 @@ pub fn chi_square_quantile(probability: f64, dof: u32) -> f64 {
     0.5 * (lo + hi)
 }
 
+/// The value at quantile `q` (0 to 1) of `sorted` by the nearest rank, round((n - 1) q); `None`
+/// when it is empty.
+pub fn nearest_rank<T: Copy>(sorted: &[T], q: f64) -> Option<T> {
+    let last = sorted.len().checked_sub(1)?;
+    sorted
+        .get((last as f64 * q.clamp(0.0, 1.0)).round() as usize)
+        .copied()
+}
+
 /// Root mean square, median and count of a set of errors.
 #[derive(Debug, Clone, Copy, PartialEq, Default, serde::Serialize)]
 pub struct ErrorStats {
@@ -211,7 +220,7 @@ impl ErrorStats {
         }
         let mut sorted: Vec<f64> = values.iter().map(|v| v.abs()).collect();
         sorted.sort_by(f64::total_cmp);
-        let at = |q: f64| sorted[((sorted.len() - 1) as f64 * q).round() as usize];
+        let at = |q: f64| nearest_rank(&sorted, q).unwrap_or(0.0);
         Self {
             count: values.len(),
             rms: (values.iter().map(|v| v * v).sum::<f64>() / values.len() as f64).sqrt(),

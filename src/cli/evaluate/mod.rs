@@ -18,7 +18,7 @@ use ttball::eval::sim::{Cameras, SimOptions, simulate};
 use ttball::eval::{
     BatchPhysics, Comparison, Efficiency, EvalReport, efficiency, evaluate_learning,
 };
-use ttball::model::stats::ErrorStats;
+use ttball::model::stats::{ErrorStats, nearest_rank};
 use ttball::physics::{BallState, PhysicsParams};
 
 mod tables;
@@ -509,7 +509,7 @@ fn listed(values: &[f64]) -> String {
     }
     let mut sorted = values.to_vec();
     sorted.sort_by(f64::total_cmp);
-    let at = |q: f64| sorted[((sorted.len() - 1) as f64 * q).round() as usize];
+    let at = |q: f64| nearest_rank(&sorted, q).unwrap_or(f64::NAN);
     format!(
         "median {:.0}, middle half {:.0} to {:.0} ({} flights)",
         at(0.5),
